@@ -1,0 +1,83 @@
+"""The ``labrunner`` command: a thin argparse front end over the library.
+
+Each sub-command lives in its own module below ``labrunner.cli`` and exposes
+``register(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules import
+their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
+
+Errors: :class:`~labrunner.errors.InvalidParameter` → one line on stderr, exit 2;
+any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from labrunner import __version__
+from labrunner.errors import InvalidParameter, LabrunnerError
+
+# Sub-command modules, in the order ``--help`` lists them. A module that is not there yet is skipped.
+COMMANDS = (
+    "run",
+    "resume",
+    "status",
+    "analyse",
+    "inspect",
+    "plot",
+    "identify",
+    "bounds",
+    "differentiator",
+)
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors are one line and exit 2, like every bad input."""
+
+    def error(self, message: str) -> None:  # noqa: D401 - argparse API
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="labrunner",
+        description=(
+            "Run parameter campaigns of model-free control on lab rigs or their simulated twins, "
+            "resume them after a crash, and turn the logged runs into maps."
+        ),
+    )
+    parser.add_argument("--version", action="version", version=f"labrunner {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"labrunner.cli.{name}_cmd")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"labrunner.cli.{name}_cmd":
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except InvalidParameter as exc:
+        print(f"labrunner {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except LabrunnerError as exc:
+        print(f"labrunner {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"labrunner {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
