@@ -1,0 +1,229 @@
+"""Heat maps of a metric over two grid axes and line plots over one, with the thesis's markers.
+
+Markers as in the thesis (Figs. 3.10, 3.14): an aborted run is a red triangle, a run whose input
+was too small to move the load (no-motion) a white circle, a completed run a black cross. Failed
+runs (an exception, not the plant) get a grey square. Cells of aborted and failed runs are left
+uncoloured: their metric covers only part of the run and would mislead the colour scale.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib import colors  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+from labrunner.analysis.overlays import OverlayLine  # noqa: E402
+
+#: Marker style per run status: (label, marker, face colour, edge colour).
+MARKERS = {
+    "aborted": ("aborted by the safety routine", "^", "red", "darkred"),
+    "no-motion": ("no motion (input too small)", "o", "white", "black"),
+    "completed": ("completed", "x", "black", "black"),
+    "failed": ("failed (error)", "s", "grey", "black"),
+}
+
+#: Statuses whose metric describes the whole run and may colour a cell.
+COLOURED = ("completed", "no-motion")
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One grid axis: the dotted campaign key, its values, log10 spacing, a label with its unit."""
+
+    key: str
+    values: np.ndarray
+    log: bool
+    label: str
+
+
+def gain_units(order: int, output_unit: str, input_unit: str) -> dict[str, str]:
+    """SI units of γ, k_p, k_d for an MFC law of ``order`` (1: ẏ = f + ρu; 2: ÿ = f + ρu)."""
+    gamma = f"{output_unit}/({input_unit}·s)" if order == 1 else f"{output_unit}/({input_unit}·s²)"
+    if output_unit == "rad/s" and order == 1:
+        gamma = f"rad/({input_unit}·s²)"
+    return {"controller.gamma": gamma, "controller.k_p": "1/s" if order == 1 else "1/s²", "controller.k_d": "1/s"}
+
+
+_NAMES = {
+    "controller.gamma": "input gain γ",
+    "controller.k_p": "proportional gain k_p",
+    "controller.k_d": "differential gain k_d",
+    "differentiator.alpha": "α",
+    "differentiator.beta": "β",
+    "differentiator.omega_c": "cutoff ω_c",
+    "differentiator.N": "N",
+    "fs": "sampling frequency f_s",
+}
+_UNITS = {"differentiator.omega_c": "rad/s", "fs": "Hz"}
+
+
+def axis_label(key: str, units: dict[str, str] | None = None) -> str:
+    """Readable label with its SI unit for a dotted campaign key (thesis symbols)."""
+    unit = {**_UNITS, **(units or {})}.get(key)
+    name = _NAMES.get(key, key)
+    return f"{name} [{unit}]" if unit else name
+
+
+def is_log_spaced(values: np.ndarray) -> bool:
+    """Whether sorted axis values are evenly spaced in log10 (a ``log10`` grid axis) and span > 1 decade."""
+    v = np.asarray(values, dtype=float)
+    if v.size < 2 or np.any(v <= 0) or v[-1] / v[0] <= 10:
+        return False
+    steps = np.diff(np.log10(v))
+    return v.size == 2 or bool(np.allclose(steps, steps[0], rtol=1e-6))
+
+
+def cell_edges(values: np.ndarray, log: bool) -> np.ndarray:
+    """Edges of the cells centred on sorted ``values`` (geometric midpoints on a log axis)."""
+    v = np.log10(values) if log else np.asarray(values, dtype=float)
+    if v.size == 1:
+        half = 0.5 if log else max(abs(v[0]) * 0.1, 0.5)
+        edges = np.array([v[0] - half, v[0] + half])
+    else:
+        mid = 0.5 * (v[1:] + v[:-1])
+        edges = np.concatenate([[2 * v[0] - mid[0]], mid, [2 * v[-1] - mid[-1]]])
+    return 10.0**edges if log else edges
+
+
+def grid_index(values: np.ndarray, axis_values: np.ndarray) -> np.ndarray:
+    """Index of each value on the (sorted) axis, matched to the nearest axis value."""
+    ref = np.log10(axis_values) if np.all(axis_values > 0) else axis_values
+    val = np.log10(values) if np.all(axis_values > 0) else values
+    pos = np.clip(np.searchsorted(ref, val), 1, max(len(ref) - 1, 1))
+    if len(ref) == 1:
+        return np.zeros(len(values), dtype=int)
+    left, right = ref[pos - 1], ref[pos]
+    return np.where(np.abs(val - left) <= np.abs(val - right), pos - 1, pos)
+
+
+def grid_image(table: pd.DataFrame, x: Axis, y: Axis, column: str) -> np.ndarray:
+    """(len(y), len(x)) array of ``column`` on the grid; NaN where a cell must stay uncoloured."""
+    z = np.full((len(y.values), len(x.values)), np.nan)
+    ok = table["status"].isin(COLOURED).to_numpy() & np.isfinite(table[column].to_numpy(dtype=float))
+    sub = table[ok]
+    ix = grid_index(sub[x.key].to_numpy(dtype=float), x.values)
+    iy = grid_index(sub[y.key].to_numpy(dtype=float), y.values)
+    z[iy, ix] = sub[column].to_numpy(dtype=float)
+    return z
+
+
+def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
+    """Log colour scale when the finite positive values span more than two decades (or if asked)."""
+    finite = z[np.isfinite(z)]
+    positive = finite[finite > 0]
+    if log is None:
+        log = positive.size > 0 and positive.size == finite.size and positive.max() / positive.min() > 100
+    if log and positive.size:
+        return colors.LogNorm(vmin=positive.min(), vmax=positive.max())
+    if finite.size:
+        return colors.Normalize(vmin=finite.min(), vmax=finite.max())
+    return colors.Normalize(vmin=0.0, vmax=1.0)
+
+
+def draw_markers(ax: Axes, table: pd.DataFrame, x_key: str, y_key: str | None, y_column: str | None = None) -> None:
+    """Scatter one marker per run, styled by status; each status is one labelled collection."""
+    for status, (label, marker, face, edge) in MARKERS.items():
+        sub = table[table["status"] == status]
+        if sub.empty:
+            continue
+        yv = sub[y_key] if y_key else sub[y_column]
+        style = {"c": face, "edgecolors": edge} if marker != "x" else {"c": face}
+        ax.scatter(sub[x_key], yv, marker=marker, s=28, linewidths=1.0, label=label, zorder=4, **style)
+
+
+def draw_heatmap(
+    ax: Axes,
+    table: pd.DataFrame,
+    x: Axis,
+    y: Axis,
+    column: str,
+    *,
+    colour_label: str,
+    log_colour: bool | None = None,
+    overlays: Sequence[OverlayLine] = (),
+):
+    """Draw ``column`` over the (x, y) grid with markers and overlay lines; return the mesh."""
+    z = grid_image(table, x, y, column)
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="#d9d9d9")
+    mesh = ax.pcolormesh(cell_edges(x.values, x.log), cell_edges(y.values, y.log), np.ma.masked_invalid(z),
+                         cmap=cmap, norm=colour_norm(z, log_colour), shading="flat", zorder=1)
+    ax.figure.colorbar(mesh, ax=ax, label=colour_label)
+    if x.log:
+        ax.set_xscale("log")
+    if y.log:
+        ax.set_yscale("log")
+    xlim = cell_edges(x.values, x.log)[[0, -1]]
+    ylim = cell_edges(y.values, y.log)[[0, -1]]
+    draw_markers(ax, table, x.key, y.key)
+    for line in overlays:
+        line.draw(ax)
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    ax.set_xlabel(x.label)
+    ax.set_ylabel(y.label)
+    return mesh
+
+
+def map_figure(
+    table: pd.DataFrame,
+    x: Axis,
+    y: Axis,
+    column: str,
+    *,
+    title: str,
+    colour_label: str,
+    overlays: Sequence[OverlayLine] = (),
+    log_colour: bool | None = None,
+) -> Figure:
+    """A figure with one heat map and a legend of markers and overlays below it."""
+    fig = Figure(figsize=(7.5, 6.4), layout="constrained")
+    ax = fig.add_subplot()
+    draw_heatmap(ax, table, x, y, column, colour_label=colour_label, log_colour=log_colour, overlays=overlays)
+    ax.set_title(title)
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncols=2, fontsize="small", framealpha=0.9)
+    return fig
+
+
+def sweep_figure(
+    table: pd.DataFrame,
+    x: Axis,
+    columns: Sequence[tuple[str, str]],
+    *,
+    title: str,
+    overlays: Sequence[OverlayLine] = (),
+) -> Figure:
+    """1-D sweep: one panel per (column, label) over the axis, run markers by status."""
+    fig = Figure(figsize=(7.5, 2.6 * len(columns) + 0.8), layout="constrained")
+    axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
+    ordered = table.sort_values(x.key)
+    for ax, (column, label) in zip(axes, columns):
+        ok = ordered[ordered["status"].isin(COLOURED)]
+        ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2)
+        draw_markers(ax, ordered[np.isfinite(ordered[column].to_numpy(dtype=float))], x.key, None, column)
+        positive = ok[column].to_numpy(dtype=float)
+        positive = positive[np.isfinite(positive) & (positive > 0)]
+        if positive.size and positive.max() / positive.min() > 100:
+            ax.set_yscale("log")
+        for line in overlays:
+            line.draw(ax)
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+    if x.log:
+        axes[-1].set_xscale("log")
+    axes[-1].set_xlabel(x.label)
+    axes[0].set_title(title)
+    handles, labels = axes[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncols=3, fontsize="small")
+    return fig

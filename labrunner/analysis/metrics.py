@@ -1,0 +1,84 @@
+"""Per-run quality metrics: RMS of the tracking error, input energy, peak input and current.
+
+The thesis (Sec. 3.4.1, 3.5.1) judges a run by the RMS value of its tracking error e and by the
+input energy E(u) = Σ_j |u[j]|² (thesis 3.5.1, after Oppenheim and Schafer); paper 2 also uses
+the RMS of the delayed, filtered error ê. These functions are pure: they take the logged signals
+as arrays and the names of the channels that play each role.
+
+The engine ends an aborted run's signals at its abort sample, so the metrics of an aborted run
+cover the run up to the abort.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Metric columns every run gets (NaN where a run has no such channel).
+BASE_METRICS = ("rms_error", "rms_error_hat", "input_energy", "max_abs_input", "max_current", "n_samples")
+
+
+@dataclass(frozen=True)
+class Roles:
+    """Which logged channels play which role in the metrics.
+
+    ``errors``: tracking errors e_<output> (y − y_r, in the output's unit);
+    ``error_hats``: delayed, filtered errors ê_<output> (paper 2) where logged;
+    ``inputs``: rig inputs u (V, A, ...); ``currents``: channels measured in A.
+    """
+
+    errors: tuple[str, ...]
+    inputs: tuple[str, ...]
+    error_hats: tuple[str, ...] = ()
+    currents: tuple[str, ...] = ()
+
+
+def _stack(signals: Mapping[str, np.ndarray], names: Sequence[str], k: int) -> np.ndarray:
+    """(len(names), k) float array of the first k samples of each named channel."""
+    if not names:
+        return np.empty((0, k))
+    return np.vstack([np.asarray(signals[name], dtype=float)[:k] for name in names])
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+
+
+def run_metrics(
+    signals: Mapping[str, np.ndarray],
+    roles: Roles,
+) -> dict[str, float]:
+    """Metrics of one run from its channels (each a (K,) array, one sample per tick).
+
+    - ``rms_error`` = sqrt(mean over samples and outputs of e²) (thesis Sec. 3.4.1), and
+      ``rms_e_<output>`` per controlled output (the plate's y1..y3);
+    - ``rms_error_hat``: the same for ê (paper 2) where logged, with ``rms_e_hat_<output>``;
+    - ``input_energy`` = Σ_j Σ_inputs u[j]² (thesis 3.5.1), per input ``energy_<input>`` when
+      there are several; ``max_abs_input`` = max |u|;
+    - ``max_current`` = max |i| over channels measured in ampere (NaN if none).
+
+    Channels of unequal length (a torn log) are cut to the shortest.
+    """
+    lengths = {len(signals[name]) for name in (*roles.errors, *roles.inputs, *roles.error_hats, *roles.currents)}
+    k = min(lengths) if lengths else 0
+    out: dict[str, float] = {"n_samples": float(k)}
+    e = _stack(signals, roles.errors, k)
+    out["rms_error"] = _rms(e)
+    for name, row in zip(roles.errors, e):
+        out[f"rms_{name}"] = _rms(row)
+    e_hat = _stack(signals, roles.error_hats, k)
+    out["rms_error_hat"] = _rms(e_hat)
+    for name, row in zip(roles.error_hats, e_hat):
+        out[f"rms_{name}"] = _rms(row)
+    u = _stack(signals, roles.inputs, k)
+    energy = np.sum(np.square(u), axis=1)
+    out["input_energy"] = float(energy.sum()) if u.shape[0] else float("nan")
+    if len(roles.inputs) > 1:
+        for name, value in zip(roles.inputs, energy):
+            out[f"energy_{name}"] = float(value)
+    out["max_abs_input"] = float(np.max(np.abs(u))) if u.size else float("nan")
+    i = _stack(signals, roles.currents, k)
+    out["max_current"] = float(np.max(np.abs(i))) if i.size else float("nan")
+    return out

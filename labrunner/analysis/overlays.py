@@ -1,0 +1,180 @@
+"""Which stability bounds belong on which map, and the lines that draw them.
+
+A γ–k_p map of the first-order MFC (thesis Fig. 3.10) carries the ultra-local bound (2.41)
+(pink) and the DC-motor bounds (2.46) (red: dashed the lower, solid the upper k_p), and a vertical
+white line at the rig's nominal input gain ρ (= b for the motor). A k_p–k_d map of the
+second-order MFC (Figs. 3.14–3.19) carries the corrected ultra-local bounds (2.53)/(2.54) (pink)
+and the corrected motor bounds (2.58)/(2.59) (red): horizontal lines at the k_d limits and the
+k_p limit as a curve over k_d. The bounds come from :func:`labrunner.stability.bounds`, with δ
+the delay δ_t of the campaign's differentiator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from matplotlib import patheffects
+
+#: Stability cases per controller kind: (ultra-local case, model case).
+CASES = {"mfc1": ("mfc1-ultralocal", "mfc1-motor"), "mfc2": ("mfc2-ultralocal", "mfc2-motor")}
+#: Thesis equations of each case, for labels.
+EQUATIONS = {
+    "mfc1-ultralocal": "(2.41)",
+    "mfc1-motor": "(2.46)",
+    "mfc2-ultralocal": "(2.53)–(2.54), corrected",
+    "mfc2-motor": "(2.58)–(2.59), corrected",
+}
+_COLOURS = {"ultralocal": "#ff4fd8", "motor": "red"}
+#: A thin dark outline keeps the white nominal-gain line visible on light cells and in the legend.
+_OUTLINE = (patheffects.Stroke(linewidth=3.2, foreground="black"), patheffects.Normal())
+
+
+@dataclass(frozen=True)
+class OverlayLine:
+    """One line on a map: a curve (x, y), or a vertical (``y`` None) / horizontal (``x`` None) line."""
+
+    label: str
+    x: np.ndarray | float | None
+    y: np.ndarray | float | None
+    color: str
+    linestyle: str = "-"
+    gid: str = ""
+    style: Mapping[str, object] = field(default_factory=dict)
+
+    def draw(self, ax) -> None:
+        kw = {"color": self.color, "linestyle": self.linestyle, "label": self.label, "gid": self.gid,
+              "linewidth": 1.8, "zorder": 3, **self.style}
+        if self.y is None:
+            ax.axvline(float(self.x), **kw)
+        elif self.x is None:
+            ax.axhline(float(self.y), **kw)
+        else:
+            ax.plot(self.x, self.y, **kw)
+
+
+@dataclass(frozen=True)
+class Theory:
+    """Everything the bounds need: controller kind, rig constants (a, b, rho) and delay δ_t [s]."""
+
+    kind: str
+    delay: float
+    constants: Mapping[str, float]
+
+    @property
+    def rho(self) -> float | None:
+        """Nominal input gain ρ of the ultra-local model (rig constant ``rho``, else ``b``)."""
+        value = self.constants.get("rho", self.constants.get("b"))
+        return None if value is None else float(value)
+
+    @property
+    def has_model(self) -> bool:
+        return "a" in self.constants and "b" in self.constants
+
+    def cases(self) -> list[str]:
+        """The cases that apply: the ultra-local one if ρ is known, the motor one if a and b are."""
+        if self.kind not in CASES:
+            return []
+        ultra, model = CASES[self.kind]
+        return ([ultra] if self.rho is not None else []) + ([model] if self.has_model else [])
+
+    def bounds(self, case: str, gamma: float, k_d: float | None = None) -> dict:
+        """:func:`labrunner.stability.bounds` of ``case`` at this γ (and k_d)."""
+        from labrunner import stability  # the solver is only needed where a map has a theory
+
+        kw: dict[str, float] = {"gamma": gamma, "delay": self.delay}
+        if case.endswith("ultralocal"):
+            kw["rho"] = self.rho
+        else:
+            kw["a"], kw["b"] = float(self.constants["a"]), float(self.constants["b"])
+        if k_d is not None:
+            kw["k_d"] = k_d
+        return stability.bounds(case, **kw)
+
+
+def _interval(bounds: Mapping[str, object], key: str) -> tuple[float, float]:
+    value = bounds.get(key)
+    return (np.nan, np.nan) if value is None else (float(value[0]), float(value[1]))
+
+
+def _family(case: str) -> str:
+    return case.split("-", 1)[1]
+
+
+def gamma_kp_lines(theory: Theory, gammas: np.ndarray) -> list[OverlayLine]:
+    """Bounds of k_p over a dense γ axis (x = γ, y = k_p), and the nominal gain line."""
+    lines = []
+    for case in theory.cases():
+        lo, hi = np.array([_interval(theory.bounds(case, float(g)), "k_p") for g in gammas]).T
+        eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
+        lines.append(OverlayLine(f"{eq} max k_p", gammas, hi, colour, "-", f"bound:{case}:k_p_max"))
+        if np.any(lo > 0):
+            lines.append(OverlayLine(f"{eq} min k_p", gammas, np.where(lo > 0, lo, np.nan), colour, "--",
+                                     f"bound:{case}:k_p_min"))
+    if theory.rho is not None:
+        lines.append(OverlayLine(f"nominal input gain ρ = {theory.rho:g}", theory.rho, None, "white", "-",
+                                 "nominal-gain", {"path_effects": _OUTLINE}))
+    return lines
+
+
+def kp_kd_lines(theory: Theory, gamma: float, k_ds: np.ndarray) -> list[OverlayLine]:
+    """Bounds on a k_p–k_d map (x = k_p, y = k_d) at fixed γ: k_d limits and k_p(k_d) limits."""
+    lines = []
+    for case in theory.cases():
+        eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
+        first = theory.bounds(case, gamma, float(k_ds[0]))
+        kd_lo, kd_hi = _interval(first, "k_d")
+        lo, hi = np.array([_interval(theory.bounds(case, gamma, float(kd)), "k_p") for kd in k_ds]).T
+        lines.append(OverlayLine(f"{eq} max k_p", hi, k_ds, colour, "-", f"bound:{case}:k_p_max"))
+        if np.any(lo > 0):
+            lines.append(OverlayLine(f"{eq} min k_p", np.where(lo > 0, lo, np.nan), k_ds, colour, "--",
+                                     f"bound:{case}:k_p_min"))
+        if np.isfinite(kd_hi):
+            lines.append(OverlayLine(f"{eq} max k_d", None, kd_hi, colour, ":", f"bound:{case}:k_d_max"))
+        if np.isfinite(kd_lo) and kd_lo > 0:
+            lines.append(OverlayLine(f"{eq} min k_d", None, kd_lo, colour, "-.", f"bound:{case}:k_d_min"))
+    return lines
+
+
+def predicted_stable(theory: Theory, case: str, params: Mapping[str, float]) -> tuple[bool, float]:
+    """Whether ``case`` predicts a stable loop at ``params`` and the relative distance to its nearest bound.
+
+    The distance is min |g − bound| / bound over the gains g = k_p (and k_d) and their finite,
+    positive bounds; it is how far (as a fraction) the point lies from the predicted boundary.
+    """
+    k_d = params.get("k_d") if case.startswith("mfc2") else None
+    b = theory.bounds(case, float(params["gamma"]), None if k_d is None else float(k_d))
+    checks: list[tuple[float, tuple[float, float]]] = []
+    if k_d is not None:
+        checks.append((float(k_d), _interval(b, "k_d")))
+    checks.append((float(params["k_p"]), _interval(b, "k_p")))
+    stable = all(lo < g < hi for g, (lo, hi) in checks)
+    distances = [abs(g - edge) / abs(edge) for g, pair in checks for edge in pair if np.isfinite(edge) and edge > 0]
+    return stable, (min(distances) if distances else float("inf"))
+
+
+def transitions(values: np.ndarray, stable: Callable[[float], bool]) -> list[float]:
+    """Points (geometric midpoints) where ``stable`` flips along sorted, positive ``values``."""
+    flags = np.array([stable(float(v)) for v in values])
+    flips = np.flatnonzero(flags[1:] != flags[:-1])
+    return [float(np.sqrt(values[i] * values[i + 1])) for i in flips]
+
+
+def sweep_lines(theory: Theory, key: str, dense: np.ndarray, fixed: Mapping[str, float]) -> list[OverlayLine]:
+    """Vertical lines at the predicted stability limits along a 1-D sweep of ``key`` (γ, k_p or k_d)."""
+    lines = []
+    for case in theory.cases():
+        eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
+        found = transitions(dense, lambda v: predicted_stable(theory, case, {**fixed, key: v})[0])
+        lines += [OverlayLine(f"{eq} stability limit" if i == 0 else "_", x, None, colour, "--", f"bound:{case}:{key}")
+                  for i, x in enumerate(found)]
+    if key == "gamma" and theory.rho is not None:
+        lines.append(OverlayLine(f"nominal input gain ρ = {theory.rho:g}", theory.rho, None, "grey", "-", "nominal-gain"))
+    return lines
+
+
+def dense_axis(values: Sequence[float], log: bool, num: int = 200) -> np.ndarray:
+    """A dense axis spanning the grid values (log-spaced on a log axis)."""
+    lo, hi = float(np.min(values)), float(np.max(values))
+    return np.geomspace(lo, hi, num) if log else np.linspace(lo, hi, num)

@@ -1,0 +1,102 @@
+"""A self-contained HTML report: one ``index.html`` with embedded PNGs, tables and the campaign.
+
+Everything is inline (CSS, images as base64 data URIs), so the file opens offline, can be mailed
+and archived alone, and never points at files that may move.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1100px;
+color:#222;line-height:1.45;padding:0 1em}
+h1{margin-bottom:.2em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+.sub{color:#555;margin-top:0}
+table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
+th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right}th{background:#f2f2f2}
+td:first-child,th:first-child{text-align:left}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}
+figcaption{color:#444;font-size:.9em}
+pre{background:#f7f7f7;border:1px solid #ddd;padding:.8em;overflow-x:auto;font-size:.85em}
+.grid{display:grid;grid-template-columns:repeat(auto-fit,minmax(480px,1fr));gap:1em}
+.warn{background:#fff4e5;border-left:4px solid #f0a030;padding:.5em 1em}
+"""
+
+
+@dataclass(frozen=True)
+class Image:
+    """One PNG for the report, with a title and a caption."""
+
+    title: str
+    png: bytes
+    caption: str = ""
+
+
+@dataclass(frozen=True)
+class Section:
+    """A titled part of the report: paragraphs, key/value facts, tables, images, preformatted text."""
+
+    title: str
+    paragraphs: Sequence[str] = ()
+    facts: Mapping[str, object] = field(default_factory=dict)
+    tables: Sequence[tuple[str, pd.DataFrame]] = ()
+    images: Sequence[Image] = ()
+    pre: str = ""
+    warning: bool = False
+
+
+def _facts(facts: Mapping[str, object]) -> str:
+    rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
+    return f"<table>{rows}</table>"
+
+
+def _table(title: str, frame: pd.DataFrame) -> str:
+    body = frame.to_html(index=False, na_rep="–", float_format=lambda v: f"{v:.4g}", border=0, escape=True)
+    return f"<h3>{html.escape(title)}</h3>{body}" if title else body
+
+
+def _image(image: Image) -> str:
+    data = base64.b64encode(image.png).decode("ascii")
+    return (f'<figure><img alt="{html.escape(image.title)}" src="data:image/png;base64,{data}">'
+            f"<figcaption><b>{html.escape(image.title)}.</b> {html.escape(image.caption)}</figcaption></figure>")
+
+
+def _section(section: Section) -> str:
+    parts = [f"<h2>{html.escape(section.title)}</h2>"]
+    cls = ' class="warn"' if section.warning else ""
+    parts += [f"<p{cls}>{html.escape(p)}</p>" for p in section.paragraphs]
+    if section.facts:
+        parts.append(_facts(section.facts))
+    parts += [_table(title, frame) for title, frame in section.tables]
+    if section.images:
+        parts.append('<div class="grid">' + "".join(_image(i) for i in section.images) + "</div>")
+    if section.pre:
+        parts.append(f"<pre>{html.escape(section.pre)}</pre>")
+    return "\n".join(parts)
+
+
+def render_html(title: str, subtitle: str, sections: Sequence[Section]) -> str:
+    """The whole report as one HTML string (UTF-8, no external resources)."""
+    body = "\n".join(_section(s) for s in sections)
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>\n"
+        f"<body><h1>{html.escape(title)}</h1><p class=\"sub\">{html.escape(subtitle)}</p>\n{body}\n</body></html>\n"
+    )
+
+
+def write_report(path: str | Path, title: str, subtitle: str, sections: Sequence[Section]) -> Path:
+    """Write :func:`render_html` to ``path`` (atomically: temp file, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(render_html(title, subtitle, sections), encoding="utf-8")
+    tmp.replace(path)
+    return path

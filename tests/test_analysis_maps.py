@@ -1,0 +1,84 @@
+"""Maps render with the thesis's markers and the overlay lines (checked on the Axes artists)."""
+
+import numpy as np
+import pandas as pd
+import pytest
+from matplotlib.collections import PathCollection, QuadMesh
+from matplotlib.lines import Line2D
+
+from labrunner.analysis.maps import Axis, cell_edges, grid_image, is_log_spaced, map_figure, sweep_figure
+from labrunner.analysis.overlays import OverlayLine
+
+
+def _table():
+    g, kp = np.logspace(0, 4, 5), np.logspace(-1, 3, 4)
+    G, K = np.meshgrid(g, kp)
+    status = np.full(G.shape, "completed", dtype=object)
+    status[0, -1] = "no-motion"
+    status[-1, 0] = "aborted"
+    status[-1, 1] = "failed"
+    return g, kp, pd.DataFrame({"controller.gamma": G.ravel(), "controller.k_p": K.ravel(),
+                                 "status": status.ravel(), "rms_error": (G / K).ravel()})
+
+
+def test_cell_edges_are_geometric_midpoints_on_log_axes():
+    edges = cell_edges(np.array([1.0, 10.0, 100.0]), log=True)
+    np.testing.assert_allclose(edges, [10**-0.5, 10**0.5, 10**1.5, 10**2.5])
+    np.testing.assert_allclose(cell_edges(np.array([0.0, 2.0]), log=False), [-1.0, 1.0, 3.0])
+
+
+def test_log_spacing_detection():
+    assert is_log_spaced(np.logspace(-1, 3, 17))
+    assert not is_log_spaced(np.linspace(1, 100, 17))
+    assert not is_log_spaced(np.array([1.0, 2.0, 4.0]))  # less than a decade
+
+
+def test_grid_image_leaves_aborted_and_failed_cells_blank():
+    g, kp, t = _table()
+    x, y = Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p")
+    z = grid_image(t, x, y, "rms_error")
+    assert z.shape == (4, 5)
+    assert np.isnan(z[-1, 0]) and np.isnan(z[-1, 1])
+    assert z[0, -1] == pytest.approx(1e4 / 0.1)  # no-motion cells keep their colour
+    assert z[1, 2] == pytest.approx(g[2] / kp[1])
+
+
+def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
+    g, kp, t = _table()
+    x, y = Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p")
+    dense = np.geomspace(0.5, 2e4, 50)
+    lines = [OverlayLine("(2.46) max k_p", dense, 2 * dense, "red", "-", "bound:mfc1-motor:k_p_max"),
+             OverlayLine("nominal input gain ρ = 108.55", 108.55, None, "white", "-", "nominal-gain")]
+    fig = map_figure(t, x, y, "rms_error", title="RMS", colour_label="RMS [rad/s]", overlays=lines)
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
+    assert any(isinstance(c, QuadMesh) for c in ax.collections)
+    markers = {c.get_label(): c for c in ax.collections if isinstance(c, PathCollection)}
+    assert set(markers) == {"aborted by the safety routine", "no motion (input too small)", "completed", "failed (error)"}
+    np.testing.assert_allclose(markers["aborted by the safety routine"].get_offsets(), [[g[0], kp[-1]]])
+    assert markers["aborted by the safety routine"].get_facecolor()[0][:3] == pytest.approx((1, 0, 0))
+    assert markers["no motion (input too small)"].get_facecolor()[0][:3] == pytest.approx((1, 1, 1))
+    assert len(markers["completed"].get_offsets()) == 20 - 3
+    gids = {line.get_gid(): line for line in ax.get_lines() if isinstance(line, Line2D)}
+    assert set(gids) == {"bound:mfc1-motor:k_p_max", "nominal-gain"}
+    np.testing.assert_allclose(gids["nominal-gain"].get_xdata(), [108.55, 108.55])
+    assert len(fig.axes) == 2  # the colour bar
+    assert fig.legends and {t.get_text() for t in fig.legends[0].get_texts()} >= {"completed", "(2.46) max k_p"}
+    path = tmp_path / "map.png"
+    fig.savefig(path, dpi=100)
+    from matplotlib.image import imread
+
+    assert imread(path).shape[:2] == (640, 750)
+
+
+def test_sweep_plot_draws_markers_per_status():
+    t = pd.DataFrame({"controller.gamma": np.logspace(0, 3, 4), "status": ["aborted", "completed", "completed", "no-motion"],
+                      "rms_error": [5.0, 1.0, 2.0, 3.0], "input_energy": [1e4, 1e3, 5.0, 1.0]})
+    x = Axis("controller.gamma", t["controller.gamma"].to_numpy(), True, "γ")
+    fig = sweep_figure(t, x, [("rms_error", "RMS"), ("input_energy", "E(u)")], title="sweep",
+                       overlays=[OverlayLine("limit", 3.0, None, "red", "--", "bound:x")])
+    top, bottom = fig.axes
+    labels = {c.get_label() for c in top.collections}
+    assert labels == {"aborted by the safety routine", "no motion (input too small)", "completed"}
+    assert bottom.get_yscale() == "log" and top.get_xscale() == "log"
+    assert [line.get_gid() for line in top.get_lines()].count("bound:x") == 1

@@ -1,0 +1,47 @@
+"""Metrics against hand-computed values (thesis Sec. 3.4.1 RMS, 3.5.1 input energy E(u) = Σu²)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from labrunner.analysis.metrics import Roles, run_metrics
+
+
+def test_single_output_hand_values():
+    signals = {"e_omega": np.array([1.0, -2.0, 2.0, 0.0]), "u": np.array([3.0, -4.0, 0.0, 1.0])}
+    m = run_metrics(signals, Roles(errors=("e_omega",), inputs=("u",)))
+    assert m["rms_error"] == pytest.approx(math.sqrt((1 + 4 + 4 + 0) / 4))  # 1.5
+    assert m["rms_error"] == pytest.approx(1.5)
+    assert m["input_energy"] == pytest.approx(9 + 16 + 0 + 1)
+    assert m["max_abs_input"] == 4.0
+    assert m["rms_e_omega"] == pytest.approx(1.5)
+    assert m["n_samples"] == 4
+    assert math.isnan(m["max_current"]) and math.isnan(m["rms_error_hat"])
+
+
+def test_plate_per_output_and_currents():
+    e1, e2, e3 = np.array([1.0, 1.0]), np.array([0.0, 2.0]), np.array([3.0, -1.0])
+    i = {f"i{j}": np.array([0.5 * j, -1.0 * j]) for j in range(1, 5)}
+    signals = {"e_y1": e1, "e_y2": e2, "e_y3": e3, **i,
+               "e_hat_y1": np.array([2.0, 0.0]), "e_hat_y2": np.zeros(2), "e_hat_y3": np.zeros(2)}
+    roles = Roles(errors=("e_y1", "e_y2", "e_y3"), inputs=tuple(i), currents=tuple(i),
+                  error_hats=("e_hat_y1", "e_hat_y2", "e_hat_y3"))
+    m = run_metrics(signals, roles)
+    assert m["rms_e_y1"] == pytest.approx(1.0)
+    assert m["rms_e_y2"] == pytest.approx(math.sqrt(2.0))
+    assert m["rms_e_y3"] == pytest.approx(math.sqrt(5.0))
+    assert m["rms_error"] == pytest.approx(math.sqrt((1 + 1 + 0 + 4 + 9 + 1) / 6))
+    assert m["rms_e_hat_y1"] == pytest.approx(math.sqrt(2.0))
+    assert m["rms_error_hat"] == pytest.approx(math.sqrt(4 / 6))
+    # energy per input: Σ (0.5j)² + j² = 1.25 j²
+    for j in range(1, 5):
+        assert m[f"energy_i{j}"] == pytest.approx(1.25 * j * j)
+    assert m["input_energy"] == pytest.approx(1.25 * (1 + 4 + 9 + 16))
+    assert m["max_current"] == 4.0 and m["max_abs_input"] == 4.0
+
+
+def test_torn_run_cuts_to_shortest_channel():
+    signals = {"e_omega": np.array([2.0, 2.0, 7.0]), "u": np.array([1.0, 1.0])}
+    m = run_metrics(signals, Roles(errors=("e_omega",), inputs=("u",)))
+    assert m["n_samples"] == 2 and m["rms_error"] == pytest.approx(2.0) and m["input_energy"] == pytest.approx(2.0)
