@@ -1,0 +1,8 @@
+"""Algebraic differentiators (thesis Sec. 2.1; Othmane et al. 2022): design, FIR weights, spectra,
+streaming and offline estimation. Pure numpy/scipy, no I/O.
+"""
+
+from labrunner.differentiators.design import METHODS, Differentiator, design
+from labrunner.differentiators.streaming import StreamingFIR, estimate, pad_taps
+
+__all__ = ["METHODS", "Differentiator", "StreamingFIR", "design", "estimate", "pad_taps"]

@@ -1,0 +1,95 @@
+"""Jacobi kernels of the algebraic differentiators (thesis Sec. 2.1, (2.2)-(2.3), Remark 2.2).
+
+Everything here is written on the normalised time ``u = τ/T ∈ [0, 1]`` and in log-gamma form, so
+that large α, β (≥ 100) neither overflow nor underflow. With ν = 1 − 2u the kernel (2.2) is
+
+    g(τ) = (2/T) Σ_{i=0}^{N} P_i(ϑ)/‖P_i‖² · w^{(α,β)}(ν) P_i(ν),
+
+and its k-th derivative follows from d/dν[w^{(a,b)} P_m^{(a,b)}] = −2(m+1) w^{(a−1,b−1)} P_{m+1}^{(a−1,b−1)}:
+
+    g^{(k)}(τ) = T^{−(k+1)} u^{α−k} (1−u)^{β−k} Σ_i ρ_i P_i(ϑ) (i+k)!/i! · P_{i+k}^{(α−k,β−k)}(ν),
+
+with ρ_i = 2^{α+β+1}/‖P_i‖² = i! (2i+α+β+1) Γ(i+α+β+1) / (Γ(i+α+1) Γ(i+β+1)). The same formula with
+k = −1 is the antiderivative ∫₀^τ g of the terms i ≥ 1; the i = 0 term integrates to the
+regularised incomplete beta function I_u(α+1, β+1) (ρ_0 = 1/B(α+1, β+1)).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import special
+
+
+def log_rho(alpha: float, beta: float, i: int) -> float:
+    """log ρ_i = log(2^{α+β+1}/‖P_i^{(α,β)}‖²) (thesis Remark 2.2), via log-gamma."""
+    return (
+        math.lgamma(i + 1)
+        + math.log(2 * i + alpha + beta + 1)
+        + math.lgamma(i + alpha + beta + 1)
+        - math.lgamma(i + alpha + 1)
+        - math.lgamma(i + beta + 1)
+    )
+
+
+def kernel_u(alpha: float, beta: float, N: int, theta: float, k: int, u: np.ndarray) -> np.ndarray:
+    """T^{k+1}·g^{(k)}(uT) for k ≥ 0, or ∫₀^{uT} g for k = −1 (dimensionless), at normalised times u.
+
+    Outside [0, 1] the kernel and its derivatives are 0 and the antiderivative is 0 before the
+    window and 1 after it. At u ∈ {0, 1} the factor u^{α−k} follows x^0 = 1 and 0^{a<0} = inf
+    (a kernel derivative that is singular at the window ends).
+    """
+    u = np.asarray(u, dtype=float)
+    inside = (u >= 0.0) & (u <= 1.0)
+    uc = np.clip(u, 0.0, 1.0)
+    nu = 1.0 - 2.0 * uc
+    a, b = alpha - k, beta - k
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        log_w = special.xlogy(a, uc) + special.xlogy(b, 1.0 - uc)
+        lr0 = log_rho(alpha, beta, 0)
+        total = np.zeros_like(uc)
+        first = 1 if k == -1 else 0
+        for i in range(first, N + 1):
+            c = special.eval_jacobi(i, alpha, beta, theta) * math.exp(
+                log_rho(alpha, beta, i) - lr0 + math.lgamma(i + k + 1) - math.lgamma(i + 1)
+            )
+            total = total + c * special.eval_jacobi(i + k, a, b, nu)
+        out = np.exp(log_w + lr0) * total if N >= first else np.zeros_like(uc)
+    if k == -1:
+        out = out + special.betainc(alpha + 1.0, beta + 1.0, uc)
+        return np.where(u < 0.0, 0.0, np.where(u > 1.0, 1.0, out))
+    return np.where(inside, out, 0.0)
+
+
+def default_theta(alpha: float, beta: float, N: int) -> float:
+    """ϑ for N > 0: the largest root of P_{N+1}^{(α,β)}, which minimises the delay while keeping the
+    higher degree of exactness (AlgDiff's default; Othmane et al. 2022, Sec. 4.1). For N = 0 the
+    equivalent ϑ = (β−α)/(α+β+2) (root of P_1) makes δ_t = (1−ϑ)T/2 agree with (2.3)."""
+    if N == 0:
+        return (beta - alpha) / (alpha + beta + 2.0)
+    roots, _ = special.roots_jacobi(N + 1, alpha, beta)
+    return float(np.max(roots))
+
+
+def log_cutoff_product(alpha: float, beta: float, N: int, theta: float) -> float:
+    """log(ω_c·T), the cutoff–window relation of Othmane et al. (2022, Sec. 4.2.2, eq. (31)).
+
+    μ = 1 + min(α, β), κ = |α − β|; for N = 0 it reduces to ω_c T = (Γ(2μ+κ)/Γ(μ+κ))^{1/μ}.
+    For N > 0 the constant is q/Γ(μ+κ) with q from the sums r, s of the amplitude asymptotes
+    (as AlgDiff's ``computeTfromWc``), evaluated in log-gamma form relative to the i = 0 term.
+    Returns −inf where ϑ makes the asymptote vanish (no cutoff is defined).
+    """
+    mu = 1.0 + min(alpha, beta)
+    kappa = abs(alpha - beta)
+    sigma = 1.0 if beta >= alpha else -1.0
+    ref = math.lgamma(2 * mu + kappa) - math.lgamma(mu + kappa)  # log r for N = 0
+    r = s = 0.0  # r/e^ref and, used only for κ = 0 where Γ(μ+κ+i) = Γ(μ+i), s/e^ref
+    for i in range(N + 1):
+        log_ci = math.log(2 * mu + kappa + 2 * i - 1) + math.lgamma(2 * mu + kappa + i - 1)
+        term = math.exp(log_ci - math.lgamma(mu + kappa + i) - ref)
+        term *= special.eval_jacobi(i, mu - 1, mu + kappa - 1, sigma * theta)
+        r += term
+        s += (-1) ** i * term
+    q_rel = max(abs(r), abs(s)) if kappa == 0 else abs(r)
+    return (ref + math.log(q_rel)) / mu if q_rel > 0.0 else -math.inf

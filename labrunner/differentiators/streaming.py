@@ -1,0 +1,102 @@
+"""Causal FIR evaluation of differentiators: one sample per tick for a batch, or a whole signal.
+
+Both evaluate thesis (2.4) without extra delay: the output at sample k is Σ_j w[j]·x[k−j] with w
+newest sample first, so it estimates x⁽ⁿ⁾(k·t_s − Differentiator.discrete_delay_s(n)).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import signal
+
+from labrunner.differentiators.design import Differentiator
+from labrunner.errors import InvalidParameter
+
+
+def pad_taps(taps: Sequence[np.ndarray]) -> np.ndarray:
+    """Stack 1-D tap vectors (newest sample first) into (B, L), zero-padding the oldest end."""
+    if len(taps) == 0:
+        raise InvalidParameter("taps", "must hold at least one tap vector, got none")
+    rows = [np.asarray(t, dtype=float) for t in taps]
+    if any(r.ndim != 1 or r.size == 0 for r in rows):
+        raise InvalidParameter("taps", "must be non-empty 1-D arrays")
+    out = np.zeros((len(rows), max(r.size for r in rows)))
+    for i, r in enumerate(rows):
+        out[i, : r.size] = r
+    return out
+
+
+class StreamingFIR:
+    """A bank of causal FIR filters over one history buffer, advanced one sample per tick.
+
+    ``taps`` is (L,) (one filter for every run), (B, L) (one per run) or (B, M, L) (M filters per
+    run, e.g. derivatives 0..M−1); newest sample first. The history is a doubled ring buffer of
+    shape (2L, B), so the last L samples are always one contiguous (L, B) block, newest first.
+    """
+
+    def __init__(self, taps: np.ndarray) -> None:
+        t = np.asarray(taps, dtype=float)
+        if t.ndim not in (1, 2, 3) or t.shape[-1] == 0 or not np.all(np.isfinite(t)):
+            raise InvalidParameter("taps", f"must be finite with shape (L,), (B, L) or (B, M, L), got shape {t.shape}")
+        self._ndim = t.ndim
+        self._length = t.shape[-1]
+        self._runs = None if t.ndim == 1 else t.shape[0]
+        # Layout for the tick: (L,) as is; (B, L) as (L, B); (B, M, L) as (M, L, B).
+        order = {1: (0,), 2: (1, 0), 3: (1, 2, 0)}[t.ndim]
+        self._taps = np.ascontiguousarray(np.transpose(t, order))
+        self._buf = np.zeros((2 * self._length, 1))
+        self._pos = 0
+
+    @property
+    def length(self) -> int:
+        """Number of taps L (history length in samples)."""
+        return self._length
+
+    def reset(self, batch: int, fill: float | np.ndarray = 0.0) -> None:
+        """Start ``batch`` runs with a history of L samples equal to ``fill`` (scalar or (B,)).
+
+        Filling with the first measurement gives a steady start: a constant history.
+        """
+        if isinstance(batch, bool) or int(batch) != batch or batch < 1:
+            raise InvalidParameter("batch", f"must be an integer >= 1, got {batch!r}")
+        if self._runs is not None and batch != self._runs:
+            raise InvalidParameter("batch", f"must equal the {self._runs} runs of the taps, got {batch}")
+        fill_arr = np.asarray(fill, dtype=float)
+        if fill_arr.ndim > 1 or (fill_arr.ndim == 1 and fill_arr.size != batch):
+            raise InvalidParameter("fill", f"must be a scalar or have shape ({batch},), got shape {fill_arr.shape}")
+        self._buf = np.empty((2 * self._length, int(batch)))
+        self._buf[:] = fill_arr
+        self._pos = 0
+
+    def step(self, x: np.ndarray) -> np.ndarray:
+        """Push the newest sample x (B,) and return the filter outputs (B,) or (B, M)."""
+        pos = self._pos - 1 if self._pos else self._length - 1
+        buf = self._buf
+        buf[pos] = x
+        buf[pos + self._length] = x
+        self._pos = pos
+        block = buf[pos : pos + self._length]  # (L, B), newest first
+        if self._ndim == 1:
+            return self._taps @ block
+        if self._ndim == 2:
+            return np.einsum("lb,lb->b", self._taps, block)
+        return np.einsum("mlb,lb->bm", self._taps, block)
+
+
+def estimate(design: Differentiator, x: np.ndarray, order: int) -> np.ndarray:
+    """Offline estimate of the ``order``-th derivative of whole signals x (..., K), time last.
+
+    y[..., k] = Σ_j w[j]·x[..., k−j] with x[..., k−j] = x[..., 0] for k−j < 0 (the steady start of
+    :meth:`StreamingFIR.reset` with ``fill = x[0]``), so y equals the streaming output sample by
+    sample and y[k] ≈ x⁽ⁿ⁾(k·t_s − design.discrete_delay_s(order)); no delay is added beyond that.
+    """
+    w = design.weights(order)
+    xs = np.asarray(x, dtype=float)
+    if xs.ndim == 0 or xs.shape[-1] == 0:
+        raise InvalidParameter("x", f"must have a non-empty time axis (last), got shape {xs.shape}")
+    head = np.repeat(xs[..., :1], w.size - 1, axis=-1)
+    padded = np.concatenate([head, xs], axis=-1)
+    kernel = w.reshape((1,) * (xs.ndim - 1) + (w.size,))
+    return signal.oaconvolve(padded, kernel, mode="valid", axes=-1)
