@@ -92,6 +92,20 @@ class Theory:
             kw["k_d"] = k_d
         return stability.bounds(case, **kw)
 
+    def predict(self, case: str, params: Mapping[str, float]) -> tuple[bool, float]:
+        """Whether ``case`` predicts a stable loop at ``params`` (gamma, k_p, k_d) and the relative
+        distance to its nearest bound: min |g − bound| / bound over the gains g = k_p (and k_d)
+        and their finite, positive bounds.
+        """
+        k_d = params.get("k_d") if case.startswith("mfc2") else None
+        b = self.bounds(case, float(params["gamma"]), None if k_d is None else float(k_d))
+        checks = [(float(params["k_p"]), _interval(b, "k_p"))]
+        if k_d is not None:
+            checks.append((float(k_d), _interval(b, "k_d")))
+        stable = all(lo < g < hi for g, (lo, hi) in checks)
+        distances = [abs(g - e) / e for g, pair in checks for e in pair if np.isfinite(e) and e > 0]
+        return stable, min(distances, default=float("inf"))
+
 
 def _interval(bounds: Mapping[str, object], key: str) -> tuple[float, float]:
     value = bounds.get(key)
@@ -137,23 +151,6 @@ def kp_kd_lines(theory: Theory, gamma: float, k_ds: np.ndarray) -> list[OverlayL
     return lines
 
 
-def predicted_stable(theory: Theory, case: str, params: Mapping[str, float]) -> tuple[bool, float]:
-    """Whether ``case`` predicts a stable loop at ``params`` and the relative distance to its nearest bound.
-
-    The distance is min |g − bound| / bound over the gains g = k_p (and k_d) and their finite,
-    positive bounds; it is how far (as a fraction) the point lies from the predicted boundary.
-    """
-    k_d = params.get("k_d") if case.startswith("mfc2") else None
-    b = theory.bounds(case, float(params["gamma"]), None if k_d is None else float(k_d))
-    checks: list[tuple[float, tuple[float, float]]] = []
-    if k_d is not None:
-        checks.append((float(k_d), _interval(b, "k_d")))
-    checks.append((float(params["k_p"]), _interval(b, "k_p")))
-    stable = all(lo < g < hi for g, (lo, hi) in checks)
-    distances = [abs(g - edge) / abs(edge) for g, pair in checks for edge in pair if np.isfinite(edge) and edge > 0]
-    return stable, (min(distances) if distances else float("inf"))
-
-
 def transitions(values: np.ndarray, stable: Callable[[float], bool]) -> list[float]:
     """Points (geometric midpoints) where ``stable`` flips along sorted, positive ``values``."""
     flags = np.array([stable(float(v)) for v in values])
@@ -166,7 +163,7 @@ def sweep_lines(theory: Theory, key: str, dense: np.ndarray, fixed: Mapping[str,
     lines = []
     for case in theory.cases():
         eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
-        found = transitions(dense, lambda v: predicted_stable(theory, case, {**fixed, key: v})[0])
+        found = transitions(dense, lambda v: theory.predict(case, {**fixed, key: v})[0])
         lines += [OverlayLine(f"{eq} stability limit" if i == 0 else "_", x, None, colour, "--", f"bound:{case}:{key}")
                   for i, x in enumerate(found)]
     if key == "gamma" and theory.rho is not None:

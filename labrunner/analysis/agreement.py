@@ -1,0 +1,68 @@
+"""How well the theory's stability prediction matches what the runs did.
+
+A run that completed (or did not move: its loop was stable, its input just too small) counts as
+observed stable, an aborted run as observed unstable; failed and unfinished runs are left out.
+The prediction is the model case of the campaign's controller (thesis (2.46) for the first-order
+MFC, the corrected (2.58)–(2.59) for the second-order one; the ultra-local case where the rig has
+no model). Points within ``margin`` (relative) of a predicted boundary are left out: there the
+sampled grid cannot tell a boundary error from the discretisation of the experiment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import pandas as pd
+
+from labrunner.analysis.overlays import Theory
+
+OBSERVED_STABLE = ("completed", "no-motion")
+OBSERVED_UNSTABLE = ("aborted",)
+#: Table columns that hold the gains the stability cases need.
+GAIN_COLUMNS = {"gamma": "controller.gamma", "k_p": "controller.k_p", "k_d": "controller.k_d"}
+
+
+def agreement(
+    table: pd.DataFrame,
+    theory_of: Callable[[Mapping[str, object]], Theory | None],
+    *,
+    margin: float = 0.1,
+) -> dict[str, object]:
+    """Share of compared points whose outcome matches the prediction, with the counts behind it.
+
+    ``theory_of(row)`` gives the :class:`Theory` of a table row (its δ_t depends on the row's
+    differentiator), or None when no stability case applies. Returns ``{"case", "share",
+    "margin", "n_compared", "n_match", "n_excluded", "false_stable", "false_unstable"}``;
+    ``share`` is None when nothing could be compared.
+    """
+    observed = table["status"].isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)
+    rows = table[observed]
+    case = None
+    match = excluded = false_stable = false_unstable = 0
+    for _, row in rows.iterrows():
+        theory = theory_of(row)
+        if theory is None or not theory.cases():
+            continue
+        case = theory.cases()[-1]
+        params = {k: float(row[c]) for k, c in GAIN_COLUMNS.items() if c in row and pd.notna(row[c])}
+        if "gamma" not in params or "k_p" not in params:
+            continue
+        stable, distance = theory.predict(case, params)
+        if distance <= margin:
+            excluded += 1
+            continue
+        ok = row["status"] in OBSERVED_STABLE
+        match += ok == stable
+        false_stable += stable and not ok
+        false_unstable += ok and not stable
+    compared = match + false_stable + false_unstable
+    return {
+        "case": case,
+        "share": (match / compared) if compared else None,
+        "margin": margin,
+        "n_compared": int(compared),
+        "n_match": int(match),
+        "n_excluded": int(excluded),
+        "false_stable": int(false_stable),
+        "false_unstable": int(false_unstable),
+    }
