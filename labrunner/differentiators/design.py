@@ -189,11 +189,12 @@ def design(
         raise InvalidParameter(field_name, f"must be {limit} (n_s <= {MAX_SAMPLES}), got {omega_c or window!r}")
     n_s = whole_samples(samples)
     if n_s < n_min:
-        reason = "n_s >= 2 samples" if n_min == 2 else f"a realised cutoff <= the Nyquist frequency π·fs = {math.pi * f:.6g} rad/s"
         limit = f"<= {k_c * f / n_min:.6g} rad/s" if omega_c is not None else f">= {n_min / f:.6g} s"
-        raise InvalidParameter(
-            field_name, f"must be {limit} for {reason} (n_s = {n_min} at fs = {f:g} Hz), got {omega_c or window!r} (n_s = {n_s})"
+        reason = (
+            f"n_s >= 2 samples at fs = {f:g} Hz" if n_min == 2 else
+            f"n_s >= {n_min} at fs = {f:g} Hz: a realised cutoff <= Nyquist pi*fs = {math.pi * f:.6g} rad/s"
         )
+        raise InvalidParameter(field_name, f"must be {limit} ({reason}), got {omega_c or window!r} (n_s = {n_s})")
     T = n_s / f
     return Differentiator(
         alpha=a,

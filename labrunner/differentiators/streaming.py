@@ -40,14 +40,16 @@ class StreamingFIR:
         t = np.asarray(taps, dtype=float)
         if t.ndim not in (1, 2, 3) or t.shape[-1] == 0 or not np.all(np.isfinite(t)):
             raise InvalidParameter("taps", f"must be finite with shape (L,), (B, L) or (B, M, L), got shape {t.shape}")
-        self._ndim = t.ndim
         self._length = t.shape[-1]
         self._runs = None if t.ndim == 1 else t.shape[0]
-        # Layout for the tick: (L,) as is; (B, L) as (L, B); (B, M, L) as (M, L, B).
-        order = {1: (0,), 2: (1, 0), 3: (1, 2, 0)}[t.ndim]
-        self._taps = np.ascontiguousarray(np.transpose(t, order))
-        self._buf = np.zeros((2 * self._length, 1))
-        self._pos = 0
+        self._out_ndim = t.ndim - 1  # 0: (B,) from (L,) or (B, L); 1: (B, M) from (B, M, L)
+        # Runs that all share one filter bank use one matrix product (BLAS) instead of einsum.
+        self._shared = t.ndim == 1 or bool(np.all(t == t[:1]))
+        if self._shared:
+            self._taps = np.ascontiguousarray(t if t.ndim == 1 else t[0])  # (L,) or (M, L)
+        else:  # (B, L) as (L, B); (B, M, L) as (M, L, B): contiguous like the history block
+            self._taps = np.ascontiguousarray(np.transpose(t, (1, 0) if t.ndim == 2 else (1, 2, 0)))
+        self.reset(self._runs or 1)
 
     @property
     def length(self) -> int:
@@ -78,9 +80,9 @@ class StreamingFIR:
         buf[pos + self._length] = x
         self._pos = pos
         block = buf[pos : pos + self._length]  # (L, B), newest first
-        if self._ndim == 1:
-            return self._taps @ block
-        if self._ndim == 2:
+        if self._shared:
+            return self._taps @ block if self._out_ndim == 0 else (self._taps @ block).T
+        if self._out_ndim == 0:
             return np.einsum("lb,lb->b", self._taps, block)
         return np.einsum("mlb,lb->bm", self._taps, block)
 
