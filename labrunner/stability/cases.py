@@ -1,0 +1,199 @@
+"""The MFC error equations of thesis section 2.4 and appendix A as named cases, in physical units.
+
+=====================  =========================================================  ================
+case                   error equation (δ: estimation delay [s], r = gain/γ)        thesis
+=====================  =========================================================  ================
+mfc1-ultralocal        ė + r k_p e(t−δ) = 0,  gain ρ                               (2.40), (2.41)
+mfc1-motor             ė + a e + r (k_p − a) e(t−δ) = 0,  gain b                   (2.45), (2.46)
+mfc2-ultralocal        ë + r k_d ė(t−δ) + r k_p e(t−δ) = 0,  gain ρ                (2.52)-(2.54)
+mfc2-motor             ë + a ė + r (k_d − a) ė(t−δ) + r k_p e(t−δ) = 0,  gain b    (2.57)-(2.59)
+mfc2-second-order      ë + a₁ė + a₀e + r (k_d − a₁) ė(t−δ) + r (k_p − a₀) e(t−δ)    (A.15)-(A.18)
+=====================  =========================================================  ================
+
+``mfc1-motor`` with ``neutral=True`` is the neutral equation (A.11) (no approximation (2.43a)).
+a < 0 (a₁ < 0) is the unstable plant of remark 2.8; the loop is stabilisable only for a·δ > −1.
+Units: γ, ρ, b in the plant's input-gain unit (rad/(V s²) for the motor), a, a₁ [1/s], a₀ [1/s²],
+k_p [1/s] (first order) or [1/s²] (second order), k_d [1/s].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from labrunner.errors import InvalidParameter, check_finite
+from labrunner.stability import closed_forms as cf
+from labrunner.stability.quasipoly import QuasiPolynomial
+from labrunner.stability.scan import stable_intervals
+
+CASES = ("mfc1-ultralocal", "mfc1-motor", "mfc2-ultralocal", "mfc2-motor", "mfc2-second-order")
+_SCAN_POINTS = 81
+_EDGE = 1e-9  # normalised offset above the line κ_p = −a₀ on which the numeric k_d range is read
+
+
+@dataclass(frozen=True)
+class Loop:
+    """A resolved case: plant coefficients, input-gain ratio r = gain/γ and delay δ [s]."""
+
+    case: str
+    order: int
+    a0: float
+    a1: float
+    ratio: float
+    delay: float
+
+    def quasi_polynomial(self, k_p: float, k_d: float | None = None, *, neutral: bool = False) -> QuasiPolynomial:
+        """Characteristic function Δ*(s) of the error equation (thesis appendix A)."""
+        r, d = self.ratio, self.delay
+        if self.order == 1:
+            if neutral:   # (A.11): B = (γ − b)/γ = 1 − r multiplies ė(t−δ) and −a e(t−δ)
+                return QuasiPolynomial.from_terms({0.0: [1.0, self.a1], d: [r - 1.0, r * (k_p - self.a1) + (r - 1.0) * self.a1]})
+            return QuasiPolynomial.from_terms({0.0: [1.0, self.a1], d: [r * (k_p - self.a1)]})
+        return QuasiPolynomial.from_terms({0.0: [1.0, self.a1, self.a0], d: [r * (k_d - self.a1), r * (k_p - self.a0)]})
+
+    # normalised ↔ physical gains (closed_forms works in time units of δ)
+    def k_p_of(self, x: float) -> float:
+        return self.a0 + x / (self.ratio * self.delay**self.order) if self.order == 2 else self.a1 + x / (self.ratio * self.delay)
+
+    def k_d_of(self, x: float) -> float:
+        return self.a1 + x / (self.ratio * self.delay)
+
+    def d_of(self, k_d: float) -> float:
+        return self.ratio * (k_d - self.a1) * self.delay
+
+
+def resolve(case: str, *, gamma: float, delay: float, rho: float | None = None, a: float | None = None,
+            b: float | None = None, a0: float | None = None, a1: float | None = None) -> Loop:
+    """Validate the parameters of ``case`` and resolve them to a :class:`Loop`."""
+    if case not in CASES:
+        raise InvalidParameter("case", f"must be one of {', '.join(CASES)}, got {case!r}")
+    gamma, delay = _positive("gamma", gamma), _positive("delay", delay)
+    order = 1 if case.startswith("mfc1") else 2
+    if case.endswith("ultralocal"):
+        gain = rho if rho is not None else b
+        if gain is None:
+            raise InvalidParameter("rho", f"is required for case {case} (or give b)")
+        return Loop(case, order, 0.0, 0.0, _positive("rho", gain) / gamma, delay)
+    b_val = _positive("b", _required("b", b, case))
+    if case == "mfc2-second-order":
+        a0_val = check_finite("a0", _required("a0", a0, case))
+        if a0_val < 0:
+            raise InvalidParameter("a0", f"must be >= 0 (thesis A.6), got {a0_val}")
+        return Loop(case, 2, a0_val, check_finite("a1", _required("a1", a1, case)), b_val / gamma, delay)
+    return Loop(case, order, 0.0, check_finite("a", _required("a", a, case)), b_val / gamma, delay)
+
+
+def _required(field: str, value: float | None, case: str) -> float:
+    if value is None:
+        raise InvalidParameter(field, f"is required for case {case}")
+    return value
+
+
+def _positive(field: str, value: float) -> float:
+    v = check_finite(field, value)
+    if v <= 0:
+        raise InvalidParameter(field, f"must be > 0, got {value!r}")
+    return v
+
+
+def _check_k_d(loop: Loop, k_d: float | None) -> float | None:
+    if loop.order == 1:
+        if k_d is not None:
+            raise InvalidParameter("k_d", f"is not used by the first-order case {loop.case}")
+        return None
+    if k_d is None:
+        raise InvalidParameter("k_d", f"is required for the second-order case {loop.case}")
+    return check_finite("k_d", k_d)
+
+
+def _pair(interval: tuple[float, float] | None, convert) -> list[float] | None:
+    return None if interval is None else [float(convert(interval[0])) + 0.0, float(convert(interval[1])) + 0.0]
+
+
+def closed_form_bounds(loop: Loop, k_d: float | None) -> dict:
+    """``{"k_p": [lo, hi] | None}`` (+ ``"k_d"`` for second order) from the corrected closed forms."""
+    if loop.order == 1:
+        return {"k_p": _pair(cf.first_order_gain(loop.a1 * loop.delay), loop.k_p_of)}
+    a0, a1 = loop.a0 * loop.delay**2, loop.a1 * loop.delay
+    return {"k_p": _pair(cf.second_order_p_gain(a0, a1, loop.d_of(k_d)), loop.k_p_of),
+            "k_d": _pair(cf.second_order_d_gain(a0, a1), loop.k_d_of)}
+
+
+def _numeric_interval(found: list[tuple[float, float]], convert) -> list[float] | list[list[float]] | None:
+    """One interval as [lo, hi]; none as None; several (never for these cases) as a list of them."""
+    pairs = [_pair(i, convert) for i in found]
+    return None if not pairs else pairs[0] if len(pairs) == 1 else pairs
+
+
+def numeric_bounds(loop: Loop, k_d: float | None) -> dict:
+    """The same intervals from the spectral abscissa alone (scan + refinement, :mod:`.scan`).
+
+    The scan windows are generous multiples of the delay's natural scale (normalised units), and
+    the quasi-polynomials are built in physical units. The k_d range of a second-order case is the
+    projection of the stable (k_d, k_p) set; its lower edge is the line κ_p = −a₀ on which the root
+    s = 0 crosses (Δ*(0) = a₀ + κ_p), so it is read on that line, 1e-9 (normalised) above it.
+    """
+    d, n = loop.delay, loop.order
+    a0, a1 = loop.a0 * d**2, abs(loop.a1 * d)
+    if n == 1:
+        fam = lambda k: loop.quasi_polynomial(k)  # noqa: E731
+        found = stable_intervals(fam, loop.k_p_of(-a1 - 2.0), loop.k_p_of(a1 + 2 * np.pi), n_scan=_SCAN_POINTS)
+        return {"k_p": _numeric_interval(found, float)}
+    p_lo, p_hi = -a0 - 2.0, a0 + 2 * np.pi * a1 + 4 * np.pi**2
+    fam_p = lambda k: loop.quasi_polynomial(k, k_d)  # noqa: E731
+    found_p = stable_intervals(fam_p, loop.k_p_of(p_lo), loop.k_p_of(p_hi), n_scan=_SCAN_POINTS)
+    edge = loop.k_p_of(-a0 + _EDGE)
+    fam_d = lambda k: loop.quasi_polynomial(edge, k)  # noqa: E731
+    found_d = stable_intervals(fam_d, loop.k_d_of(-a1 - a0 - 2.0), loop.k_d_of(a1 + a0 + 2 * np.pi), n_scan=_SCAN_POINTS)
+    return {"k_p": _numeric_interval(found_p, float), "k_d": _numeric_interval(found_d, float)}
+
+
+def bounds(case: str, *, gamma: float, delay: float, rho: float | None = None, a: float | None = None,
+           b: float | None = None, k_d: float | None = None, a0: float | None = None, a1: float | None = None,
+           numeric: bool = False) -> dict:
+    """Stability intervals of ``case`` (open intervals), exactly the object ``labrunner bounds --json``
+    prints: ``{"k_p": [lo, hi] | None}``, plus ``"k_d": [lo, hi] | None`` for second-order cases
+    (k_p at the given ``k_d``; None when no k_p is stable there), plus ``"numeric"`` (the same keys
+    from the spectral-abscissa solver) when ``numeric``. See the module table for the cases."""
+    loop = resolve(case, gamma=gamma, delay=delay, rho=rho, a=a, b=b, a0=a0, a1=a1)
+    k_d = _check_k_d(loop, k_d)
+    out = closed_form_bounds(loop, k_d)
+    if numeric:
+        out["numeric"] = numeric_bounds(loop, k_d)
+    return out
+
+
+def case_quasipolynomial(case: str, *, gamma: float, delay: float, k_p: float, k_d: float | None = None,
+                         rho: float | None = None, a: float | None = None, b: float | None = None,
+                         a0: float | None = None, a1: float | None = None, neutral: bool = False) -> QuasiPolynomial:
+    """Characteristic quasi-polynomial of ``case`` at one parameter point, e.g. for
+    ``abscissa_map(lambda g, kp: case_quasipolynomial("mfc1-motor", gamma=g, k_p=kp, ...), g, kp)``.
+    ``neutral=True`` (case mfc1-motor only) gives the neutral equation (A.11)."""
+    loop = resolve(case, gamma=gamma, delay=delay, rho=rho, a=a, b=b, a0=a0, a1=a1)
+    if neutral and case != "mfc1-motor":
+        raise InvalidParameter("neutral", f"only case mfc1-motor has a neutral form (thesis (A.11)), got {case}")
+    return loop.quasi_polynomial(check_finite("k_p", k_p), _check_k_d(loop, k_d), neutral=neutral)
+
+
+def predict_stable(case: str, *, gamma, k_p, delay, k_d=None, rho: float | None = None, a: float | None = None,
+                   b: float | None = None, a0: float | None = None, a1: float | None = None):
+    """Whether the closed forms predict an exponentially stable error equation at each point.
+
+    ``gamma``, ``k_p``, ``delay`` and ``k_d`` broadcast like numpy arrays; returns a bool array of
+    the broadcast shape (a plain bool when all are scalars). Each distinct (γ, δ, k_d) costs one
+    closed-form evaluation; k_p is then compared in bulk.
+    """
+    kd_in = np.nan if k_d is None else k_d
+    g, kp, dl, kd = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (gamma, k_p, delay, kd_in)))
+    out = np.zeros(g.shape, dtype=bool)
+    keys = np.stack([g.ravel(), dl.ravel(), kd.ravel()], axis=1)
+    uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+    flat_kp, flat_out = kp.ravel(), out.reshape(-1)
+    for idx, (gi, di, kdi) in enumerate(uniq):
+        interval = bounds(case, gamma=gi, delay=di, rho=rho, a=a, b=b, a0=a0, a1=a1,
+                          k_d=None if k_d is None else kdi)["k_p"]
+        if interval is not None:
+            sel = inverse.ravel() == idx
+            flat_out[sel] = (flat_kp[sel] > interval[0]) & (flat_kp[sel] < interval[1])
+    return bool(out) if out.ndim == 0 else out
