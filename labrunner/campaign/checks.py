@@ -1,0 +1,145 @@
+"""Static per-point checks of a campaign, run on the whole grid before anything is created.
+
+Every point goes through the validation its run would do, without moving a rig: the rig's f_s
+range, :func:`labrunner.control.factory.build` (α vs the derivative order, ω_c vs the Nyquist
+frequency π f_s, finite gains, rig limits, unknown keys), the safety monitors' configuration and
+the run length. Points are checked in chunks of compatible points with one batched build each
+(the builders are vectorised), so a 10 000-point grid takes seconds; a chunk that fails is
+re-checked point by point so that the error names the offending grid point.
+
+Compatibility ("may share a batch") is the campaign's rig, f_s, duration and every non-numeric
+value of the point (controller kind, output, differentiator method, reference kind, ...):
+builders require those to agree over a batch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any
+
+from labrunner.campaign.grid import canonical_json
+from labrunner.errors import InvalidParameter, check_finite
+
+if TYPE_CHECKING:
+    from labrunner.campaign.spec import Campaign
+
+MAX_SAMPLES = 10_000_000  # samples per run: beyond this a run's signals do not fit a worker's memory
+CHUNK = 256  # points validated by one batched build
+
+Item = tuple[int, dict[str, Any], dict[str, Any]]  # (seq, parameters, resolved config)
+
+
+def choices(config: dict[str, Any]) -> list[tuple[str, Any]]:
+    """The non-numeric leaves of a point's run sections: builders need them equal in a batch."""
+    out: list[tuple[str, Any]] = []
+
+    def walk(node: Any, path: str) -> None:
+        if isinstance(node, dict):
+            for k in sorted(node):
+                walk(node[k], f"{path}.{k}" if path else k)
+        elif isinstance(node, (str, bool)) or node is None:
+            out.append((path, node))
+        elif isinstance(node, list):
+            out.append((f"{path}#len", len(node)))
+
+    walk({k: v for k, v in config.items() if k != "campaign"}, "")
+    return out
+
+
+class StaticChecker:
+    """Feed points with :meth:`add`; checked points come back with their run duration [s]."""
+
+    def __init__(self, campaign: Campaign) -> None:
+        self.campaign = campaign
+        self._pending: dict[str, list[Item]] = {}
+        self._safety: set[str] = set()
+        self._fs: set[float] = set()
+
+    def add(self, seq: int, params: dict[str, Any], config: dict[str, Any]) -> Iterator[tuple[Item, float]]:
+        """Queue one point; yields the checked points of a chunk once it is full."""
+        self._scalars(params, config)
+        key = canonical_json([config["campaign"]["fs"], choices(config)])
+        chunk = self._pending.setdefault(key, [])
+        chunk.append((seq, params, config))
+        if len(chunk) >= CHUNK:
+            del self._pending[key]
+            yield from self._check_chunk(chunk)
+
+    def flush(self) -> Iterator[tuple[Item, float]]:
+        """Check every queued point."""
+        pending, self._pending = self._pending, {}
+        for chunk in pending.values():
+            yield from self._check_chunk(chunk)
+
+    def _scalars(self, params: dict[str, Any], config: dict[str, Any]) -> None:
+        head = config["campaign"]
+        with _at(params):
+            fs = _number("campaign.fs", head["fs"])
+            if fs not in self._fs:
+                self.campaign.rig_info.check_fs(fs, "campaign.fs")
+                self._fs.add(fs)
+            seed = head["seed"]
+            if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+                raise InvalidParameter("campaign.seed", f"must be an integer >= 0, got {seed!r}")
+            if head["duration"] is not None:
+                _number("campaign.duration", head["duration"])
+            for key, value in config.get("rig_parameters", {}).items():
+                _number(f"rig_parameters.{key}", value, positive=False)
+            self._check_safety(config.get("safety", {}), fs)
+
+    def _check_chunk(self, chunk: list[Item]) -> Iterator[tuple[Item, float]]:
+        from labrunner.control import factory
+
+        fs = float(chunk[0][2]["campaign"]["fs"])
+        try:
+            _, reference = factory.build([c for _, _, c in chunk], self.campaign.rig_info, fs)
+        except InvalidParameter:
+            for item in chunk:  # find the first bad point, to name it
+                with _at(item[1]):
+                    factory.build([item[2]], self.campaign.rig_info, fs)
+            raise
+        for item, row in zip(chunk, reference.trajectories):
+            duration = item[2]["campaign"]["duration"]
+            if duration is None:  # default: the reference's own length
+                duration = max(tr.duration for tr in row)
+            samples = round(float(duration) * fs)
+            if not 1 <= samples <= MAX_SAMPLES:
+                with _at(item[1]):
+                    raise InvalidParameter(
+                        "campaign.duration", f"gives {samples} samples at {fs:g} Hz; allowed 1..{MAX_SAMPLES}"
+                    )
+            yield item, float(duration)
+
+    def _check_safety(self, section: dict[str, Any], fs: float) -> None:
+        from labrunner.safety import SafetyConfig, SafetyMonitor
+
+        key = canonical_json([section, fs])
+        if key not in self._safety:
+            info = self.campaign.rig_info
+            config = SafetyConfig.from_sections(info, self.campaign.rig_safety, section)
+            SafetyMonitor([config], info, fs)
+            self._safety.add(key)
+
+
+class _at:
+    """Re-raise an :class:`InvalidParameter` with the grid point appended to its message."""
+
+    def __init__(self, params: dict[str, Any]) -> None:
+        self.params = params
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and issubclass(exc_type, InvalidParameter) and self.params:
+            message = str(exc).removeprefix(f"{exc.field}: ")
+            raise InvalidParameter(exc.field, f"{message} (at grid point {canonical_json(self.params)})") from None
+
+
+def _number(field: str, value: Any, *, positive: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidParameter(field, f"must be a number, got {value!r}")
+    v = check_finite(field, value)
+    if positive and v <= 0:
+        raise InvalidParameter(field, f"must be > 0, got {v!r}")
+    return v

@@ -1,0 +1,311 @@
+"""The campaign ledger: one SQLite database (WAL) per campaign directory, one row per grid point.
+
+States: ``planned → claimed → done | aborted | failed`` ("done" covers the outcomes completed and
+no-motion; the outcome itself is a column). One finished run = one published MCAP = one
+transaction that moves its row from ``claimed`` to a terminal state; the update is conditional on
+``state = 'claimed'``, so a run can never be committed twice. The database is created under a
+temporary name and renamed into place, so a crash while planning leaves no half-written ledger.
+The ``meta`` table keeps a copy of the campaign file and the checksum of the planned grid.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sqlite3
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from labrunner.errors import CampaignError
+
+LEDGER_NAME = "ledger.sqlite"
+SCHEMA_VERSION = "1"
+STATES = ("planned", "claimed", "done", "aborted", "failed")
+TERMINAL = ("done", "aborted", "failed")
+STATE_OF_OUTCOME = {"completed": "done", "no-motion": "done", "aborted": "aborted", "failed": "failed"}
+
+_SCHEMA = """
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE points (
+    seq INTEGER PRIMARY KEY,
+    id TEXT NOT NULL UNIQUE,
+    parameters TEXT NOT NULL,
+    batch_key TEXT NOT NULL,
+    state TEXT NOT NULL DEFAULT 'planned'
+        CHECK (state IN ('planned', 'claimed', 'done', 'aborted', 'failed')),
+    outcome TEXT CHECK (outcome IN ('completed', 'aborted', 'no-motion', 'failed')),
+    outcome_json TEXT,
+    rms_error REAL,
+    input_energy REAL,
+    max_abs_input REAL,
+    log_path TEXT,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    host TEXT,
+    pid INTEGER,
+    claimed_at REAL,
+    finished_at REAL,
+    engine_s REAL,
+    write_s REAL,
+    publish_s REAL
+);
+CREATE INDEX points_state ON points (state);
+CREATE TABLE quarantine (
+    n INTEGER PRIMARY KEY AUTOINCREMENT,
+    point_id TEXT,
+    original TEXT NOT NULL,
+    moved_to TEXT NOT NULL,
+    reason TEXT NOT NULL,
+    bytes INTEGER,
+    at REAL NOT NULL
+);
+CREATE TABLE sessions (
+    n INTEGER PRIMARY KEY AUTOINCREMENT,
+    command TEXT NOT NULL,
+    host TEXT NOT NULL,
+    pid INTEGER NOT NULL,
+    started_at REAL NOT NULL,
+    last_at REAL NOT NULL,
+    ended_at REAL,
+    end_reason TEXT
+);
+"""
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """What the parent commits for one finished run (built from a worker's summary)."""
+
+    point_id: str
+    outcome: str
+    outcome_record: Mapping[str, Any]
+    metrics: Mapping[str, float]
+    log_path: str | None  # relative to the campaign directory; None: the run left no log
+    host: str
+    pid: int
+    finished_at: float
+    engine_s: float | None = None
+    write_s: float | None = None
+    publish_s: float | None = None
+
+
+def _connect(path: Path) -> sqlite3.Connection:
+    db = sqlite3.connect(path, isolation_level=None, timeout=30.0, check_same_thread=False)
+    db.row_factory = sqlite3.Row
+    db.execute("PRAGMA busy_timeout = 30000")
+    return db
+
+
+class Ledger:
+    """An open ledger. Every method is one transaction; use :meth:`close` (or ``with``)."""
+
+    def __init__(self, directory: Path, db: sqlite3.Connection) -> None:
+        self.directory = directory
+        self.db = db
+        self.session: int | None = None
+
+    # -- creation and opening ----------------------------------------------------------------
+    @classmethod
+    def create(
+        cls,
+        directory: Path,
+        *,
+        meta: Mapping[str, str],
+        points: Iterable[tuple[int, str, Mapping[str, Any], str]],
+    ) -> Ledger:
+        """Write a new ledger atomically: (seq, id, parameters, batch key) rows, all ``planned``."""
+        final = directory / LEDGER_NAME
+        if final.exists():
+            raise CampaignError(f"{final} already exists")
+        tmp = directory / f".{LEDGER_NAME}.{os.getpid()}.tmp"
+        tmp.unlink(missing_ok=True)
+        db = _connect(tmp)
+        try:
+            db.executescript(_SCHEMA)
+            db.execute("BEGIN")
+            db.executemany(
+                "INSERT INTO meta (key, value) VALUES (?, ?)",
+                [("schema_version", SCHEMA_VERSION), *sorted(meta.items())],
+            )
+            db.executemany(
+                "INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)",
+                ((s, i, json.dumps(dict(p), sort_keys=True), k) for s, i, p, k in points),
+            )
+            db.execute("COMMIT")
+        finally:
+            db.close()
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, final)
+        fsync_dir(directory)
+        return cls.open(directory)
+
+    @classmethod
+    def open(cls, directory: Path) -> Ledger:
+        path = directory / LEDGER_NAME
+        if not path.is_file():
+            raise CampaignError(f"{directory} holds no campaign ledger ({LEDGER_NAME}); start one with `labrunner run FILE`")
+        db = _connect(path)
+        try:
+            db.execute("PRAGMA journal_mode = WAL")
+            db.execute("PRAGMA synchronous = NORMAL")
+            version = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+        except sqlite3.DatabaseError as exc:
+            db.close()
+            raise CampaignError(f"{path} is not a readable ledger: {exc}") from None
+        if version is None or version[0] != SCHEMA_VERSION:
+            db.close()
+            raise CampaignError(f"{path} has ledger schema {version and version[0]!r}, expected {SCHEMA_VERSION}")
+        return cls(directory, db)
+
+    @classmethod
+    def open_readonly(cls, directory: Path) -> Ledger:
+        """Open for reading (``status``): no journal-mode change, nothing written."""
+        path = directory / LEDGER_NAME
+        if not path.is_file():
+            raise CampaignError(f"{directory} holds no campaign ledger ({LEDGER_NAME})")
+        db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None, timeout=30.0)
+        db.row_factory = sqlite3.Row
+        return cls(directory, db)
+
+    def close(self) -> None:
+        self.db.close()
+
+    def __enter__(self) -> Ledger:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- reads ---------------------------------------------------------------------------------
+    def meta(self) -> dict[str, str]:
+        return {r["key"]: r["value"] for r in self.db.execute("SELECT key, value FROM meta")}
+
+    def counts(self) -> dict[str, int]:
+        out = {s: 0 for s in STATES}
+        out.update({r[0]: r[1] for r in self.db.execute("SELECT state, COUNT(*) FROM points GROUP BY state")})
+        return out
+
+    def outcome_counts(self) -> dict[str, int]:
+        rows = self.db.execute("SELECT outcome, COUNT(*) FROM points WHERE outcome IS NOT NULL GROUP BY outcome")
+        return {r[0]: r[1] for r in rows}
+
+    def rows(self, states: Sequence[str] | None = None) -> list[sqlite3.Row]:
+        """Rows in grid order, optionally only those in ``states``."""
+        if states is None:
+            return self.db.execute("SELECT * FROM points ORDER BY seq").fetchall()
+        marks = ",".join("?" * len(states))
+        return self.db.execute(f"SELECT * FROM points WHERE state IN ({marks}) ORDER BY seq", tuple(states)).fetchall()
+
+    def quarantined(self) -> list[sqlite3.Row]:
+        return self.db.execute("SELECT * FROM quarantine ORDER BY n").fetchall()
+
+    def sessions(self) -> list[sqlite3.Row]:
+        return self.db.execute("SELECT * FROM sessions ORDER BY n").fetchall()
+
+    # -- writes --------------------------------------------------------------------------------
+    def _txn(self):
+        return _Transaction(self.db)
+
+    def start_session(self, command: str) -> int:
+        now = time.time()
+        with self._txn():
+            cur = self.db.execute(
+                "INSERT INTO sessions (command, host, pid, started_at, last_at) VALUES (?, ?, ?, ?, ?)",
+                (command, socket.gethostname(), os.getpid(), now, now),
+            )
+        self.session = int(cur.lastrowid)
+        return self.session
+
+    def end_session(self, reason: str) -> None:
+        if self.session is not None:
+            now = time.time()
+            with self._txn():
+                self.db.execute(
+                    "UPDATE sessions SET ended_at = ?, last_at = ?, end_reason = ? WHERE n = ?",
+                    (now, now, reason, self.session),
+                )
+
+    def claim(self, ids: Sequence[str]) -> None:
+        """planned → claimed (attempts + 1) for ``ids``, all or nothing."""
+        host, pid, now = socket.gethostname(), os.getpid(), time.time()
+        with self._txn():
+            cur = self.db.executemany(
+                "UPDATE points SET state = 'claimed', attempts = attempts + 1, host = ?, pid = ?, claimed_at = ?"
+                " WHERE id = ? AND state = 'planned'",
+                ((host, pid, now, i) for i in ids),
+            )
+            if cur.rowcount != len(ids):
+                raise CampaignError(f"ledger: {len(ids) - cur.rowcount} of {len(ids)} points were not planned")
+
+    def unclaim(self, ids: Sequence[str]) -> None:
+        """claimed → planned for batches that never started (attempts − 1): nothing ran."""
+        with self._txn():
+            self.db.executemany(
+                "UPDATE points SET state = 'planned', attempts = attempts - 1, claimed_at = NULL"
+                " WHERE id = ? AND state = 'claimed'",
+                ((i,) for i in ids),
+            )
+
+    def replan(self, ids: Sequence[str]) -> None:
+        """Back to ``planned`` after a crash (claimed) or on request (failed); attempts are kept."""
+        with self._txn():
+            self.db.executemany(
+                "UPDATE points SET state = 'planned', outcome = NULL, outcome_json = NULL, rms_error = NULL,"
+                " input_energy = NULL, max_abs_input = NULL, log_path = NULL, finished_at = NULL WHERE id = ?",
+                ((i,) for i in ids),
+            )
+
+    def commit(self, record: RunRecord, *, from_states: Sequence[str] = ("claimed",)) -> None:
+        """claimed → terminal for one run, in one transaction; refuses a second commit."""
+        state = STATE_OF_OUTCOME[record.outcome]
+        m = record.metrics
+        marks = ",".join("?" * len(from_states))
+        with self._txn():
+            cur = self.db.execute(
+                "UPDATE points SET state = ?, outcome = ?, outcome_json = ?, rms_error = ?, input_energy = ?,"
+                " max_abs_input = ?, log_path = ?, host = ?, pid = ?, finished_at = ?, engine_s = ?, write_s = ?,"
+                f" publish_s = ? WHERE id = ? AND state IN ({marks})",
+                (
+                    state, record.outcome, json.dumps(dict(record.outcome_record), sort_keys=True),
+                    m.get("rms_error"), m.get("input_energy"), m.get("max_abs_input"), record.log_path,
+                    record.host, record.pid, record.finished_at, record.engine_s, record.write_s,
+                    record.publish_s, record.point_id, *from_states,
+                ),
+            )
+            if cur.rowcount != 1:
+                raise CampaignError(f"ledger: point {record.point_id} is not in state {'/'.join(from_states)}; not committed twice")
+            if self.session is not None:
+                self.db.execute("UPDATE sessions SET last_at = ? WHERE n = ?", (time.time(), self.session))
+
+    def record_quarantine(self, point_id: str | None, original: str, moved_to: str, reason: str, size: int) -> None:
+        with self._txn():
+            self.db.execute(
+                "INSERT INTO quarantine (point_id, original, moved_to, reason, bytes, at) VALUES (?, ?, ?, ?, ?, ?)",
+                (point_id, original, moved_to, reason, size, time.time()),
+            )
+
+
+class _Transaction:
+    """``BEGIN IMMEDIATE`` … ``COMMIT`` (``ROLLBACK`` on error): one writer, no lost updates."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db = db
+
+    def __enter__(self) -> None:
+        self.db.execute("BEGIN IMMEDIATE")
+
+    def __exit__(self, exc_type, *rest) -> None:
+        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+
+
+def fsync_dir(directory: Path) -> None:
+    """Make a rename or file creation in ``directory`` durable."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

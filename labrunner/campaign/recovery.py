@@ -1,0 +1,123 @@
+"""Settling a campaign directory after a crash, before ``resume`` runs anything.
+
+What a killed runner can leave behind, and what happens to it:
+
+- ``runs/.tmp-<id>-…mcap`` — a log still being written (torn or complete but unpublished):
+  moved to ``quarantine/`` and recorded; its point reruns.
+- a *claimed* (or planned) row whose ``runs/<id>.mcap`` exists — the worker published the log but
+  the parent died before committing the row. The log was fsynced and renamed only after its
+  outcome record was written, so it is a complete run: it is **accepted** if it opens without
+  salvage, carries an outcome and names this point; the row is committed from the log's outcome
+  and metrics (``outcome_json.recovered = true``). A file that fails any of these checks is
+  quarantined and the point reruns. Accepting (rather than always rerunning) keeps a finished
+  run on a real rig — an experiment that cost wear and time — instead of repeating it.
+- a *claimed* row without a log — the run was cut short: back to ``planned``.
+- a terminal row whose log has disappeared — back to ``planned`` (nothing may be missing).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from labrunner.campaign.ledger import Ledger, RunRecord, fsync_dir
+from labrunner.campaign.worker import RUNS_DIR, TMP_PREFIX, final_path
+
+QUARANTINE_DIR = "quarantine"
+
+
+@dataclass
+class Recovery:
+    """What :func:`recover` did."""
+
+    accepted: list[str] = field(default_factory=list)
+    quarantined: list[str] = field(default_factory=list)
+    replanned: list[str] = field(default_factory=list)
+    lost: list[str] = field(default_factory=list)
+
+    def describe(self) -> str:
+        parts = [
+            f"{len(self.accepted)} published run(s) accepted",
+            f"{len(self.quarantined)} file(s) quarantined",
+            f"{len(self.replanned)} interrupted point(s) to rerun",
+        ]
+        if self.lost:
+            parts.append(f"{len(self.lost)} missing log(s) to rerun")
+        return ", ".join(parts)
+
+
+def quarantine(ledger: Ledger, path: Path, point_id: str | None, reason: str) -> str:
+    """Move ``path`` into ``DIR/quarantine/`` (unique name), record it; return the new relative path."""
+    directory = ledger.directory
+    qdir = directory / QUARANTINE_DIR
+    qdir.mkdir(exist_ok=True)
+    target = qdir / f"{path.name.lstrip('.')}.{time.time_ns()}"
+    size = path.stat().st_size
+    os.replace(path, target)
+    fsync_dir(qdir)
+    fsync_dir(path.parent)
+    moved = str(target.relative_to(directory))
+    ledger.record_quarantine(point_id, str(path.relative_to(directory)), moved, reason, size)
+    return moved
+
+
+def _tmp_point(name: str) -> str | None:
+    """Point id from ``.tmp-<id>-<pid>-<token>.mcap``."""
+    stem = name.removeprefix(TMP_PREFIX)
+    return stem.split("-", 1)[0] or None
+
+
+def _verify(path: Path, point_id: str) -> tuple[dict | None, str]:
+    """(log summary, "") if ``path`` is a complete log of ``point_id``, else (None, reason)."""
+    from labrunner.logs import read_run
+
+    try:
+        log = read_run(path)
+    except Exception as exc:  # any unreadable file is quarantined, whatever the library raises
+        return None, f"unreadable: {type(exc).__name__}: {exc}"
+    run = log.metadata.get("run", {})
+    if log.torn:
+        return None, "torn (no footer)"
+    if log.outcome is None:
+        return None, "no outcome record"
+    if run.get("point_id") != point_id:
+        return None, f"names point {run.get('point_id')!r}"
+    return {"outcome": dict(log.outcome), "metrics": dict(log.metadata.get("metrics", {})), "run": run}, ""
+
+
+def recover(ledger: Ledger) -> Recovery:
+    """Bring the directory and the ledger into agreement (see the module docstring)."""
+    directory = ledger.directory
+    runs = directory / RUNS_DIR
+    runs.mkdir(exist_ok=True)
+    report = Recovery()
+    for tmp in sorted(runs.glob(f"{TMP_PREFIX}*")):
+        report.quarantined.append(quarantine(ledger, tmp, _tmp_point(tmp.name), "unpublished temporary log"))
+    for row in ledger.rows(("planned", "claimed")):
+        pid, state = row["id"], row["state"]
+        path = directory / final_path(pid)
+        if path.exists():
+            found, reason = _verify(path, pid)
+            if found is not None:
+                outcome = {**found["outcome"], "recovered": True}
+                outcome.pop("n_samples", None)
+                ledger.commit(
+                    RunRecord(
+                        point_id=pid, outcome=outcome["status"], outcome_record=outcome, metrics=found["metrics"],
+                        log_path=final_path(pid), host=str(found["run"].get("host", "")),
+                        pid=int(found["run"].get("pid", 0)), finished_at=path.stat().st_mtime,
+                    ),
+                    from_states=(state,),
+                )
+                report.accepted.append(pid)
+                continue
+            report.quarantined.append(quarantine(ledger, path, pid, f"published log rejected: {reason}"))
+        if state == "claimed":
+            report.replanned.append(pid)
+    for row in ledger.rows(("done", "aborted", "failed")):
+        if row["log_path"] and not (directory / row["log_path"]).exists():
+            report.lost.append(row["id"])
+    ledger.replan(report.replanned + report.lost)
+    return report

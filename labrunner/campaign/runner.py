@@ -1,0 +1,251 @@
+"""The three campaign operations behind ``labrunner run``, ``resume`` and ``status``.
+
+``start`` validates the whole campaign (every point) before it creates anything, refuses a
+directory that already holds a campaign, creates the directory, takes its lock, writes the
+ledger atomically and runs. ``resume`` takes the lock (a dead runner's lock is taken over),
+refuses a campaign whose file changed what would run, settles what a crash left behind
+(:mod:`labrunner.campaign.recovery`) and runs what is left. ``status`` only reads.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+from labrunner import __version__
+from labrunner.campaign import recovery, spec
+from labrunner.campaign.ledger import LEDGER_NAME, Ledger, fsync_dir
+from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
+from labrunner.campaign.progress import Progress
+from labrunner.campaign.scheduler import Outcome, Scheduler, kill_pool_workers, make_batches, open_executor
+from labrunner.campaign.worker import RUNS_DIR
+from labrunner.errors import CampaignError
+
+CAMPAIGN_COPY = "campaign.toml"
+
+
+@dataclass(frozen=True)
+class Options:
+    """How to execute: process-pool size or Dask address, batch size, where progress goes."""
+
+    workers: int | None = None
+    executor: str | None = None
+    batch_size: int | None = None
+    stream: TextIO | None = None
+    progress_interval_s: float = 5.0
+
+
+def default_directory(campaign: spec.Campaign) -> Path:
+    return Path("data") / campaign.name
+
+
+def _ours(path: Path) -> bool:
+    """Files a run may leave before its ledger exists (its lock, a half-written ledger)."""
+    return path.name == LOCK_NAME or (path.name.startswith(f".{LEDGER_NAME}.") and path.name.endswith(".tmp"))
+
+
+def _check_new_directory(directory: Path, name: str) -> None:
+    if (directory / LEDGER_NAME).exists():
+        try:
+            with Ledger.open_readonly(directory) as ledger:
+                other = ledger.meta().get("campaign", "?")
+        except CampaignError:
+            other = "?"
+        what = f"campaign {other!r}" if other != name else "this campaign"
+        raise CampaignError(f"{directory} already holds {what}; continue it with `labrunner resume {directory}`")
+    if directory.exists() and (not directory.is_dir() or any(not _ours(p) for p in directory.iterdir())):
+        raise CampaignError(f"{directory} exists and is not an empty campaign directory; choose another --out")
+
+
+def _write_copy(directory: Path, text: str) -> None:
+    tmp = directory / f".{CAMPAIGN_COPY}.tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, directory / CAMPAIGN_COPY)
+
+
+def dry_run(campaign: spec.Campaign, points: list[spec.PlannedPoint], opts: Options) -> str:
+    """Point count, batches and an estimated time, as text; creates nothing."""
+    slots = 1 if not campaign.rig_info.simulated else (opts.workers or len(os.sched_getaffinity(0)))
+    rows = [{"batch_key": p.batch_key, "id": p.id} for p in points]
+    batches = make_batches(rows, slots, 1 if not campaign.rig_info.simulated else opts.batch_size)
+    groups: dict[str, list[int]] = {}
+    for key, members in batches:
+        groups.setdefault(key, []).append(len(members))
+    lines = [f"campaign {campaign.name}: {len(points)} points on rig {campaign.rig!r}, {len(batches)} batches"]
+    total_s = 0.0
+    for key, sizes in groups.items():
+        _, fs, duration, choices = json.loads(key)
+        kind = dict(choices).get("controller.kind")
+        lines.append(f"  {sum(sizes)} points × {duration:g} s at {fs:g} Hz ({kind}): {len(sizes)} batches of ≤ {max(sizes)}")
+        total_s += sum(sizes) * duration
+    if campaign.rig_info.simulated:
+        est = _estimate_sim(campaign, points, slots, max(groups[next(iter(groups))]))
+        lines.append(f"  estimated time ≈ {est:.0f} s on {slots} worker(s) ({total_s:g} s of simulated time)")
+    else:
+        lines.append(f"  estimated time ≈ {total_s + 2.0 * len(points):.0f} s on the real rig (one run at a time)")
+    return "\n".join(lines)
+
+
+def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slots: int, size: int) -> float:
+    """Time one batch of the first group in-process (nothing written) and extrapolate."""
+    from labrunner import engine
+    from labrunner.rigs import registry
+
+    first = [p for p in points if p.batch_key == points[0].batch_key][: min(size, 16)]
+    _, fs, duration, _ = json.loads(first[0].batch_key)
+    configs = []
+    for p in first:
+        config = campaign.resolve(p.parameters)
+        config["campaign"]["duration"] = duration
+        configs.append(config)
+    t0 = time.perf_counter()
+    with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as rig:
+        engine.run_batch(configs, rig, fs=fs, duration=duration, seeds=[campaign.seed] * len(configs),
+                         rig_safety=campaign.rig_safety)
+    per_run_sample = (time.perf_counter() - t0) / (len(first) * fs * duration)
+    samples = sum(fs_d[0] * fs_d[1] for fs_d in (json.loads(p.batch_key)[1:3] for p in points))
+    return per_run_sample * samples / slots + 0.01 * len(points)
+
+
+def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
+    """``labrunner run``: validate everything, then create the campaign directory and run it."""
+    campaign = spec.load(file)
+    points, checksum = spec.plan(campaign)
+    directory = Path(out) if out else default_directory(campaign)
+    _check_new_directory(directory, campaign.name)
+    if dry:
+        return None, dry_run(campaign, points, opts)
+    directory.mkdir(parents=True, exist_ok=True)
+    with DirectoryLock(directory, "run") as lock:
+        _check_new_directory(directory, campaign.name)  # again, now that nobody else can create it
+        meta = {
+            "campaign": campaign.name,
+            "campaign_file": campaign.source,
+            "campaign_path": str(Path(file).resolve()),
+            "plan_checksum": checksum,
+            "points": str(len(points)),
+            "rig": campaign.rig,
+            "created_at": repr(time.time()),
+            "created_by": f"labrunner {__version__} on {socket.gethostname()}",
+        }
+        (directory / RUNS_DIR).mkdir(exist_ok=True)
+        _write_copy(directory, campaign.source)
+        ledger = Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points))
+        del points
+        with ledger:
+            return _execute(campaign, ledger, lock, opts, "run"), str(directory)
+
+
+def _check_unchanged(ledger: Ledger) -> spec.Campaign:
+    """The stored campaign, re-planned; refuse if it, or its original file, plans differently."""
+    meta = ledger.meta()
+    source_path = Path(meta["campaign_path"])
+    campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
+    _, checksum = spec.plan(campaign)
+    if checksum != meta["plan_checksum"]:
+        raise CampaignError(
+            f"the campaign stored in {ledger.directory} no longer plans the same runs (rig file or labrunner "
+            "changed?); resuming would mix two campaigns — start a new one with `labrunner run FILE --out DIR`"
+        )
+    if source_path.is_file():
+        text = source_path.read_text(encoding="utf-8")
+        if text != meta["campaign_file"]:
+            try:
+                edited = spec.plan(spec.from_text(text, source_path=source_path))[1]
+            except Exception:  # an edit that no longer even validates is an edit
+                edited = ""
+            if edited != checksum:
+                raise CampaignError(
+                    f"{source_path} was edited since this campaign was planned (its grid or run settings differ); "
+                    f"restore it to resume, or run the edited file as a new campaign with --out"
+                )
+    return campaign
+
+
+def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) -> tuple[Outcome, str]:
+    """``labrunner resume``: settle a crash, then run every point that is not terminal."""
+    directory = Path(directory)
+    if not (directory / LEDGER_NAME).is_file():
+        raise CampaignError(f"{directory} holds no campaign ledger; start a campaign with `labrunner run FILE`")
+    stream = opts.stream or sys.stderr
+    with DirectoryLock(directory, "resume") as lock, Ledger.open(directory) as ledger:
+        if lock.took_over:
+            print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
+        campaign = _check_unchanged(ledger)
+        report = recovery.recover(ledger)
+        print(f"resume {directory}: {report.describe()}", file=stream)
+        if retry_failed:
+            failed = [r["id"] for r in ledger.rows(("failed",))]
+            ledger.replan(failed)
+            print(f"retrying {len(failed)} failed point(s)", file=stream)
+        return _execute(campaign, ledger, lock, opts, "resume"), str(directory)
+
+
+def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts: Options, command: str) -> Outcome:
+    ledger.start_session(command)
+    c = ledger.counts()
+    progress = Progress(
+        campaign.name, sum(c.values()), c["done"], c["aborted"], c["failed"],
+        stream=opts.stream, interval_s=opts.progress_interval_s,
+    )
+    real = not campaign.rig_info.simulated
+    out = Outcome()
+    reason = "error"
+    try:
+        with open_executor(real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd) as (ex, slots):
+            scheduler = Scheduler(
+                campaign, ledger, executor=ex, slots=slots, batch_size=1 if real else opts.batch_size, progress=progress
+            )
+            out = scheduler.run()
+            if out.abandoned:
+                kill_pool_workers()
+        reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
+    finally:
+        progress.close()
+        ledger.end_session(reason)
+        fsync_dir(ledger.directory)
+    return out
+
+
+def status(directory: str | Path) -> dict[str, Any]:
+    """The ``labrunner status --json`` object (reads only)."""
+    directory = Path(directory)
+    with Ledger.open_readonly(directory) as ledger:
+        meta = ledger.meta()
+        counts = ledger.counts()
+        outcomes = ledger.outcome_counts()
+        sessions = ledger.sessions()
+        quarantined = len(ledger.quarantined())
+        finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
+    running = holder(directory)
+    now = time.time()
+    elapsed = 0.0
+    for i, s in enumerate(sessions):
+        live = running is not None and i == len(sessions) - 1 and s["ended_at"] is None
+        end = now if live else (s["ended_at"] or s["last_at"])
+        elapsed += max(0.0, end - s["started_at"])
+    total = sum(counts.values())
+    remaining = counts["planned"] + counts["claimed"]
+    rate = finished / elapsed if elapsed > 0 and finished else None
+    return {
+        "campaign": meta.get("campaign"),
+        "directory": str(directory),
+        "total": total,
+        **counts,
+        "outcomes": outcomes,
+        "quarantined": quarantined,
+        "elapsed_s": round(elapsed, 3),
+        "rate_per_s": round(rate, 3) if rate else None,
+        "estimate_s": round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None),
+        "running": None if running is None else {"host": running.host, "pid": running.pid},
+        "sessions": len(sessions),
+    }

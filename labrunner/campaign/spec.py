@@ -1,0 +1,308 @@
+"""Campaign files (TOML) → a validated :class:`Campaign`, its points, and the static checks.
+
+A campaign file has the sections ``[campaign]`` (name, description, rig, fs [Hz], duration [s],
+seed), the pass-through sections of a run (``[controller]``, ``[differentiator]``,
+``[reference]``, ``[safety]``, ``[rig_parameters]``), ``[grid]`` (axes, see
+:mod:`labrunner.campaign.grid`) and ``[derived]`` (safe expressions, see
+:mod:`labrunner.campaign.expressions`). Every error names its key path. :func:`load` checks every
+point against the static limits (α vs derivative order, ω_c vs Nyquist, finite gains, the rig's
+f_s range and safety keys) before anything is created, so a bad grid fails in seconds, not after
+the first hundred runs.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import re
+import tomllib
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from labrunner.campaign import expressions, grid as gridmod
+from labrunner.campaign.grid import Grid, canonical_json, point_id
+from labrunner.errors import InvalidParameter, check_finite
+from labrunner.rigs.base import RigInfo
+
+SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_parameters")
+CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
+GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
+TOP_LEVEL = ("campaign", *SECTIONS, "grid", "derived")
+NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
+_PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
+
+
+@dataclass(frozen=True)
+class PlannedPoint:
+    """A grid point: grid order ``seq``, stable ``id``, its ``parameters`` (grid + derived values)."""
+
+    seq: int
+    id: str
+    parameters: dict[str, Any]
+    batch_key: str  # points with equal keys may share a batch: rig, fs, duration, controller kind
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """A validated campaign. ``base`` holds the pass-through sections before grid values apply."""
+
+    name: str
+    description: str
+    rig: str  # as written: a rig name or a path relative to the campaign file
+    rig_path: Path | None  # the resolved rig file when ``rig`` is a path
+    fs: float
+    duration: float | None
+    seed: int
+    base: Mapping[str, Mapping[str, Any]]
+    grid: Grid
+    derived: tuple[tuple[str, expressions.Expression], ...]
+    source: str
+    source_path: Path | None
+    project_root: Path
+    rig_info: RigInfo = field(repr=False)
+    rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def rig_ref(self) -> str:
+        """What the rig registry loads: the absolute rig file, or the rig's name."""
+        return str(self.rig_path) if self.rig_path else self.rig
+
+    @property
+    def rig_search(self) -> tuple[str, ...]:
+        from labrunner.rigs.config import default_search
+
+        return tuple(str(p) for p in default_search(self.project_root))
+
+    @property
+    def size(self) -> int:
+        return self.grid.size
+
+    def resolve(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
+        """The full run configuration of one point: base sections with its parameters set."""
+        config: dict[str, Any] = {s: copy.deepcopy(dict(self.base.get(s, {}))) for s in SECTIONS}
+        config["campaign"] = {"name": self.name, "rig": self.rig, "fs": self.fs, "duration": self.duration, "seed": self.seed}
+        for key, value in parameters.items():
+            _set(config, key, value)
+        return config
+
+    def points(self) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
+        """(parameters, config) of every point in grid order, derived values evaluated."""
+        for params in self.grid.points():
+            config = self.resolve(params)
+            for key, expr in self.derived:
+                value = expr.evaluate(_NameView(config, self.rig_info.constants))
+                _set(config, key, value)
+                params[key] = value
+            yield params, config
+
+
+class _NameView(Mapping[str, Any]):
+    """Names an expression may read: rig constants, then dotted keys of the resolved point."""
+
+    def __init__(self, config: Mapping[str, Any], constants: Mapping[str, float]) -> None:
+        self._config, self._constants = config, constants
+
+    def __getitem__(self, name: str) -> Any:
+        if name in self._constants:
+            return self._constants[name]
+        node: Any = self._config
+        for part in name.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                raise KeyError(name)
+            node = node[part]
+        return node
+
+    def __iter__(self):  # pragma: no cover - Mapping protocol
+        return iter(self._constants)
+
+    def __len__(self) -> int:  # pragma: no cover - Mapping protocol
+        return len(self._constants)
+
+
+def _set(config: dict[str, Any], key: str, value: Any) -> None:
+    node = config
+    *parents, leaf = key.split(".")
+    for part in parents:
+        node = node.setdefault(part, {})
+    node[leaf] = copy.deepcopy(value)
+
+
+def _keys(table: Mapping[str, Any], prefix: str) -> Iterator[str]:
+    for key, value in table.items():
+        path = f"{prefix}.{key}"
+        yield path
+        if isinstance(value, Mapping):
+            yield from _keys(value, path)
+
+
+def project_root(path: Path) -> Path:
+    """Nearest ancestor of ``path`` holding pyproject.toml, rigs/ or .git; else its own folder."""
+    start = path.resolve().parent
+    for folder in (start, *start.parents):
+        if any((folder / m).exists() for m in _PROJECT_MARKERS):
+            return folder
+    return start
+
+
+def _require(field_name: str, value: Any, kind: type | tuple[type, ...], what: str) -> Any:
+    if isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple) else (kind,)):
+        raise InvalidParameter(field_name, f"must be {what}, got {value!r}")
+    if not isinstance(value, kind):
+        raise InvalidParameter(field_name, f"must be {what}, got {type(value).__name__} {value!r}")
+    return value
+
+
+def _positive(field_name: str, value: Any) -> float:
+    _require(field_name, value, (int, float), "a number")
+    v = check_finite(field_name, value)
+    if v <= 0:
+        raise InvalidParameter(field_name, f"must be > 0, got {v!r}")
+    return v
+
+
+def parse(text: str, *, source_path: Path | None = None) -> dict[str, Any]:
+    """TOML text → dict, with a one-line error naming the line on a syntax error."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        where = source_path.name if source_path else "campaign"
+        raise InvalidParameter(where, f"is not valid TOML: {exc}") from None
+
+
+def _resolve_rig(value: Any, source_path: Path | None, root: Path) -> tuple[str, Path | None]:
+    _require("campaign.rig", value, str, "a rig name or a path to a rig file")
+    if NAME_RE.fullmatch(value):
+        return value, None
+    base = source_path.resolve().parent if source_path else root
+    path = (base / value).resolve()
+    if not path.is_relative_to(root.resolve()):
+        raise InvalidParameter("campaign.rig", f"path {value!r} is outside the project {str(root)!r}")
+    if path.suffix != ".toml" or not path.is_file():
+        raise InvalidParameter("campaign.rig", f"{value!r} is neither a rig name ([a-z0-9_-]+) nor a rig .toml file")
+    return value, path
+
+
+def from_text(text: str, *, source_path: Path | None = None, root: Path | None = None) -> Campaign:
+    """Parse and validate a campaign (structure, keys, grid, derived, rig); no per-point checks."""
+    root = (root or (project_root(source_path) if source_path else Path.cwd())).resolve()
+    doc = parse(text, source_path=source_path)
+    unknown = sorted(set(doc) - set(TOP_LEVEL))
+    if unknown:
+        raise InvalidParameter(unknown[0], f"unknown section; allowed: {', '.join(TOP_LEVEL)}")
+    for section in (*SECTIONS, "campaign", "derived"):
+        if section in doc:
+            _require(section, doc[section], dict, "a table")
+    head = doc.get("campaign")
+    if head is None:
+        raise InvalidParameter("campaign", "section is missing (needs at least name and rig)")
+    bad = sorted(set(head) - set(CAMPAIGN_KEYS))
+    if bad:
+        raise InvalidParameter(f"campaign.{bad[0]}", f"unknown key; allowed: {', '.join(CAMPAIGN_KEYS)}")
+    for key in ("name", "rig"):
+        if key not in head:
+            raise InvalidParameter(f"campaign.{key}", "is required")
+    name = _require("campaign.name", head["name"], str, "a string")
+    if not NAME_RE.fullmatch(name):
+        raise InvalidParameter("campaign.name", f"must match [a-z0-9_-]+ (at most 64 characters), got {name!r}")
+    description = _require("campaign.description", head.get("description", ""), str, "a string")
+    rig, rig_path = _resolve_rig(head["rig"], source_path, root)
+    info, rig_safety, rig_params = rig_info(rig_path or rig, root)
+    fs = _positive("campaign.fs", head["fs"]) if "fs" in head else float(info.fs_default)
+    info.check_fs(fs, "campaign.fs")
+    duration = _positive("campaign.duration", head["duration"]) if "duration" in head else None
+    seed = _require("campaign.seed", head.get("seed", 0), int, "an integer")
+    if seed < 0:
+        raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
+    base = {s: doc.get(s, {}) for s in SECTIONS}
+    settable = {f"campaign.{k}" for k in GRID_CAMPAIGN_KEYS} | {k for s in SECTIONS for k in _keys(base[s], s)}
+
+    def check_key(field_name: str, key: str) -> None:
+        section = key.split(".", 1)[0]
+        if key.startswith("campaign."):
+            if key not in settable:
+                raise InvalidParameter(field_name, f"only campaign.{{{', '.join(GRID_CAMPAIGN_KEYS)}}} may vary")
+        elif section not in SECTIONS or "." not in key:
+            raise InvalidParameter(field_name, f"must be a dotted key in one of {', '.join(SECTIONS)} (or campaign.fs/duration/seed)")
+        elif section == "rig_parameters" and key.split(".", 2)[1] not in rig_params:
+            raise InvalidParameter(field_name, f"rig {rig!r} has no parameter {key.split('.', 2)[1]!r}; it has {', '.join(rig_params)}")
+
+    for key in base["rig_parameters"]:
+        check_key(f"rig_parameters.{key}", f"rig_parameters.{key}")
+    grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
+    derived: list[tuple[str, expressions.Expression]] = []
+    known = set(settable) | set(grid.keys) | set(info.constants)
+    for key, source in _derived_items(doc.get("derived", {})):
+        check_key(f'derived."{key}"', key)
+        if key in grid.keys:
+            raise InvalidParameter(f'derived."{key}"', "is also a grid axis; a key is either swept or derived")
+        derived.append((key, expressions.parse(f'derived."{key}"', source, known)))
+        known.add(key)
+    return Campaign(
+        name=name, description=description, rig=rig, rig_path=rig_path, fs=fs, duration=duration, seed=seed,
+        base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
+        rig_info=info, rig_safety=rig_safety,
+    )
+
+
+def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+    for key, value in table.items():
+        path = f"{prefix}.{key}" if prefix else key
+        if isinstance(value, Mapping):
+            yield from _derived_items(value, path)
+        else:
+            yield path, value
+
+
+def rig_info(ref: str | Path, root: Path) -> tuple[RigInfo, dict[str, Any], tuple[str, ...]]:
+    """The rig's :class:`RigInfo`, its file's ``[safety]`` and its parameter names, without opening it."""
+    from labrunner.rigs import config as rigconfig
+
+    try:
+        config = rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root))
+    except InvalidParameter as exc:
+        raise InvalidParameter("campaign.rig", str(exc)) from None
+    return rigconfig.rig_info(config), dict(config.safety), tuple(config.parameters)
+
+
+def load(path: str | Path, *, root: Path | None = None) -> Campaign:
+    """Read and validate a campaign file (structure only; see :func:`plan` for the per-point checks)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InvalidParameter("FILE", f"campaign file {str(path)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InvalidParameter("FILE", f"cannot read {str(path)!r}: {exc}") from None
+    return from_text(text, source_path=path, root=root)
+
+
+def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
+    """Expand and statically check every point; return the points in grid order and the plan checksum.
+
+    The checksum covers the resolved configuration of every point (not the file's bytes), so a
+    comment edit keeps a campaign resumable while any change of what would run does not.
+    """
+    from labrunner.campaign.checks import StaticChecker, choices
+
+    checker = StaticChecker(campaign)
+    points: list[PlannedPoint] = []
+    digests: list[tuple[int, str]] = []
+
+    def accept(checked) -> None:
+        for (seq, params, config), duration in checked:
+            config["campaign"]["duration"] = duration
+            key = canonical_json([campaign.rig, config["campaign"]["fs"], duration, choices(config)])
+            points.append(PlannedPoint(seq, point_id(campaign.name, params), params, key))
+            digests.append((seq, hashlib.sha256(canonical_json(config).encode()).hexdigest()))
+
+    for seq, (params, config) in enumerate(campaign.points()):
+        accept(checker.add(seq, params, config))
+    accept(checker.flush())
+    points.sort(key=lambda p: p.seq)
+    gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
+    digest = hashlib.sha256(canonical_json({"name": campaign.name, "rig": campaign.rig}).encode())
+    for _, d in sorted(digests):
+        digest.update(d.encode())
+    return points, digest.hexdigest()

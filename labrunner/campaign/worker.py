@@ -1,0 +1,173 @@
+"""What runs in a worker process (or a Dask worker, or in-process for a real rig): one batch.
+
+:func:`execute_batch` loads the rig, runs the batch through :func:`labrunner.engine.run_batch`
+and *publishes* each run's MCAP atomically — written under a temporary name in ``DIR/runs/``,
+fsynced, renamed to ``runs/<point_id>.mcap``, the directory fsynced — before it returns the
+small summaries the parent commits to the ledger. The ordering is the crash-safety argument: a
+row is never terminal without its published file; a published file without a terminal row is
+settled by :mod:`labrunner.campaign.recovery` on resume. Signals never leave the worker, so the
+parent's memory does not grow with the number of runs.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import socket
+import time
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from labrunner.campaign.ledger import RunRecord, fsync_dir
+from labrunner.errors import RigError
+
+RUNS_DIR = "runs"
+TMP_PREFIX = ".tmp-"
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """One point of a batch: id, attempt number, grid parameters, resolved configuration, seed."""
+
+    point_id: str
+    attempt: int
+    parameters: Mapping[str, Any]
+    config: Mapping[str, Any]
+    seed: int
+
+
+@dataclass(frozen=True)
+class BatchTask:
+    """A batch of compatible points (same rig, f_s [Hz], duration [s], controller kind)."""
+
+    directory: str  # the campaign directory (absolute; shared with remote workers)
+    campaign: str
+    campaign_source: str  # the campaign file, attached to every log
+    rig: str
+    rig_search: tuple[str, ...]
+    rig_safety: Mapping[str, Any]
+    fs: float
+    duration: float
+    runs: tuple[RunTask, ...]
+
+
+@dataclass
+class BatchResult:
+    """Per-run records to commit, and whether the rig asked to stop the campaign (RigError)."""
+
+    records: list[RunRecord] = field(default_factory=list)
+    stop: str = ""  # non-empty: the reason to stop the campaign
+
+
+def final_path(point_id: str) -> str:
+    """Log path of a point, relative to the campaign directory."""
+    return f"{RUNS_DIR}/{point_id}.mcap"
+
+
+def _load_rig(task: BatchTask):
+    from labrunner.rigs import registry
+
+    return registry.load_rig(task.rig, search=task.rig_search)
+
+
+def _publish(tmp: Path, final: Path) -> None:
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, final)
+
+
+def _metadata(task: BatchTask, run: RunTask, host: str) -> dict[str, dict[str, Any]]:
+    return {
+        "run": {
+            "campaign": task.campaign,
+            "point_id": run.point_id,
+            "attempt": run.attempt,
+            "seed": run.seed,
+            "rig": task.rig,
+            "duration": task.duration,
+            "host": host,
+            "pid": os.getpid(),
+            "start_time": time.time(),
+        },
+        "config": dict(run.config),
+        "parameters": dict(run.parameters),
+    }
+
+
+def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | None = None) -> BatchResult:
+    """Run ``task`` and publish its logs; never raises for a run's own failure.
+
+    ``run_batch`` defaults to :func:`labrunner.engine.run_batch` (tests inject fakes). A
+    :class:`~labrunner.errors.RigError` marks the batch failed and asks the parent to stop; any
+    other exception marks the batch's points failed with the message (their logs are absent).
+    """
+    from labrunner import engine
+    from labrunner.logs import write_run
+
+    run_batch = run_batch or engine.run_batch
+    host, pid = socket.gethostname(), os.getpid()
+    directory = Path(task.directory)
+    runs_dir = directory / RUNS_DIR
+    out = BatchResult()
+    t0 = time.perf_counter()
+    try:
+        with _load_rig(task) as rig:
+            results = list(
+                run_batch(
+                    [r.config for r in task.runs], rig, fs=task.fs, duration=task.duration,
+                    seeds=[r.seed for r in task.runs], rig_safety=task.rig_safety,
+                )
+            )
+    except RigError as exc:
+        out.stop = f"rig {task.rig!r}: {exc}"
+        return _failed(task, out, out.stop, host, pid)
+    except Exception as exc:  # bad configuration or a crash: the batch's points fail, the campaign goes on
+        detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        return _failed(task, out, detail, host, pid)
+    engine_s = (time.perf_counter() - t0) / max(len(task.runs), 1)
+    attachments = {"campaign.toml": task.campaign_source.encode()}
+    for i, run in enumerate(task.runs):
+        result, results[i] = results[i], None  # free each run's signals as soon as it is written
+        t1 = time.perf_counter()
+        tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{secrets.token_hex(4)}.mcap"
+        metadata = _metadata(task, run, host)
+        metadata["metrics"] = dict(result.metrics)
+        outcome = result.outcome.as_dict()
+        write_run(tmp, metadata=metadata, fs=task.fs, signals=result.signals, outcome=outcome,
+                  attachments=attachments, channels=result.channels)
+        t2 = time.perf_counter()
+        _publish(tmp, runs_dir / f"{run.point_id}.mcap")
+        out.records.append(
+            RunRecord(
+                point_id=run.point_id, outcome=outcome["status"], outcome_record=outcome,
+                metrics=dict(result.metrics), log_path=final_path(run.point_id), host=host, pid=pid,
+                finished_at=time.time(), engine_s=engine_s, write_s=t2 - t1, publish_s=time.perf_counter() - t2,
+            )
+        )
+    t3 = time.perf_counter()
+    fsync_dir(runs_dir)  # every rename durable before any row is committed
+    share = (time.perf_counter() - t3) / max(len(out.records), 1)
+    out.records = [_add_publish(r, share) for r in out.records]
+    return out
+
+
+def _add_publish(record: RunRecord, extra_s: float) -> RunRecord:
+    return replace(record, publish_s=(record.publish_s or 0.0) + extra_s)
+
+
+def _failed(task: BatchTask, out: BatchResult, message: str, host: str, pid: int) -> BatchResult:
+    now = time.time()
+    for run in task.runs:
+        out.records.append(
+            RunRecord(
+                point_id=run.point_id, outcome="failed", outcome_record={"status": "failed", "message": message},
+                metrics={}, log_path=None, host=host, pid=pid, finished_at=now,
+            )
+        )
+    return out

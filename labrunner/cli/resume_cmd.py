@@ -1,0 +1,31 @@
+"""``labrunner resume DIR``: continue a stopped, interrupted or crashed campaign."""
+
+from __future__ import annotations
+
+import argparse
+
+from labrunner.cli.run_cmd import add_execution_options, report
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "resume",
+        help="continue a campaign after a crash or Ctrl-C",
+        description=(
+            "Continue the campaign in DIR: terminal points are skipped, torn logs of interrupted runs are "
+            "moved to DIR/quarantine/ and their points run again. Refused while another runner holds DIR "
+            "or when the campaign file was edited."
+        ),
+    )
+    p.add_argument("directory", metavar="DIR", help="campaign directory (as given to or made by `labrunner run`)")
+    add_execution_options(p)
+    p.add_argument("--retry-failed", action="store_true", help="run points that ended 'failed' again")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from labrunner.campaign.runner import Options, resume
+
+    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)
+    outcome, directory = resume(args.directory, opts, retry_failed=args.retry_failed)
+    return report(outcome, directory, "resume")

@@ -1,0 +1,68 @@
+"""``labrunner run FILE``: validate a campaign, create its directory and run every point."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from labrunner.errors import CampaignError
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
+def add_execution_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``run`` and ``resume``."""
+    parser.add_argument("--workers", type=positive_int, metavar="N", help="local worker processes (default: all cores)")
+    parser.add_argument(
+        "--executor", metavar="URL", help="run on a Dask distributed cluster, e.g. tcp://HOST:8786 (shared file system)"
+    )
+    parser.add_argument("--batch-size", type=positive_int, metavar="N", help="runs per lockstep batch (default: automatic)")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="run a campaign file",
+        description="Validate every point of a campaign file, create its directory (ledger, runs/) and run it.",
+    )
+    p.add_argument("file", metavar="FILE", help="campaign file (TOML), e.g. campaigns/quickstart.toml")
+    p.add_argument("--out", metavar="DIR", help="campaign directory (default: data/<name>/)")
+    add_execution_options(p)
+    p.add_argument("--dry-run", action="store_true", help="print points, batches and an estimated time; create nothing")
+    p.set_defaults(func=main)
+
+
+def report(outcome, directory: str, command: str) -> int:
+    """Print how a session ended; the exit code (0 done, 130 interrupted); raise if it stopped."""
+    c = outcome.counts
+    left = c.get("planned", 0) + c.get("claimed", 0)
+    print(
+        f"{directory}: {c.get('done', 0)} done, {c.get('aborted', 0)} aborted, {c.get('failed', 0)} failed, "
+        f"{left} left ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)"
+    )
+    if outcome.stop_reason:
+        raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`")
+    if outcome.interrupted:
+        print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
+        return 130
+    return 0
+
+
+def main(args: argparse.Namespace) -> int:
+    from labrunner.campaign.runner import Options, start
+
+    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)
+    outcome, text = start(args.file, args.out, opts, dry=args.dry_run)
+    if outcome is None:
+        print(text)
+        return 0
+    return report(outcome, text, "run")
