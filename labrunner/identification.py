@@ -126,3 +126,24 @@ def identify_logs(
         result["nominal"] = {k: float(nominal[k]) for k in ("a", "b") if k in nominal}
         result["bias"] = {k: result[k] / v - 1.0 for k, v in result["nominal"].items()}
     return result
+
+
+def nominal_constants(path: str | Path, search: Sequence[str | Path] | None = None) -> dict[str, float] | None:
+    """The nominal a and b of the rig a log was recorded on (rig file constants, with the run's
+    ``rig_parameters`` overrides), or None when the rig file cannot be found (``search``: rig
+    directories, default the registry's)."""
+    from labrunner.logs import read_metadata
+    from labrunner.rigs.config import load_rig_config
+
+    meta = read_metadata(path)
+    rig = meta.get("run", {}).get("rig")
+    if not isinstance(rig, str):
+        return None
+    try:
+        constants = dict(load_rig_config(rig, search).info.constants)
+    except (InvalidParameter, OSError):
+        return None
+    overrides = meta.get("config", {}).get("rig_parameters") or {}
+    constants.update({k: float(v) for k, v in overrides.items() if k in ("a", "b")})
+    found = {k: float(constants[k]) for k in ("a", "b") if k in constants}
+    return found or None

@@ -100,3 +100,118 @@ def write_report(path: str | Path, title: str, subtitle: str, sections: Sequence
     tmp.write_text(render_html(title, subtitle, sections), encoding="utf-8")
     tmp.replace(path)
     return path
+
+
+# -- the campaign report ---------------------------------------------------------------------
+_SHOWN = 10  # rows of the best/aborted tables
+
+
+def _png(path: Path) -> bytes:
+    return Path(path).read_bytes()
+
+
+def _param_columns(frame: pd.DataFrame, axes: Sequence[str]) -> list[str]:
+    return [c for c in axes if c in frame.columns] or [c for c in frame.columns if "." in c]
+
+
+def _campaign_section(ctx, frame: pd.DataFrame) -> Section:
+    campaign = ctx.campaign
+    if campaign is None:
+        return Section("Campaign", paragraphs=[f"Directory {ctx.directory}. {ctx.note}."], warning=True)
+    facts: dict[str, object] = {
+        "name": campaign.name, "rig": f"{campaign.rig} ({campaign.rig_info.description or campaign.rig_info.kind})",
+        "sampling frequency f_s": f"{campaign.fs:g} Hz",
+        "duration": f"{campaign.duration:g} s" if campaign.duration else "the reference's length",
+        "controller": ", ".join(f"{k} = {v}" for k, v in campaign.base.get("controller", {}).items()),
+        "differentiator": ", ".join(f"{k} = {v}" for k, v in campaign.base.get("differentiator", {}).items()) or "–",
+        "points": campaign.size,
+    }
+    for group in campaign.grid.groups:
+        for axis in group:
+            values = [v for v in axis.values if isinstance(v, (int, float))]
+            span = f"{min(values):.4g} … {max(values):.4g}" if values else ", ".join(map(str, axis.values))
+            facts[f"grid: {axis.key}"] = f"{len(axis.values)} values, {span}"
+    for key, expr in campaign.derived:
+        facts[f"derived: {key}"] = getattr(expr, "source", str(expr))
+    constants = ", ".join(f"{k} = {v:g}" for k, v in campaign.rig_info.constants.items())
+    if constants:
+        facts["rig constants (nominal)"] = constants
+    return Section("Campaign", paragraphs=[campaign.description] if campaign.description else [], facts=facts,
+                   pre=campaign.source)
+
+
+def _outcome_section(summary: Mapping[str, object]) -> Section:
+    keys = ("points", "runs", "completed", "no_motion", "aborted", "failed", "planned", "claimed")
+    facts = {k.replace("_", "-"): summary[k] for k in keys}
+    agree = summary.get("agreement") or {}
+    paragraphs = []
+    if agree.get("share") is not None:
+        paragraphs.append(
+            f"Theory vs. runs ({agree['case']}): {agree['share']:.1%} of {agree['n_compared']} points agree "
+            f"(completed or no motion ⇔ predicted stable, aborted ⇔ predicted unstable); "
+            f"{agree['n_excluded']} points within ±{agree['margin']:.0%} of a predicted bound are left out; "
+            f"{agree['false_stable']} aborted although predicted stable, {agree['false_unstable']} completed "
+            "although predicted unstable.")
+    else:
+        paragraphs.append("No stability case applies to this campaign (or no run finished), so no agreement is given.")
+    return Section("Outcomes", paragraphs=paragraphs, facts=facts)
+
+
+def _run_table(frame: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
+    shown = [c for c in columns if c in frame.columns]
+    return frame[shown].rename(columns=lambda c: c.split(".")[-1] if "." in c else c)
+
+
+def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], maps: Sequence[Path],
+                    chosen: Mapping[str, pd.Series], runs: Mapping[str, Path]) -> Path:
+    """Compose and write ``index.html`` of a campaign analysis into ``ctx.out``.
+
+    ``ctx`` is the analysis context (campaign, directory, axes, units); ``chosen`` the table rows
+    of the plotted runs, ``runs`` their PNGs, both keyed by label ("best", ...).
+    """
+    params = _param_columns(frame, ctx.axes)
+    metrics = ["rms_error", "input_energy", "max_abs_input", "max_current"]
+    sections = [_campaign_section(ctx, frame), _outcome_section(summary)]
+    if maps:
+        sections.append(Section("Maps", paragraphs=[
+            "Markers: red triangle = aborted by the safety routine, white circle = no motion (input too small to "
+            "move the load), black cross = completed, grey square = failed. Grey cells: no metric for the whole run. "
+            "Lines: stability bounds of the theory for the campaign's differentiator delay δ_t."],
+            images=[Image(p.stem.replace("_", " "), _png(p)) for p in maps]))
+    if runs:
+        images = [Image(f"{label} run", _png(path), _run_caption(chosen[label], params)) for label, path in runs.items()]
+        sections.append(Section("Selected runs", images=images))
+    done = frame[frame["status"] == "completed"].sort_values("rms_error")
+    tables = []
+    if not done.empty:
+        tables.append((f"Best {min(_SHOWN, len(done))} completed runs by RMS of e",
+                       _run_table(done.head(_SHOWN), ["seq", "id", *params, *metrics])))
+    aborted = frame[frame["status"] == "aborted"].sort_values("seq")
+    if not aborted.empty:
+        tables.append((f"First {min(_SHOWN, len(aborted))} of {len(aborted)} aborted runs",
+                       _run_table(aborted.head(_SHOWN), ["seq", "id", *params, "monitor", "abort_time", "abort_value"])))
+    failed = frame[frame["status"] == "failed"]
+    if not failed.empty:
+        tables.append((f"{len(failed)} failed runs", _run_table(failed.head(_SHOWN), ["seq", "id", *params, "monitor"])))
+    if tables:
+        sections.append(Section("Runs", tables=tables))
+    problems = summary.get("problems") or []
+    if problems:
+        sections.append(Section("Damaged and quarantined files", warning=True, paragraphs=[
+            f"{len(problems)} file(s) could not be used as they are; metrics of unreadable logs fall back to the "
+            "ledger's summary."], tables=[("", pd.DataFrame(problems, columns=["kind", "path", "detail"]))]))
+    sections.append(Section("Files", paragraphs=[
+        "metrics.csv and metrics.parquet (next to this file) hold one row per grid point: parameters, ledger "
+        "state, outcome, and the metrics of its run log."]))
+    name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
+    subtitle = f"labrunner analysis of {ctx.directory} — {summary['runs']} runs of {summary['points']} points"
+    return write_report(ctx.out / "index.html", f"Campaign {name}", subtitle, sections)
+
+
+def _run_caption(row: pd.Series, params: Sequence[str]) -> str:
+    """Point, parameters, outcome and metrics of a plotted run."""
+    values = ", ".join(f"{k.split('.')[-1]} = {float(row[k]):.4g}" for k in params if pd.notna(row.get(k)))
+    text = f"Point {row['seq']} ({row['id']}): {values}; {row['status']}"
+    if row["status"] == "aborted" and pd.notna(row.get("abort_time")):
+        text += f" by {row.get('monitor')} at t = {float(row['abort_time']):.3f} s"
+    return f"{text}; RMS(e) = {float(row['rms_error']):.4g}, E(u) = {float(row['input_energy']):.4g}."

@@ -1,0 +1,211 @@
+"""``labrunner analyse``: a campaign directory → metrics table, maps, run plots and index.html.
+
+Steps: read the ledger (parameters, states, outcomes) and the campaign file it keeps; build the
+metrics table from the MCAPs (:mod:`.table`, cached); pick the map axes from the grid (γ–k_p and
+k_p–k_d as in the thesis, else grid order; further axes become facets); draw RMS and energy maps
+(or sweep plots) with the stability overlays that fit (:mod:`.overlays`); plot the best, the worst
+completed and the first aborted run; compare outcomes with the theory (:mod:`.agreement`); write
+the report. Returns the summary that ``--json`` prints.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from labrunner.analysis import agreement as agreement_mod
+from labrunner.analysis import figures, report, table as table_mod
+from labrunner.analysis.maps import gain_units
+from labrunner.analysis.overlays import Theory
+from labrunner.errors import InvalidParameter, LabrunnerError
+
+
+
+@dataclass
+class Context:
+    """What the analysis knows about the campaign beyond the table."""
+
+    directory: Path
+    out: Path
+    campaign: Any | None  # labrunner.campaign.spec.Campaign, when its file and rig could be loaded
+    note: str  # why the campaign could not be loaded ("" if it could)
+    axes: list[str]  # grid axis keys that vary, in grid order
+    units: dict[str, str]  # unit per dotted key and per metric column
+
+
+def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Any | None, str]:
+    """The :class:`~labrunner.campaign.spec.Campaign` kept in the ledger, or (None, why not)."""
+    from labrunner.campaign import spec
+
+    text = meta.get("campaign_file")
+    if not text:
+        return None, "the ledger keeps no copy of the campaign file"
+    source = meta.get("campaign_path")
+    try:
+        return spec.from_text(text, source_path=Path(source) if source else None), ""
+    except LabrunnerError as exc:
+        return None, f"the campaign file could not be loaded again: {exc}"
+
+
+def varying_axes(frame: pd.DataFrame, campaign: Any | None) -> list[str]:
+    """Numeric grid axes with more than one value (the first axis of each zipped group)."""
+    if campaign is not None:
+        keys = [group[0].key for group in campaign.grid.groups]
+    else:
+        keys = [c for c in frame.columns if "." in c]
+    out = []
+    for key in keys:
+        if key in frame.columns and pd.api.types.is_numeric_dtype(frame[key]) and frame[key].nunique() > 1:
+            out.append(key)
+    return out
+
+
+def _delay(config: Mapping[str, Any], fs: float) -> float | None:
+    """δ_t [s] of the point's differentiator (None if it has none or it is invalid)."""
+    from labrunner.control import factory
+
+    if not config.get("differentiator"):
+        return None
+    try:
+        return factory.differentiators([config], fs, 0)[0].delay_s
+    except InvalidParameter:
+        return None
+
+
+class Theories:
+    """Theory (kind, δ_t, rig constants) per table row, δ_t cached per differentiator setting."""
+
+    def __init__(self, campaign: Any | None) -> None:
+        self.campaign = campaign
+        self._delays: dict[str, float | None] = {}
+
+    def config(self, row: Mapping[str, Any]) -> dict[str, Any]:
+        params = {k: row[k] for k in row.keys() if "." in k and pd.notna(row[k])}
+        return self.campaign.resolve(params)
+
+    def __call__(self, row: Mapping[str, Any]) -> Theory | None:
+        if self.campaign is None:
+            return None
+        config = self.config(row)
+        fs = float(config["campaign"]["fs"])
+        section = config.get("differentiator", {})
+        key = json.dumps([section, fs], sort_keys=True, default=str)
+        if key not in self._delays:
+            self._delays[key] = _delay(config, fs)
+        delay = self._delays[key]
+        kind = config.get("controller", {}).get("kind")
+        if delay is None or not isinstance(kind, str):
+            return None
+        return Theory(kind, delay, dict(self.campaign.rig_info.constants))
+
+
+def _units(frame: pd.DataFrame, directory: Path, campaign: Any | None) -> dict[str, str]:
+    """Units of the gains and metrics, from one finished log's channel record."""
+    from labrunner.logs import read_metadata
+
+    units: dict[str, str] = {}
+    for path in frame["log_path"].dropna().head(5):
+        try:
+            channels = read_metadata(directory / path).get("channels", {})
+        except (LabrunnerError, OSError, ValueError):
+            continue
+        errors = [c for c, i in channels.items() if i.get("role") == "error"]
+        inputs = [c for c, i in channels.items() if i.get("role") == "input"]
+        e_unit = channels[errors[0]].get("unit", "") if errors else ""
+        u_unit = channels[inputs[0]].get("unit", "") if inputs else ""
+        units.update({"rms_error": e_unit, "max_abs_input": u_unit, "input_energy": f"{u_unit}²" if u_unit else "",
+                      "max_current": "A"})
+        kind = campaign.base.get("controller", {}).get("kind") if campaign is not None else None
+        order = {"mfc1": 1, "mfc1-ff": 1, "mfc2": 2}.get(str(kind))
+        if order and e_unit and u_unit:
+            units.update(gain_units(order, e_unit, u_unit))
+        break
+    return units
+
+
+def counts(frame: pd.DataFrame) -> dict[str, int]:
+    """Points per ledger state and per outcome."""
+    state = frame["state"].value_counts()
+    status = frame["status"].value_counts()
+    return {
+        "points": int(len(frame)),
+        "runs": int(sum(state.get(s, 0) for s in ("done", "aborted", "failed"))),
+        "done": int(state.get("done", 0)),
+        "completed": int(status.get("completed", 0)),
+        "no_motion": int(status.get("no-motion", 0)),
+        "aborted": int(state.get("aborted", 0)),
+        "failed": int(state.get("failed", 0)),
+        "planned": int(state.get("planned", 0)),
+        "claimed": int(state.get("claimed", 0)),
+    }
+
+
+def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
+    """Best and worst completed run (by RMS of e) and the first aborted run (in grid order)."""
+    done = frame[(frame["status"] == "completed") & np.isfinite(frame["rms_error"].to_numpy(dtype=float))]
+    out: dict[str, pd.Series] = {}
+    if not done.empty:
+        out["best"] = done.loc[done["rms_error"].idxmin()]
+        out["worst completed"] = done.loc[done["rms_error"].idxmax()]
+    aborted = frame[frame["status"] == "aborted"]
+    if not aborted.empty:
+        out["first aborted"] = aborted.loc[aborted["seq"].idxmin()]
+    return out
+
+
+def analyse(
+    directory: str | Path,
+    out: str | Path | None = None,
+    *,
+    workers: int | None = None,
+    margin: float = 0.1,
+) -> dict[str, Any]:
+    """Analyse a campaign directory; write the table, figures and ``index.html`` under ``out``."""
+    from labrunner.campaign.ledger import Ledger
+
+    directory = Path(directory)
+    out = Path(out) if out is not None else directory / "report"
+    with Ledger.open_readonly(directory) as ledger:
+        rows = [dict(r) for r in ledger.rows()]
+        meta = ledger.meta()
+        quarantine = [dict(r) for r in ledger.quarantined()]
+    campaign, note = load_campaign(meta, directory)
+    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers)
+    frame = built.frame
+    problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
+    csv, parquet = table_mod.write_table(frame, out)
+    ctx = Context(directory, out, campaign, note, varying_axes(frame, campaign), _units(frame, directory, campaign))
+    theories = Theories(campaign)
+    maps = figures.draw_maps(frame, ctx, theories)
+    chosen = chosen_runs(frame)
+    runs = figures.draw_runs(chosen, ctx)
+    agree = agreement_mod.agreement(frame, theories, margin=margin)
+    summary = {**counts(frame), "best": _best(frame, ctx.axes), "maps": [str(p) for p in maps],
+               "run_plots": [str(p) for p in runs.values()], "agreement": agree,
+               "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}
+    summary["report"] = str(report.campaign_report(frame, ctx, summary, maps, chosen, runs))
+    return summary
+
+
+def _best(frame: pd.DataFrame, axes: Sequence[str]) -> dict[str, Any] | None:
+    best = chosen_runs(frame).get("best")
+    if best is None:
+        return None
+    params = {k: _plain(best[k]) for k in frame.columns if "." in k and pd.notna(best[k])}
+    return {"id": best["id"], "params": params, "rms": float(best["rms_error"]),
+            "input_energy": float(best["input_energy"])}
+
+
+def _plain(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def default_workers() -> int:
+    return max(1, min(os.cpu_count() or 1, 8))

@@ -1,0 +1,164 @@
+"""The figures of a campaign analysis: metric maps (or sweep plots) with overlays, and run plots.
+
+Map layout follows the thesis: x = γ, y = k_p for the first-order MFC (Fig. 3.10); x = k_p,
+y = k_d for the second-order MFC (Fig. 3.14); other pairs in grid order. Overlays are drawn only
+where they are valid for every point of the map (one controller kind, one δ_t, and for k_p–k_d
+one γ). Run plots reuse :func:`labrunner.runplot.plot_run`.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from labrunner.analysis.maps import Axis, axis_label, cell_edges, is_log_spaced, map_figure, sweep_figure
+from labrunner.analysis.overlays import (
+    OverlayLine,
+    Theory,
+    dense_axis,
+    gamma_kp_lines,
+    kp_kd_lines,
+    sweep_lines,
+)
+from labrunner.errors import LabrunnerError
+
+if TYPE_CHECKING:
+    from labrunner.analysis.analyse import Context, Theories
+
+#: Metric columns drawn as maps: (column, title, colour-bar text).
+MAP_METRICS = (
+    ("rms_error", "RMS of the tracking error e", "RMS(e)"),
+    ("input_energy", "input energy E(u) = Σ u[j]²", "E(u)"),
+)
+MAX_FACETS = 12  # maps per metric when a grid has more than two axes
+#: Preferred (x, y) orientation of known axis pairs (thesis Figs. 3.10 and 3.14).
+PAIRS = (("controller.gamma", "controller.k_p"), ("controller.k_p", "controller.k_d"))
+GAINS = {"controller.gamma": "gamma", "controller.k_p": "k_p", "controller.k_d": "k_d"}
+DPI = 110
+
+
+def _with_unit(text: str, unit: str) -> str:
+    return f"{text} [{unit}]" if unit else text
+
+
+def choose_pair(axes: Sequence[str]) -> tuple[str, str]:
+    """(x, y) keys of a map: a thesis pair if present, else the first two axes in grid order."""
+    for x, y in PAIRS:
+        if x in axes and y in axes:
+            return x, y
+    return axes[0], axes[1]
+
+
+def axis_of(frame: pd.DataFrame, key: str, units: Mapping[str, str]) -> Axis:
+    values = np.sort(frame[key].dropna().unique().astype(float))
+    return Axis(key, values, is_log_spaced(values), axis_label(key, units))
+
+
+def facets(frame: pd.DataFrame, extra: Sequence[str]) -> list[tuple[str, pd.DataFrame]]:
+    """(title suffix, rows) per combination of the extra axes' values (at most MAX_FACETS)."""
+    if not extra:
+        return [("", frame)]
+    values = [sorted(frame[k].dropna().unique()) for k in extra]
+    out = []
+    for combo in itertools.product(*values):
+        mask = np.logical_and.reduce([np.isclose(frame[k].to_numpy(dtype=float), v) for k, v in zip(extra, combo)])
+        if mask.any():
+            out.append((", ".join(f"{k.split('.')[-1]} = {v:.4g}" for k, v in zip(extra, combo)), frame[mask]))
+    return out[:MAX_FACETS]
+
+
+def common_theory(rows: pd.DataFrame, theories: Theories) -> Theory | None:
+    """The one theory valid for all ``rows`` (same kind and δ_t), else None."""
+    found = {}
+    for _, row in rows.iterrows():
+        theory = theories(row)
+        if theory is None:
+            return None
+        found[(theory.kind, round(theory.delay, 12))] = theory
+        if len(found) > 1:
+            return None
+    return next(iter(found.values()), None)
+
+
+def _fixed(rows: pd.DataFrame, theories: Theories) -> dict[str, float]:
+    """γ, k_p, k_d of the first row's resolved controller section (for constant gains)."""
+    controller = theories.config(rows.iloc[0]).get("controller", {})
+    return {k: float(controller[k]) for k in ("gamma", "k_p", "k_d") if isinstance(controller.get(k), (int, float))}
+
+
+def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[OverlayLine], str]:
+    """Overlay lines for a map of ``rows`` and a note on δ_t (or on why there are none)."""
+    pair = (x.key, y.key)
+    if pair not in PAIRS or theories.campaign is None:
+        return [], ""
+    theory = common_theory(rows, theories)
+    if theory is None:
+        return [], "no stability overlay: the map mixes controller kinds or differentiator delays"
+    note = f"δ_t = {theory.delay * 1e3:.4g} ms"
+    if pair == ("controller.gamma", "controller.k_p") and theory.kind == "mfc1":
+        return gamma_kp_lines(theory, dense_axis(cell_edges(x.values, x.log), x.log)), note
+    if pair == ("controller.k_p", "controller.k_d") and theory.kind == "mfc2":
+        gammas = {round(float(theories.config(r).get("controller", {}).get("gamma", np.nan)), 12) for _, r in rows.iterrows()}
+        if len(gammas) == 1:
+            gamma = gammas.pop()
+            return kp_kd_lines(theory, gamma, dense_axis(cell_edges(y.values, y.log), y.log)), f"{note}, γ = {gamma:.5g}"
+    return [], ""
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Path]:
+    """RMS and energy maps (2-D grids) or sweep plots (1-D); PNG paths."""
+    paths: list[Path] = []
+    name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
+    units = ctx.units
+    if len(ctx.axes) == 1:
+        key = ctx.axes[0]
+        x = axis_of(frame, key, units)
+        lines: list[OverlayLine] = []
+        theory = common_theory(frame, theories) if key in GAINS else None
+        if theory is not None:
+            lines = sweep_lines(theory, GAINS[key], dense_axis(x.values, x.log, 400), _fixed(frame, theories))
+        columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in MAP_METRICS]
+        fig = sweep_figure(frame, x, columns, title=f"{name}: RMS of e and input energy over {x.label}", overlays=lines)
+        paths.append(_save(fig, ctx.out / "sweep.png"))
+        return paths
+    if len(ctx.axes) < 2:
+        return paths
+    kx, ky = choose_pair(ctx.axes)
+    extra = [k for k in ctx.axes if k not in (kx, ky)]
+    for i, (suffix, rows) in enumerate(facets(frame, extra)):
+        x, y = axis_of(rows, kx, units), axis_of(rows, ky, units)
+        lines, note = map_overlays(rows, x, y, theories)
+        for column, title, label in MAP_METRICS:
+            head = f"{name}: {title}"
+            sub = ", ".join(s for s in (suffix, note) if s)
+            fig = map_figure(rows, x, y, column, title=f"{head}\n{sub}" if sub else head,
+                             colour_label=_with_unit(label, units.get(column, "")), overlays=lines)
+            tag = f"_{i + 1}" if extra else ""
+            paths.append(_save(fig, ctx.out / f"map_{column}{tag}.png"))
+    return paths
+
+
+def draw_runs(chosen: Mapping[str, pd.Series], ctx: Context) -> dict[str, Path]:
+    """Time-series plot of each chosen run (thesis Figs. 3.12, 3.20); unreadable logs are skipped."""
+    from labrunner.runplot import plot_run
+
+    out: dict[str, Path] = {}
+    for label, row in chosen.items():
+        if not isinstance(row.get("log_path"), str):
+            continue
+        try:
+            fig = plot_run(ctx.directory / row["log_path"])
+        except (LabrunnerError, OSError, ValueError, KeyError):
+            continue
+        out[label] = _save(fig, ctx.out / f"run_{label.replace(' ', '_')}.png")
+    return out

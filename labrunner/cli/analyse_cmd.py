@@ -1,0 +1,66 @@
+"""``labrunner analyse DIR [--out DIR/report] [--json]``: metrics table, maps and an HTML report."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "analyse",
+        help="turn a campaign directory into metrics, maps and an HTML report",
+        description=(
+            "Read the ledger and run logs of a campaign directory; write metrics.csv/.parquet, RMS and "
+            "input-energy maps with the thesis's markers and stability bounds, plots of the best, worst "
+            "completed and first aborted runs, and a self-contained index.html."
+        ),
+    )
+    p.add_argument("directory", metavar="DIR", help="campaign directory (holds ledger.sqlite)")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: DIR/report)")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--workers", type=int, metavar="N", help="processes reading logs (default: all cores)")
+    p.add_argument("--margin", type=float, default=0.1, metavar="F",
+                   help="leave out points within this relative distance of a predicted bound (default 0.1)")
+    p.set_defaults(func=run)
+
+
+def _strict(value: Any) -> Any:
+    """JSON without NaN/inf (as null)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_strict(v) for v in value]
+    return value
+
+
+def run(args: argparse.Namespace) -> int:
+    from labrunner.analysis.analyse import analyse
+    from labrunner.errors import InvalidParameter
+
+    if args.workers is not None and args.workers < 1:
+        raise InvalidParameter("--workers", f"must be >= 1, got {args.workers}")
+    if not (0.0 <= args.margin < 1.0):
+        raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
+    summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin)
+    if args.json:
+        print(json.dumps(_strict(summary), ensure_ascii=False))
+        return 0
+    agree = summary["agreement"]
+    print(f"{summary['runs']} runs of {summary['points']} points: {summary['completed']} completed, "
+          f"{summary['no_motion']} no motion, {summary['aborted']} aborted, {summary['failed']} failed")
+    best = summary["best"]
+    if best:
+        params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in best["params"].items())
+        print(f"best: RMS(e) = {best['rms']:.4g} at {params}")
+    if agree.get("share") is not None:
+        print(f"theory ({agree['case']}) agrees on {agree['share']:.1%} of {agree['n_compared']} points "
+              f"({agree['n_excluded']} within ±{agree['margin']:.0%} of a bound left out)")
+    for problem in summary["problems"]:
+        print(f"{problem['kind']}: {problem['path']}: {problem['detail']}")
+    print(f"report: {summary['report']}")
+    return 0
