@@ -176,7 +176,10 @@ class RunLogWriter:
         reserved = sorted(set(metadata) & set(RESERVED_RECORDS))
         if reserved:
             raise InvalidParameter("metadata", f"record names {reserved} are written by the logger")
-        run = {**metadata.get("run", {}), "fs": self.fs}
+        run = metadata.get("run", {})
+        if not isinstance(run, Mapping):
+            raise InvalidParameter("metadata.run", f"must be a mapping, got {type(run).__name__}")
+        run = {**run, "fs": self.fs}
         run.setdefault("labrunner_version", __version__)
         records = {"run": encode_record("run", run)}
         records.update({name: encode_record(name, rec) for name, rec in metadata.items() if name != "run"})

@@ -1,0 +1,136 @@
+"""``labrunner inspect`` and ``labrunner plot`` (in-process, and once through the real command)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+from mcap.reader import make_reader
+from test_logs_support import ABORTED, CHANNELS, COMPLETED, metadata, motor_run
+
+from labrunner.cli import main
+from labrunner.logs import RunLogWriter, write_run
+from labrunner.runplot import plot_run
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture
+def aborted_run(tmp_path):
+    path = tmp_path / "run.mcap"
+    write_run(path, metadata=metadata(), fs=200.0, signals=motor_run(), outcome=ABORTED, channels=CHANNELS,
+              attachments={"campaign.toml": b"[campaign]\n"})
+    return path
+
+
+@pytest.fixture
+def torn_run(tmp_path):
+    """A streamed run cut inside its last chunk: two complete blocks of 100 samples survive."""
+    path = tmp_path / "torn.mcap"
+    signals = motor_run(duration=1.5)
+    with RunLogWriter(path, metadata=metadata("p-torn"), fs=200.0, channels=CHANNELS, flush_interval_s=0.0) as w:
+        for k in range(0, 300, 100):
+            w.write_block(k, {n: v[k : k + 100] for n, v in signals.items()})
+        w.finish(COMPLETED)
+    with open(path, "rb") as f:
+        ends = sorted(c.chunk_start_offset + c.chunk_length for c in make_reader(f).get_summary().chunk_indexes)
+    path.write_bytes(path.read_bytes()[: ends[1] + 40])
+    return path
+
+
+def test_inspect_json(aborted_run, capsys):
+    assert main(["inspect", str(aborted_run), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["outcome"] == {**ABORTED, "n_samples": 1000}
+    assert out["n_samples"] == 1000 and out["fs"] == 200.0 and out["torn"] is False
+    assert out["signals"] == list(CHANNELS)
+    assert out["metadata"]["config"]["controller"]["k_p"] == 50.0
+    assert out["metadata"]["channels"]["u"] == {"role": "input", "unit": "V"}
+    assert out["attachments"] == {"campaign.toml": 11}
+
+
+def test_inspect_text(aborted_run, capsys):
+    assert main(["inspect", str(aborted_run)]) == 0
+    text = capsys.readouterr().out
+    assert "aborted" in text and "monitor=du_dt" in text and "threshold=120.0" in text
+    assert "1000 at 200 Hz, 5 s" in text and "u [V] (input)" in text and "TORN" not in text
+
+
+def test_inspect_torn_says_so(torn_run, capsys):
+    assert main(["inspect", str(torn_run), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["torn"] is True and out["outcome"] is None and out["n_samples"] == 200
+    assert main(["inspect", str(torn_run)]) == 0
+    text = capsys.readouterr().out
+    assert "TORN" in text and "none (run did not finish)" in text
+
+
+@pytest.mark.parametrize("command", ["inspect", "plot"])
+def test_missing_and_corrupt_files_are_one_line_errors(tmp_path, capsys, command):
+    assert main([command, str(tmp_path / "nope.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no such run log" in err
+    (tmp_path / "junk.mcap").write_bytes(b"\x00" * 100)
+    assert main([command, str(tmp_path / "junk.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not an MCAP file" in err
+
+
+def test_plot_writes_png(aborted_run, tmp_path, capsys):
+    out = tmp_path / "run.png"
+    assert main(["plot", str(aborted_run), "-o", str(out), "--dpi", "60"]) == 0
+    assert out.read_bytes()[:8] == PNG and capsys.readouterr().out.strip() == str(out)
+    assert main(["plot", str(aborted_run)]) == 0  # default: beside the log
+    assert aborted_run.with_suffix(".png").read_bytes()[:8] == PNG
+
+
+def test_plot_bad_output(aborted_run, tmp_path):
+    assert main(["plot", str(aborted_run), "-o", str(tmp_path / "no" / "dir.png")]) == 2
+    assert main(["plot", str(aborted_run), "-o", str(tmp_path / "x.unknownformat")]) == 2
+    assert main(["plot", str(aborted_run), "--dpi", "0"]) == 2
+
+
+def test_plot_run_panels_and_abort_markers(aborted_run):
+    fig = plot_run(aborted_run)
+    assert isinstance(fig, Figure)
+    outputs, inputs, estimates = fig.axes
+    assert [l.get_label() for l in outputs.get_lines() if not l.get_label().startswith("_")] == [r"$\Omega$", r"$\Omega_r$"]
+    assert outputs.get_lines()[1].get_linestyle() == "--"
+    assert outputs.get_lines()[0].get_color() == outputs.get_lines()[1].get_color()
+    assert "[V]" in inputs.get_ylabel() and "[rad/s]" in outputs.get_ylabel()
+    assert estimates.get_lines()[0].get_label() == r"$\hat{f}_{\Omega}$"
+    signals = motor_run()
+    assert np.array_equal(inputs.get_lines()[0].get_ydata(), signals["u"])
+    for ax in fig.axes:  # a vertical line at the abort time on every panel
+        assert any(list(l.get_xdata()) == [2.6, 2.6] for l in ax.get_lines())
+    cross = [l for l in inputs.get_lines() if l.get_marker() == "x"]
+    assert len(cross) == 1 and cross[0].get_xdata()[0] == pytest.approx(2.6)
+    assert "aborted by du_dt at t = 2.600 s" in fig.get_suptitle()
+
+
+def test_plot_into_given_figure_and_torn(torn_run):
+    parent = Figure()
+    sub = parent.subfigures(1, 2)[1]
+    assert plot_run(torn_run, sub) is sub
+    assert "torn log" in sub.get_suptitle() and len(sub.axes) == 3
+    assert len(sub.axes[0].get_lines()[0].get_xdata()) == 200
+
+
+def test_real_command(aborted_run, tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "labrunner", "inspect", str(aborted_run), "--json"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["outcome"]["monitor"] == "du_dt"
+    png = tmp_path / "sub.png"
+    done = subprocess.run(
+        [sys.executable, "-m", "labrunner", "plot", str(aborted_run), "-o", str(png), "--dpi", "50"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert png.read_bytes()[:8] == PNG
