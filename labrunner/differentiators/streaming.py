@@ -42,7 +42,7 @@ class StreamingFIR:
             raise InvalidParameter("taps", f"must be finite with shape (L,), (B, L) or (B, M, L), got shape {t.shape}")
         self._length = t.shape[-1]
         self._runs = None if t.ndim == 1 else t.shape[0]
-        self._out_ndim = t.ndim - 1  # 0: (B,) from (L,) or (B, L); 1: (B, M) from (B, M, L)
+        self._out_ndim = 1 if t.ndim == 3 else 0  # outputs (B, M) from (B, M, L), else (B,)
         # Runs that all share one filter bank use one matrix product (BLAS) instead of einsum.
         self._shared = t.ndim == 1 or bool(np.all(t == t[:1]))
         if self._shared:
