@@ -1,0 +1,343 @@
+"""Rig description files (``rigs/<name>.toml``): loading and validation into a frozen :class:`RigConfig`.
+
+A rig file has the sections ``[rig]`` (``kind``, ``name``, ``description``), ``[parameters]``,
+``[limits]``, ``[noise]``, ``[faults]`` and ``[safety]`` (format: ``docs/rigs.md``). Every key is
+validated; an unknown key or a bad value raises :class:`~labrunner.errors.InvalidParameter`
+whose field is ``"<file>: <section>.<key>"``, e.g.
+``InvalidParameter("rigs/dcmotor-sim.toml: parameters.a", "must be > 0, got -1")``.
+
+The rig kind decides what ``[parameters]`` and ``[noise]`` may hold: its class (looked up in
+:mod:`labrunner.rigs.registry`) declares them as :class:`Param` schemas (see
+:class:`labrunner.rigs.sim.SimRig`). ``[safety]`` is validated by
+:class:`labrunner.safety.SafetyConfig`, the module that enforces it.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from labrunner.errors import InvalidParameter, check_finite
+from labrunner.rigs.base import Faults, RigInfo, Signal
+
+SECTIONS = ("rig", "parameters", "limits", "noise", "faults", "safety")
+_RIG_KEYS = ("kind", "name", "description")
+_FAULT_KEYS = ("t_start", "actuator_offset", "actuator_gain", "sensor_step")
+
+
+@dataclass(frozen=True)
+class Param:
+    """Schema of one rig parameter: default, unit, why it has this value, allowed range.
+
+    The type is the default's type (``float``, ``int``, ``str``, ``bool``). Numbers must lie in
+    ``[lo, hi]`` (``lo_open``: ``lo`` itself excluded); strings in ``choices`` when given.
+    """
+
+    default: float | int | str | bool
+    unit: str
+    doc: str
+    lo: float = -np.inf
+    hi: float = np.inf
+    lo_open: bool = False
+    choices: tuple[str, ...] = ()
+
+    @property
+    def numeric(self) -> bool:
+        return isinstance(self.default, (int, float)) and not isinstance(self.default, bool)
+
+    def _range(self) -> str:
+        left = "(" if self.lo_open else "["
+        return f"in {left}{self.lo:g}, {self.hi:g}]"
+
+    def check(self, field_name: str, value: Any) -> float | int | str | bool:
+        """Validate one value; return it with the schema's type."""
+        if isinstance(self.default, bool):
+            if not isinstance(value, bool):
+                raise InvalidParameter(field_name, f"must be true or false, got {value!r}")
+            return value
+        if isinstance(self.default, str):
+            if not isinstance(value, str) or (self.choices and value not in self.choices):
+                allowed = f"one of {list(self.choices)}" if self.choices else "a string"
+                raise InvalidParameter(field_name, f"must be {allowed}, got {value!r}")
+            return value
+        if isinstance(value, bool):
+            raise InvalidParameter(field_name, f"must be a number, got {value!r}")
+        v = check_finite(field_name, value)
+        if isinstance(self.default, int) and v != int(v):
+            raise InvalidParameter(field_name, f"must be an integer, got {value!r}")
+        self._check_range(field_name, np.array([v]))
+        return int(v) if isinstance(self.default, int) else v
+
+    def check_array(self, field_name: str, values: Any, batch: int) -> np.ndarray:
+        """Validate per-run values (scalar or (B,)); return a (B,) float array."""
+        if not self.numeric:
+            raise InvalidParameter(field_name, "is not a numeric parameter and cannot vary per run")
+        arr = np.asarray(values, dtype=float)
+        if arr.ndim > 1 or (arr.ndim == 1 and arr.size != batch):
+            raise InvalidParameter(field_name, f"needs a scalar or one value per run ({batch}), got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise InvalidParameter(field_name, f"must be finite, got {arr[~np.isfinite(arr)][0]!r}")
+        self._check_range(field_name, arr.reshape(-1))
+        return np.broadcast_to(arr, (batch,)).astype(float)
+
+    def _check_range(self, field_name: str, v: np.ndarray) -> None:
+        bad = (v <= self.lo) if self.lo_open else (v < self.lo)
+        bad |= v > self.hi
+        if bad.any():
+            x = v[bad][0]
+            if np.isinf(self.hi):
+                msg = f"must be {'>' if self.lo_open else '>='} {self.lo:g}, got {x:g}"
+            else:
+                msg = f"must be {self._range()}, got {x:g}"
+            raise InvalidParameter(field_name, msg)
+
+
+def validate_section(schema: Mapping[str, Param], raw: Mapping[str, Any], path: str) -> dict[str, Any]:
+    """Check ``raw`` against ``schema`` (unknown keys rejected) and fill in the defaults."""
+    raw = _table(raw, path)
+    unknown = sorted(set(raw) - set(schema))
+    if unknown:
+        allowed = ", ".join(schema) or "no keys"
+        raise InvalidParameter(f"{path}.{unknown[0]}", f"unknown key; allowed: {allowed}")
+    return {k: p.check(f"{path}.{k}", raw[k]) if k in raw else p.default for k, p in schema.items()}
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """A validated rig file. ``parameters``/``noise`` have every key of the kind's schema filled in.
+
+    ``limits`` narrows the rig's signal limits and sampling rates (``{signal: (lo, hi)}``, plus
+    ``fs: (lo, hi)`` and ``fs_default``); ``safety`` is the ``[safety]`` section as read, for
+    :class:`labrunner.safety.SafetyConfig` (``max_du_dt``, ``output_bounds``, ``input_bounds``,
+    ``max_duration``, ...).
+    """
+
+    name: str
+    kind: str
+    description: str = ""
+    parameters: Mapping[str, Any] = field(default_factory=dict)
+    limits: Mapping[str, Any] = field(default_factory=dict)
+    noise: Mapping[str, Any] = field(default_factory=dict)
+    faults: Faults = field(default_factory=Faults)
+    safety: Mapping[str, Any] = field(default_factory=dict)
+    source: str = "<dict>"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form (for run metadata)."""
+        f = self.faults
+        faults = {} if not f.any else {
+            "t_start": f.t_start,
+            "actuator_offset": list(f.actuator_offset),
+            "actuator_gain": list(f.actuator_gain),
+            "sensor_step": list(f.sensor_step),
+        }
+        return {
+            "rig": {"kind": self.kind, "name": self.name, "description": self.description, "source": self.source},
+            "parameters": _jsonable(self.parameters),
+            "limits": _jsonable(self.limits),
+            "noise": _jsonable(self.noise),
+            "faults": faults,
+            "safety": _jsonable(self.safety),
+        }
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (tuple, list)):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+def _table(raw: Any, path: str) -> dict[str, Any]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, Mapping):
+        raise InvalidParameter(path, f"must be a table, got {raw!r}")
+    return dict(raw)
+
+
+def _pair(path: str, value: Any) -> tuple[float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise InvalidParameter(path, f"must be [lo, hi], got {value!r}")
+    lo, hi = (check_finite(path, v) for v in value)
+    if lo >= hi:
+        raise InvalidParameter(path, f"needs lo < hi, got [{lo:g}, {hi:g}]")
+    return lo, hi
+
+
+def apply_limits(info: RigInfo, raw: Mapping[str, Any], path: str = "limits") -> tuple[RigInfo, dict[str, Any]]:
+    """Narrow ``info`` by a ``[limits]`` table; return the new info and the validated table.
+
+    Keys: a signal name → ``[lo, hi]`` inside the signal's physical range; ``fs = [lo, hi]`` inside
+    the rig's allowed rates [Hz]; ``fs_default`` inside the (narrowed) rates.
+    """
+    raw = _table(raw, path)
+    signals = {s.name: s for s in info.inputs + info.outputs}
+    out: dict[str, Any] = {}
+    narrowed: dict[str, Signal] = {}
+    fs_lo, fs_hi = info.fs_range
+    for key, value in raw.items():
+        kpath = f"{path}.{key}"
+        if key == "fs":
+            lo, hi = _pair(kpath, value)
+            if lo < fs_lo or hi > fs_hi:
+                raise InvalidParameter(kpath, f"must lie in [{fs_lo:g}, {fs_hi:g}] Hz, got [{lo:g}, {hi:g}]")
+            out[key] = (lo, hi)
+        elif key == "fs_default":
+            out[key] = check_finite(kpath, value)
+        elif key in signals:
+            s = signals[key]
+            lo, hi = _pair(kpath, value)
+            if lo < s.lo or hi > s.hi:
+                raise InvalidParameter(kpath, f"must lie in [{s.lo:g}, {s.hi:g}] {s.unit}, got [{lo:g}, {hi:g}]")
+            out[key] = (lo, hi)
+            narrowed[key] = replace(s, lo=lo, hi=hi)
+        else:
+            allowed = ", ".join([*signals, "fs", "fs_default"])
+            raise InvalidParameter(kpath, f"unknown key; allowed: {allowed}")
+    fs_range = out.get("fs", info.fs_range)
+    fs_default = out.get("fs_default", info.fs_default if fs_range[0] <= info.fs_default <= fs_range[1] else fs_range[0])
+    if not fs_range[0] <= fs_default <= fs_range[1]:
+        raise InvalidParameter(f"{path}.fs_default", f"must lie in [{fs_range[0]:g}, {fs_range[1]:g}] Hz, got {fs_default:g}")
+    safe = tuple(
+        float(np.clip(v, narrowed.get(s.name, s).lo, narrowed.get(s.name, s).hi)) for v, s in zip(info.safe_input, info.inputs)
+    )
+    info = replace(
+        info,
+        inputs=tuple(narrowed.get(s.name, s) for s in info.inputs),
+        outputs=tuple(narrowed.get(s.name, s) for s in info.outputs),
+        fs_range=(float(fs_range[0]), float(fs_range[1])),
+        fs_default=float(fs_default),
+        safe_input=safe,
+    )
+    return info, out
+
+
+def parse_faults(raw: Mapping[str, Any], info: RigInfo, path: str = "faults") -> Faults:
+    """Map a ``[faults]`` table onto :class:`~labrunner.rigs.base.Faults` (paper 2 Sec. 4.4).
+
+    ``t_start`` [s] ≥ 0; ``actuator_offset``, ``actuator_gain`` (> −1) per input and
+    ``sensor_step`` per output, each a number (all channels) or a list with one value per channel.
+    """
+    raw = _table(raw, path)
+    unknown = sorted(set(raw) - set(_FAULT_KEYS))
+    if unknown:
+        raise InvalidParameter(f"{path}.{unknown[0]}", f"unknown key; allowed: {', '.join(_FAULT_KEYS)}")
+    if not raw:
+        return Faults()
+    if "t_start" not in raw:
+        raise InvalidParameter(f"{path}.t_start", "is required when faults are given")
+    t_start = check_finite(f"{path}.t_start", raw["t_start"])
+    if t_start < 0:
+        raise InvalidParameter(f"{path}.t_start", f"must be >= 0, got {t_start:g}")
+    n_in, n_out = len(info.inputs), len(info.outputs)
+
+    def channels(key: str, n: int, lo: float = -np.inf) -> tuple[float, ...]:
+        value = raw.get(key, 0.0)
+        values = value if isinstance(value, (list, tuple)) else [value]
+        if len(values) not in (1, n):
+            raise InvalidParameter(f"{path}.{key}", f"needs 1 or {n} values, got {len(values)}")
+        out = tuple(check_finite(f"{path}.{key}", v) for v in values)
+        if any(v <= lo for v in out):
+            raise InvalidParameter(f"{path}.{key}", f"must be > {lo:g}, got {min(out):g}")
+        return out
+
+    return Faults(
+        t_start=t_start,
+        actuator_offset=channels("actuator_offset", n_in),
+        actuator_gain=channels("actuator_gain", n_in, lo=-1.0),
+        sensor_step=channels("sensor_step", n_out),
+    )
+
+
+def _display(path: Path) -> str:
+    rel = os.path.relpath(path)
+    return rel if not rel.startswith("..") else str(path)
+
+
+def default_search(project_dir: str | os.PathLike | None = None) -> tuple[Path, ...]:
+    """Where rig names are looked up: ``<project_dir>/rigs``, then ``./rigs``, then this checkout's ``rigs/``."""
+    dirs = [] if project_dir is None else [Path(project_dir) / "rigs"]
+    dirs += [Path.cwd() / "rigs", Path(__file__).resolve().parents[2] / "rigs"]
+    unique: list[Path] = []
+    for d in dirs:
+        if d.resolve() not in [u.resolve() for u in unique]:
+            unique.append(d)
+    return tuple(unique)
+
+
+def resolve_rig_file(name_or_path: str | os.PathLike, search: Iterable[str | os.PathLike] | None = None) -> Path:
+    """A path (contains a separator or ends in ``.toml``) as is; a name as ``<dir>/<name>.toml``."""
+    text = str(name_or_path)
+    if os.sep in text or "/" in text or text.endswith(".toml"):
+        path = Path(text)
+        if not path.is_file():
+            raise InvalidParameter("rig", f"no rig file {text!r}")
+        return path
+    dirs = tuple(Path(d) for d in search) if search is not None else default_search()
+    for d in dirs:
+        if (d / f"{text}.toml").is_file():
+            return d / f"{text}.toml"
+    raise InvalidParameter("rig", f"no rig file {text}.toml in {[str(d) for d in dirs]}")
+
+
+def load_rig_config(name_or_path: str | os.PathLike, search: Iterable[str | os.PathLike] | None = None) -> RigConfig:
+    """Find, parse and validate a rig file (see :func:`resolve_rig_file` for the lookup)."""
+    path = resolve_rig_file(name_or_path, search)
+    source = _display(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise InvalidParameter(source, f"invalid TOML: {exc}") from None
+    return config_from_dict(data, source=source, default_name=path.stem)
+
+
+def config_from_dict(data: Mapping[str, Any], *, source: str = "<dict>", default_name: str | None = None) -> RigConfig:
+    """Validate a parsed rig file (the same checks as :func:`load_rig_config`)."""
+    from labrunner.rigs.registry import rig_class
+    from labrunner.safety import SafetyConfig
+
+    pre = f"{source}: "
+    data = _table(data, source)
+    unknown = sorted(set(data) - set(SECTIONS))
+    if unknown:
+        raise InvalidParameter(f"{pre}{unknown[0]}", f"unknown section; allowed: {', '.join(SECTIONS)}")
+    rig = _table(data.get("rig"), f"{pre}rig")
+    bad = sorted(set(rig) - set(_RIG_KEYS))
+    if bad:
+        raise InvalidParameter(f"{pre}rig.{bad[0]}", f"unknown key; allowed: {', '.join(_RIG_KEYS)}")
+    if "kind" not in rig:
+        raise InvalidParameter(f"{pre}rig.kind", "is required")
+    for key in _RIG_KEYS:
+        if key in rig and not isinstance(rig[key], str):
+            raise InvalidParameter(f"{pre}rig.{key}", f"must be a string, got {rig[key]!r}")
+    kind = rig["kind"]
+    try:
+        cls = rig_class(kind)
+    except InvalidParameter as exc:
+        raise InvalidParameter(f"{pre}rig.kind", str(exc).split(": ", 1)[-1]) from None
+    name = rig.get("name", default_name or kind)
+    description = rig.get("description", "")
+    parameters = cls.validate_parameters(_table(data.get("parameters"), f"{pre}parameters"), f"{pre}parameters")
+    noise = cls.validate_noise(_table(data.get("noise"), f"{pre}noise"), f"{pre}noise")
+    info = cls.nominal_info(name, description, parameters)
+    info, limits = apply_limits(info, data.get("limits"), f"{pre}limits")
+    faults = parse_faults(data.get("faults"), info, f"{pre}faults")
+    safety = _table(data.get("safety"), f"{pre}safety")
+    SafetyConfig.from_sections(info, safety, prefix=f"{pre}safety")
+    return RigConfig(name, kind, description, parameters, limits, noise, faults, safety, source)
+
+
+def rig_info(config: RigConfig) -> RigInfo:
+    """The RigInfo a rig built from ``config`` has (nominal signals narrowed by ``[limits]``)."""
+    from labrunner.rigs.registry import rig_class
+
+    info = rig_class(config.kind).nominal_info(config.name, config.description, config.parameters)
+    return apply_limits(info, dict(config.limits))[0]

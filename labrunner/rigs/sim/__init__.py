@@ -1,0 +1,76 @@
+"""Simulated twins: batch-vectorised plant models behind the :class:`~labrunner.rigs.base.Rig` interface.
+
+:class:`SimRig` is the common base of the twins (``dcmotor``, ``valve``, ``plate``). A subclass
+declares
+
+- ``PARAMETERS`` and ``NOISE``: ``{key: Param}`` schemas of the rig file's ``[parameters]`` and
+  ``[noise]`` sections (defaults, units, allowed ranges, and where each value comes from);
+- ``nominal_info(name, description, parameters) -> RigInfo`` (class method): signals, physical
+  limits, allowed sampling rates, safe input and the nominal constants (``RigInfo.constants``);
+- ``_reset(batch, seeds, overrides)`` and ``_step(u)`` as for any Rig; in ``_reset`` it calls
+  :meth:`SimRig.per_run` to get every parameter as a (B,) array with the per-run ``overrides``
+  (keys of ``PARAMETERS`` or ``NOISE``) applied and validated, and uses
+  :class:`labrunner.rigs.sim._noise.NoiseStreams` so that run i's noise depends only on its seed.
+
+Shared numerics live in :mod:`labrunner.rigs.sim._integrate` (exact zero-order-hold
+discretisation, RK4 sub-steps, the play operator, sensor delay lines).
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from labrunner.errors import InvalidParameter
+from labrunner.rigs.base import Rig, RigInfo
+from labrunner.rigs.config import Param, RigConfig, config_from_dict, rig_info, validate_section
+
+
+class SimRig(Rig):
+    """Base of the simulated twins: rig-file plumbing and per-run parameters."""
+
+    KIND: ClassVar[str]
+    PARAMETERS: ClassVar[Mapping[str, Param]]
+    NOISE: ClassVar[Mapping[str, Param]]
+
+    def __init__(self, config: RigConfig | None = None) -> None:
+        if config is None:
+            config = config_from_dict({"rig": {"kind": self.KIND}})
+        if config.kind != self.KIND:
+            raise InvalidParameter("rig.kind", f"{type(self).__name__} needs kind {self.KIND!r}, got {config.kind!r}")
+        super().__init__(rig_info(config), config.faults)
+        self.config = config
+
+    # -- the registry contract -----------------------------------------------------------------
+    @classmethod
+    def validate_parameters(cls, raw: Mapping[str, Any], path: str = "parameters") -> dict[str, Any]:
+        return validate_section(cls.PARAMETERS, raw, path)
+
+    @classmethod
+    def validate_noise(cls, raw: Mapping[str, Any], path: str = "noise") -> dict[str, Any]:
+        return validate_section(cls.NOISE, raw, path)
+
+    @classmethod
+    @abc.abstractmethod
+    def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
+        """Signals with their physical limits, sampling rates, safe input and nominal constants."""
+
+    @classmethod
+    def from_config(cls, config: RigConfig) -> SimRig:
+        return cls(config)
+
+    # -- helpers for subclasses ----------------------------------------------------------------
+    def per_run(self, batch: int, overrides: Mapping[str, Any]) -> dict[str, np.ndarray]:
+        """Every numeric parameter and noise level as a (B,) array, ``overrides`` applied."""
+        schema = {**self.PARAMETERS, **self.NOISE}
+        unknown = sorted(set(overrides) - set(schema))
+        if unknown:
+            raise InvalidParameter(f"overrides.{unknown[0]}", f"unknown parameter; allowed: {', '.join(schema)}")
+        values = {**self.config.parameters, **self.config.noise}
+        out = {k: np.full(batch, float(values[k])) for k, p in schema.items() if p.numeric}
+        for key, value in overrides.items():
+            out[key] = schema[key].check_array(f"overrides.{key}", value, batch)
+        return out
