@@ -138,7 +138,7 @@ def build_table(
     metrics: dict[int, dict[str, Any]] = {}
     stats: dict[int, tuple[int, int]] = {}
     for i, rec in enumerate(frame.to_dict("records")):
-        if not rec.get("log_path"):
+        if not isinstance(rec.get("log_path"), str):
             continue
         st = _stat(directory / rec["log_path"])
         if st is None:
@@ -156,13 +156,15 @@ def build_table(
             problems.append({"path": frame.at[i, "log_path"], "kind": "unreadable", "detail": result["error"]})
             continue
         metrics[i] = result
-    extra = pd.DataFrame.from_dict(metrics, orient="index")
     for i, st in stats.items():
         if i in metrics:
-            extra.loc[i, "log_size"], extra.loc[i, "log_mtime_ns"] = st
+            metrics[i]["log_size"], metrics[i]["log_mtime_ns"] = st
+    extra = pd.DataFrame.from_dict(metrics, orient="index")
     if not extra.empty:
         extra = extra.drop(columns=[c for c in extra.columns if c.startswith("log_") and c not in CACHE_COLUMNS])
-        frame = frame.drop(columns=[c for c in extra.columns if c in frame.columns]).join(extra)
+        extra = extra.reindex(frame.index)
+        for col in extra.columns:  # the log's value where it was read, else the ledger's summary
+            frame[col] = extra[col].combine_first(frame[col]) if col in frame.columns else extra[col]
         for col in CACHE_COLUMNS:
             frame[col] = frame[col].astype("Int64")
     frame["torn"] = frame["torn"].fillna(False).astype(bool)

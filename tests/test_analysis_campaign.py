@@ -1,0 +1,132 @@
+"""`labrunner analyse` on a synthetic campaign directory: table, cache, maps, report, damaged files."""
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from labrunner.analysis.analyse import analyse
+from labrunner.analysis.table import build_table
+from labrunner.campaign.ledger import Ledger
+from labrunner.cli import main
+from test_analysis_support import expected_metrics, make_campaign, outcome_of, tear
+
+
+@pytest.fixture(scope="module")
+def analysed(tmp_path_factory):
+    d = tmp_path_factory.mktemp("campaign")
+    points = make_campaign(d)
+    return d, points, analyse(d, d / "r", workers=1)
+
+
+def test_metrics_table_matches_hand_values(analysed):
+    d, points, summary = analysed
+    table = pd.read_parquet(d / "r" / "metrics.parquet")
+    csv = pd.read_csv(d / "r" / "metrics.csv")
+    assert len(table) == len(csv) == len(points) == summary["points"] == summary["runs"]
+    for p in points:
+        g, kp = p["params"]["controller.gamma"], p["params"]["controller.k_p"]
+        row = table[table["id"] == p["id"]].iloc[0]
+        rms, energy, umax = expected_metrics(g, kp)
+        assert row["status"] == outcome_of(g, kp)
+        assert row["rms_error"] == pytest.approx(rms) and row["rms_e_omega"] == pytest.approx(rms)
+        assert row["input_energy"] == pytest.approx(energy) and row["max_abs_input"] == pytest.approx(umax)
+        assert row["controller.gamma"] == g and row["controller.k_p"] == kp
+    aborted = table[table["status"] == "aborted"]
+    assert (aborted["monitor"] == "du_dt").all() and np.allclose(aborted["abort_time"], (400 // 4 - 1) / 200.0)
+    expected = {s: sum(outcome_of(**{"gamma": p["params"]["controller.gamma"], "k_p": p["params"]["controller.k_p"]}) == s
+                       for p in points) for s in ("completed", "aborted", "no-motion")}
+    assert (summary["completed"], summary["aborted"], summary["no_motion"]) == (
+        expected["completed"], expected["aborted"], expected["no-motion"])
+    best = min((expected_metrics(p["params"]["controller.gamma"], p["params"]["controller.k_p"])[0], p["id"])
+               for p in points if outcome_of(p["params"]["controller.gamma"], p["params"]["controller.k_p"]) == "completed")
+    assert summary["best"]["id"] == best[1] and summary["best"]["rms"] == pytest.approx(best[0])
+    assert len(summary["maps"]) == 2 and len(summary["run_plots"]) == 3
+
+
+def test_report_has_maps_runs_and_campaign(analysed):
+    d, points, summary = analysed
+    html = (d / "r" / "index.html").read_text()
+    assert html.count("data:image/png;base64,") == len(summary["maps"]) + len(summary["run_plots"]) == 5
+    assert "best run" in html and "first aborted run" in html and "worst completed run" in html
+    assert "ledger keeps no copy of the campaign file" in html  # this synthetic ledger has none
+
+
+def test_second_analysis_reads_no_log(analysed):
+    d, _, first = analysed
+    second = analyse(d, d / "r", workers=1)
+    assert first["logs_read"] == 16 and second["logs_read"] == 0
+    assert first["best"] == second["best"]
+    a = pd.read_parquet(d / "r" / "metrics.parquet")
+    assert np.allclose(a["rms_error"], pd.read_csv(d / "r" / "metrics.csv")["rms_error"])
+    touched = d / "runs" / f"{first['best']['id']}.mcap"
+    touched.write_bytes(touched.read_bytes())  # a rewritten log is read again
+    assert analyse(d, d / "r", workers=1)["logs_read"] == 1
+
+
+def test_parallel_reading_equals_serial(tmp_path):
+    d = tmp_path / "big"
+    make_campaign(d, gammas=tuple(np.logspace(0, 3, 9)), k_ps=tuple(np.logspace(-1, 2, 8)))  # 72 logs
+    with Ledger.open_readonly(d) as ledger:
+        rows = [dict(r) for r in ledger.rows()]
+    serial = build_table(rows, d, workers=1)
+    parallel = build_table(rows, d, workers=2)
+    pd.testing.assert_frame_equal(serial.frame, parallel.frame)
+    assert serial.n_read == parallel.n_read == 72 and not serial.problems
+
+
+def test_torn_missing_unreadable_and_quarantined_files_are_reported(tmp_path):
+    d = tmp_path / "damaged"
+    points = make_campaign(d)
+    tear(d / "runs" / f"{points[0]['id']}.mcap")
+    (d / "runs" / f"{points[1]['id']}.mcap").unlink()
+    (d / "runs" / f"{points[2]['id']}.mcap").write_bytes(b"not an mcap at all")
+    (d / "quarantine").mkdir()
+    (d / "quarantine" / "p9999-torn.mcap").write_bytes(b"\x89MCAP0\r\n half a file")
+    with Ledger.open(d) as ledger:
+        ledger.record_quarantine("p0003", "runs/p0003.mcap", "quarantine/p0003-1.mcap", "torn log of a claimed point", 123)
+    summary = analyse(d, workers=1)
+    kinds = {(p["kind"], p["path"]) for p in summary["problems"]}
+    assert ("torn", f"runs/{points[0]['id']}.mcap") in kinds
+    assert ("missing", f"runs/{points[1]['id']}.mcap") in kinds
+    assert ("unreadable", f"runs/{points[2]['id']}.mcap") in kinds
+    assert ("quarantined", "quarantine/p0003-1.mcap") in kinds
+    assert ("quarantined", "quarantine/p9999-torn.mcap") in kinds
+    html = (d / "report" / "index.html").read_text()
+    for name in ("p9999-torn.mcap", "p0003-1.mcap", f"{points[1]['id']}.mcap", f"{points[2]['id']}.mcap"):
+        assert name in html
+    table = pd.read_parquet(d / "report" / "metrics.parquet")
+    # the missing log keeps the ledger's summary
+    row = table[table["id"] == points[1]["id"]].iloc[0]
+    g, kp = points[1]["params"]["controller.gamma"], points[1]["params"]["controller.k_p"]
+    assert row["rms_error"] == pytest.approx(expected_metrics(g, kp)[0])
+    assert bool(table[table["id"] == points[0]["id"]]["torn"].iloc[0])
+
+
+def test_unfinished_campaign_and_cli_json(tmp_path, capsys):
+    d = tmp_path / "c"
+    make_campaign(d)
+    import sqlite3
+
+    db = sqlite3.connect(d / "ledger.sqlite")
+    db.execute("UPDATE points SET state = 'planned', outcome = NULL, log_path = NULL WHERE seq >= 12")
+    db.commit()
+    db.close()
+    assert main(["analyse", str(d), "--json", "--workers", "1"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["points"] == 16 and out["runs"] == 12 and out["planned"] == 4
+    assert set(out) >= {"runs", "done", "aborted", "failed", "no_motion", "best", "maps", "agreement"}
+    assert set(out["best"]) >= {"params", "rms"}
+    assert all(p.endswith(".png") for p in out["maps"])
+
+
+def test_cli_rejects_bad_arguments(tmp_path, capsys):
+    assert main(["analyse", str(tmp_path / "nothing-here")]) == 1
+    assert "ledger" in capsys.readouterr().err
+    d = tmp_path / "c"
+    make_campaign(d, gammas=(1.0, 10.0), k_ps=(0.1, 1.0))
+    assert main(["analyse", str(d), "--margin", "2"]) == 2
+    assert main(["analyse", str(d), "--workers", "0"]) == 2
+    shutil.rmtree(d)
