@@ -69,7 +69,11 @@ def resolve_output(output: str | None, rig_info: RigInfo, order: int) -> OutputM
 
 
 class MFC(Controller):
-    """Single-output MFC of order 1 or 2 for B runs; gains are (B,) arrays, designs one per run."""
+    """Single-output MFC of order 1 or 2 for B runs; gains are (B,) arrays, designs one per run.
+
+    ``u_init`` (B, 1) is the input of the stationary past the estimator's history starts from
+    (default 0: a plant at rest with no input).
+    """
 
     def __init__(
         self,
@@ -82,10 +86,11 @@ class MFC(Controller):
         u_min: np.ndarray,
         u_max: np.ndarray,
         output: OutputMap,
-        filter_error: bool = True,
+        filter_error: bool | np.ndarray = True,
         i_min: np.ndarray | None = None,
+        u_init: np.ndarray | None = None,
     ) -> None:
-        super().__init__((output.name,), u_min, u_max)
+        super().__init__((output.name,), u_min, u_max, u_init)
         if self.n_inputs != 1:
             raise InvalidParameter("controller.kind", "MFC here is single-input; use a plate kind for the plate")
         B = self.batch
@@ -103,7 +108,6 @@ class MFC(Controller):
             self.estimates["de_hat"] = self.estimator.de_hat
         self._col = slice(output.index, output.index + 1)
         self._prev = np.zeros((B, 1))
-        self._e = np.zeros((B, 1))
         self._u = np.zeros((B, 1))
         self._tmp = np.zeros((B, 1))
 
@@ -113,7 +117,7 @@ class MFC(Controller):
             self.controlled[...] = 0.0  # a stationary start: Ω = 0
         else:
             self.controlled[...] = y0[:, self._col]
-        self.estimator.reset(self.controlled, 0.0, self.u_applied)
+        self.estimator.reset(self.controlled, self.controlled, self.u_applied)  # zero initial error
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
         c, est, u, tmp = self.controlled, self.estimator, self._u, self._tmp
@@ -123,8 +127,7 @@ class MFC(Controller):
             self._prev[...] = y[:, self._col]
         else:
             c[...] = y[:, self._col]
-        np.subtract(c, r[:, :, 0], out=self._e)
-        est.step(c, self._e, self.u_applied, self.gamma, r)
+        est.step(c, self.u_applied, self.gamma, r)
         u[...] = r[:, :, self.order]
         np.multiply(self.k_p, est.e_hat, out=tmp)
         u -= tmp
@@ -144,7 +147,7 @@ def _build(points: Sequence[Point], rig_info: RigInfo, fs: float, order: int, *,
     gamma = ctl.number("gamma", lo=0.0, lo_open=True)
     k_p = ctl.number("k_p", lo=0.0) if with_k_p else np.zeros(len(points))
     k_d = ctl.number("k_d", lo=0.0) if order == 2 else None
-    filter_error = ctl.choice("filter", ("error", "output"), "error") == "error"
+    filter_error = np.array(ctl.choice("filter", ("error", "output"), "error", per_run=True)) == "error"
     i_min = None
     if ctl.has("i_min"):
         if rig_info.outputs[output.index].unit != "l/min":

@@ -14,8 +14,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from labrunner.control.trajectories import Setpoints
-from labrunner.errors import InvalidParameter
+import numpy as np
+
+from labrunner.control.factory import Point, Section, reference
+from labrunner.control.trajectories import Reference, Setpoints
+from labrunner.errors import InvalidParameter, check_finite
+from labrunner.rigs.base import RigInfo
 
 
 def lift(
@@ -69,3 +73,58 @@ def tilt(
         )
         for target, t in zip(targets, transitions_s)
     )
+
+
+def reference_from_points(points: Sequence[Point], rig_info: RigInfo, *, delays_s: np.ndarray | None) -> Reference:
+    """The batched reference (y_1, y_2, y_3) of plate controllers from the points' ``reference`` sections.
+
+    ``kind = "lift"``: keys ``rest`` [m] (default: the rig's rest gap), ``hover``, ``high`` [m],
+    ``lift``, ``settle``, ``transition``, ``hold`` [s] (see :func:`lift`); ``kind = "tilt"``: keys
+    ``hover`` [m], ``targets`` [m, one per sensor], ``transitions`` [s, one per sensor], ``start``,
+    ``hold`` [s] (see :func:`tilt`). Both take ``delay`` (bool): delay by the differentiator's δ_t
+    (``delays_s``, per run). Other kinds (setpoints, steps, sine) go to
+    :func:`labrunner.control.factory.reference` with three outputs.
+    """
+    kind = Section(points, "reference").choice("kind", _KINDS, "setpoints")
+    if kind not in ("lift", "tilt"):
+        return reference(points, 3, delays_s=delays_s, kinds=("setpoints", "steps", "sine"))
+    sec = Section(points, "reference", used=("kind",))
+    delayed = sec.flag("delay", False)
+    if delayed and delays_s is None:
+        raise InvalidParameter("reference.delay", "this controller has no differentiator delay to delay by")
+    delays = np.asarray(delays_s, dtype=float) if delayed else np.zeros(len(points))
+    gap = dict(lo=0.0, lo_open=True, hi=float(rig_info.outputs[0].hi))
+    rows = []
+    if kind == "lift":
+        rest = sec.number("rest", float(rig_info.constants.get("rest_gap", 5.5e-3)), **gap)
+        hover, high = sec.number("hover", 2e-3, **gap), sec.number("high", 5e-3, **gap)
+        lift_s, settle = sec.number("lift", 2.0, lo=0.0, lo_open=True), sec.number("settle", 0.5, lo=0.0)
+        trans, hold = sec.number("transition", 0.5, lo=0.0, lo_open=True), sec.number("hold", 0.2, lo=0.0)
+        for i in range(len(points)):
+            rows.append(lift(rest=rest[i], hover=hover[i], high=high[i], lift_s=lift_s[i], settle_s=settle[i],
+                             transition_s=trans[i], hold_s=hold[i], delay_s=delays[i]))  # fmt: skip
+    else:
+        hover = sec.number("hover", 2e-3, **gap)
+        targets = sec.values("targets", [2.5e-3, 1.5e-3, 2.5e-3])
+        transitions = sec.values("transitions", [0.75, 0.25, 0.5])
+        start, hold = sec.number("start", 0.2, lo=0.0), sec.number("hold", 0.5, lo=0.0)
+        for i in range(len(points)):
+            tg = _triple("reference.targets", targets[i], **gap)
+            tr = _triple("reference.transitions", transitions[i], lo=0.0, lo_open=True, hi=np.inf)
+            rows.append(tilt(hover=hover[i], targets=tg, transitions_s=tr, start_s=start[i], hold_s=hold[i], delay_s=delays[i]))
+    sec.finish()
+    return Reference(rows)
+
+
+_KINDS = ("setpoints", "steps", "sine", "lift", "tilt")
+
+
+def _triple(field: str, value: object, *, lo: float, lo_open: bool, hi: float) -> tuple[float, float, float]:
+    """Three numbers in (lo, hi], one per sensor point."""
+    if np.ndim(value) != 1 or len(value) != 3:  # type: ignore[arg-type]
+        raise InvalidParameter(field, f"needs three numbers, one per sensor point, got {value!r}")
+    out = tuple(check_finite(field, v) for v in value)  # type: ignore[union-attr]
+    for v in out:
+        if v < lo or (lo_open and v == lo) or v > hi:
+            raise InvalidParameter(field, f"must be in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {v!r}")
+    return out  # type: ignore[return-value]

@@ -1,0 +1,177 @@
+"""Model-free control of the magnetically supported plate: paper 2 Sec. 3.2-3.3.
+
+Three second-order ultra-local models, one per sensor point k ∈ {1, 2, 3}, share the generic
+estimator (:class:`~labrunner.control.estimators.MFCEstimator`, eq. (24b), (25)); they differ in
+the input x_k the model is written in (``controller.input``):
+
+=========  =============================  ====================  ==========================
+input      ultra-local model              law                   currents
+=========  =============================  ====================  ==========================
+v          ÿ = f_v + γ_v v      (13)      (14)                  f = B†P v (11), i by (12)
+force      ÿ = f_F − γ_F F̃      (16)      (17)                  F_4 by (18), i by (12)
+u          ÿ = f_u − γ_u (i/h)²           (19)                  u_4 by (18), i = √u · h
+current    ÿ = f_i − γ_i(y) i   (20)      (21), γ_i = γ_i,0/y   i_4 by (18)
+=========  =============================  ====================  ==========================
+
+All four are u = (ÿ_r − k_p ê − k_d ê̇ − f̂)/γ_s with the signed gain γ_s = γ_v, −γ_F, −γ_u or
+−γ_i(y). The estimator sees the *applied* input of the previous tick, recomputed from the
+saturated currents and the gaps h = K y (eq. (4)) of that tick. For the current input the
+estimator integrates the model's whole input term γ_i(y)·i (γ_i varies with y), which is (24b)
+with "v substituted by i" for a constant y. Following eq. (25), only the measurement is filtered
+by default (``filter = "output"``): ê = ŷ − y_r, ê̇ = ŷ̇ − ẏ_r.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from labrunner.control.base import Controller
+from labrunner.control.estimators import MFCEstimator
+from labrunner.control.factory import Point, Section, differentiators
+from labrunner.control.plate_trajectories import reference_from_points
+from labrunner.control.trajectories import Reference
+from labrunner.differentiators import Differentiator
+from labrunner.errors import InvalidParameter
+from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry, complete_over_actuated, current_for_force, magnet_force
+from labrunner.rigs.base import RigInfo
+
+INPUTS = ("v", "force", "u", "current")
+
+
+class PlateMFC(Controller):
+    """Batch MFC of the plate (B runs × 3 sensor points); gains (B,), one differentiator per run.
+
+    ``input`` picks the model (see the module table); ``weights`` are the a_k of eq. (18) for the
+    inputs force, u and current; ``y_min`` [m] bounds the sensor value in γ_i(y) = γ_i,0 / y
+    (the paper's safety routine keeps the gaps above 0.8 mm).
+    """
+
+    def __init__(
+        self,
+        designs: Sequence[Differentiator],
+        *,
+        input: str,
+        gamma: np.ndarray,
+        k_p: np.ndarray,
+        k_d: np.ndarray,
+        i_max: np.ndarray,
+        geometry: PlateGeometry | None = None,
+        lam_inv_sqrt: float = LAMBDA_INV_SQRT,
+        weights: Sequence[float] = (0.0, 0.5, 0.5),
+        y_min: float = 0.8e-3,
+        filter_error: bool = False,
+    ) -> None:
+        B = len(designs)
+        i_max = np.broadcast_to(np.asarray(i_max, dtype=float).reshape(-1, 1), (B, 4))
+        super().__init__(("y1", "y2", "y3"), np.zeros((B, 4)), i_max)
+        if input not in INPUTS:
+            raise InvalidParameter("controller.input", f"must be one of {', '.join(INPUTS)}, got {input!r}")
+        self.input = input
+        self.geometry = geometry or PlateGeometry()
+        self.lam_inv_sqrt = float(lam_inv_sqrt)
+        self.weights = np.asarray(weights, dtype=float)
+        complete_over_actuated(np.zeros((1, 3)), self.weights)  # validates the a_k
+        self.y_min = float(y_min)
+        col = lambda a: np.array(a, dtype=float).reshape(B, 1)  # noqa: E731
+        self.gamma, self.k_p, self.k_d = col(gamma), col(k_p), col(k_d)
+        # signed input gain of the estimator's model ÿ = f + γ_s x: γ_v, or −γ for the magnet inputs;
+        # for the current the estimator's input is γ_i(y)·i with γ_s = −1 (see the module docstring)
+        self._gamma_est = {"v": self.gamma, "force": -self.gamma, "u": -self.gamma, "current": -np.ones((B, 1))}[input]
+        self.estimator = MFCEstimator(designs, 2, 3, filter_error=filter_error)
+        self.estimates = {"f_hat": self.estimator.f_hat, "e_hat": self.estimator.e_hat, "de_hat": self.estimator.de_hat}
+        self._h = np.zeros((B, 4))
+        self._y = np.zeros((B, 3))
+
+    def _reset(self, y0: np.ndarray) -> None:
+        self._y = y0[:, :3].copy()
+        self._h = self.geometry.gaps_from_sensors(y0)
+        self.controlled[...] = self._y
+        self.estimator.reset(self._y, 0.0, self._model_input(self.u_applied))
+
+    def _gamma_i(self, y: np.ndarray) -> np.ndarray:
+        """γ_i(y) = γ_i,0 / y, eq. (20)-(21), with y bounded below by ``y_min``."""
+        return self.gamma / np.maximum(y, self.y_min)
+
+    def _model_input(self, currents: np.ndarray) -> np.ndarray:
+        """(B, 3) the applied input x_k of the ultra-local models for ``currents`` at the last gaps."""
+        h = self._h
+        if self.input == "v":
+            return self.geometry.input_from_forces(magnet_force(currents, h, self.lam_inv_sqrt))
+        if self.input == "force":
+            return magnet_force(currents[:, :3], h[:, :3], self.lam_inv_sqrt)
+        if self.input == "u":
+            return (currents[:, :3] / h[:, :3]) ** 2
+        return self._gamma_i(self._y) * currents[:, :3]
+
+    def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
+        est = self.estimator
+        y3 = y[:, :3]
+        est.step(y3, y3 - r[:, :, 0], self._model_input(self.u_applied), self._gamma_est, r)
+        w = r[:, :, 2] - self.k_p * est.e_hat - self.k_d * est.de_hat - est.f_hat
+        self._y = y3.copy()
+        self._h = self.geometry.gaps_from_sensors(y)
+        self.controlled[...] = y3
+        if self.input == "v":  # (14), then (11) and (12)
+            forces = self.geometry.forces_pinv(w / self.gamma)
+            return current_for_force(forces, self._h, self.lam_inv_sqrt)
+        if self.input == "current":  # (21): i = −(1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i)
+            return complete_over_actuated(-w / self._gamma_i(y3), self.weights)
+        x = complete_over_actuated(-w / self.gamma, self.weights)  # (17) or (19), then (18)
+        if self.input == "force":
+            return current_for_force(x, self._h, self.lam_inv_sqrt)
+        return np.sqrt(np.maximum(x, 0.0)) * self._h  # i = √u · h (Sec. 3.2.3)
+
+
+def plate_geometry(rig_info: RigInfo) -> tuple[PlateGeometry, float]:
+    """The nominal geometry and λ^(−1/2) of the rig (its constants), or paper 2's Table 2."""
+    c = rig_info.constants
+    keys = ("m", "g", "J_x", "J_y", "l_dx", "l_dy", "l_fx", "l_fy")
+    geometry = PlateGeometry(**{k: float(c[k]) for k in keys if k in c})
+    return geometry, float(c.get("lambda_inv_sqrt", LAMBDA_INV_SQRT))
+
+
+def check_plate_rig(rig_info: RigInfo, kind: str) -> None:
+    """Plate controllers need four current inputs and at least the three sensors of eq. (4)."""
+    if len(rig_info.inputs) != 4 or len(rig_info.outputs) < 3:
+        raise InvalidParameter("controller.kind", f"{kind!r} needs a plate rig (4 currents, >= 3 sensors), got rig {rig_info.name!r}")
+
+
+def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tuple[PlateMFC, Reference]:
+    """Plate MFC from campaign points; ``controller`` keys: ``input`` (v | force | u | current,
+    default v), ``gamma``, ``k_p``, ``k_d``, ``filter`` (output | error, default output),
+    ``weights`` (a_k of eq. (18), not for input v), ``i_max`` [A], ``y_min`` [m] (input current)."""
+    check_plate_rig(rig_info, "plate-mfc")
+    ctl = Section(points, "controller", used=("kind",))
+    kind = ctl.choice("input", INPUTS, "v")
+    gamma = ctl.number("gamma", lo=0.0, lo_open=True)
+    k_p = ctl.number("k_p", lo=0.0)
+    k_d = ctl.number("k_d", lo=0.0)
+    filter_error = ctl.choice("filter", ("output", "error"), "output") == "error"
+    i_hi = float(rig_info.input_hi.min())
+    i_max = ctl.number("i_max", i_hi, lo=0.0, lo_open=True, hi=i_hi)
+    weights = (0.0, 0.5, 0.5)
+    if ctl.has("weights"):
+        if kind == "v":
+            raise InvalidParameter("controller.weights", "input 'v' allocates by the pseudo-inverse (eq. (11)); weights are for force, u, current")
+        rows = ctl.values("weights", weights)
+        if any(list(r) != list(rows[0]) for r in rows):  # type: ignore[call-overload]
+            raise InvalidParameter("controller.weights", "must be the same for every run of a batch")
+        try:
+            complete_over_actuated(np.zeros((1, 3)), rows[0])  # type: ignore[arg-type]
+        except InvalidParameter as exc:
+            raise InvalidParameter("controller.weights", str(exc).split(": ", 1)[1]) from None
+        weights = tuple(float(a) for a in rows[0])  # type: ignore[union-attr]
+    y_min = 0.8e-3
+    if kind == "current" and ctl.has("y_min"):
+        y_min = float(ctl.number("y_min", 0.8e-3, lo=0.0, lo_open=True).min())
+    ctl.finish()
+    designs = differentiators(points, fs, 2)
+    ref = reference_from_points(points, rig_info, delays_s=np.array([d.discrete_delay_s(0) for d in designs]))
+    geometry, lam = plate_geometry(rig_info)
+    controller = PlateMFC(
+        designs, input=kind, gamma=gamma, k_p=k_p, k_d=k_d, i_max=i_max,
+        geometry=geometry, lam_inv_sqrt=lam, weights=weights, y_min=y_min, filter_error=filter_error,
+    )  # fmt: skip
+    return controller, ref
