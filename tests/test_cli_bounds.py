@@ -1,0 +1,83 @@
+"""``labrunner bounds``: JSON equals the library's ``bounds``, bad input exits 2 with one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from labrunner.cli import main
+from labrunner.stability import bounds
+
+MOTOR = ["--a", "39.44", "--b", "108.55"]
+
+
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    code = main(["bounds", *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_json_matches_library(capsys):
+    code, out, _ = run(capsys, "--case", "mfc2-motor", "--gamma", "119.405", "--delay", "0.035", *MOTOR,
+                       "--k-d", "20", "--json")
+    assert code == 0
+    assert json.loads(out) == bounds("mfc2-motor", gamma=119.405, delay=0.035, a=39.44, b=108.55, k_d=20.0)
+    assert set(json.loads(out)) == {"k_p", "k_d"}
+
+
+def test_json_numeric(capsys):
+    code, out, _ = run(capsys, "--case", "mfc1-motor", "--gamma", "108.55", "--delay", "0.01", *MOTOR,
+                       "--numeric", "--json")
+    result = json.loads(out)
+    assert code == 0 and set(result) == {"k_p", "numeric"}
+    assert result["numeric"]["k_p"] == pytest.approx(result["k_p"], rel=1e-6, abs=1e-6 * result["k_p"][1])
+
+
+def test_null_when_nothing_is_stable(capsys):
+    # k_d in the gap between the correct bound (π/2)γ/(ρδ) ≈ 44.9 and the printed (2.53) ≈ 52.0
+    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "108.55", "--delay", "0.035", "--b", "108.55",
+                       "--k-d", "48", "--json")
+    assert code == 0 and json.loads(out)["k_p"] is None
+
+
+def test_human_output(capsys):
+    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.01", "--rho", "1",
+                       "--k-d", "50", "--numeric")
+    assert code == 0
+    assert "k_d in (0, 157.0796327)" in out and "k_p in (0, " in out and "numerical solver" in out
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "0", "--rho", "1"],
+     ["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "-0.1", "--rho", "1"],
+     ["--case", "mfc1-ultralocal", "--gamma", "0", "--delay", "0.1", "--rho", "1"],
+     ["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "0.1", "--rho", "-2"],
+     ["--case", "mfc1-ultralocal", "--gamma", "nan", "--delay", "0.1", "--rho", "1"],
+     ["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "0.1"],
+     ["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR],
+     ["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--b", "2"],
+     ["--case", "mfc1-ultralocal", "--gamma", "abc", "--delay", "0.1", "--rho", "1"],
+     ["--case", "mfc9", "--gamma", "1", "--delay", "0.1", "--rho", "1"]],
+)
+def test_bad_input_exits_2_with_one_line(capsys, args):
+    try:
+        code = main(["bounds", *args])
+    except SystemExit as exc:   # argparse usage errors (not a number, unknown case)
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and "error" in err
+
+
+def test_end_to_end_subprocess():
+    proc = subprocess.run([sys.executable, "-m", "labrunner", "bounds", "--case", "mfc1-ultralocal", "--gamma", "2",
+                           "--delay", "0.01", "--rho", "3", "--json"], capture_output=True, text=True, check=False)
+    assert proc.returncode == 0
+    assert json.loads(proc.stdout)["k_p"] == pytest.approx([0.0, 3.141592653589793 / 2 * 2 / 0.03])
+    bad = subprocess.run([sys.executable, "-m", "labrunner", "bounds", "--case", "mfc2-motor", "--gamma", "1",
+                          "--delay", "0.01", *MOTOR], capture_output=True, text=True, check=False)
+    assert bad.returncode == 2 and bad.stderr.strip() == "labrunner bounds: error: k_d: is required for the second-order case mfc2-motor"
