@@ -78,9 +78,13 @@ def _number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _unit(log: RunLog, names: list[str]) -> str:
-    units = list(dict.fromkeys(log.channels.get(n, {}).get("unit", "") for n in names))
-    return ", ".join(u for u in units if u)
+def _unit(log: RunLog, names: list[str]) -> tuple[str, float]:
+    """The panel's unit label and the factor its data is drawn with (air gaps in mm, as the
+    papers show them: metres below 0.1 m are drawn in millimetres)."""
+    units = [u for u in dict.fromkeys(log.channels.get(n, {}).get("unit", "") for n in names) if u]
+    if units == ["m"] and np.nanmax(np.abs(log.frame[names].to_numpy()), initial=0.0) < 0.1:
+        return "mm", 1e3
+    return ", ".join(units), 1.0
 
 
 def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | None = None) -> Figure | SubFigure:
@@ -96,14 +100,15 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     t_abort = out.get("time") if out.get("status") == "aborted" and _number(out.get("time")) else None
     for ax, (title, lines) in zip(axes, panels):
         colours: dict[str, str] = {}
+        unit, scale = _unit(log, [n for n, _ in lines])
         for name, style in lines:
             base = name[4:] if style == "--" else name
             colour = colours.setdefault(base, f"C{len(colours) % 10}")
-            ax.plot(t, log.frame[name].to_numpy(), style, color=colour, lw=1.0 if style == "-" else 1.3, label=_label(name))
+            y = scale * log.frame[name].to_numpy()
+            ax.plot(t, y, style, color=colour, lw=1.0 if style == "-" else 1.3, label=_label(name))
             if t_abort is not None and title == "inputs" and len(t):
                 k = min(int(np.searchsorted(t, t_abort)), len(t) - 1)
-                ax.plot([t[k]], [log.frame[name].iloc[k]], "x", color=_ABORT, ms=8, mew=2)
-        unit = _unit(log, [n for n, _ in lines])
+                ax.plot([t[k]], [y[k]], "x", color=_ABORT, ms=8, mew=2)
         ax.set_ylabel(f"{title} [{unit}]" if unit else title)
         ax.grid(True, lw=0.4, alpha=0.6)
         ax.legend(loc="best", fontsize="small", ncols=min(4, len(lines)))

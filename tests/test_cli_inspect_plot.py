@@ -134,3 +134,13 @@ def test_real_command(aborted_run, tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert png.read_bytes()[:8] == PNG
+
+
+def test_plot_draws_small_lengths_in_mm(tmp_path):
+    gap = 5.5e-3 - 3.5e-3 * np.linspace(0, 1, 50)
+    path = tmp_path / "plate.mcap"
+    write_run(path, metadata={}, fs=100.0, signals={"h": gap, "ref_h": gap, "i": np.full(50, 3.0)}, outcome=COMPLETED,
+              channels={"h": {"role": "controlled", "unit": "m"}, "i": {"role": "input", "unit": "A"}})
+    outputs, inputs = plot_run(path).axes
+    assert outputs.get_ylabel() == "outputs [mm]" and inputs.get_ylabel() == "inputs [A]"
+    assert np.allclose(outputs.get_lines()[0].get_ydata(), 1e3 * gap)

@@ -160,12 +160,18 @@ def signal_prefixes(names: Sequence[str]) -> list[bytes]:
 
 
 def encode_block(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> bytes:
-    """Wire bytes of a ``SignalBlock``; ``columns`` are float64 arrays of equal length."""
-    parts = [b"\x08", varint(first_index), b"\x11", _DOUBLE.pack(first_index / fs), b"\x19", _DOUBLE.pack(fs)]
+    """Wire bytes of a ``SignalBlock``; ``columns`` are float64 arrays of equal length.
+
+    A packed double field is the little-endian float64 array itself: the arrays are joined into
+    the message by their buffers, without an intermediate copy.
+    """
+    parts: list[bytes | np.ndarray] = [
+        b"\x08", varint(first_index), b"\x11", _DOUBLE.pack(first_index / fs), b"\x19", _DOUBLE.pack(fs)
+    ]
     for prefix, column in zip(prefixes, columns, strict=True):
-        payload = column.astype("<f8", copy=False).tobytes()
-        values_len = varint(len(payload))
-        parts += [b"\x22", varint(len(prefix) + 1 + len(values_len) + len(payload)), prefix, b"\x12", values_len, payload]
+        values = np.ascontiguousarray(column, dtype="<f8")
+        values_len = varint(values.nbytes)
+        parts += [b"\x22" + varint(len(prefix) + 1 + len(values_len) + values.nbytes) + prefix + b"\x12" + values_len, values]
     return b"".join(parts)
 
 
