@@ -18,7 +18,7 @@ than Δ/2 either way are invisible. ``n_u`` is white voltage noise held over eac
 Integration: ``u`` is held over the sample; ``n_sub`` sub-steps of at most ``max_substep`` [s]
 each use the exact ZOH transition of the linear part (θ_m, Ω, v) with the friction force held over
 the sub-step; a velocity that would reverse under Coulomb friction stops at zero and the
-stick/breakaway test runs again at the next sub-step. The error of that event handling is below
+stick/breakaway test (on the voltage reached at the end of the sub-step) runs again at the next. The error of that event handling is below
 |Ω̇| h² / 2 in θ (≈ 1e-3 rad at 12 V and h = 1.25 ms, under the encoder's Δ = 3.1e-3 rad).
 """
 
@@ -107,6 +107,7 @@ class DCMotorTwin(SimRig):
         self._theta = np.zeros(batch)  # load angle behind the backlash [rad]
         self._half_play = 0.5 * p["backlash"]
         self._coulomb = p["coulomb_friction"] > 0.0
+        self._static = p["static_friction"] > 0.0
         counts = p["encoder_counts"]
         self._dtheta = np.where(counts > 0, 2.0 * np.pi / np.where(counts > 0, counts, 1.0), 0.0)
         self._noise = NoiseStreams(seeds, 1, stream=1)
@@ -123,10 +124,11 @@ class DCMotorTwin(SimRig):
         z[3] = v
         any_lag = bool(self._lag.any())
         for _ in range(self.n_sub):
-            drive = np.where(self._lag, z[2], v) if any_lag else v
+            # voltage on the motor at the end of the sub-step (the lag's row does not involve θ, Ω, F)
+            drive = np.where(self._lag, M[2, 2] * z[2] + M[2, 3] * v, v) if any_lag else v
             stuck = z[1] == 0.0
             s = np.sign(z[1] + stuck * drive)  # direction of motion, or of breakaway when stuck
-            hold = stuck & (np.abs(drive) <= us)
+            hold = stuck & self._static & (np.abs(drive) <= us)
             z[4] = uc * s
             xn = (M * z[None]).sum(axis=1)
             stop = hold | (self._coulomb & (xn[1] * s < 0.0))
