@@ -124,7 +124,8 @@ def _check(field: str, source: str, node: ast.expr, names: set[str], known) -> N
                 _check(field, source, arg, names, known)
     elif (name := _dotted(node)) is not None:
         if name not in CONSTANTS and name not in known:
-            options = ", ".join(sorted(set(known) | set(CONSTANTS)))
+            names_known = sorted(set(known) | set(CONSTANTS))
+            options = ", ".join(names_known[:20]) + (", …" if len(names_known) > 20 else "")
             raise InvalidParameter(field, f"unknown name {name!r} in {source!r} (known: {options})")
         names.add(name)
     else:

@@ -47,7 +47,7 @@ def default_directory(campaign: spec.Campaign) -> Path:
 
 def _ours(path: Path) -> bool:
     """Files a run may leave before its ledger exists (its lock, a half-written ledger)."""
-    return path.name == LOCK_NAME or (path.name.startswith(f".{LEDGER_NAME}.") and path.name.endswith(".tmp"))
+    return path.name == LOCK_NAME or path.name.startswith(f".{LEDGER_NAME}.")
 
 
 def _check_new_directory(directory: Path, name: str) -> None:
@@ -100,7 +100,8 @@ def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slot
     from labrunner import engine
     from labrunner.rigs import registry
 
-    first = [p for p in points if p.batch_key == points[0].batch_key][: min(size, 16)]
+    group = [p for p in points if p.batch_key == points[0].batch_key]
+    first = group[:: max(1, len(group) // min(size, 16))][: min(size, 16)]  # spread: early aborts end a batch early
     _, fs, duration, _ = json.loads(first[0].batch_key)
     configs = []
     for p in first:
@@ -137,10 +138,10 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             "created_at": repr(time.time()),
             "created_by": f"labrunner {__version__} on {socket.gethostname()}",
         }
-        (directory / RUNS_DIR).mkdir(exist_ok=True)
-        _write_copy(directory, campaign.source)
         ledger = Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points))
         del points
+        _write_copy(directory, campaign.source)  # the ledger exists first: it is what marks the campaign
+        (directory / RUNS_DIR).mkdir(exist_ok=True)
         with ledger:
             return _execute(campaign, ledger, lock, opts, "run"), str(directory)
 
@@ -181,6 +182,7 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
         campaign = _check_unchanged(ledger)
+        _write_copy(ledger.directory, ledger.meta()["campaign_file"])
         report = recovery.recover(ledger)
         print(f"resume {directory}: {report.describe()}", file=stream)
         if retry_failed:

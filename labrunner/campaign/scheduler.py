@@ -58,11 +58,13 @@ class Outcome:
 
 
 def batch_size(group_points: int, slots: int, samples: int, requested: int | None = None) -> int:
-    """Runs per batch: ≥ 4 batches per parallel slot, ≤ :data:`MAX_BATCH`, within the memory budget."""
+    """Runs per batch: ≥ 2 batches per parallel slot, ≤ :data:`MAX_BATCH`, within the memory budget.
+
+    Lockstep cost is dominated by the per-tick overhead, so larger batches are cheaper per run."""
     if requested is not None:
         return requested
     by_memory = max(1, BATCH_MEMORY_BYTES // max(samples * _BYTES_PER_SAMPLE, 1))
-    return max(1, min(MAX_BATCH, by_memory, math.ceil(group_points / (4 * max(slots, 1)))))
+    return max(1, min(MAX_BATCH, by_memory, math.ceil(group_points / (2 * max(slots, 1)))))
 
 
 def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> list[tuple[str, list[Any]]]:

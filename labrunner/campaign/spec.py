@@ -175,8 +175,9 @@ def _resolve_rig(value: Any, source_path: Path | None, root: Path) -> tuple[str,
     _require("campaign.rig", value, str, "a rig name or a path to a rig file")
     if NAME_RE.fullmatch(value):
         return value, None
-    base = source_path.resolve().parent if source_path else root
-    path = (base / value).resolve()
+    bases = ([source_path.resolve().parent] if source_path else []) + [root]
+    candidates = [(base / value).resolve() for base in bases]  # next to the campaign file, else in the project
+    path = next((c for c in candidates if c.is_file()), candidates[0])
     if not path.is_relative_to(root.resolve()):
         raise InvalidParameter("campaign.rig", f"path {value!r} is outside the project {str(root)!r}")
     if path.suffix != ".toml" or not path.is_file():
@@ -256,14 +257,15 @@ def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple
 
 
 def rig_info(ref: str | Path, root: Path) -> tuple[RigInfo, dict[str, Any], tuple[str, ...]]:
-    """The rig's :class:`RigInfo`, its file's ``[safety]`` and its parameter names, without opening it."""
+    """The rig's :class:`RigInfo`, its file's ``[safety]`` and the names ``[rig_parameters]`` may
+    override per run (its parameters and noise levels), without opening the rig."""
     from labrunner.rigs import config as rigconfig
 
     try:
         config = rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root))
     except InvalidParameter as exc:
-        raise InvalidParameter("campaign.rig", str(exc)) from None
-    return rigconfig.rig_info(config), dict(config.safety), tuple(config.parameters)
+        raise InvalidParameter("campaign.rig", str(exc).removeprefix(f"{exc.field}: ")) from None
+    return rigconfig.rig_info(config), dict(config.safety), (*config.parameters, *config.noise)
 
 
 def load(path: str | Path, *, root: Path | None = None) -> Campaign:
