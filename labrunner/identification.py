@@ -107,9 +107,9 @@ def identify_logs(
     for path in paths:
         log = read_run(path)
         frame = log.frame
-        channels = log.metadata.get("channels", {})
-        u_name = _pick(list(channels.get("inputs", [])), input_name, "input", "u")
-        y_name = _pick(list(channels.get("measurements", [])), output_name, "output", "theta")
+        roles = {name: info.get("role") for name, info in log.channels.items()}
+        u_name = _pick([n for n, r in roles.items() if r == "input"], input_name, "input", "u")
+        y_name = _pick([n for n, r in roles.items() if r == "output"], output_name, "output", "theta")
         est = identify_signals(frame[y_name].to_numpy(), frame[u_name].to_numpy(), float(log.fs))
         level = frame[u_name].to_numpy()
         per_run.append({"log": str(path), "input": u_name, "output": y_name,
@@ -133,14 +133,14 @@ def nominal_constants(path: str | Path, search: Sequence[str | Path] | None = No
     ``rig_parameters`` overrides), or None when the rig file cannot be found (``search``: rig
     directories, default the registry's)."""
     from labrunner.logs import read_metadata
-    from labrunner.rigs.config import load_rig_config
+    from labrunner.rigs import config as rigconfig
 
     meta = read_metadata(path)
     rig = meta.get("run", {}).get("rig")
     if not isinstance(rig, str):
         return None
     try:
-        constants = dict(load_rig_config(rig, search).info.constants)
+        constants = dict(rigconfig.rig_info(rigconfig.load_rig_config(rig, search)).constants)
     except (InvalidParameter, OSError):
         return None
     overrides = meta.get("config", {}).get("rig_parameters") or {}
