@@ -217,11 +217,27 @@ def differentiators(points: Sequence[Point], fs: float, order: int) -> list[_dif
     return designs
 
 
-def _per_output(value: object, n_outputs: int, depth: int) -> list[object]:
-    """Split ``value`` into one entry per output when it is nested one level deeper than ``depth``."""
-    if n_outputs > 1 and np.ndim(value) == depth + 1 and len(value) == n_outputs:  # type: ignore[arg-type]
+def _is_nested(value: object) -> bool:
+    """A non-empty list of lists (ragged allowed)."""
+    return isinstance(value, (list, tuple)) and bool(value) and all(isinstance(v, (list, tuple)) for v in value)
+
+
+def _per_output(value: object, n_outputs: int, nested: bool) -> list[object]:
+    """One entry per output: ``value`` split by output where it is a list of per-output lists
+    (only when the levels are nested per output), else ``value`` for every output."""
+    if nested and _is_nested(value):
+        if len(value) != n_outputs:  # type: ignore[arg-type]
+            raise InvalidParameter("reference.levels", f"needs one list per output ({n_outputs}), got {len(value)}")  # type: ignore[arg-type]
         return list(value)  # type: ignore[arg-type]
     return [value] * n_outputs
+
+
+#: reference kinds → their keys (besides ``kind``)
+REFERENCE_KEYS = {
+    "setpoints": ("levels", "transition", "hold", "delay"),
+    "steps": ("levels", "durations"),
+    "sine": ("amplitude", "frequency", "duration", "offset"),
+}
 
 
 def reference(
@@ -231,7 +247,7 @@ def reference(
     delays_s: np.ndarray | None = None,
     kinds: Sequence[str] = ("setpoints",),
 ) -> Reference:
-    """The batched reference from the ``reference`` section.
+    """The batched reference from the ``reference`` section (the kind may differ per run).
 
     ``kind = "setpoints"``: ``levels``, ``transition`` [s], ``hold`` [s], ``delay`` (bool: delay by
     ``delays_s`` per run, paper 2 Sec. 4.3.1); ``"steps"``: ``levels``, ``durations`` [s];
@@ -239,32 +255,30 @@ def reference(
     outputs, ``levels`` (and the times) may be nested one list per output.
     """
     sec = Section(points, "reference")
-    kind = sec.choice("kind", kinds, kinds[0])
     rows: list[list[Trajectory]] = []
-    if kind == "setpoints":
-        levels, transition, hold = sec.values("levels"), sec.values("transition"), sec.values("hold")
-        delayed = sec.flag("delay", False)
-        if delayed and delays_s is None:
-            raise InvalidParameter("reference.delay", "this controller has no differentiator delay to delay by")
-        for i in range(len(points)):
-            per_out = zip(
-                _per_output(levels[i], n_outputs, 1),
-                _per_output(transition[i], n_outputs, 1 if np.ndim(levels[i]) > 1 else 0),
-                _per_output(hold[i], n_outputs, 1 if np.ndim(levels[i]) > 1 else 0),
-            )
-            delay = float(delays_s[i]) if delayed else 0.0  # type: ignore[index]
+    for i, (kind, row) in enumerate(zip(sec.choice("kind", kinds, kinds[0], per_run=True), sec.rows)):
+        for k in row:
+            if k != "kind" and k not in REFERENCE_KEYS[kind]:
+                raise InvalidParameter(sec.key(k), f"unknown key for kind {kind!r} (allowed: {', '.join(REFERENCE_KEYS[kind])})")
+        one = Section([{"reference": row}], "reference", used=("kind",) + REFERENCE_KEYS[kind])
+        if kind == "setpoints":
+            levels, transition, hold = one.values("levels")[0], one.values("transition")[0], one.values("hold")[0]
+            delay = 0.0
+            if one.flag("delay", False):
+                if delays_s is None:
+                    raise InvalidParameter("reference.delay", "this controller has no differentiator delay to delay by")
+                delay = float(delays_s[i])
+            nested = _is_nested(levels)
+            per_out = zip(*(_per_output(v, n_outputs, nested) for v in (levels, transition, hold)))
             rows.append([Setpoints.build(lv, tr, ho, delay) for lv, tr, ho in per_out])  # type: ignore[arg-type]
-    elif kind == "steps":
-        levels, durations = sec.values("levels"), sec.values("durations")
-        rows = [
-            [Steps.build(lv, du) for lv, du in zip(_per_output(levels[i], n_outputs, 1), _per_output(durations[i], n_outputs, 1))]  # type: ignore[arg-type]
-            for i in range(len(points))
-        ]
-    else:
-        amp, freq = sec.number("amplitude"), sec.number("frequency")
-        dur, off = sec.number("duration"), sec.number("offset", 0.0)
-        rows = [[Sine.build(amp[i], freq[i], dur[i], off[i])] * n_outputs for i in range(len(points))]
-    sec.finish()
+        elif kind == "steps":
+            levels, durations = one.values("levels")[0], one.values("durations")[0]
+            nested = _is_nested(levels)
+            per_out = zip(*(_per_output(v, n_outputs, nested) for v in (levels, durations)))
+            rows.append([Steps.build(lv, du) for lv, du in per_out])  # type: ignore[arg-type]
+        else:
+            amp, freq, dur = one.number("amplitude")[0], one.number("frequency")[0], one.number("duration")[0]
+            rows.append([Sine.build(amp, freq, dur, one.number("offset", 0.0)[0])] * n_outputs)
     return Reference(rows)
 
 

@@ -88,7 +88,7 @@ class PlateMFC(Controller):
         self._y = y0[:, :3].copy()
         self._h = self.geometry.gaps_from_sensors(y0)
         self.controlled[...] = self._y
-        self.estimator.reset(self._y, 0.0, self._model_input(self.u_applied))
+        self.estimator.reset(self._y, self._y, self._model_input(self.u_applied))  # start at rest, e ≡ 0
 
     def _gamma_i(self, y: np.ndarray) -> np.ndarray:
         """γ_i(y) = γ_i,0 / y, eq. (20)-(21), with y bounded below by ``y_min``."""
@@ -108,7 +108,7 @@ class PlateMFC(Controller):
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
         est = self.estimator
         y3 = y[:, :3]
-        est.step(y3, y3 - r[:, :, 0], self._model_input(self.u_applied), self._gamma_est, r)
+        est.step(y3, self._model_input(self.u_applied), self._gamma_est, r)
         w = r[:, :, 2] - self.k_p * est.e_hat - self.k_d * est.de_hat - est.f_hat
         self._y = y3.copy()
         self._h = self.geometry.gaps_from_sensors(y)

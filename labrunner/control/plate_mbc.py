@@ -25,8 +25,13 @@ import numpy as np
 from scipy import signal
 
 from labrunner.control.base import Controller
+from labrunner.control.factory import Point, Section, no_section
+from labrunner.control.plate import check_plate_rig, plate_geometry
+from labrunner.control.plate_trajectories import reference_from_points
+from labrunner.control.trajectories import Reference
 from labrunner.errors import InvalidParameter, check_finite
 from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry, current_for_force, magnet_force
+from labrunner.rigs.base import RigInfo
 
 StateSpace = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # (A, B, C, D)
 
@@ -182,10 +187,11 @@ class PlateMBC(Controller):
         geometry: PlateGeometry | None = None,
         *,
         lam_inv_sqrt: float = LAMBDA_INV_SQRT,
-        i_max: float = 8.0,
+        i_max: float | np.ndarray = 8.0,
     ) -> None:
         B = len(designs)
-        super().__init__(("y1", "y2", "y3"), np.zeros((B, 4)), np.full((B, 4), float(i_max)))
+        i_max = np.broadcast_to(np.asarray(i_max, dtype=float).reshape(-1, 1), (B, 4))
+        super().__init__(("y1", "y2", "y3"), np.zeros((B, 4)), i_max)
         self.geometry = geometry or PlateGeometry()
         self.lam_inv_sqrt = float(lam_inv_sqrt)
         self.c_p = np.array([[d.c_p] for d in designs])
@@ -230,3 +236,38 @@ class PlateMBC(Controller):
         self.estimates["e_hat"][...] = e_hat
         self.estimates["de_hat"][...] = de_hat
         return current_for_force(g.forces_pinv(v), self._h, self.lam_inv_sqrt)  # eq. (11), (12)
+
+
+def build_plate_mbc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tuple[PlateMBC, Reference]:
+    """Plate MBC from campaign points; ``controller`` keys (defaults: paper 2 Sec. 4.2): ``c_p``
+    [1/s²] 5000, ``c_d`` [1/s] 195, ``observer_poles`` [1/s] [820, 840, 860], ``notch_omega``
+    [rad/s] 942, ``notch_q`` 2, ``lowpass_omega`` [rad/s] 840, ``match_alpha`` 4 (the α = β of
+    the differentiator whose slopes the low-pass filters match), ``i_max`` [A]. No
+    ``differentiator`` section; the reference cannot be delayed (the MBC's delay is unknown)."""
+    check_plate_rig(rig_info, "plate-mbc")
+    no_section(points, "differentiator", "plate-mbc")
+    ctl = Section(points, "controller", used=("kind",))
+    c_p = ctl.number("c_p", 5000.0, lo=0.0, lo_open=True)
+    c_d = ctl.number("c_d", 195.0, lo=0.0, lo_open=True)
+    poles = ctl.values("observer_poles", [820.0, 840.0, 860.0])
+    notch = ctl.number("notch_omega", 942.0, lo=0.0, lo_open=True)
+    q = ctl.number("notch_q", 2.0, lo=0.0, lo_open=True)
+    lp = ctl.number("lowpass_omega", 840.0, lo=0.0, lo_open=True)
+    alpha = ctl.number("match_alpha", 4.0, lo=0.0, hi=8.0)
+    i_hi = float(rig_info.input_hi.min())
+    i_max = ctl.number("i_max", i_hi, lo=0.0, lo_open=True, hi=i_hi)
+    ctl.finish()
+    designs = []
+    for i in range(len(points)):
+        if np.ndim(poles[i]) != 1 or len(poles[i]) != 3:  # type: ignore[arg-type]
+            raise InvalidParameter("controller.observer_poles", f"needs three eigenvalue magnitudes [1/s], got {poles[i]!r}")
+        try:
+            designs.append(
+                MBCDesign(fs=fs, c_p=c_p[i], c_d=c_d[i], observer_poles=tuple(float(p) for p in poles[i]),  # type: ignore[union-attr]
+                          notch_omega=notch[i], notch_q=q[i], lowpass_omega=lp[i], lowpass_orders=matched_orders(alpha[i], alpha[i]))
+            )  # fmt: skip
+        except InvalidParameter as exc:
+            raise InvalidParameter(f"controller.{exc.field.split('[')[0]}", str(exc).split(": ", 1)[1]) from None
+    geometry, lam = plate_geometry(rig_info)
+    controller = PlateMBC(designs, geometry, lam_inv_sqrt=lam, i_max=i_max)
+    return controller, reference_from_points(points, rig_info, delays_s=None)
