@@ -1,7 +1,7 @@
 """The figure of one run, drawn like the thesis's Figs. 3.12 and 3.20.
 
 Stacked panels over a shared time axis: the controlled outputs with their references (dashed,
-same colour), the inputs, then the estimates (``f_hat_*`` ...). An aborted run gets a dotted red
+same colour), the inputs, the estimates (``f_hat_*`` ...), then signals of unknown role. An aborted run gets a dotted red
 line at the abort time on every panel, the rest of the run greyed out, and a cross on each input
 at that instant; the title says what happened (monitor, value, threshold). Used by
 ``labrunner plot`` and by the analysis report (pass a figure or sub-figure to draw into).
@@ -49,10 +49,12 @@ def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
         outputs = [item for y, ref in tracked for item in ((y, "-"), (ref, "--"))]
     else:
         outputs = [(n, "-") for role in ("controlled", "output", "reference", "signal") for n in roles.get(role, [])]
+    drawn = {n for n, _ in outputs}
     panels = [
         ("outputs", outputs),
         ("inputs", [(n, "-") for n in roles.get("input", [])]),
         ("estimates", [(n, "-") for n in roles.get("estimate", [])]),
+        ("signals", [(n, "-") for n in roles.get("signal", []) if n not in drawn]),  # role unknown
     ]
     return [(title, lines) for title, lines in panels if lines]
 

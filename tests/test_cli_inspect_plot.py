@@ -144,3 +144,11 @@ def test_plot_draws_small_lengths_in_mm(tmp_path):
     outputs, inputs = plot_run(path).axes
     assert outputs.get_ylabel() == "outputs [mm]" and inputs.get_ylabel() == "inputs [A]"
     assert np.allclose(outputs.get_lines()[0].get_ydata(), 1e3 * gap)
+
+
+def test_plot_without_roles_still_shows_every_kind(tmp_path):
+    path = tmp_path / "plain.mcap"
+    signals = motor_run(duration=1.0)
+    write_run(path, metadata={}, fs=200.0, signals=signals, outcome=COMPLETED)  # roles from names only
+    panels = [[l.get_label() for l in ax.get_lines()] for ax in plot_run(path).axes]
+    assert panels == [[r"$\Omega$", r"$\Omega_r$"], [r"$\hat{f}_{\Omega}$"], [r"$\theta$", "u"]]

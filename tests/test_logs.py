@@ -307,3 +307,11 @@ def test_reading_bad_files(tmp_path):
         w.finish()
     with pytest.raises(InvalidParameter, match="not a labrunner run log"):
         read_run(tmp_path / "other.mcap")
+
+
+def test_outcome_status_is_checked(tmp_path):
+    with RunLogWriter(tmp_path / "o.mcap", metadata={}, fs=10.0, channels=["a"]) as w:
+        with pytest.raises(InvalidParameter, match="outcome.status"):
+            w.finish({"status": "done"})
+        w.finish({"status": "no-motion"})
+    assert read_outcome(tmp_path / "o.mcap") == {"status": "no-motion", "n_samples": 0}

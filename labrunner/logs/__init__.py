@@ -7,7 +7,7 @@ records alone, fast enough for thousands of runs. Layout and schemas: :mod:`.wri
 
 from labrunner.logs.reader import RunLog, read_metadata, read_outcome, read_run
 from labrunner.logs.schema import BLOCK_SAMPLES, BLOCK_TOPIC, PREVIEW_HZ, PREVIEW_MAX_HZ, PREVIEW_TOPIC
-from labrunner.logs.writer import ROLES, RunLogWriter, normalise_channels, write_run
+from labrunner.logs.writer import ROLES, STATUSES, RunLogWriter, normalise_channels, write_run
 
 __all__ = [
     "BLOCK_SAMPLES",
@@ -18,6 +18,7 @@ __all__ = [
     "ROLES",
     "RunLog",
     "RunLogWriter",
+    "STATUSES",
     "normalise_channels",
     "read_metadata",
     "read_outcome",

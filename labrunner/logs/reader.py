@@ -175,13 +175,11 @@ def _read_torn(f: BinaryIO) -> tuple[dict, dict, list]:
 
 
 def _frame(blocks: list, names: list[str], fs: float) -> pd.DataFrame:
-    """One column per signal (``names`` first, then any other the blocks carry); samples that no
-    complete block covered are NaN."""
-    names = names + [n for _, _, s in blocks for n in s if n not in names]
-    names = list(dict.fromkeys(names))
-    n = max((first + len(next(iter(s.values()), ())) for first, _, s in blocks), default=0)
-    covered = sum(len(next(iter(s.values()), ())) for _, _, s in blocks)
-    data = np.empty((len(names), n)) if covered == n else np.full((len(names), n), np.nan)
+    """One column per signal (the described ones first, then any other a block carries); samples
+    that no complete block covered are NaN."""
+    names = list(dict.fromkeys([*names, *(n for _, _, s in blocks for n in s)]))
+    n = max((first + len(v) for first, _, s in blocks for v in s.values()), default=0)
+    data = np.full((len(names), n), np.nan)
     rows = {name: j for j, name in enumerate(names)}
     for first, _, signals in blocks:
         for name, values in signals.items():
@@ -205,7 +203,8 @@ def read_run(path: str | os.PathLike[str]) -> RunLog:
         raise InvalidParameter("path", f"not a labrunner run log (no 'channels' metadata): {str(path)!r}")
     outcome = records.pop("outcome", None)
     channels = records["channels"]
-    fs = next((b[1] for b in blocks if math.isfinite(b[1])), None) or float(records.get("run", {}).get("fs", "nan"))
+    block_fs = [b[1] for b in blocks if math.isfinite(b[1])]
+    fs = block_fs[0] if block_fs else float(records.get("run", {}).get("fs", math.nan))
     frame = _frame(blocks, list(channels), fs)
     return RunLog(frame, records, outcome, torn, fs, channels, attachments)
 

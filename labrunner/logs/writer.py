@@ -37,6 +37,7 @@ from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
 
 ROLES = ("input", "output", "controlled", "reference", "error", "estimate", "signal")
+STATUSES = ("completed", "aborted", "no-motion", "failed")  # engine.RunResult.outcome["status"]
 RESERVED_RECORDS = ("channels", "outcome")
 _ROLE_GROUPS = {f"{role}s" if role != "controlled" else role: role for role in ROLES}
 _MEDIA_TYPES = {".toml": "application/toml", ".json": "application/json", ".txt": "text/plain"}
@@ -119,8 +120,11 @@ class RunLogWriter:
     """Stream one run into an MCAP file (real rigs), block by block; use as a context manager.
 
     ``metadata`` maps record names to mappings (``run``, ``config``, ...); ``channels`` names every
-    signal a block will carry (see :func:`normalise_channels`). Leaving the ``with`` block without
-    :meth:`finish` (an exception, Ctrl-C) still closes the file cleanly, with outcome ``failed``.
+    signal a block will carry (see :func:`normalise_channels`). Each :meth:`write_block` call
+    writes ⌈n / 1000⌉ block messages, so pass blocks of ~0.1 s rather than single samples. The file
+    is flushed after the metadata and then at the first block after every ``flush_interval_s``
+    (0: after every block); what was flushed survives a SIGKILL. Leaving the ``with`` block
+    without :meth:`finish` (an exception, Ctrl-C) still closes the file cleanly, outcome ``failed``.
     """
 
     def __init__(
@@ -225,6 +229,9 @@ class RunLogWriter:
         """Write the outcome as the final metadata record, the summary and the footer; close."""
         if self._finished:
             raise LabrunnerError("run log already finished")
+        if not isinstance(outcome, Mapping) or outcome.get("status") not in STATUSES:
+            status = outcome.get("status") if isinstance(outcome, Mapping) else outcome
+            raise InvalidParameter("outcome.status", f"must be one of {list(STATUSES)}, got {status!r}")
         record = encode_record("outcome", {**outcome, "n_samples": self.n_samples})
         self._finished = True
         try:
