@@ -265,6 +265,7 @@ def test_channels_forms():
         ({"fs": 0.0}, "fs"),
         ({"fs": float("nan")}, "fs"),
         ({"preview_hz": 2000.0}, "preview_hz"),
+        ({"preview_hz": 0.0}, "preview_hz"),
         ({"metadata": {"outcome": {}}}, "metadata"),
         ({"metadata": {"run": [1, 2]}}, "metadata.run"),
         ({"metadata": {"run": {"x": object()}}}, "metadata.run"),
@@ -278,6 +279,8 @@ def test_bad_input_names_the_field(tmp_path, kwargs, field):
 
 
 def test_writer_rejects_overlap_and_use_after_finish(tmp_path):
+    with pytest.raises(InvalidParameter, match="flush_interval_s"):
+        RunLogWriter(tmp_path / "w.mcap", metadata={}, fs=10.0, channels=["a"], flush_interval_s=-1.0)
     w = RunLogWriter(tmp_path / "w.mcap", metadata={}, fs=10.0, channels=["a"])
     w.write_block(0, {"a": np.zeros(5)})
     with pytest.raises(InvalidParameter, match="first_index"):

@@ -145,6 +145,8 @@ class RunLogWriter:
         if not 0 < preview_hz <= schema.PREVIEW_MAX_HZ:
             raise InvalidParameter("preview_hz", f"must be in (0, {schema.PREVIEW_MAX_HZ:g}] Hz, got {preview_hz}")
         self.flush_interval_s = check_finite("flush_interval_s", flush_interval_s)
+        if self.flush_interval_s < 0:
+            raise InvalidParameter("flush_interval_s", f"must be >= 0 s, got {flush_interval_s}")
         self.channels = normalise_channels(channels)
         self.names = list(self.channels)
         records = self._records(metadata)
