@@ -106,11 +106,24 @@ class Theories:
         return Theory(kind, delay, dict(self.campaign.rig_info.constants))
 
 
+def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Any | None) -> str:
+    """Unit of a logged signal: the log's own record, else the rig's signal of that name, else (a
+    controlled output that is no rig output, i.e. the difference quotient (2.34) of one) the rig
+    output's unit per second."""
+    unit = str(channels.get(name, {}).get("unit") or "")
+    if unit or campaign is None:
+        return unit
+    signals = {s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
+    if name in signals:
+        return signals[name]
+    outputs = campaign.rig_info.outputs
+    return f"{outputs[0].unit}/s" if outputs and outputs[0].unit else ""
+
+
 def _units(frame: pd.DataFrame, directory: Path, campaign: Any | None) -> dict[str, str]:
-    """Units of the gains and metrics, from one finished log's channel record."""
+    """Units of the gains and metrics, from the first readable log's channel record."""
     from labrunner.logs import read_metadata
 
-    units: dict[str, str] = {}
     for path in frame["log_path"].dropna().head(5):
         try:
             channels = read_metadata(directory / path).get("channels", {})
@@ -118,16 +131,16 @@ def _units(frame: pd.DataFrame, directory: Path, campaign: Any | None) -> dict[s
             continue
         errors = [c for c, i in channels.items() if i.get("role") == "error"]
         inputs = [c for c, i in channels.items() if i.get("role") == "input"]
-        e_unit = channels[errors[0]].get("unit", "") if errors else ""
-        u_unit = channels[inputs[0]].get("unit", "") if inputs else ""
-        units.update({"rms_error": e_unit, "max_abs_input": u_unit, "input_energy": f"{u_unit}²" if u_unit else "",
-                      "max_current": "A"})
+        e_unit = _signal_unit(errors[0][2:], channels, campaign) if errors else ""
+        u_unit = _signal_unit(inputs[0], channels, campaign) if inputs else ""
+        units = {"rms_error": e_unit, "max_abs_input": u_unit, "input_energy": f"{u_unit}²" if u_unit else "",
+                 "max_current": "A"}
         kind = campaign.base.get("controller", {}).get("kind") if campaign is not None else None
         order = {"mfc1": 1, "mfc1-ff": 1, "mfc2": 2}.get(str(kind))
         if order and e_unit and u_unit:
             units.update(gain_units(order, e_unit, u_unit))
-        break
-    return units
+        return units
+    return {}
 
 
 def counts(frame: pd.DataFrame) -> dict[str, int]:
@@ -187,7 +200,7 @@ def analyse(
     chosen = chosen_runs(frame)
     runs = figures.draw_runs(chosen, ctx)
     agree = agreement_mod.agreement(frame, theories, margin=margin)
-    summary = {**counts(frame), "best": _best(frame, ctx.axes), "maps": [str(p) for p in maps],
+    summary = {**counts(frame), "best": _best(frame, ctx.axes), "maps": [str(p) for p, _ in maps],
                "run_plots": [str(p) for p in runs.values()], "agreement": agree,
                "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}
     summary["report"] = str(report.campaign_report(frame, ctx, summary, maps, chosen, runs))

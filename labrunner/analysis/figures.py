@@ -115,9 +115,9 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Path]:
-    """RMS and energy maps (2-D grids) or sweep plots (1-D); PNG paths."""
-    paths: list[Path] = []
+def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tuple[Path, str]]:
+    """RMS and energy maps (2-D grids) or sweep plots (1-D): (PNG path, title) each."""
+    paths: list[tuple[Path, str]] = []
     name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
     units = ctx.units
     if len(ctx.axes) == 1:
@@ -129,7 +129,7 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Pat
             lines = sweep_lines(theory, GAINS[key], dense_axis(x.values, x.log, 400), _fixed(frame, theories))
         columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in MAP_METRICS]
         fig = sweep_figure(frame, x, columns, title=f"{name}: RMS of e and input energy over {x.label}", overlays=lines)
-        paths.append(_save(fig, ctx.out / "sweep.png"))
+        paths.append((_save(fig, ctx.out / "sweep.png"), f"RMS of e and input energy over {x.label}"))
         return paths
     if len(ctx.axes) < 2:
         return paths
@@ -144,7 +144,8 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Pat
             fig = map_figure(rows, x, y, column, title=f"{head}\n{sub}" if sub else head,
                              colour_label=_with_unit(label, units.get(column, "")), overlays=lines)
             tag = f"_{i + 1}" if extra else ""
-            paths.append(_save(fig, ctx.out / f"map_{column}{tag}.png"))
+            caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
+            paths.append((_save(fig, ctx.out / f"map_{column}{tag}.png"), caption))
     return paths
 
 

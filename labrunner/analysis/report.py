@@ -158,16 +158,18 @@ def _outcome_section(summary: Mapping[str, object]) -> Section:
 
 
 def _run_table(frame: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
-    shown = [c for c in columns if c in frame.columns]
+    """The given columns that hold any value, named by their last dotted part."""
+    shown = [c for c in columns if c in frame.columns and frame[c].notna().any()]
     return frame[shown].rename(columns=lambda c: c.split(".")[-1] if "." in c else c)
 
 
-def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], maps: Sequence[Path],
+def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], maps: Sequence[tuple[Path, str]],
                     chosen: Mapping[str, pd.Series], runs: Mapping[str, Path]) -> Path:
     """Compose and write ``index.html`` of a campaign analysis into ``ctx.out``.
 
-    ``ctx`` is the analysis context (campaign, directory, axes, units); ``chosen`` the table rows
-    of the plotted runs, ``runs`` their PNGs, both keyed by label ("best", ...).
+    ``ctx`` is the analysis context (campaign, directory, axes, units); ``maps`` (PNG, title)
+    pairs; ``chosen`` the table rows of the plotted runs, ``runs`` their PNGs, both keyed by label
+    ("best", ...).
     """
     params = _param_columns(frame, ctx.axes)
     metrics = ["rms_error", "input_energy", "max_abs_input", "max_current"]
@@ -177,7 +179,7 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], map
             "Markers: red triangle = aborted by the safety routine, white circle = no motion (input too small to "
             "move the load), black cross = completed, grey square = failed. Grey cells: no metric for the whole run. "
             "Lines: stability bounds of the theory for the campaign's differentiator delay δ_t."],
-            images=[Image(p.stem.replace("_", " "), _png(p)) for p in maps]))
+            images=[Image(title, _png(path)) for path, title in maps]))
     if runs:
         images = [Image(f"{label} run", _png(path), _run_caption(chosen[label], params)) for label, path in runs.items()]
         sections.append(Section("Selected runs", images=images))
