@@ -1,0 +1,1 @@
+"""Real-rig transports: the frame protocol, CAN (python-can) and serial (pyserial) rigs, a firmware emulator."""

@@ -1,0 +1,204 @@
+"""Real-rig transports: the frame protocol, a CAN rig and a serial rig against the firmware emulator."""
+
+from __future__ import annotations
+
+import random
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from labrunner.errors import InvalidParameter, RigError
+from labrunner.rigs.config import config_from_dict
+from labrunner.rigs.registry import load_rig
+from labrunner.rigs.transports.emulator import Emulator, device_link, serve_on_pty, twin_for
+from labrunner.rigs.transports.protocol import (
+    SERIAL_FRAME_BYTES,
+    DeviceState,
+    ErrorCode,
+    Frame,
+    MsgType,
+    SerialDecoder,
+    can_id,
+    crc8,
+    encode_serial,
+    split_can_id,
+)
+
+MODEL = {"static_friction": 0.0, "coulomb_friction": 0.0, "backlash": 0.0, "electrical_tau": 0.0}
+U = 6.0 * np.sin(np.arange(60) / 8.0)
+
+
+# -- protocol -----------------------------------------------------------------------------------
+def test_crc8_check_value():
+    assert crc8(b"123456789") == 0xF4  # CRC-8 (poly 0x07, init 0) catalogue check value
+
+
+def test_frames_round_trip_every_type():
+    for kind in MsgType:
+        frame = Frame(kind, 70000 if kind == MsgType.RESET else 513, 0 if kind == MsgType.RESET else 3,
+                      0 if kind == MsgType.RESET else 1, 200.0)
+        assert Frame.decode(int(kind), frame.payload()) == frame
+    assert split_can_id(can_id(255, MsgType.ERROR)) == (255, 7) and can_id(255, MsgType.ERROR) < 2**11
+    with pytest.raises(ValueError):
+        Frame.decode(0, bytes(8))
+
+
+def test_serial_decoder_resyncs_on_garbage_and_split_reads():
+    frames = [Frame(MsgType.MEASUREMENT, k, 0, 1, 0.5 * k) for k in range(5)]
+    stream = b"\x00\xa5\x13" + b"".join(encode_serial(2, f) for f in frames)
+    corrupt = bytearray(encode_serial(2, Frame(MsgType.INPUT, 9)))
+    corrupt[5] ^= 0xFF
+    cut = 3 + SERIAL_FRAME_BYTES  # after the first frame
+    stream = stream[:cut] + bytes(corrupt) + stream[cut:]
+    decoder = SerialDecoder()
+    got = []
+    for i in range(0, len(stream), 5):
+        got += decoder.feed(stream[i : i + 5])
+    assert [f for node, f in got] == frames
+    assert decoder.errors >= 1 and len(encode_serial(1, frames[0])) == SERIAL_FRAME_BYTES
+
+
+# -- a CAN rig against the emulator ---------------------------------------------------------------
+def can_config(interface: str, timeout_s: float = 0.2) -> dict:
+    channel = "239.74.163.2" if interface == "udp_multicast" else f"labrunner-{uuid.uuid4().hex}"
+    port = random.randint(20000, 60000) if interface == "udp_multicast" else 0
+    return config_from_dict({
+        "rig": {"kind": "can", "name": "motor-can"},
+        "parameters": {"device": "dcmotor", "interface": interface, "channel": channel, "bitrate": 0,
+                       "port": port, "node_id": 7, "timeout_s": timeout_s, "model": MODEL},
+        "safety": {"max_du_dt": 120.0},
+    })
+
+
+@pytest.fixture(params=["udp_multicast", "virtual"])
+def can_pair(request):
+    """(host rig, emulator) on one python-can bus; multicast on loopback, and python-can's virtual bus."""
+    config = can_config(request.param)
+    emulator = Emulator(twin_for(config), device_link(config), watchdog_s=1.0).start()
+    rig = load_rig(config)
+    yield rig, emulator
+    rig.close()
+    emulator.stop()
+
+
+def direct_run(u: np.ndarray, seed: int) -> np.ndarray:
+    twin = twin_for(can_config("virtual"))
+    ys = [twin.reset(1, [seed], 200.0)[0, 0]] + [twin.step(np.array([[v]]))[0, 0] for v in u]
+    return np.array(ys)
+
+
+def host_run(rig, u: np.ndarray, seed: int) -> np.ndarray:
+    ys = [rig.reset(1, [seed], 200.0)[0, 0]] + [rig.step(np.array([[v]]))[0, 0] for v in u]
+    return np.array(ys)
+
+
+def test_can_rig_serves_the_twin(can_pair):
+    rig, emulator = can_pair
+    assert rig.info.kind == "dcmotor" and not rig.info.simulated and rig.info.constants["b"] == 108.55
+    np.testing.assert_allclose(host_run(rig, U, 3), direct_run(U, 3), rtol=1e-6, atol=1e-6)  # float32 frames
+    np.testing.assert_allclose(host_run(rig, U, 4), direct_run(U, 4), rtol=1e-6, atol=1e-6)  # a second run
+    assert emulator.state == DeviceState.RUNNING and not emulator.errors
+
+
+def test_can_rig_is_batch_one_only(can_pair):
+    rig, _ = can_pair
+    with pytest.raises(InvalidParameter, match="batch"):
+        rig.reset(2, [0, 1], 200.0)
+    with pytest.raises(InvalidParameter, match="overrides.a"):
+        rig.reset(1, [0], 200.0, {"a": 1.0})
+
+
+def wait_for(predicate, timeout=2.0):
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        time.sleep(0.005)
+    return predicate()
+
+
+def test_safe_state_command_reaches_the_device(can_pair):
+    rig, emulator = can_pair
+    rig.reset(1, [0], 200.0)
+    rig.step(np.array([[5.0]]))
+    rig.safe_state()
+    assert wait_for(lambda: emulator.state == DeviceState.SAFE)
+    rig.step(np.array([[5.0]]))
+    assert emulator.rig.applied_input[0, 0] == 0.0
+
+
+def test_device_fault_raises_rig_error_and_goes_safe(can_pair):
+    rig, emulator = can_pair
+    rig.reset(1, [0], 200.0)
+    emulator.inject_fault(ErrorCode.DEVICE_FAULT)
+    with pytest.raises(RigError, match="DEVICE_FAULT"):
+        rig.step(np.array([[3.0]]))
+    assert rig.is_safe.all() and emulator.state == DeviceState.SAFE
+
+
+def test_device_gone_times_out_into_the_safe_state(can_pair):
+    rig, emulator = can_pair
+    rig.reset(1, [0], 200.0)
+    emulator.stop()
+    t0 = time.monotonic()
+    with pytest.raises(RigError, match="no measurement"):
+        rig.step(np.array([[3.0]]))
+    assert time.monotonic() - t0 < 1.0 and rig.is_safe.all()
+
+
+def test_watchdog_trips_when_the_host_falls_silent():
+    config = can_config("virtual")
+    with Emulator(twin_for(config), device_link(config), watchdog_s=0.05) as emulator:
+        rig = load_rig(config)
+        rig.reset(1, [0], 200.0)
+        assert wait_for(lambda: emulator.state == DeviceState.SAFE)
+        with pytest.raises(RigError, match="WATCHDOG"):
+            rig.step(np.array([[1.0]]))
+        rig.close()
+
+
+def test_unopenable_bus_is_a_rig_error():
+    config = can_config("virtual")
+    bad = config_from_dict({**config.to_dict(), "rig": {"kind": "can"},
+                            "parameters": {**config.parameters, "interface": "no-such-interface"}})
+    with pytest.raises(RigError, match="cannot open CAN bus"):
+        load_rig(bad)
+
+
+# -- a serial rig over a pty pair -----------------------------------------------------------------
+def serial_config(port: str) -> dict:
+    return config_from_dict({
+        "rig": {"kind": "serial", "name": "motor-serial"},
+        "parameters": {"device": "dcmotor", "port": port, "baudrate": 115200, "node_id": 1, "timeout_s": 0.2,
+                       "model": MODEL},
+    })
+
+
+def test_serial_rig_over_a_pty_pair():
+    twin = twin_for(serial_config("unused"))
+    name, emulator = serve_on_pty(twin)
+    try:
+        rig = load_rig(serial_config(name))
+        np.testing.assert_allclose(host_run(rig, U, 5), direct_run(U, 5), rtol=1e-6, atol=1e-6)
+        emulator.stop()
+        with pytest.raises(RigError):
+            rig.step(np.array([[1.0]]))
+        assert rig.is_safe.all()
+        rig.close()
+    finally:
+        emulator.stop(close_link=False)
+
+
+def test_missing_serial_port_is_a_rig_error(tmp_path):
+    with pytest.raises(RigError, match="cannot open serial port"):
+        load_rig(serial_config(str(tmp_path / "ttyNONE")))
+
+
+def test_remote_rig_files_reject_noise_and_bad_model_keys():
+    base = {"rig": {"kind": "can"}, "parameters": {"device": "valve", "model": {"a": 1.0}}}
+    with pytest.raises(InvalidParameter) as err:
+        config_from_dict(base)
+    assert err.value.field == "<dict>: parameters.model.a"
+    with pytest.raises(InvalidParameter) as err:
+        config_from_dict({"rig": {"kind": "serial"}, "noise": {"input_v": 0.1}})
+    assert err.value.field == "<dict>: noise.input_v"
