@@ -1,0 +1,118 @@
+"""Stability overlays and the theory/outcome agreement, against the thesis's closed forms.
+
+(2.41): 0 < k_p < (π/2)·γ/(ρδ); (2.46): a(1 − γ/b) < k_p < a + γ/(bδ)·sqrt(z̃² + (aδ)²) with
+z̃ ∈ (π/2, π) solving tan z = −z/(aδ) (computed here with brentq, independently of the module).
+"""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from matplotlib.figure import Figure
+from scipy.optimize import brentq
+
+from labrunner.analysis.agreement import agreement
+from labrunner.analysis.maps import Axis, map_figure
+from labrunner.analysis.overlays import Theory, gamma_kp_lines, kp_kd_lines, sweep_lines
+
+A, B, DELAY = 39.44, 108.55, 0.035
+MOTOR = {"a": A, "b": B, "rho": B}
+
+
+def kp_246(gamma: float) -> tuple[float, float]:
+    z = brentq(lambda z: math.tan(z) + z / (A * DELAY), math.pi / 2 + 1e-9, math.pi - 1e-9)
+    return A * (1 - gamma / B), A + gamma / (B * DELAY) * math.sqrt(z * z + (A * DELAY) ** 2)
+
+
+def test_gamma_kp_lines_follow_241_and_246():
+    theory = Theory("mfc1", DELAY, MOTOR)
+    gammas = np.geomspace(1.0, 1e4, 40)
+    lines = {line.gid: line for line in gamma_kp_lines(theory, gammas)}
+    assert set(lines) == {"bound:mfc1-ultralocal:k_p_max", "bound:mfc1-motor:k_p_max", "bound:mfc1-motor:k_p_min",
+                          "nominal-gain"}
+    np.testing.assert_allclose(lines["bound:mfc1-ultralocal:k_p_max"].y, math.pi / 2 * gammas / (B * DELAY), rtol=1e-9)
+    np.testing.assert_allclose(lines["bound:mfc1-motor:k_p_max"].y, [kp_246(g)[1] for g in gammas], rtol=1e-6)
+    lo = lines["bound:mfc1-motor:k_p_min"].y
+    below = gammas < B
+    np.testing.assert_allclose(lo[below], [kp_246(g)[0] for g in gammas[below]], rtol=1e-9)
+    assert np.isnan(lo[~below]).all()  # a(1 − γ/b) ≤ 0: no positive lower bound to draw on a log axis
+    assert lines["nominal-gain"].x == B and lines["nominal-gain"].y is None
+    assert lines["bound:mfc1-motor:k_p_min"].linestyle == "--" and lines["bound:mfc1-motor:k_p_max"].linestyle == "-"
+
+
+def test_ultralocal_only_rig_gets_241_and_nominal_line():
+    theory = Theory("mfc1", DELAY, {"rho": 2.0})  # e.g. a valve: no motor model
+    gids = {line.gid for line in gamma_kp_lines(theory, np.geomspace(1, 10, 5))}
+    assert gids == {"bound:mfc1-ultralocal:k_p_max", "nominal-gain"}
+    assert gamma_kp_lines(Theory("open-loop", DELAY, MOTOR), np.geomspace(1, 10, 5))[-1].gid == "nominal-gain"
+
+
+def test_kp_kd_lines_use_the_corrected_kd_limit():
+    theory = Theory("mfc2", DELAY, MOTOR)
+    k_ds = np.geomspace(1.0, 300.0, 30)
+    lines = {line.gid: line for line in kp_kd_lines(theory, B, k_ds)}
+    # corrected ultra-local k_d limit (issue 3): (π/2)·γ/(ρδ), not the printed z̃·sin z̃ form of (2.53)
+    assert lines["bound:mfc2-ultralocal:k_d_max"].y == pytest.approx(math.pi / 2 / DELAY)
+    assert lines["bound:mfc2-ultralocal:k_d_max"].x is None
+    assert {"bound:mfc2-motor:k_p_max", "bound:mfc2-ultralocal:k_p_max", "bound:mfc2-motor:k_d_max"} <= set(lines)
+    kp = lines["bound:mfc2-motor:k_p_max"]
+    np.testing.assert_allclose(kp.y, k_ds)  # curve over k_d: x = k_p bound, y = k_d
+    assert np.isnan(kp.x[k_ds > lines["bound:mfc2-motor:k_d_max"].y]).all()  # no stable k_p above the k_d limit
+    assert np.isfinite(kp.x[k_ds < 50]).all() and (kp.x[k_ds < 50] > 0).all()
+
+
+def test_overlays_drawn_on_the_map_axes():
+    theory = Theory("mfc1", DELAY, MOTOR)
+    g, kp = np.logspace(0, 4, 5), np.logspace(-1, 3, 5)
+    G, K = np.meshgrid(g, kp)
+    table = pd.DataFrame({"controller.gamma": G.ravel(), "controller.k_p": K.ravel(), "status": "completed",
+                          "rms_error": 1.0})
+    fig = map_figure(table, Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p"),
+                     "rms_error", title="t", colour_label="c", overlays=gamma_kp_lines(theory, np.geomspace(0.5, 2e4, 50)))
+    gids = [line.get_gid() for line in fig.axes[0].get_lines()]
+    assert sorted(gids) == sorted(["bound:mfc1-ultralocal:k_p_max", "bound:mfc1-motor:k_p_max",
+                                   "bound:mfc1-motor:k_p_min", "nominal-gain"])
+    assert isinstance(fig, Figure)
+
+
+def test_sweep_lines_mark_the_246_limits():
+    theory = Theory("mfc1", DELAY, MOTOR)
+    dense = np.geomspace(0.1, 1000.0, 2000)
+    lines = sweep_lines(theory, "k_p", dense, {"gamma": 50.0})
+    lo, hi = kp_246(50.0)
+    motor = sorted(line.x for line in lines if line.gid == "bound:mfc1-motor:k_p")
+    assert motor == pytest.approx([lo, hi], rel=0.01)
+    ultra = [line.x for line in lines if line.gid == "bound:mfc1-ultralocal:k_p"]
+    assert ultra == pytest.approx([math.pi / 2 * 50.0 / (B * DELAY)], rel=0.01)
+    gamma_lines = sweep_lines(theory, "gamma", np.geomspace(1, 1e4, 400), {"k_p": 10.0})
+    assert any(line.gid == "nominal-gain" for line in gamma_lines)
+    g_lo = B * (1 - 10.0 / A)  # k_p > a(1 − γ/b) ⇔ γ > b(1 − k_p/a)
+    assert min(line.x for line in gamma_lines if line.gid.startswith("bound:mfc1-motor")) == pytest.approx(g_lo, rel=0.02)
+
+
+def test_agreement_counts_and_margin():
+    theory = Theory("mfc1", DELAY, MOTOR)
+    gamma = 50.0
+    lo, hi = kp_246(gamma)
+    rows = [  # (k_p, status, expected: "match" | "false_stable" | "false_unstable" | "excluded" | None)
+        (lo * 2, "completed", "match"),
+        (hi * 2, "aborted", "match"),
+        (lo / 2, "aborted", "match"),
+        ((lo * hi) ** 0.5, "no-motion", "match"),  # no motion is a stable loop with a small input
+        (hi * 1.5, "completed", "false_unstable"),
+        (lo * 3, "aborted", "false_stable"),
+        (hi * 1.05, "aborted", "excluded"),
+        (lo * 0.95, "completed", "excluded"),
+        (lo * 2, "failed", None),
+        (lo * 2, "planned", None),
+    ]
+    table = pd.DataFrame({"controller.gamma": gamma, "controller.k_p": [r[0] for r in rows], "status": [r[1] for r in rows]})
+    result = agreement(table, lambda row: theory, margin=0.1)
+    assert result["case"] == "mfc1-motor"
+    assert result["n_match"] == 4 and result["false_unstable"] == 1 and result["false_stable"] == 1
+    assert result["n_excluded"] == 2 and result["n_compared"] == 6
+    assert result["share"] == pytest.approx(4 / 6)
+    wide = agreement(table, lambda row: theory, margin=0.0)
+    assert wide["n_excluded"] == 0 and wide["n_compared"] == 8
+    assert agreement(table, lambda row: None)["share"] is None
