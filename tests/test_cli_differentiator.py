@@ -1,0 +1,90 @@
+"""``labrunner differentiator``: JSON keys and values, summary, and bad input → exit 2, one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from labrunner.cli import main
+from labrunner.differentiators import design
+from labrunner.differentiators.spectra import cost_db
+
+
+def run_json(capsys, *argv: str) -> dict:
+    assert main(["differentiator", *argv, "--json"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1
+    return json.loads(out)
+
+
+def test_json_thesis_design(capsys):
+    info = run_json(capsys, "--alpha", "9", "--beta", "9", "--omega-c", "200", "--fs", "200")
+    for key in ("n_s", "window_s", "delay_s", "discrete_delay_s", "omega_c_actual", "order", "method", "weights"):
+        assert key in info
+    assert "cost_db" not in info
+    assert info["n_s"] == 14 and info["window_s"] == 0.07
+    assert info["delay_s"] == pytest.approx(0.035) and info["discrete_delay_s"] == pytest.approx(0.0325)
+    assert info["order"] == 1 and info["method"] == "midpoint"
+    d = design(alpha=9, beta=9, omega_c=200, fs=200)
+    np.testing.assert_array_equal(info["weights"], d.weights(1))  # full float precision round trip
+    assert info["omega_c_actual"] == d.omega_c_actual
+
+
+def test_json_with_cost_order_method_and_window(capsys):
+    argv = ["--alpha", "4", "--beta", "4", "--omega-c", "840", "--fs", "32000", "--order", "2", "--cost"]
+    info = run_json(capsys, *argv, "--method", "trapezoidal")
+    assert info["n_s"] == 261 and len(info["weights"]) == 262
+    d = design(alpha=4, beta=4, omega_c=840, fs=32000, method="trapezoidal")
+    assert info["cost_db"] == pytest.approx(cost_db(d, 2))
+    info = run_json(capsys, "--alpha", "2", "--beta", "3", "--N", "1", "--theta", "0.5", "--window", "0.145", "--fs", "200", "--order", "0")
+    assert info["n_s"] == 29 and info["delay_s"] == pytest.approx(0.25 * 0.145)
+    assert sum(info["weights"]) == pytest.approx(1.0)
+
+
+def test_summary_is_readable(capsys):
+    assert main(["differentiator", "--alpha", "6", "--beta", "6", "--omega-c", "200", "--fs", "200", "--cost"]) == 0
+    out = capsys.readouterr().out
+    assert "n_s = 9" in out and "22.5 ms continuous" in out and "J_1 =" in out and "newest sample first" in out
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["--alpha", "nan", "--beta", "1", "--window", "0.1"], "alpha: must be finite"),
+        (["--alpha", "0.5", "--beta", "2", "--window", "0.1", "--order", "2"], "alpha: must be > n - 1 = 1"),
+        (["--alpha", "-2", "--beta", "2", "--window", "0.1"], "alpha: must be > -1"),
+        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--N", "-1"], "N: must be an integer >= 0"),
+        (["--alpha", "2", "--beta", "2"], "exactly one of omega_c"),
+        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--omega-c", "50"], "exactly one of omega_c"),
+        (["--alpha", "9", "--beta", "9", "--omega-c", "900"], "Nyquist"),
+        (["--alpha", "2", "--beta", "2", "--window", "0.005"], "n_s >= 2"),
+        (["--alpha", "2", "--beta", "2", "--window", "-1"], "window: must be > 0"),
+        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--order", "-1"], "order: must be an integer >= 0"),
+        (["--alpha", "x", "--beta", "2", "--window", "0.1"], "--alpha"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(capsys, argv, fragment):
+    try:
+        code = main(["differentiator", *argv, "--fs", "200"])
+    except SystemExit as exc:  # argparse's own usage errors (not a number)
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and fragment in err
+
+
+def test_real_command_end_to_end():
+    ok = subprocess.run(
+        [sys.executable, "-m", "labrunner", "differentiator", "--alpha", "6", "--beta", "6", "--omega-c", "200", "--fs", "200", "--json"],
+        capture_output=True, text=True, check=False,
+    )
+    assert ok.returncode == 0 and json.loads(ok.stdout)["n_s"] == 9
+    bad = subprocess.run(
+        [sys.executable, "-m", "labrunner", "differentiator", "--alpha", "6", "--beta", "6", "--fs", "200"],
+        capture_output=True, text=True, check=False,
+    )
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "omega_c" in bad.stderr
