@@ -144,6 +144,8 @@ def comparable(rows: list[dict]) -> list[tuple]:
 class InProcessMotor(DCMotorTwin):
     """The motor twin declared a *real* rig (``simulated = False``): it must run in-process, one at a time."""
 
+    KIND = "inprocess-motor"
+
     @classmethod
     def nominal_info(cls, name, description, parameters) -> RigInfo:
         info = super().nominal_info(name, description, parameters)
@@ -152,3 +154,16 @@ class InProcessMotor(DCMotorTwin):
 
 def env_without_pythonpath() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+
+
+class BusOffMotor(InProcessMotor):
+    """A real rig whose bus fails after 0.1 s: the stop-campaign tier (architecture, "Safety")."""
+
+    KIND = "busoff-motor"
+
+    def _step(self, u):
+        if self.k >= 20:
+            from labrunner.errors import RigError
+
+            raise RigError("CAN bus off")
+        return super()._step(u)

@@ -205,7 +205,7 @@ class Scheduler:
         try:
             future = self.executor.submit(self.batch_fn, task)
         except BaseException:
-            if self.executor.__class__ is not InProcessExecutor:
+            if not isinstance(self.executor, InProcessExecutor):
                 self.ledger.unclaim(ids)
             raise
         self.inflight[future] = ids
@@ -235,7 +235,8 @@ class Scheduler:
         rows = self.ledger.rows(("planned",))
         pending = deque(make_batches(rows, self.slots, self.requested))
         del rows
-        max_inflight = max(1, 2 * self.slots)
+        in_process = isinstance(self.executor, InProcessExecutor)  # runs at submit: check stop/Ctrl-C after each
+        max_inflight = 1 if in_process else max(1, 2 * self.slots)
         with _Signals() as signals:
             try:
                 while pending or self.inflight:

@@ -104,9 +104,11 @@ def _metadata(task: BatchTask, run: RunTask, host: str) -> dict[str, dict[str, A
 def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | None = None) -> BatchResult:
     """Run ``task`` and publish its logs; never raises for a run's own failure.
 
-    ``run_batch`` defaults to :func:`labrunner.engine.run_batch` (tests inject fakes). A
-    :class:`~labrunner.errors.RigError` marks the batch failed and asks the parent to stop; any
-    other exception marks the batch's points failed with the message (their logs are absent).
+    ``run_batch`` defaults to :func:`labrunner.engine.run_batch` (tests inject fakes). A rig that
+    cannot be opened asks the parent to stop and leaves the points claimed (nothing ran; ``resume``
+    reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
+    asks the parent to stop (architecture: "stop-campaign"); any other exception marks the batch's
+    points failed with the message (they have no log) and the campaign goes on.
     """
     from labrunner import engine
 
@@ -115,7 +117,12 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     out = BatchResult()
     t0 = time.perf_counter()
     try:
-        with _load_rig(task) as rig:
+        rig = _load_rig(task)
+    except Exception as exc:  # no rig, no campaign: stop; nothing ran, so the points stay claimed for resume
+        out.stop = f"rig {task.rig!r} cannot be opened: {type(exc).__name__}: {exc}"
+        return out
+    try:
+        with rig:
             results = list(
                 run_batch(
                     [r.config for r in task.runs], rig, fs=task.fs, duration=task.duration,
