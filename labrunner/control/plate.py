@@ -18,7 +18,9 @@ All four are u = (ÿ_r − k_p ê − k_d ê̇ − f̂)/γ_s with the signed gai
 saturated currents and the gaps h = K y (eq. (4)) of that tick. For the current input the
 estimator integrates the model's whole input term γ_i(y)·i (γ_i varies with y), which is (24b)
 with "v substituted by i" for a constant y. Following eq. (25), only the measurement is filtered
-by default (``filter = "output"``): ê = ŷ − y_r, ê̇ = ŷ̇ − ẏ_r.
+by default (``filter = "output"``): ê = ŷ − y_r, ê̇ = ŷ̇ − ẏ_r. As in Fig. 10b, a notch filter at the
+plate's resonance (942 rad/s, :mod:`labrunner.control.plate_filters`) cleans the measurement
+before the algebraic differentiators; ``notch_omega = 0`` leaves it out.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import numpy as np
 from labrunner.control.base import Controller
 from labrunner.control.estimators import MFCEstimator
 from labrunner.control.factory import Point, Section, differentiators
+from labrunner.control.plate_filters import StreamingSS, notch_tf, tf_ss, tustin
 from labrunner.control.plate_trajectories import reference_from_points
 from labrunner.control.trajectories import Reference
 from labrunner.differentiators import Differentiator
@@ -62,6 +65,8 @@ class PlateMFC(Controller):
         weights: Sequence[float] = (0.0, 0.5, 0.5),
         y_min: float = 0.8e-3,
         filter_error: bool = False,
+        notch_omega: float = 942.0,
+        notch_q: float = 2.0,
     ) -> None:
         B = len(designs)
         i_max = np.broadcast_to(np.asarray(i_max, dtype=float).reshape(-1, 1), (B, 4))
@@ -79,12 +84,23 @@ class PlateMFC(Controller):
         # signed input gain of the estimator's model ÿ = f + γ_s x: γ_v, or −γ for the magnet inputs;
         # for the current the estimator's input is γ_i(y)·i with γ_s = −1 (see the module docstring)
         self._gamma_est = {"v": self.gamma, "force": -self.gamma, "u": -self.gamma, "current": -np.ones((B, 1))}[input]
-        self.estimator = MFCEstimator(designs, 2, 3, filter_error=filter_error)
+        self.estimator = MFCEstimator(designs, 2, self._gamma_est, 3, filter_error=filter_error)
         self.estimates = {"f_hat": self.estimator.f_hat, "e_hat": self.estimator.e_hat, "de_hat": self.estimator.de_hat}
         self._h = np.zeros((B, 4))
         self._y = np.zeros((B, 3))
+        self._notch = None
+        if notch_omega > 0:
+            fs = designs[0].fs
+            notch = tustin(tf_ss(*notch_tf(notch_omega, notch_q)), fs, notch_omega)
+            self._notch = StreamingSS([notch] * B, channels=3)
+
+    def _filtered(self, y3: np.ndarray) -> np.ndarray:
+        """The measurement after the notch filter (Fig. 10b), (B, 3)."""
+        return y3 if self._notch is None else self._notch.step(y3[:, :, None])[:, :, 0]
 
     def _reset(self, y0: np.ndarray) -> None:
+        if self._notch is not None:
+            self._notch.reset(y0[:, :3, None])
         self._y = y0[:, :3].copy()
         self._h = self.geometry.gaps_from_sensors(y0)
         self.controlled[...] = self._y
@@ -108,7 +124,7 @@ class PlateMFC(Controller):
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
         est = self.estimator
         y3 = y[:, :3]
-        est.step(y3, self._model_input(self.u_applied), self._gamma_est, r)
+        est.step(self._filtered(y3), self._model_input(self.u_applied), r)
         w = r[:, :, 2] - self.k_p * est.e_hat - self.k_d * est.de_hat - est.f_hat
         self._y = y3.copy()
         self._h = self.geometry.gaps_from_sensors(y)
@@ -141,7 +157,8 @@ def check_plate_rig(rig_info: RigInfo, kind: str) -> None:
 def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tuple[PlateMFC, Reference]:
     """Plate MFC from campaign points; ``controller`` keys: ``input`` (v | force | u | current,
     default v), ``gamma``, ``k_p``, ``k_d``, ``filter`` (output | error, default output),
-    ``weights`` (a_k of eq. (18), not for input v), ``i_max`` [A], ``y_min`` [m] (input current)."""
+    ``weights`` (a_k of eq. (18), not for input v), ``i_max`` [A], ``y_min`` [m] (input current),
+    ``notch_omega`` [rad/s] (942; 0: no notch) and ``notch_q`` (2) of the measurement's notch."""
     check_plate_rig(rig_info, "plate-mfc")
     ctl = Section(points, "controller", used=("kind",))
     kind = ctl.choice("input", INPUTS, "v")
@@ -163,6 +180,11 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
         except InvalidParameter as exc:
             raise InvalidParameter("controller.weights", str(exc).split(": ", 1)[1]) from None
         weights = tuple(float(a) for a in rows[0])  # type: ignore[union-attr]
+    notch_omega = ctl.number("notch_omega", 942.0, lo=0.0, hi=np.pi * fs)
+    notch_q = ctl.number("notch_q", 2.0, lo=0.0, lo_open=True)
+    for key, values in (("notch_omega", notch_omega), ("notch_q", notch_q)):
+        if np.ptp(values) > 0:
+            raise InvalidParameter(f"controller.{key}", "must be the same for every run of a batch")
     y_min = 0.8e-3
     if kind == "current" and ctl.has("y_min"):
         y_min = float(ctl.number("y_min", 0.8e-3, lo=0.0, lo_open=True).min())
@@ -173,5 +195,6 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     controller = PlateMFC(
         designs, input=kind, gamma=gamma, k_p=k_p, k_d=k_d, i_max=i_max,
         geometry=geometry, lam_inv_sqrt=lam, weights=weights, y_min=y_min, filter_error=filter_error,
+        notch_omega=float(notch_omega[0]), notch_q=float(notch_q[0]),
     )  # fmt: skip
     return controller, ref

@@ -22,18 +22,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
 
 from labrunner.control.base import Controller
 from labrunner.control.factory import Point, Section, no_section
 from labrunner.control.plate import check_plate_rig, plate_geometry
+from labrunner.control.plate_filters import StateSpace, StreamingSS, identity, lowpass_tf, notch_tf, parallel, series, tf_ss, tustin
 from labrunner.control.plate_trajectories import reference_from_points
 from labrunner.control.trajectories import Reference
 from labrunner.errors import InvalidParameter, check_finite
 from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry, current_for_force, magnet_force
 from labrunner.rigs.base import RigInfo
-
-StateSpace = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # (A, B, C, D)
 
 
 @dataclass(frozen=True)
@@ -96,81 +94,15 @@ def observer_ss(poles: Sequence[float]) -> StateSpace:
     return A, B, np.eye(3), np.zeros((3, 2))
 
 
-def notch_tf(omega: float, q: float) -> tuple[np.ndarray, np.ndarray]:
-    """Notch (s² + ω_0²) / (s² + (ω_0/Q) s + ω_0²) (Tietze & Schenk Sec. 13.8)."""
-    return np.array([1.0, 0.0, omega**2]), np.array([1.0, omega / q, omega**2])
-
-
-def lowpass_tf(order: int, omega: float) -> tuple[np.ndarray, np.ndarray]:
-    """Butterworth low-pass of ``order`` with cutoff ``omega`` [rad/s]; order 0 is 1."""
-    if order == 0:
-        return np.array([1.0]), np.array([1.0])
-    return signal.butter(order, omega, analog=True)
-
-
-def tustin(ss: StateSpace, fs: float, omega_warp: float) -> StateSpace:
-    """Tustin discretisation prewarped at ``omega_warp`` [rad/s]: exact response there (Oppenheim & Schafer 5.1.3)."""
-    dt = 2.0 * np.tan(omega_warp / (2.0 * fs)) / omega_warp  # s = (2/dt)(z − 1)/(z + 1) matches at omega_warp
-    A, B, C, D, _ = signal.cont2discrete(ss, dt, method="bilinear")
-    return A, B, C, D
-
-
-def _series(first: StateSpace, second: StateSpace) -> StateSpace:
-    """Discrete systems in series: ``second`` driven by ``first``'s outputs."""
-    A1, B1, C1, D1 = first
-    A2, B2, C2, D2 = second
-    n1, n2 = len(A1), len(A2)
-    A = np.block([[A1, np.zeros((n1, n2))], [B2 @ C1, A2]])
-    B = np.vstack([B1, B2 @ D1])
-    C = np.hstack([D2 @ C1, C2])
-    return A, B, C, D2 @ D1
-
-
-def _parallel(systems: Sequence[StateSpace]) -> StateSpace:
-    """Block-diagonal stack of SISO systems: input j → output j."""
-    A = _block_diag([s[0] for s in systems])
-    B = _block_diag([s[1] for s in systems])
-    C = _block_diag([s[2] for s in systems])
-    D = _block_diag([s[3] for s in systems])
-    return A, B, C, D
-
-
-def _block_diag(mats: Sequence[np.ndarray]) -> np.ndarray:
-    rows = sum(m.shape[0] for m in mats)
-    cols = sum(m.shape[1] for m in mats)
-    out = np.zeros((rows, cols))
-    r = c = 0
-    for m in mats:
-        out[r : r + m.shape[0], c : c + m.shape[1]] = m
-        r, c = r + m.shape[0], c + m.shape[1]
-    return out
-
-
-def _tf_ss(num: np.ndarray, den: np.ndarray) -> StateSpace:
-    if len(den) == 1:
-        return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[0] / den[0]]])
-    return signal.tf2ss(num, den)
-
-
 def estimation_chain(design: MBCDesign) -> dict[str, StateSpace]:
     """The discretised parts of Fig. 10a: ``notch`` (y → y_n), ``observer`` ((y_n, v+g) → x̂),
     ``lowpass`` (x̂ → filtered x̂) and ``chain``: the whole (y, v + g) → (ŷ, ŷ̇, η̂)."""
     fs = design.fs
-    notch = tustin(_tf_ss(*notch_tf(design.notch_omega, design.notch_q)), fs, design.notch_omega)
+    notch = tustin(tf_ss(*notch_tf(design.notch_omega, design.notch_q)), fs, design.notch_omega)
     observer = tustin(observer_ss(design.observer_poles), fs, design.observer_warp)
-    lows = [_tf_ss(*lowpass_tf(q, design.lowpass_omega)) for q in design.lowpass_orders]
-    lowpass = _parallel([tustin(s, fs, design.lowpass_omega) if len(s[0]) else s for s in lows])
-    notch_and_pass = _parallel([notch, (np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.eye(1))])
-    chain = _series(_series(notch_and_pass, observer), lowpass)
+    lowpass = parallel([tustin(tf_ss(*lowpass_tf(q, design.lowpass_omega)), fs, design.lowpass_omega) for q in design.lowpass_orders])
+    chain = series(series(parallel([notch, identity()]), observer), lowpass)
     return {"notch": notch, "observer": observer, "lowpass": lowpass, "chain": chain}
-
-
-def frequency_response(ss: StateSpace, omega: np.ndarray, fs: float | None = None) -> np.ndarray:
-    """Response (len(ω), n_out, n_in) of a continuous (``fs`` None) or discrete state-space system."""
-    A, B, C, D = ss
-    s = 1j * np.asarray(omega, dtype=float) if fs is None else np.exp(1j * np.asarray(omega, dtype=float) / fs)
-    eye = np.eye(len(A))
-    return np.array([C @ np.linalg.solve(si * eye - A, B) + D if len(A) else D.astype(complex) for si in s])
 
 
 class PlateMBC(Controller):
@@ -196,43 +128,31 @@ class PlateMBC(Controller):
         self.lam_inv_sqrt = float(lam_inv_sqrt)
         self.c_p = np.array([[d.c_p] for d in designs])
         self.c_d = np.array([[d.c_d] for d in designs])
-        chains = [estimation_chain(d)["chain"] for d in designs]
-        n = max(len(c[0]) for c in chains)
-        # per run one matrix [[C, D], [A, B]] (padded to n states): (x, w) → (x̂ outputs, next x)
-        self._M = np.zeros((B, n + 2, 3 + n))
-        self._ss_gain = np.zeros((B, n, 2))  # steady state x = (I − A)⁻¹ B w
-        for b, (A, Bm, C, D) in enumerate(chains):
-            k = len(A)
-            self._M[b, :k, :3], self._M[b, n:, :3] = C.T, D.T
-            self._M[b, :k, 3 : 3 + k], self._M[b, n:, 3 : 3 + k] = A.T, Bm.T
-            self._ss_gain[b, :k] = np.linalg.solve(np.eye(k) - A, Bm)
-        self._n = n
-        self._z = np.zeros((B, 3, n + 2))  # per run and sensor: chain state, then inputs (y, v + g)
+        self._chain = StreamingSS([estimation_chain(d)["chain"] for d in designs], channels=3)
+        self._w = np.zeros((B, 3, 2))  # chain inputs per sensor point: (y, v + g)
         self._h = np.zeros((B, 4))
         self.estimates = {"f_hat": np.zeros((B, 3)), "e_hat": np.zeros((B, 3)), "de_hat": np.zeros((B, 3))}
 
     def _reset(self, y0: np.ndarray) -> None:
         g = self.geometry
         self._h = g.gaps_from_sensors(y0)
-        w = np.stack([y0[:, :3], np.full((self.batch, 3), g.g)], axis=-1)  # at rest: v = 0
-        self._z[:, :, : self._n] = np.einsum("bnj,bkj->bkn", self._ss_gain, w)
+        self._w[:, :, 0] = y0[:, :3]
+        self._w[:, :, 1] = g.g  # at rest: v = 0
+        self._chain.reset(self._w)
         self.controlled[...] = y0[:, :3]
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
         g = self.geometry
         v_applied = g.input_from_forces(magnet_force(self.u_applied, self._h, self.lam_inv_sqrt))
-        z = self._z
-        z[:, :, self._n] = y[:, :3]
-        z[:, :, self._n + 1] = v_applied + g.g
-        out = z @ self._M  # (B, 3, 3 + n)
-        z[:, :, : self._n] = out[:, :, 3:]
-        y_hat, dy_hat, eta_hat = out[:, :, 0], out[:, :, 1], out[:, :, 2]
-        e_hat = y_hat - r[:, :, 0]
-        de_hat = dy_hat - r[:, :, 1]
-        v = r[:, :, 2] - self.c_d * de_hat - self.c_p * e_hat - g.g - eta_hat  # eq. (7)
+        self._w[:, :, 0] = y[:, :3]
+        self._w[:, :, 1] = v_applied + g.g
+        x_hat = self._chain.step(self._w)  # (B, 3, 3): ŷ, ŷ̇, η̂ per sensor point
+        e_hat = x_hat[:, :, 0] - r[:, :, 0]
+        de_hat = x_hat[:, :, 1] - r[:, :, 1]
+        v = r[:, :, 2] - self.c_d * de_hat - self.c_p * e_hat - g.g - x_hat[:, :, 2]  # eq. (7)
         self._h = g.gaps_from_sensors(y)
         self.controlled[...] = y[:, :3]
-        self.estimates["f_hat"][...] = eta_hat + g.g
+        self.estimates["f_hat"][...] = x_hat[:, :, 2] + g.g
         self.estimates["e_hat"][...] = e_hat
         self.estimates["de_hat"][...] = de_hat
         return current_for_force(g.forces_pinv(v), self._h, self.lam_inv_sqrt)  # eq. (11), (12)

@@ -11,169 +11,139 @@ Unmodelled effects that make the twin look like the test bed (paper 2 Remark 1, 
 * contact: four screws hold the plate at the gap ``screw_gap`` (5.5 mm) until the magnets lift it,
   and a stop at ``top_gap`` keeps it off the yokes — stiff, damped, one-sided springs at the corners;
 * magnetic saturation: no magnet pulls more than ``force_max``;
-* a lightly damped plate mode at ``mode_omega`` ≈ 942 rad/s, excited by the corner forces and seen
-  by the sensors (shapes ``mode_force_shape`` / ``mode_sensor_shape``, amplitudes at the corners);
+* per-magnet deviations of the force model, ``d_gain_j`` (Fig. 3: the identified d_j differ);
+* a lightly damped plate mode at ``mode_omega`` ≈ 942 rad/s, a bending mode with amplitude 1 at the
+  four magnets and ``mode_sensor_shape`` at the sensors, excited by the corner forces;
 * current ripple (white, per magnet, held over a sample) and sensor noise (white, per sensor).
 
 Outputs are the four sensor readings y_1..y_4 [m]; inputs the four currents i_1..i_4 [A] ∈ [0, 8].
 Generalised coordinates x = (z, φ_x, φ_y, q) with q the mode; the gaps are h = x G and the corner
 forces act through −G (virtual work). Integration: semi-implicit Euler with the input held over
-the sample (zero-order hold), sub-steps no longer than ``max_step`` [s].
+the sample (zero-order hold), sub-steps no longer than ``max_substep`` [s]. The contact stiffness is
+set per run from the lightest corner mass so that the stiffest contact motion has ``contact_omega``
+and ``contact_zeta`` whatever the inertia; with ω·h ≤ 0.64 the scheme is stable for every allowed
+parameter (tests/test_plate_twin.py checks the spectral radius).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from labrunner.errors import InvalidParameter, check_finite
+from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry
-from labrunner.rigs.base import Faults, Rig, RigInfo, Signal
+from labrunner.rigs.base import RigInfo, Signal
+from labrunner.rigs.config import Param
+from labrunner.rigs.sim import SimRig
+from labrunner.rigs.sim._integrate import substeps
+from labrunner.rigs.sim._noise import NoiseStreams
+
+_POS = {"lo": 0.0, "lo_open": True}
+#: Parameters that shape the shared matrices; a campaign cannot vary them per run.
+GEOMETRY = ("l_dx", "l_dy", "l_fx", "l_fy", "mode_sensor_shape", "i_max", "max_substep")
 
 
-@dataclass(frozen=True)
-class _Spec:
-    default: float
-    lo: float
-    hi: float
-    doc: str
+class PlateTwin(SimRig):
+    """Batch twin of the magnetically supported plate; inputs ``i1..i4`` [A], outputs ``y1..y4`` [m]."""
 
+    KIND = "plate"
+    PARAMETERS = {
+        "m": Param(4.69, "kg", "plate mass (paper 2 Table 2)", lo=0.5, hi=50.0),
+        "J_x": Param(5.13e-2, "kg m^2", "moment of inertia about x_b (Table 2)", lo=1e-3, hi=5.0),
+        "J_y": Param(8.19e-2, "kg m^2", "moment of inertia about y_b (Table 2)", lo=1e-3, hi=5.0),
+        "g": Param(9.81, "m/s^2", "gravitational acceleration (Table 2)", lo=0.0, hi=20.0),
+        "l_dx": Param(0.135, "m", "sensor distance in x (Table 2)", **_POS),
+        "l_dy": Param(0.144, "m", "sensor distance in y (Table 2)", **_POS),
+        "l_fx": Param(0.1825, "m", "force-point distance in x (Table 2)", **_POS),
+        "l_fy": Param(0.117, "m", "force-point distance in y (Table 2)", **_POS),
+        "lambda_inv_sqrt": Param(LAMBDA_INV_SQRT, "A s/(kg m^3)^0.5", "d(h) = λ^(−1/2) h (Sec. 3.2.3, Fig. 3)", lo=50.0, hi=1000.0),
+        **{f"d_gain_{j}": Param(1.0, "1", f"factor on d_{j}(h) of magnet {j} (identified d_j differ, Fig. 3)", lo=0.5, hi=2.0) for j in range(1, 5)},
+        "d_offset": Param(0.0, "m", "gap offset of the force model d(h) = λ^(−1/2)(h + offset)", lo=-2e-4, hi=2e-3),
+        "force_max": Param(300.0, "N", "magnetic saturation: the largest force of one magnet (assumed)", lo=50.0, hi=1e4),
+        "i_max": Param(8.0, "A", "current limit of the power electronics (Sec. 4)", lo=0.1, hi=50.0),
+        "screw_gap": Param(5.5e-3, "m", "gap at which the screws hold the plate at rest (Sec. 4.1)", lo=1e-3, hi=20e-3),
+        "top_gap": Param(0.5e-3, "m", "gap of the upper mechanical stop (assumed)", lo=1e-4, hi=1e-3),
+        "contact_omega": Param(1e4, "rad/s", "eigenfrequency of the stiffest contact motion (numerical stiffness)", lo=1e3, hi=2e4),
+        "contact_zeta": Param(0.5, "1", "damping ratio of that contact motion", lo=0.0, hi=1.0),
+        "mode_omega": Param(942.0, "rad/s", "plate resonance (paper 2 Remark 9, Sec. 4.2)", lo=100.0, hi=5000.0),
+        "mode_zeta": Param(0.02, "1", "damping ratio of the plate mode (assumed: lightly damped)", lo=0.0, hi=1.0),
+        "mode_mass": Param(4.0, "kg", "modal mass of the plate mode (assumed: notch needed, Remark 9)", lo=0.05, hi=100.0),
+        "mode_sensor_shape": Param(0.8, "1", "mode amplitude at the sensors relative to the magnets", lo=-2.0, hi=2.0),
+        "max_substep": Param(32e-6, "s", "longest integration sub-step (stability: ω h ≤ 0.64)", lo=1e-7, hi=32e-6),
+    }
+    NOISE = {
+        "sensor_std": Param(0.5e-6, "m", "white sensor noise, std (assumed; Sec. 4.3.1: RMS spread < 30 nm)", lo=0.0, hi=1e-4),
+        "current_std": Param(0.02, "A", "current ripple of the current controllers, std (assumed)", lo=0.0, hi=1.0),
+    }
 
-#: Scalar parameters: default, allowed range and meaning. Every one may be overridden per run.
-PARAMETERS: dict[str, _Spec] = {
-    "m": _Spec(4.69, 0.5, 50.0, "plate mass [kg] (Table 2)"),
-    "J_x": _Spec(5.13e-2, 1e-3, 5.0, "moment of inertia about x_b [kg m²] (Table 2)"),
-    "J_y": _Spec(8.19e-2, 1e-3, 5.0, "moment of inertia about y_b [kg m²] (Table 2)"),
-    "g": _Spec(9.81, 0.0, 20.0, "gravitational acceleration [m/s²]"),
-    "lambda_inv_sqrt": _Spec(LAMBDA_INV_SQRT, 50.0, 1000.0, "λ^(−1/2) of d(h) = λ^(−1/2)·h [A s/(kg m³)^(1/2)]"),
-    "d_offset": _Spec(0.0, -2e-4, 2e-3, "gap offset of the force model d(h) [m]"),
-    "force_max": _Spec(300.0, 50.0, 1e4, "saturation force of one magnet [N]"),
-    "screw_gap": _Spec(5.5e-3, 1e-3, 20e-3, "gap at which the screws hold the plate [m]"),
-    "top_gap": _Spec(0.5e-3, 1e-4, 1e-3, "gap of the upper mechanical stop [m]"),
-    "contact_omega": _Spec(1e4, 1e3, 2e4, "eigenfrequency of the stiffest contact motion [rad/s]"),
-    "contact_zeta": _Spec(0.5, 0.0, 1.0, "damping ratio of that contact motion"),
-    "mode_omega": _Spec(942.0, 100.0, 5000.0, "eigenfrequency of the plate mode [rad/s] (Remark 9)"),
-    "mode_zeta": _Spec(0.02, 0.0, 1.0, "damping ratio of the plate mode"),
-    "mode_mass": _Spec(4.0, 0.05, 100.0, "modal mass of the plate mode [kg]"),
-    "sensor_std": _Spec(0.5e-6, 0.0, 1e-4, "sensor noise, standard deviation [m]"),
-    "current_std": _Spec(0.02, 0.0, 1.0, "current ripple, standard deviation [A]"),
-}
-#: Per-magnet and per-sensor vectors (not overridable per run).
-VECTORS: dict[str, tuple[tuple[float, ...], str]] = {
-    "d_gain": ((1.0, 1.0, 1.0, 1.0), "per-magnet factor on d_j(h)"),
-    "mode_force_shape": ((1.0, 1.0, 1.0, 1.0), "plate-mode amplitude at the four magnets"),
-    "mode_sensor_shape": ((0.8, 0.8, 0.8, 0.8), "plate-mode amplitude at the four sensors"),
-}
-GEOMETRY = ("l_dx", "l_dy", "l_fx", "l_fy")
-NOISE = ("sensor_std", "current_std")
-_NOISE_BLOCK = 2048  # samples of noise drawn per run at a time (a loop per block, never per tick)
+    @classmethod
+    def validate_parameters(cls, raw: Mapping[str, Any], path: str = "parameters") -> dict[str, Any]:
+        p = super().validate_parameters(raw, path)
+        if p["top_gap"] >= p["screw_gap"]:
+            raise InvalidParameter(f"{path}.top_gap", f"must be < screw_gap = {p['screw_gap']:g} m, got {p['top_gap']:g}")
+        return p
 
-
-def plate_info(name: str = "plate-sim", i_max: float = 8.0) -> RigInfo:
-    """Signals and nominal constants of the plate (paper 2 Sec. 4: currents 0–8 A, 32 kHz)."""
-    g = PlateGeometry()
-    constants = {k: getattr(g, k) for k in ("m", "g", "J_x", "J_y", *GEOMETRY)}
-    return RigInfo(
-        name=name,
-        kind="plate",
-        inputs=tuple(Signal(f"i{j}", "A", 0.0, i_max) for j in range(1, 5)),
-        outputs=tuple(Signal(f"y{j}", "m", 0.0, 10e-3, resolution=5e-6) for j in range(1, 5)),
-        fs_range=(1000.0, 100_000.0),
-        fs_default=32_000.0,
-        safe_input=(0.0, 0.0, 0.0, 0.0),
-        constants={**constants, "lambda_inv_sqrt": LAMBDA_INV_SQRT, "rest_gap": PARAMETERS["screw_gap"].default},
-        simulated=True,
-        description="Simulated magnetically supported plate (paper 2): rigid 3-DOF body, four magnets, 942 rad/s mode",
-    )
-
-
-class PlateTwin(Rig):
-    """Batch twin of the magnetically supported plate; see the module docstring for the model.
-
-    ``parameters`` takes the keys of :data:`PARAMETERS` (except the noise), :data:`VECTORS` and
-    :data:`GEOMETRY`; ``noise`` takes :data:`NOISE`. Unknown keys raise :class:`InvalidParameter`.
-    Per-run overrides in :meth:`reset` accept every key of :data:`PARAMETERS` (NaN: keep nominal).
-    """
-
-    def __init__(
-        self,
-        parameters: Mapping[str, object] | None = None,
-        noise: Mapping[str, object] | None = None,
-        *,
-        faults: Faults | None = None,
-        name: str = "plate-sim",
-        i_max: float = 8.0,
-        max_step: float = 32e-6,
-    ) -> None:
-        params = dict(parameters or {})
-        self.geometry = PlateGeometry(**{k: check_finite(f"parameters.{k}", params.pop(k)) for k in GEOMETRY if k in params})
-        self.vectors = {k: _check_vector(f"parameters.{k}", params.pop(k, d), positive=k == "d_gain") for k, (d, _) in VECTORS.items()}
-        scalars = {k: s.default for k, s in PARAMETERS.items()}
-        for section, values, allowed in (
-            ("parameters", params, sorted(set(PARAMETERS) - set(NOISE))),
-            ("noise", dict(noise or {}), list(NOISE)),
-        ):
-            for key, value in values.items():
-                if key not in allowed:
-                    extra = sorted(set(VECTORS) | set(GEOMETRY)) if section == "parameters" else []
-                    raise InvalidParameter(f"{section}.{key}", f"unknown key; allowed: {', '.join(allowed + extra)}")
-                scalars[key] = _check_range(f"{section}.{key}", value, PARAMETERS[key])
-        if scalars["top_gap"] >= scalars["screw_gap"]:
-            raise InvalidParameter("parameters.top_gap", f"must be < screw_gap = {scalars['screw_gap']}, got {scalars['top_gap']}")
-        if not (1e-7 <= check_finite("max_step", max_step) <= 1e-3):
-            raise InvalidParameter("max_step", f"must be in [1e-07, 0.001] s, got {max_step!r}")
-        self.nominal = scalars
-        self.max_step = float(max_step)
-        geo = self.geometry
-        # generalised coordinates (z, φ_x, φ_y, q) → gaps at the magnets (columns) and at the sensors
-        self._G = np.vstack([geo.magnet_matrix.T, self.vectors["mode_force_shape"]])  # (4 coords, 4 magnets)
-        self._S = np.vstack([geo.sensor_matrix.T, self.vectors["mode_sensor_shape"]])  # (4 coords, 4 sensors)
-        super().__init__(plate_info(name, i_max), faults)
+    @classmethod
+    def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
+        p = {**{k: v.default for k, v in cls.PARAMETERS.items()}, **parameters}
+        constants = {k: float(p[k]) for k in ("m", "g", "J_x", "J_y", "l_dx", "l_dy", "l_fx", "l_fy", "lambda_inv_sqrt")}
+        return RigInfo(
+            name=name,
+            kind=cls.KIND,
+            inputs=tuple(Signal(f"i{j}", "A", 0.0, float(p["i_max"])) for j in range(1, 5)),
+            outputs=tuple(Signal(f"y{j}", "m", 0.0, 10e-3, resolution=5e-6) for j in range(1, 5)),
+            fs_range=(1000.0, 100_000.0),
+            fs_default=32_000.0,
+            safe_input=(0.0, 0.0, 0.0, 0.0),
+            constants={**constants, "rest_gap": float(p["screw_gap"])},
+            simulated=True,
+            description=description or "simulated magnetically supported plate (paper 2): 3-DOF body, four magnets, 942 rad/s mode",
+        )
 
     # -- Rig hooks -------------------------------------------------------------------------------
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
-        p = {k: np.full(batch, v) for k, v in self.nominal.items()}
-        for key, values in overrides.items():
-            if key not in PARAMETERS:
-                raise InvalidParameter(f"rig_parameters.{key}", f"not overridable per run; allowed: {', '.join(PARAMETERS)}")
-            values = np.broadcast_to(np.asarray(values, dtype=float), (batch,))
-            given = ~np.isnan(values)
-            for v in values[given]:
-                _check_range(f"rig_parameters.{key}", v, PARAMETERS[key])
-            p[key] = np.where(given, values, p[key])
+        fixed = sorted(set(overrides) & set(GEOMETRY))
+        if fixed:
+            raise InvalidParameter(f"overrides.{fixed[0]}", f"cannot vary per run; fixed: {', '.join(GEOMETRY)}")
+        p = self.per_run(batch, overrides)
+        bad = p["top_gap"] >= p["screw_gap"]
+        if bad.any():
+            raise InvalidParameter("overrides.top_gap", f"must be < screw_gap = {p['screw_gap'][bad][0]:g} m")
         self.p = p
-        self.substeps = max(1, math.ceil(1.0 / (self.fs * self.max_step) - 1e-9))
+        c = self.config.parameters
+        self.geometry = PlateGeometry(m=float(c["m"]), g=float(c["g"]), J_x=float(c["J_x"]), J_y=float(c["J_y"]),
+                                      l_dx=float(c["l_dx"]), l_dy=float(c["l_dy"]), l_fx=float(c["l_fx"]), l_fy=float(c["l_fy"]))  # fmt: skip
+        # generalised coordinates (z, φ_x, φ_y, q) → gaps at the magnets (columns) and at the sensors
+        self._G = np.vstack([self.geometry.magnet_matrix.T, np.ones(4)])
+        self._S = np.vstack([self.geometry.sensor_matrix.T, np.full(4, float(c["mode_sensor_shape"]))])
+        self.substeps = substeps(self.fs, float(c["max_substep"]))
         col = lambda v: np.asarray(v, dtype=float)[:, None]  # noqa: E731 - (B,) → (B, 1)
-        self._lam = col(p["lambda_inv_sqrt"]) * self.vectors["d_gain"]  # (B, 4)
+        gains = np.column_stack([p[f"d_gain_{j}"] for j in range(1, 5)])
+        self._lam = col(p["lambda_inv_sqrt"]) * gains  # (B, 4)
         self._inv_mass = 1.0 / np.column_stack([p["m"], p["J_x"], p["J_y"], p["mode_mass"]])  # (B, 4)
         self._gravity = np.column_stack([p["g"], np.zeros((batch, 3))])
-        stiff = np.zeros((batch, 4))  # the mode's own stiffness and damping, acting on q only
-        damp = np.zeros((batch, 4))
-        stiff[:, 3] = p["mode_omega"] ** 2
-        damp[:, 3] = 2.0 * p["mode_zeta"] * p["mode_omega"]
-        self._stiff, self._damp = stiff, damp
-        # one stop's stiffness and damping from the lightest corner mass 1/λ_max(Gᵀ M⁻¹ G), so that the
-        # stiffest contact motion has exactly contact_omega and contact_zeta whatever the inertia
+        self._stiff = np.zeros((batch, 4))  # the mode's own stiffness and damping, acting on q only
+        self._damp = np.zeros((batch, 4))
+        self._stiff[:, 3] = p["mode_omega"] ** 2
+        self._damp[:, 3] = 2.0 * p["mode_zeta"] * p["mode_omega"]
+        # one stop's stiffness and damping from the lightest corner mass 1/λ_max(Gᵀ M⁻¹ G)
         corner_mass = 1.0 / np.linalg.eigvalsh(np.einsum("ja,ba,ak->bjk", self._G.T, self._inv_mass, self._G))[:, -1]
         self._k_c = col(corner_mass * p["contact_omega"] ** 2)
         self._c_c = col(2.0 * p["contact_zeta"] * corner_mass * p["contact_omega"])
         self._screw, self._top = col(p["screw_gap"]), col(p["top_gap"])
         self._offset, self._f_max = col(p["d_offset"]), col(p["force_max"])
         self._sensor_std, self._current_std = col(p["sensor_std"]), col(p["current_std"])
-        self._rngs = [np.random.default_rng(int(s)) for s in seeds]
-        self._noise = np.zeros((batch, 0, 8))
-        self._noise_k = 0
+        self._noise = NoiseStreams(seeds, 8, stream=3, block=2048)
         # at rest on the screws: each corner carries a quarter of the weight
         self.x = np.zeros((batch, 4))
         self.x[:, 0] = p["screw_gap"] + p["m"] * p["g"] / (4.0 * self._k_c[:, 0])
         self.v = np.zeros((batch, 4))
-        return self._sensors(self._draw()[:, :4])
+        return self._sensors(self._noise.next()[:, :4])
 
     def _step(self, u: np.ndarray) -> np.ndarray:
-        noise = self._draw()
+        noise = self._noise.next()
         current_sq = np.maximum(u + self._current_std * noise[:, 4:], 0.0) ** 2
         h = 1.0 / (self.fs * self.substeps)
         for _ in range(self.substeps):
@@ -210,29 +180,3 @@ class PlateTwin(Rig):
 
     def _sensors(self, noise: np.ndarray) -> np.ndarray:
         return self.x @ self._S + self._sensor_std * noise
-
-    def _draw(self) -> np.ndarray:
-        """(B, 8) standard normal noise of this sample (4 sensors, 4 currents), one stream per run."""
-        if self._noise_k >= self._noise.shape[1]:
-            self._noise = np.stack([rng.standard_normal((_NOISE_BLOCK, 8)) for rng in self._rngs])
-            self._noise_k = 0
-        self._noise_k += 1
-        return self._noise[:, self._noise_k - 1]
-
-
-def _check_range(field: str, value: object, spec: _Spec) -> float:
-    v = check_finite(field, value)
-    if not spec.lo <= v <= spec.hi:
-        raise InvalidParameter(field, f"must be in [{spec.lo:g}, {spec.hi:g}] ({spec.doc}), got {v:g}")
-    return v
-
-
-def _check_vector(field: str, value: object, positive: bool) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidParameter(field, f"must be a list of 4 numbers, got {value!r}") from None
-    if arr.shape != (4,) or not np.all(np.isfinite(arr)) or (positive and np.any(arr <= 0)):
-        kind = "finite positive" if positive else "finite"
-        raise InvalidParameter(field, f"must be a list of 4 {kind} numbers, got {value!r}")
-    return arr
