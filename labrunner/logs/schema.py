@@ -181,6 +181,24 @@ def _doubles(buf: bytes | memoryview, wire: int, start: int, stop: int) -> np.nd
     raise ValueError(f"Signal.values has wire type {wire} and {stop - start} bytes: not doubles")
 
 
+def _signal(buf: bytes | memoryview, start: int, stop: int) -> tuple[str, np.ndarray]:
+    """``(name, values)`` of one ``Signal`` submessage in buf[start:stop]."""
+    # fast path, the layout encode_block writes: name field, then one packed values field
+    if buf[start] == 0x0A:
+        n_len, pos = _read_varint(buf, start + 1)
+        if pos + n_len < stop and buf[pos + n_len] == 0x12:
+            v_len, v_pos = _read_varint(buf, pos + n_len + 1)
+            if v_pos + v_len == stop and v_len % 8 == 0:
+                return str(buf[pos : pos + n_len], "utf-8"), np.frombuffer(buf, "<f8", v_len // 8, v_pos)
+    name, pieces = "", []
+    for number, wire, s, e in _fields(buf, start, stop):
+        if number == 1 and wire == 2:
+            name = str(buf[s:e], "utf-8")
+        elif number == 2:
+            pieces.append(_doubles(buf, wire, s, e))
+    return name, pieces[0] if len(pieces) == 1 else np.concatenate(pieces or [np.empty(0)])
+
+
 def decode_block(buf: bytes | memoryview) -> tuple[int, float, dict[str, np.ndarray]]:
     """``(first_index, fs, {name: values})`` of a ``SignalBlock``; values are read-only views.
 
@@ -192,14 +210,8 @@ def decode_block(buf: bytes | memoryview) -> tuple[int, float, dict[str, np.ndar
             first_index = start
         elif number == 3 and wire == 1:
             fs = _DOUBLE.unpack_from(buf, start)[0]
-        elif number == 4 and wire == 2:
-            name, pieces = "", []
-            for n2, w2, s2, e2 in _fields(buf, start, stop):
-                if n2 == 1 and w2 == 2:
-                    name = bytes(buf[s2:e2]).decode()
-                elif n2 == 2:
-                    pieces.append(_doubles(buf, w2, s2, e2))
-            values = pieces[0] if len(pieces) == 1 else np.concatenate(pieces or [np.empty(0)])
+        elif number == 4 and wire == 2 and stop > start:
+            name, values = _signal(buf, start, stop)
             signals[name] = np.concatenate([signals[name], values]) if name in signals else values
     return first_index, fs, signals
 
