@@ -292,7 +292,7 @@ def test_order_limits():
     d.weights(1)
     with pytest.raises(InvalidParameter, match=r"beta: must be > n - 1 = 1 for derivative order 2, got 0.5"):
         d.weights(2)
-    for bad in (-1, 1.5, True):
+    for bad in (-1, 1.5, True, "two"):
         with pytest.raises(InvalidParameter, match="order"):
             d.weights(bad)
     trap = design(alpha=1.5, beta=2, window=0.05, fs=1000, method="trapezoidal")

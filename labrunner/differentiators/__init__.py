@@ -3,6 +3,18 @@ streaming and offline estimation. Pure numpy/scipy, no I/O.
 """
 
 from labrunner.differentiators.design import METHODS, Differentiator, design
+from labrunner.differentiators.spectra import amplitude_phase, continuous_response, cost_db, discrete_response
 from labrunner.differentiators.streaming import StreamingFIR, estimate, pad_taps
 
-__all__ = ["METHODS", "Differentiator", "StreamingFIR", "design", "estimate", "pad_taps"]
+__all__ = [
+    "METHODS",
+    "Differentiator",
+    "StreamingFIR",
+    "amplitude_phase",
+    "continuous_response",
+    "cost_db",
+    "design",
+    "discrete_response",
+    "estimate",
+    "pad_taps",
+]

@@ -59,7 +59,7 @@ class Differentiator:
 
     def check_order(self, order: int) -> int:
         """Return ``order`` or raise :class:`InvalidParameter` if this design cannot estimate it."""
-        if isinstance(order, bool) or not float(order).is_integer() or order < 0:
+        if isinstance(order, bool) or not check_finite("order", order).is_integer() or order < 0:
             raise InvalidParameter("order", f"must be an integer >= 0, got {order!r}")
         order = int(order)
         for name, value in (("alpha", self.alpha), ("beta", self.beta)):
@@ -113,7 +113,7 @@ class Differentiator:
             raw[-1] *= 0.5
         # The scale t_s/T^{n+1} of w_n cancels in w_n/Φ_n, so Φ is formed from the raw values.
         j = np.arange(raw.size, dtype=float)
-        phi = float(np.dot(raw, (-j / self.fs) ** n)) / math.factorial(n)
+        phi = float(np.sum(raw * (-j / self.fs) ** n)) / math.factorial(n)  # pairwise sum, no BLAS threads
         w = raw / phi
         w.setflags(write=False)
         self._cache[n] = w

@@ -15,6 +15,7 @@ from scipy import integrate, special
 
 from labrunner.differentiators.design import Differentiator
 from labrunner.differentiators.kernel import log_rho
+from labrunner.errors import InvalidParameter
 
 _CHUNK = 2_000_000  # nodes × frequencies evaluated at once (memory bound of ~32 MB)
 
@@ -22,8 +23,6 @@ _CHUNK = 2_000_000  # nodes × frequencies evaluated at once (memory bound of ~3
 def _as_omega(omega: np.ndarray) -> np.ndarray:
     w = np.atleast_1d(np.asarray(omega, dtype=float))
     if not np.all(np.isfinite(w)):
-        from labrunner.errors import InvalidParameter
-
         raise InvalidParameter("omega", "must be finite frequencies [rad/s]")
     return w
 

@@ -81,7 +81,14 @@ class StreamingFIR:
         self._pos = pos
         block = buf[pos : pos + self._length]  # (L, B), newest first
         if self._shared:
-            return self._taps @ block if self._out_ndim == 0 else (self._taps @ block).T
+            if self._out_ndim == 0:
+                return self._taps @ block
+            # One matrix-vector product per filter: OpenBLAS is several times slower on an (M, L)
+            # by (L, B) product with small M than on M products (L,) by (L, B).
+            out = np.empty((block.shape[1], self._taps.shape[0]))
+            for m, row in enumerate(self._taps):
+                out[:, m] = row @ block
+            return out
         if self._out_ndim == 0:
             return np.einsum("lb,lb->b", self._taps, block)
         return np.einsum("mlb,lb->bm", self._taps, block)
