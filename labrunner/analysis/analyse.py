@@ -38,6 +38,7 @@ class Context:
     note: str  # why the campaign could not be loaded ("" if it could)
     axes: list[str]  # grid axis keys that vary, in grid order
     units: dict[str, str]  # unit per dotted key and per metric column
+    error: str = "e"  # which error the RMS maps and the best run use: "e", or "ê" (paper 2's delayed error)
 
 
 def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Any | None, str]:
@@ -179,8 +180,13 @@ def analyse(
     *,
     workers: int | None = None,
     margin: float = 0.1,
+    error: str = "e",
 ) -> dict[str, Any]:
-    """Analyse a campaign directory; write the table, figures and ``index.html`` under ``out``."""
+    """Analyse a campaign directory; write the table, figures and ``index.html`` under ``out``.
+
+    ``error="e_hat"`` ranks runs and draws the RMS map by the delayed, filtered error ê of paper 2
+    (logged as ``e_hat_<output>``) instead of e; the table always holds both.
+    """
     from labrunner.campaign.ledger import Ledger
 
     directory = Path(directory)
@@ -194,7 +200,14 @@ def analyse(
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     csv, parquet = table_mod.write_table(frame, out)
-    ctx = Context(directory, out, campaign, note, varying_axes(frame, campaign), _units(frame, directory, campaign))
+    if error not in ("e", "e_hat"):
+        raise InvalidParameter("error", f"must be 'e' or 'e_hat', got {error!r}")
+    if error == "e_hat":
+        if not frame.get("rms_error_hat", pd.Series(dtype=float)).notna().any():
+            raise InvalidParameter("error", "e_hat: the runs of this campaign log no ê (e_hat_<output>)")
+        frame = frame.assign(rms_error=frame["rms_error_hat"])
+    ctx = Context(directory, out, campaign, note, varying_axes(frame, campaign), _units(frame, directory, campaign),
+                  "ê" if error == "e_hat" else "e")
     theories = Theories(campaign)
     maps = figures.draw_maps(frame, ctx, theories)
     chosen = chosen_runs(frame)

@@ -30,15 +30,17 @@ from labrunner.errors import LabrunnerError
 if TYPE_CHECKING:
     from labrunner.analysis.analyse import Context, Theories
 
-#: Metric columns drawn as maps: (column, title, colour-bar text).
-MAP_METRICS = (
-    ("rms_error", "RMS of the tracking error e", "RMS(e)"),
-    ("input_energy", "input energy E(u) = Σ u[j]²", "E(u)"),
-)
+def map_metrics(error: str) -> tuple[tuple[str, str, str], ...]:
+    """Metric columns drawn as maps: (column, title, colour-bar text); ``error`` is "e" or "ê"."""
+    return (
+        ("rms_error", f"RMS of the tracking error {error}", f"RMS({error})"),
+        ("input_energy", "input energy E(u) = Σ u[j]²", "E(u)"),
+    )
 MAX_FACETS = 12  # maps per metric when a grid has more than two axes
 #: Preferred (x, y) orientation of known axis pairs (thesis Figs. 3.10 and 3.14).
 PAIRS = (("controller.gamma", "controller.k_p"), ("controller.k_p", "controller.k_d"))
 GAINS = {"controller.gamma": "gamma", "controller.k_p": "k_p", "controller.k_d": "k_d"}
+_SYMBOLS = {"gamma": "γ", "k_p": "k_p", "k_d": "k_d"}
 DPI = 110
 
 
@@ -124,12 +126,17 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
         key = ctx.axes[0]
         x = axis_of(frame, key, units)
         lines: list[OverlayLine] = []
-        theory = common_theory(frame, theories) if key in GAINS else None
+        note = ""
+        theory = common_theory(frame, theories) if key in GAINS and theories.campaign is not None else None
         if theory is not None:
-            lines = sweep_lines(theory, GAINS[key], dense_axis(x.values, x.log, 400), _fixed(frame, theories))
-        columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in MAP_METRICS]
-        fig = sweep_figure(frame, x, columns, title=f"{name}: RMS of e and input energy over {x.label}", overlays=lines)
-        paths.append((_save(fig, ctx.out / "sweep.png"), f"RMS of e and input energy over {x.label}"))
+            fixed = _fixed(frame, theories)
+            lines = sweep_lines(theory, GAINS[key], dense_axis(x.values, x.log, 400), fixed)
+            others = ", ".join(f"{_SYMBOLS[k]} = {v:.5g}" for k, v in fixed.items() if k != GAINS[key])
+            note = f"\nδ_t = {theory.delay * 1e3:.4g} ms" + (f", {others}" if others else "")
+        columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in map_metrics(ctx.error)]
+        fig = sweep_figure(frame, x, columns, title=f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}",
+                           overlays=lines)
+        paths.append((_save(fig, ctx.out / "sweep.png"), f"RMS of {ctx.error} and input energy over {x.label}"))
         return paths
     if len(ctx.axes) < 2:
         return paths
@@ -138,7 +145,7 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
     for i, (suffix, rows) in enumerate(facets(frame, extra)):
         x, y = axis_of(rows, kx, units), axis_of(rows, ky, units)
         lines, note = map_overlays(rows, x, y, theories)
-        for column, title, label in MAP_METRICS:
+        for column, title, label in map_metrics(ctx.error):
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
             fig = map_figure(rows, x, y, column, title=f"{head}\n{sub}" if sub else head,

@@ -181,12 +181,13 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], map
             "Lines: stability bounds of the theory for the campaign's differentiator delay δ_t."],
             images=[Image(title, _png(path)) for path, title in maps]))
     if runs:
-        images = [Image(f"{label} run", _png(path), _run_caption(chosen[label], params)) for label, path in runs.items()]
+        images = [Image(f"{label} run", _png(path), _run_caption(chosen[label], params, ctx.error))
+                  for label, path in runs.items()]
         sections.append(Section("Selected runs", images=images))
     done = frame[frame["status"] == "completed"].sort_values("rms_error")
     tables = []
     if not done.empty:
-        tables.append((f"Best {min(_SHOWN, len(done))} completed runs by RMS of e",
+        tables.append((f"Best {min(_SHOWN, len(done))} completed runs by RMS of {ctx.error}",
                        _run_table(done.head(_SHOWN), ["seq", "id", *params, *metrics])))
     aborted = frame[frame["status"] == "aborted"].sort_values("seq")
     if not aborted.empty:
@@ -210,10 +211,10 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], map
     return write_report(ctx.out / "index.html", f"Campaign {name}", subtitle, sections)
 
 
-def _run_caption(row: pd.Series, params: Sequence[str]) -> str:
+def _run_caption(row: pd.Series, params: Sequence[str], error: str) -> str:
     """Point, parameters, outcome and metrics of a plotted run."""
     values = ", ".join(f"{k.split('.')[-1]} = {float(row[k]):.4g}" for k in params if pd.notna(row.get(k)))
     text = f"Point {row['seq']} ({row['id']}): {values}; {row['status']}"
     if row["status"] == "aborted" and pd.notna(row.get("abort_time")):
         text += f" by {row.get('monitor')} at t = {float(row['abort_time']):.3f} s"
-    return f"{text}; RMS(e) = {float(row['rms_error']):.4g}, E(u) = {float(row['input_energy']):.4g}."
+    return f"{text}; RMS({error}) = {float(row['rms_error']):.4g}, E(u) = {float(row['input_energy']):.4g}."

@@ -24,6 +24,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, metavar="N", help="processes reading logs (default: all cores)")
     p.add_argument("--margin", type=float, default=0.1, metavar="F",
                    help="leave out points within this relative distance of a predicted bound (default 0.1)")
+    p.add_argument("--error", choices=("e", "e_hat"), default="e",
+                   help="rank runs and draw the RMS map by e (default) or by paper 2's delayed error ê")
     p.set_defaults(func=run)
 
 
@@ -46,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidParameter("--workers", f"must be >= 1, got {args.workers}")
     if not (0.0 <= args.margin < 1.0):
         raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
-    summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin)
+    summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin, error=args.error)
     if args.json:
         print(json.dumps(_strict(summary), ensure_ascii=False))
         return 0
@@ -56,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     best = summary["best"]
     if best:
         params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in best["params"].items())
-        print(f"best: RMS(e) = {best['rms']:.4g} at {params}")
+        print(f"best: RMS({'ê' if args.error == 'e_hat' else 'e'}) = {best['rms']:.4g} at {params}")
     if agree.get("share") is not None:
         print(f"theory ({agree['case']}) agrees on {agree['share']:.1%} of {agree['n_compared']} points "
               f"({agree['n_excluded']} within ±{agree['margin']:.0%} of a bound left out)")
