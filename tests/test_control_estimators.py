@@ -39,14 +39,14 @@ def test_generalised_estimate_equals_the_classical_formula(order, n_s):
     K, gamma = 300, 3.7
     y = np.cumsum(rng.normal(size=K)) * 0.1
     v = rng.normal(size=K)
-    est = MFCEstimator([d], order)
+    est = MFCEstimator([d], order, gamma)
     est.reset(np.array([[y[0]]]), 0.0, np.array([[0.0]]))
     y_hist = np.concatenate([np.full(n_s + 1, y[0]), y])  # the stationary past of reset
     v_hist = np.concatenate([np.zeros(n_s + 1), v])
     off = n_s + 1
     for k in range(K):
         v_prev = v_hist[off + k - 1]
-        est.step(np.array([[y[k]]]), np.array([[v_prev]]), np.array([[gamma]]), np.zeros((1, 1, 4)))
+        est.step(np.array([[y[k]]]), np.array([[v_prev]]), np.zeros((1, 1, 4)))
         ys = y_hist[off + k - 1 - np.arange(n_s)]  # y[k−1−j]
         vs = v_hist[off + k - 1 - np.arange(n_s)]  # v[k−1−j]
         classical = np.dot(wy, ys) - gamma * np.dot(wu, vs)
@@ -79,7 +79,7 @@ def test_error_filters_and_measurement_filters():
     for k in range(K):
         r = np.broadcast_to(yr[k], (2, 1, 4))
         for est in both:
-            est.step(np.full((2, 1), y[k]), np.zeros((2, 1)), np.ones((2, 1)), r)
+            est.step(np.full((2, 1), y[k]), np.zeros((2, 1)), r)
         window = d.n_s + k - np.arange(d.n_s)
         assert both[0].e_hat[0, 0] == pytest.approx(np.dot(w0, ehist[window]), abs=1e-12)
         assert both[0].de_hat[1, 0] == pytest.approx(np.dot(w1, ehist[window]), abs=1e-9)
@@ -93,11 +93,11 @@ def test_constant_unknown_part_is_recovered_exactly_on_a_ramp():
     f, rho, u = -2.5, 4.0, 0.3
     for order, a in ((1, 1.0), (1, 5.0)):
         d = design(alpha=a, beta=a, fs=FS, omega_c=200.0)
-        est = MFCEstimator([d], order)
+        est = MFCEstimator([d], order, rho)
         est.reset(np.zeros((1, 1)), 0.0, np.full((1, 1), u))
         y = 0.0
         # a stationary past is not a ramp: run past one window first
         for _ in range(d.n_s + 5):
             y += TS * (f + rho * u)
-            est.step(np.array([[y]]), np.full((1, 1), u), np.array([[rho]]), np.zeros((1, 1, 4)))
+            est.step(np.array([[y]]), np.full((1, 1), u), np.zeros((1, 1, 4)))
         assert est.f_hat[0, 0] == pytest.approx(f, abs=1e-9)

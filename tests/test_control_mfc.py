@@ -200,3 +200,21 @@ def test_batch_equals_separate_runs():
         single, _ = simulate(ci, refi, fs, 1500, f=-3.0, rho=1.0, order=2)
         np.testing.assert_allclose(logs["u"][:, i], single["u"][:, 0], rtol=0, atol=1e-12)
         np.testing.assert_allclose(logs["f_hat"][:, i], single["f_hat"][:, 0], rtol=0, atol=1e-12)
+
+
+def test_shared_design_layout_equals_per_row_bank():
+    """A large batch sharing one design uses one FIR per tap vector (a BLAS product); it matches
+    the per-row bank of the B = 1 runs to 1e-12 of each signal's scale."""
+    fs, B = 1000.0, 40
+    points = [point("mfc2", {"gamma": 0.5 + 0.05 * i, "k_p": 50.0 + 5 * i, "k_d": 10.0 + i}, {"alpha": 3, "beta": 3, "omega_c": 120.0}) for i in range(B)]
+    c, ref = factory.build(points, ULTRA, fs)
+    assert c.estimator._shared
+    logs, _ = simulate(c, ref, fs, 800, f=2.0, rho=1.0, order=2)
+    for i in (0, 17, B - 1):
+        ci, refi = factory.build([points[i]], ULTRA, fs)
+        assert not ci.estimator._shared
+        single, _ = simulate(ci, refi, fs, 800, f=2.0, rho=1.0, order=2)
+        # BLAS and einsum sum in different orders: equal to 1e-12 relative to the signal's scale
+        for name in ("u", "e_hat", "f_hat"):
+            scale = np.abs(single[name][:, 0]).max()
+            np.testing.assert_allclose(logs[name][:, i], single[name][:, 0], rtol=0, atol=1e-12 * scale)

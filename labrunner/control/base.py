@@ -61,7 +61,8 @@ class Controller(abc.ABC):
     def step(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
         """One tick: the law on (y[k], r[k]), saturated to [u_min, u_max]; returns a copy of u[k]."""
         u = self._law(y, r)
-        np.clip(u, self.u_min, self.u_max, out=self.u_applied)
+        np.minimum(u, self.u_max, out=self.u_applied)  # two ufuncs: cheaper than np.clip per tick
+        np.maximum(self.u_applied, self.u_min, out=self.u_applied)
         return self.u_applied.copy()
 
     @abc.abstractmethod

@@ -102,7 +102,7 @@ class MFC(Controller):
         if order == 2 and self.k_d is None:
             raise InvalidParameter("controller.k_d", "is required for a second-order law")
         self.i_min = None if i_min is None else np.array(i_min, dtype=float).reshape(B, 1)
-        self.estimator = MFCEstimator(designs, order, 1, filter_error=filter_error)
+        self.estimator = MFCEstimator(designs, order, self.gamma, filter_error=filter_error)
         self.estimates = {"f_hat": self.estimator.f_hat, "e_hat": self.estimator.e_hat}
         if order == 2:
             self.estimates["de_hat"] = self.estimator.de_hat
@@ -110,6 +110,9 @@ class MFC(Controller):
         self._prev = np.zeros((B, 1))
         self._u = np.zeros((B, 1))
         self._tmp = np.zeros((B, 1))
+        self._inv_gamma = 1.0 / self.gamma
+        self._kp_gamma = self.k_p / self.gamma
+        self._kd_gamma = None if self.k_d is None else self.k_d / self.gamma
 
     def _reset(self, y0: np.ndarray) -> None:
         if self.output.difference:
@@ -123,19 +126,18 @@ class MFC(Controller):
         c, est, u, tmp = self.controlled, self.estimator, self._u, self._tmp
         if self.output.difference:  # (2.34)
             np.subtract(y[:, self._col], self._prev, out=c)
-            c *= self.fs
+            np.multiply(c, self.fs, out=c)
             self._prev[...] = y[:, self._col]
         else:
             c[...] = y[:, self._col]
-        est.step(c, self.u_applied, self.gamma, r)
-        u[...] = r[:, :, self.order]
-        np.multiply(self.k_p, est.e_hat, out=tmp)
-        u -= tmp
-        if self.k_d is not None:
-            np.multiply(self.k_d, est.de_hat, out=tmp)
-            u -= tmp
-        u -= est.f_hat
-        u /= self.gamma
+        est.step(c, self.u_applied, r)
+        np.subtract(r[:, :, self.order], est.f_hat, out=u)  # (y_r⁽ⁿ⁾ − f̂ − k_p ê − k_d ê̇)/γ
+        np.multiply(u, self._inv_gamma, out=u)
+        np.multiply(self._kp_gamma, est.e_hat, out=tmp)
+        np.subtract(u, tmp, out=u)
+        if self._kd_gamma is not None:
+            np.multiply(self._kd_gamma, est.de_hat, out=tmp)
+            np.subtract(u, tmp, out=u)
         if self.i_min is not None:  # paper 1 Sec. 4.4.4: i = i_min where the desired flow is zero
             np.copyto(u, self.i_min, where=r[:, :, 0] <= 0.0)
         return u

@@ -234,7 +234,8 @@ class Reference:
     """The batched reference of B runs with n_outputs trajectories each.
 
     ``evaluate(t)`` with t of shape (K,) [s] → (K, B, n_outputs, 4): value and derivatives 1..3.
-    Runs' trajectories are grouped by type and each group is evaluated in one vectorised call.
+    Equal trajectories (a γ–k_p grid shares one) are evaluated once; the distinct ones are grouped
+    by type and each group is evaluated in one vectorised call.
     """
 
     def __init__(self, trajectories: Sequence[Sequence[Trajectory]]) -> None:
@@ -246,10 +247,14 @@ class Reference:
         self.trajectories = tuple(tuple(row) for row in trajectories)
         self.batch, self.n_outputs = len(trajectories), n_out
         flat = [tr for row in self.trajectories for tr in row]
+        distinct = list(dict.fromkeys(flat))
+        position = {tr: i for i, tr in enumerate(distinct)}
+        self._gather = np.array([position[tr] for tr in flat])
+        self._n_distinct = len(distinct)
         self._groups = []
-        for kind in dict.fromkeys(type(tr) for tr in flat):
-            index = np.array([i for i, tr in enumerate(flat) if type(tr) is kind])
-            self._groups.append((kind, index, kind._stack([flat[i] for i in index])))
+        for kind in dict.fromkeys(type(tr) for tr in distinct):
+            index = np.array([i for i, tr in enumerate(distinct) if type(tr) is kind])
+            self._groups.append((kind, index, kind._stack([distinct[i] for i in index])))
 
     @property
     def duration(self) -> float:
@@ -258,7 +263,7 @@ class Reference:
 
     def evaluate(self, t: np.ndarray | float) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        out = np.empty((t.size, self.batch * self.n_outputs, 4))
+        out = np.empty((t.size, self._n_distinct, 4))
         for kind, index, params in self._groups:
             out[:, index, :] = kind._eval(params, t[:, None])
-        return out.reshape(t.size, self.batch, self.n_outputs, 4)
+        return out[:, self._gather, :].reshape(t.size, self.batch, self.n_outputs, 4)

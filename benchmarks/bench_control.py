@@ -1,0 +1,78 @@
+"""Per-tick cost of the controllers (issue 4 targets): first-order MFC, n_s = 14, B = 1000 ≤ 30 µs;
+second-order MFC, n_s = 261, B = 100 ≤ 150 µs; any controller at B = 1 ≤ 30 µs.
+
+Run: ``python benchmarks/bench_control.py``. Prints, per tick, the best block of ticks in CPU time
+of this process (on a shared host, time spent descheduled is not the code's cost) and the median
+block in wall-clock time (which includes the neighbours' load).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from labrunner.control import factory
+from labrunner.rigs.base import RigInfo, Signal
+
+FS = 1000.0
+MOTOR = RigInfo("motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 40000.0), FS, (0.0,))
+VALVE = RigInfo("valve", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"),), (1.0, 40000.0), FS, (0.0,))
+REF = {"kind": "setpoints", "levels": [0.0, 1.0, 0.0], "transition": 0.5, "hold": 0.5}
+
+
+def mfc(order: int, n_s: int, batch: int) -> list[dict]:
+    ctl = {"kind": f"mfc{order}", "output": "velocity" if order == 1 else "angle", "gamma": 108.55, "k_p": 50.0}
+    if order == 2:
+        ctl["k_d"] = 20.0
+    diff = {"alpha": 4, "beta": 4, "window": n_s / FS}
+    return [{"controller": {**ctl, "gamma": 100.0 + i}, "differentiator": diff, "reference": REF} for i in range(batch)]
+
+
+def mixed(batch: int) -> list[dict]:
+    """A batch mixing four differentiator designs (zero-padded taps, the per-row bank)."""
+    points = mfc(2, 261, batch)
+    for i, p in enumerate(points):
+        p["differentiator"] = {"alpha": 2 + i % 4, "beta": 2 + i % 4, "window": (200 + 20 * (i % 4)) / FS}
+    return points
+
+
+def per_tick_us(points: list[dict], rig: RigInfo, ticks: int = 2000, blocks: int = 9) -> tuple[float, float]:
+    controller, reference = factory.build(points, rig, FS)
+    B = len(points)
+    R = reference.evaluate(np.arange(ticks) / FS)
+    y = np.random.default_rng(0).normal(size=(ticks, B, len(rig.outputs))) * 1e-3
+    controller.reset(y[0])
+    cpu, wall = [], []
+    for _ in range(blocks):
+        c0, w0 = time.process_time(), time.perf_counter()
+        for k in range(ticks):
+            controller.step(y[k], R[k])
+        cpu.append((time.process_time() - c0) / ticks * 1e6)
+        wall.append((time.perf_counter() - w0) / ticks * 1e6)
+    return float(np.min(cpu)), float(np.median(wall))
+
+
+def main() -> None:
+    ffc = [{"controller": {"kind": "valve-ffc", "dp": 5e5}, "reference": {**REF, "levels": [1.0, 5.0, 1.0]}}]
+    cases = [
+        ("mfc1 n_s=14   B=1000", mfc(1, 14, 1000), MOTOR, 30.0),
+        ("mfc2 n_s=261  B=100 ", mfc(2, 261, 100), MOTOR, 150.0),
+        ("mfc1 n_s=14   B=1   ", mfc(1, 14, 1), MOTOR, 30.0),
+        ("mfc2 n_s=261  B=1   ", mfc(2, 261, 1), MOTOR, 30.0),
+        ("mfc2 n_s=261  B=100 mixed designs", mixed(100), MOTOR, 150.0),
+        ("open-loop     B=1   ", [{"controller": {"kind": "open-loop"}, "reference": {"kind": "sine", "amplitude": 6.0, "frequency": 1.0, "duration": 5.0}}], MOTOR, 30.0),
+        ("valve-ffc     B=1   ", ffc, VALVE, 30.0),
+    ]
+    print(f"{'case':34s} {'best cpu µs':>11s} {'median wall µs':>14s} {'target':>7s}")
+    for name, points, rig, target in cases:
+        best, med = per_tick_us(points, rig)
+        print(f"{name:34s} {best:11.1f} {med:14.1f} {target:7.0f} {'ok' if best <= target else 'MISSED'}")
+    ref = factory.reference([{"reference": REF}] * 1000)
+    t0 = time.perf_counter()
+    ref.evaluate(np.arange(1024) / FS)
+    print(f"reference.evaluate, 1024 ticks × B=1000: {(time.perf_counter() - t0) / 1024 * 1e6:.1f} µs per tick")
+
+
+if __name__ == "__main__":
+    main()
