@@ -183,7 +183,7 @@ def design(
         raise InvalidParameter("omega_c", f"give exactly one of omega_c [rad/s] and window [s], got {got}")
     field_name = "omega_c" if omega_c is not None else "window"
     samples = k_c / _positive("omega_c", omega_c) * f if omega_c is not None else _positive("window", window) * f
-    n_min = max(2, math.ceil(k_c / math.pi - _INTEGER_TOL))  # ω_c,actual = k_c·f_s/n_s ≤ π·f_s
+    n_min = max(2, math.ceil(k_c / math.pi))  # ω_c,actual = k_c·f_s/n_s ≤ π·f_s
     if samples > MAX_SAMPLES:
         limit = f">= {k_c * f / MAX_SAMPLES:.6g} rad/s" if omega_c is not None else f"<= {MAX_SAMPLES / f:.6g} s"
         raise InvalidParameter(field_name, f"must be {limit} (n_s <= {MAX_SAMPLES}), got {omega_c or window!r}")
