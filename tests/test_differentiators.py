@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import quad
 
 from labrunner.differentiators import METHODS, Differentiator, design
@@ -298,3 +300,31 @@ def test_order_limits():
     trap = design(alpha=1.5, beta=2, window=0.05, fs=1000, method="trapezoidal")
     with pytest.raises(InvalidParameter, match="method: trapezoidal samples the window ends"):
         trap.weights(2)  # g'' ~ τ^{-0.5} is infinite at τ = 0
+
+
+# --- properties over random designs --------------------------------------------------------------------
+
+@settings(max_examples=60, deadline=None)
+@given(
+    alpha=st.floats(-0.9, 40),
+    beta=st.floats(-0.9, 40),
+    N=st.integers(0, 3),
+    fs=st.sampled_from([20.0, 200.0, 1000.0, 4000.0, 32000.0]),
+    n_s=st.integers(2, 3000),
+    method=st.sampled_from(METHODS),
+)
+def test_any_valid_design_is_consistent(alpha, beta, N, fs, n_s, method):
+    """Whatever the design: n_s survives window = n_s/f_s, the realised cutoff obeys the window rule
+    and Nyquist, the delay lies inside the window, and the order-0 weights are a finite unit sum."""
+    try:
+        d = design(alpha=alpha, beta=beta, N=N, fs=fs, window=n_s / fs, method=method)
+    except InvalidParameter as exc:  # only the Nyquist bound may reject these windows
+        assert exc.field == "window" and "Nyquist" in str(exc)
+        return
+    assert d.n_s == n_s and d.window_s == n_s / fs
+    assert d.omega_c_actual <= np.pi * fs
+    assert d.omega_c_actual == pytest.approx(design(alpha=alpha, beta=beta, N=N, fs=fs, window=d.window_s).omega_c_actual)
+    assert 0.0 <= d.delay_s <= d.window_s  # N > 0: the default ϑ is a root in (-1, 1)
+    if method != "trapezoidal" or min(alpha, beta) >= 0:
+        w = d.weights(0)
+        assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0, rel=1e-9)
