@@ -53,6 +53,10 @@ def bench_streaming() -> None:
         x = rng.normal(size=batch)
         sec = best_of(lambda: fir.step(x), 5, 2000 if batch == 1 else 300)
         print(f"  {label:24s} B = {batch:5d}:  {sec * 1e6:8.2f} us/tick")
+    # The floor on this machine: one BLAS matrix-vector product over the (L, B) history, nothing else.
+    block = rng.normal(size=(taps.size, 1000))
+    sec = best_of(lambda: taps @ block, 5, 300)
+    print(f"  {'reference: bare taps @ (L, B) block':36s}:  {sec * 1e6:8.2f} us")
 
 
 if __name__ == "__main__":
