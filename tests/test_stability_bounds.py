@@ -49,7 +49,7 @@ def alpha(case, **kw) -> float:
 
 @pytest.mark.parametrize("delay", DELAYS)
 @pytest.mark.parametrize("gamma", GAMMAS)
-@pytest.mark.parametrize("case", ["mfc1-ultralocal", "mfc1-motor", "mfc2-ultralocal", "mfc2-motor", "mfc2-second-order"])
+@pytest.mark.parametrize("case", ["mfc1-ultralocal", "mfc1-motor", "mfc2-ultralocal", "mfc2-motor"])
 def test_closed_forms_match_solver(case, gamma, delay):
     kw = plant(case, gamma)
     if case.startswith("mfc2"):
@@ -58,6 +58,16 @@ def test_closed_forms_match_solver(case, gamma, delay):
         assert_same_interval(result["numeric"]["k_d"], result["k_d"])
     else:
         result = bounds(case, delay=delay, numeric=True, **kw)
+    assert_same_interval(result["numeric"]["k_p"], result["k_p"])
+
+
+@pytest.mark.parametrize(("a0", "a1", "gamma", "delay"), [(300.0, A, B, 0.035), (2000.0, 0.0, 100.0, 0.05)])
+def test_second_order_plant_a6_matches_solver(a0, a1, gamma, delay):
+    # a₀δ² = 0.37 and 5: the second one has its k_d range cut by the root count, not by Condition 2
+    kw = {"gamma": gamma, "delay": delay, "a0": a0, "a1": a1, "b": B}
+    k_d_range = bounds("mfc2-second-order", k_d=0.0, **kw)["k_d"]
+    result = bounds("mfc2-second-order", k_d=0.4 * k_d_range[0] + 0.6 * k_d_range[1], numeric=True, **kw)
+    assert_same_interval(result["numeric"]["k_d"], result["k_d"])
     assert_same_interval(result["numeric"]["k_p"], result["k_p"])
 
 
@@ -154,6 +164,19 @@ def test_tangency_bound_of_a6_leaves_an_unstable_gap():
     assert bounds("mfc2-second-order", k_d=k_d, **kw)["k_p"] is None
     assert stable_intervals(lambda kp: case_quasipolynomial("mfc2-second-order", k_p=kp, k_d=k_d, **kw),
                             -500.0, 20000.0, n_scan=81) == []
+
+
+def test_condition_2_of_a6_is_not_sufficient_for_k_d():
+    # A.6: κ_d > −a₁ − δa₀ from Condition 2 alone; with a₀δ² = 5 Δ_Im loses real roots first
+    a0, gamma, delay = 2000.0, 100.0, 0.05
+    kw = {"gamma": gamma, "delay": delay, "a0": a0, "a1": 0.0, "b": B}
+    printed = gamma / B * (-delay * a0)                   # k_d = a₁ + (γ/b) κ_d,min
+    correct = bounds("mfc2-second-order", k_d=0.0, **kw)["k_d"][0]
+    assert correct > printed + 20.0
+    k_d = 0.5 * (printed + correct)
+    assert bounds("mfc2-second-order", k_d=k_d, **kw)["k_p"] is None
+    assert stable_intervals(lambda kp: case_quasipolynomial("mfc2-second-order", k_p=kp, k_d=k_d, **kw),
+                            -200.0, 20000.0, n_scan=81) == []
 
 
 def test_remark_2_8_needs_a_delta_above_minus_one():

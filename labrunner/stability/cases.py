@@ -25,7 +25,7 @@ import numpy as np
 from labrunner.errors import InvalidParameter, check_finite
 from labrunner.stability import closed_forms as cf
 from labrunner.stability.quasipoly import QuasiPolynomial
-from labrunner.stability.scan import stable_intervals
+from labrunner.stability.scan import projected_intervals, stable_intervals
 
 CASES = ("mfc1-ultralocal", "mfc1-motor", "mfc2-ultralocal", "mfc2-motor", "mfc2-second-order")
 _SCAN_POINTS = 81
@@ -107,46 +107,58 @@ def _check_k_d(loop: Loop, k_d: float | None) -> float | None:
     return check_finite("k_d", k_d)
 
 
-def _pair(interval: tuple[float, float] | None, convert) -> list[float] | None:
-    return None if interval is None else [float(convert(interval[0])) + 0.0, float(convert(interval[1])) + 0.0]
+def _pair(interval: tuple[float, float], convert) -> list[float]:
+    return [float(convert(interval[0])) + 0.0, float(convert(interval[1])) + 0.0]
 
 
-def closed_form_bounds(loop: Loop, k_d: float | None) -> dict:
-    """``{"k_p": [lo, hi] | None}`` (+ ``"k_d"`` for second order) from the corrected closed forms."""
-    if loop.order == 1:
-        return {"k_p": _pair(cf.first_order_gain(loop.a1 * loop.delay), loop.k_p_of)}
-    a0, a1 = loop.a0 * loop.delay**2, loop.a1 * loop.delay
-    return {"k_p": _pair(cf.second_order_p_gain(a0, a1, loop.d_of(k_d)), loop.k_p_of),
-            "k_d": _pair(cf.second_order_d_gain(a0, a1), loop.k_d_of)}
-
-
-def _numeric_interval(found: list[tuple[float, float]], convert) -> list[float] | list[list[float]] | None:
-    """One interval as [lo, hi]; none as None; several (never for these cases) as a list of them."""
+def _intervals(found: list[tuple[float, float]], convert) -> list[float] | list[list[float]] | None:
+    """One interval as [lo, hi]; none as None; several (A.6 plants only) as a list of them."""
     pairs = [_pair(i, convert) for i in found]
     return None if not pairs else pairs[0] if len(pairs) == 1 else pairs
 
 
-def numeric_bounds(loop: Loop, k_d: float | None) -> dict:
-    """The same intervals from the spectral abscissa alone (scan + refinement, :mod:`.scan`).
+def _k_p_interval(loop: Loop, k_d: float | None) -> tuple[float, float] | None:
+    """Closed-form k_p interval (normalised): first order (2.46), second order at k_d."""
+    if loop.order == 1:
+        return cf.first_order_gain(loop.a1 * loop.delay)
+    return cf.second_order_p_gain(loop.a0 * loop.delay**2, loop.a1 * loop.delay, loop.d_of(k_d))
 
-    The scan windows are generous multiples of the delay's natural scale (normalised units), and
-    the quasi-polynomials are built in physical units. The k_d range of a second-order case is the
-    projection of the stable (k_d, k_p) set; its lower edge is the line κ_p = −a₀ on which the root
-    s = 0 crosses (Δ*(0) = a₀ + κ_p), so it is read on that line, 1e-9 (normalised) above it.
+
+def closed_form_bounds(loop: Loop, k_d: float | None) -> dict:
+    """``{"k_p": [lo, hi] | None}`` (+ ``"k_d"`` for second order) from the corrected closed forms."""
+    out = {"k_p": _intervals([i for i in [_k_p_interval(loop, k_d)] if i is not None], loop.k_p_of)}
+    if loop.order == 2:
+        out["k_d"] = _intervals(cf.second_order_d_gain(loop.a0 * loop.delay**2, loop.a1 * loop.delay), loop.k_d_of)
+    return out
+
+
+def numeric_bounds(loop: Loop, k_d: float | None) -> dict:
+    """The same intervals from the spectral abscissa alone (:mod:`.scan`).
+
+    The scan windows are generous multiples of the delay's natural scale (normalised units); the
+    quasi-polynomials are built in physical units. The k_d range of a second-order case is the
+    projection of the stable (k_d, k_p) set. For a₀ = 0 its lower edge is the line k_p = 0 (where
+    the root s = 0 crosses, Δ*(0) = κ_p; the even roots' p(z_j) are negative there), so the range
+    is read on that line, 1e-9 (normalised) above it; for a₀ > 0 it is found as the set where
+    min over k_p of the spectral abscissa is negative (slower, :func:`.scan.projected_intervals`).
     """
     d, n = loop.delay, loop.order
     a0, a1 = loop.a0 * d**2, abs(loop.a1 * d)
     if n == 1:
         fam = lambda k: loop.quasi_polynomial(k)  # noqa: E731
         found = stable_intervals(fam, loop.k_p_of(-a1 - 2.0), loop.k_p_of(a1 + 2 * np.pi), n_scan=_SCAN_POINTS)
-        return {"k_p": _numeric_interval(found, float)}
-    p_lo, p_hi = -a0 - 2.0, a0 + 2 * np.pi * a1 + 4 * np.pi**2
+        return {"k_p": _intervals(found, float)}
+    p_lo, p_hi = loop.k_p_of(-a0 - 2.0), loop.k_p_of(a0 + 2 * np.pi * a1 + 4 * np.pi**2)
+    d_lo, d_hi = loop.k_d_of(-a1 - a0 - 2.0), loop.k_d_of(a1 + a0 + 2 * np.pi)
     fam_p = lambda k: loop.quasi_polynomial(k, k_d)  # noqa: E731
-    found_p = stable_intervals(fam_p, loop.k_p_of(p_lo), loop.k_p_of(p_hi), n_scan=_SCAN_POINTS)
-    edge = loop.k_p_of(-a0 + _EDGE)
-    fam_d = lambda k: loop.quasi_polynomial(edge, k)  # noqa: E731
-    found_d = stable_intervals(fam_d, loop.k_d_of(-a1 - a0 - 2.0), loop.k_d_of(a1 + a0 + 2 * np.pi), n_scan=_SCAN_POINTS)
-    return {"k_p": _numeric_interval(found_p, float), "k_d": _numeric_interval(found_d, float)}
+    found_p = stable_intervals(fam_p, p_lo, p_hi, n_scan=_SCAN_POINTS)
+    if loop.a0 == 0.0:
+        edge = loop.k_p_of(_EDGE)
+        found_d = stable_intervals(lambda k: loop.quasi_polynomial(edge, k), d_lo, d_hi, n_scan=_SCAN_POINTS)
+    else:
+        found_d = projected_intervals(lambda kd, kp: loop.quasi_polynomial(kp, kd), d_lo, d_hi, p_lo, p_hi,
+                                      n_x=21, n_y=31)
+    return {"k_p": _intervals(found_p, float), "k_d": _intervals(found_d, float)}
 
 
 def bounds(case: str, *, gamma: float, delay: float, rho: float | None = None, a: float | None = None,
@@ -191,9 +203,10 @@ def predict_stable(case: str, *, gamma, k_p, delay, k_d=None, rho: float | None 
     uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
     flat_kp, flat_out = kp.ravel(), out.reshape(-1)
     for idx, (gi, di, kdi) in enumerate(uniq):
-        interval = bounds(case, gamma=gi, delay=di, rho=rho, a=a, b=b, a0=a0, a1=a1,
-                          k_d=None if k_d is None else kdi)["k_p"]
+        loop = resolve(case, gamma=gi, delay=di, rho=rho, a=a, b=b, a0=a0, a1=a1)
+        interval = _k_p_interval(loop, _check_k_d(loop, None if k_d is None else kdi))
         if interval is not None:
+            lo, hi = sorted((loop.k_p_of(interval[0]), loop.k_p_of(interval[1])))
             sel = inverse.ravel() == idx
-            flat_out[sel] = (flat_kp[sel] > interval[0]) & (flat_kp[sel] < interval[1])
+            flat_out[sel] = (flat_kp[sel] > lo) & (flat_kp[sel] < hi)
     return bool(out) if out.ndim == 0 else out

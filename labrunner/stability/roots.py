@@ -35,17 +35,21 @@ def turning_points(dh: Fn, z_max: float) -> list[float]:
     return _sign_changes(dh, grid)
 
 
+def roots_between(h: Fn, ends: np.ndarray) -> np.ndarray:
+    """One root per monotone segment [ends[i], ends[i+1]] where h changes sign, ascending."""
+    values = h(np.asarray(ends, dtype=float))
+    roots: list[float] = []
+    for i in range(len(ends) - 1):
+        if values[i] * values[i + 1] < 0.0:
+            roots.append(brentq(lambda z: float(h(np.array(z))), ends[i], ends[i + 1], xtol=_XTOL, rtol=1e-15))
+        elif values[i + 1] == 0.0 and ends[i + 1] > 0.0:
+            roots.append(float(ends[i + 1]))
+    return np.array(roots)
+
+
 def ascending_roots(h: Fn, dh: Fn, z_max: float) -> np.ndarray:
     """Every simple root z ∈ (0, z_max] of h, ascending (h, dh vectorised; h regular at 0)."""
-    ends = [0.0, *turning_points(dh, z_max), z_max]
-    roots: list[float] = []
-    for lo, hi in zip(ends[:-1], ends[1:]):
-        h_lo, h_hi = float(h(np.array(lo))), float(h(np.array(hi)))
-        if h_lo * h_hi < 0.0:
-            roots.append(brentq(lambda z: float(h(np.array(z))), lo, hi, xtol=_XTOL, rtol=1e-15))
-        elif h_hi == 0.0 and hi > 0.0:
-            roots.append(hi)
-    return np.array(roots)
+    return roots_between(h, np.array([0.0, *turning_points(dh, z_max), z_max]))
 
 
 def sinc(z: np.ndarray) -> np.ndarray:

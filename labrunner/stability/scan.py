@@ -72,6 +72,31 @@ def stable_intervals(family: Family, lo: float, hi: float, *, n_scan: int = 101,
             if b > a and alpha(0.5 * (a + b)) < 0]
 
 
+def _min_over_y(family: Family2, x: float, y: np.ndarray, n_nodes: int) -> float:
+    """min over y of α(x, y): the best of the samples ``y``, polished by bounded Brent around it."""
+    values = np.array([spectral_abscissa(family(x, float(yi)), n_nodes=n_nodes) for yi in y])
+    i = int(np.argmin(values))
+    lo, hi = y[max(i - 1, 0)], y[min(i + 1, len(y) - 1)]
+    res = minimize_scalar(lambda yi: spectral_abscissa(family(x, float(yi)), n_nodes=n_nodes), bounds=(lo, hi),
+                          method="bounded", options={"xatol": 1e-13 * max(abs(y[0]), abs(y[-1]))})
+    return float(min(res.fun, values[i]))
+
+
+def projected_intervals(family: Family2, x_lo: float, x_hi: float, y_lo: float, y_hi: float, *, n_x: int = 25,
+                        n_y: int = 41, n_nodes: int = DEFAULT_NODES) -> list[tuple[float, float]]:
+    """Intervals of x for which some y ∈ [y_lo, y_hi] makes ``family(x, y)`` stable: the projection
+    of the stable set, e.g. the k_d range of a second-order loop. Edges are the zeros of
+    m(x) = min_y α(x, y) (continuous), bracketed on ``n_x`` samples and refined by Brent's method."""
+    y = np.linspace(y_lo, y_hi, n_y)
+    m = lambda x: _min_over_y(family, float(x), y, n_nodes)  # noqa: E731
+    grid = np.linspace(x_lo, x_hi, n_x)
+    stable = np.array([m(x) for x in grid]) < 0
+    tol = 1e-13 * max(abs(x_lo), abs(x_hi))
+    edges = [brentq(m, grid[i], grid[i + 1], xtol=tol, rtol=1e-14) for i in np.flatnonzero(stable[:-1] != stable[1:])]
+    bounds = np.concatenate([[x_lo] if stable[0] else [], edges, [x_hi] if stable[-1] else []])
+    return [(float(a), float(b)) for a, b in zip(bounds[0::2], bounds[1::2])]
+
+
 def abscissa_map(family: Family2, x: np.ndarray, y: np.ndarray, *, n_nodes: int = DEFAULT_NODES) -> np.ndarray:
     """Spectral abscissa [1/s] of ``family(x_i, y_j)`` on a grid, shape (len(y), len(x)) (rows
     follow y, as ``matplotlib.pcolormesh(x, y, .)`` expects); for appendix-A.2-style maps and the
