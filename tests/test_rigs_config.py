@@ -86,6 +86,7 @@ def test_invalid_toml_and_missing_files(tmp_path):
     path = write_rig(tmp_path, "broken", "[rig\nkind=")
     assert "invalid TOML" in str(error_of(load_rig_config, path))
     assert error_of(load_rig_config, "nope", search=[tmp_path / "rigs"]).field == "rig"
+    assert load_rig_config("valve-sim", search=[tmp_path / "rigs"]).kind == "valve"  # falls back to ./rigs
     assert error_of(load_rig_config, tmp_path / "missing.toml").field == "rig"
 
 
@@ -114,6 +115,8 @@ def test_overrides_are_validated_per_run():
     assert error_of(rig.reset, 2, [0, 1], 200.0, {"a": np.ones(3)}).field == "overrides.a"
     err = error_of(rig.reset, 1, [0], 200.0, {"coulomb_friction": 5.0})
     assert err.field == "overrides.coulomb_friction"
+    rig.reset(3, [0, 1, 2], 200.0, {"a": np.array([np.nan, 20.0, np.nan])})  # NaN: the file's value
+    np.testing.assert_array_equal(rig.p["a"], [39.44, 20.0, 39.44])
 
 
 def test_faults_section_maps_onto_base_faults():

@@ -74,13 +74,19 @@ class Param:
         self._check_range(field_name, np.array([v]))
         return int(v) if isinstance(self.default, int) else v
 
-    def check_array(self, field_name: str, values: Any, batch: int) -> np.ndarray:
-        """Validate per-run values (scalar or (B,)); return a (B,) float array."""
+    def check_array(self, field_name: str, values: Any, batch: int, nominal: np.ndarray | float | None = None) -> np.ndarray:
+        """Validate per-run values (scalar or (B,)); return a (B,) float array.
+
+        With ``nominal``, NaN entries mean "this run keeps the nominal value" (the engine passes NaN
+        for runs whose point does not set the parameter).
+        """
         if not self.numeric:
             raise InvalidParameter(field_name, "is not a numeric parameter and cannot vary per run")
         arr = np.asarray(values, dtype=float)
         if arr.ndim > 1 or (arr.ndim == 1 and arr.size != batch):
             raise InvalidParameter(field_name, f"needs a scalar or one value per run ({batch}), got shape {arr.shape}")
+        if nominal is not None:
+            arr = np.where(np.isnan(arr), nominal, arr)
         if not np.all(np.isfinite(arr)):
             raise InvalidParameter(field_name, f"must be finite, got {arr[~np.isfinite(arr)][0]!r}")
         self._check_range(field_name, arr.reshape(-1))
@@ -262,10 +268,10 @@ def _display(path: Path) -> str:
     return rel if not rel.startswith("..") else str(path)
 
 
-def default_search(project_dir: str | os.PathLike | None = None) -> tuple[Path, ...]:
-    """Where rig names are looked up: ``<project_dir>/rigs``, then ``./rigs``, then this checkout's ``rigs/``."""
-    dirs = [] if project_dir is None else [Path(project_dir) / "rigs"]
-    dirs += [Path.cwd() / "rigs", Path(__file__).resolve().parents[2] / "rigs"]
+def search_path(search: Iterable[str | os.PathLike] = ()) -> tuple[Path, ...]:
+    """Where rig names are looked up: the caller's ``search`` directories (e.g. the campaign
+    project's ``rigs/``), then ``./rigs``, then this checkout's ``rigs/``; duplicates dropped."""
+    dirs = [Path(d) for d in search] + [Path.cwd() / "rigs", Path(__file__).resolve().parents[2] / "rigs"]
     unique: list[Path] = []
     for d in dirs:
         if d.resolve() not in [u.resolve() for u in unique]:
@@ -273,22 +279,28 @@ def default_search(project_dir: str | os.PathLike | None = None) -> tuple[Path, 
     return tuple(unique)
 
 
-def resolve_rig_file(name_or_path: str | os.PathLike, search: Iterable[str | os.PathLike] | None = None) -> Path:
-    """A path (contains a separator or ends in ``.toml``) as is; a name as ``<dir>/<name>.toml``."""
+def default_search(project_dir: str | os.PathLike | None = None) -> tuple[Path, ...]:
+    """The search path for a campaign in ``project_dir``: ``<project_dir>/rigs``, ``./rigs``, the checkout's."""
+    return search_path(() if project_dir is None else (Path(project_dir) / "rigs",))
+
+
+def resolve_rig_file(name_or_path: str | os.PathLike, search: Iterable[str | os.PathLike] | None = ()) -> Path:
+    """A path (contains a separator or ends in ``.toml``) as is; a name as ``<dir>/<name>.toml``
+    in the first directory of :func:`search_path` that has it."""
     text = str(name_or_path)
     if os.sep in text or "/" in text or text.endswith(".toml"):
         path = Path(text)
         if not path.is_file():
             raise InvalidParameter("rig", f"no rig file {text!r}")
         return path
-    dirs = tuple(Path(d) for d in search) if search is not None else default_search()
+    dirs = search_path(search or ())
     for d in dirs:
         if (d / f"{text}.toml").is_file():
             return d / f"{text}.toml"
     raise InvalidParameter("rig", f"no rig file {text}.toml in {[str(d) for d in dirs]}")
 
 
-def load_rig_config(name_or_path: str | os.PathLike, search: Iterable[str | os.PathLike] | None = None) -> RigConfig:
+def load_rig_config(name_or_path: str | os.PathLike, search: Iterable[str | os.PathLike] | None = ()) -> RigConfig:
     """Find, parse and validate a rig file (see :func:`resolve_rig_file` for the lookup)."""
     path = resolve_rig_file(name_or_path, search)
     source = _display(path)

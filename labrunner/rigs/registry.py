@@ -71,7 +71,7 @@ def rig_class(kind: str) -> type[Rig]:
 
 def load_rig(
     config_or_name: RigConfig | Mapping[str, Any] | str | os.PathLike,
-    search: Iterable[str | os.PathLike] | None = None,
+    search: Iterable[str | os.PathLike] | None = (),
 ) -> Rig:
     """Build a rig from a :class:`RigConfig`, a parsed rig file (dict) or a rig name/path."""
     if isinstance(config_or_name, RigConfig):

@@ -9,7 +9,7 @@ declares
   limits, allowed sampling rates, safe input and the nominal constants (``RigInfo.constants``);
 - ``_reset(batch, seeds, overrides)`` and ``_step(u)`` as for any Rig; in ``_reset`` it calls
   :meth:`SimRig.per_run` to get every parameter as a (B,) array with the per-run ``overrides``
-  (keys of ``PARAMETERS`` or ``NOISE``) applied and validated, and uses
+  (keys of ``PARAMETERS`` or ``NOISE``; NaN entries keep the nominal value) applied and validated, and uses
   :class:`labrunner.rigs.sim._noise.NoiseStreams` so that run i's noise depends only on its seed.
 
 Shared numerics live in :mod:`labrunner.rigs.sim._integrate` (exact zero-order-hold
@@ -64,7 +64,10 @@ class SimRig(Rig):
 
     # -- helpers for subclasses ----------------------------------------------------------------
     def per_run(self, batch: int, overrides: Mapping[str, Any]) -> dict[str, np.ndarray]:
-        """Every numeric parameter and noise level as a (B,) array, ``overrides`` applied."""
+        """Every numeric parameter and noise level as a (B,) array, ``overrides`` applied.
+
+        An override is a scalar or a (B,) array; NaN entries keep the rig file's value for that run.
+        """
         schema = {**self.PARAMETERS, **self.NOISE}
         unknown = sorted(set(overrides) - set(schema))
         if unknown:
@@ -72,5 +75,5 @@ class SimRig(Rig):
         values = {**self.config.parameters, **self.config.noise}
         out = {k: np.full(batch, float(values[k])) for k, p in schema.items() if p.numeric}
         for key, value in overrides.items():
-            out[key] = schema[key].check_array(f"overrides.{key}", value, batch)
+            out[key] = schema[key].check_array(f"overrides.{key}", value, batch, nominal=out.get(key))
         return out
