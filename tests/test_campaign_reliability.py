@@ -1,0 +1,88 @@
+"""Crash safety (issue 6): SIGKILL the runner at random moments, at least 10 times during one
+campaign of ≥ 100 points, resuming each time. At the end every point is terminal exactly once,
+every log opens and belongs to its point's last attempt, no log is missing or extra, and every
+quarantined file is accounted for. The runs themselves are the real engine on the motor twin."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import time
+
+import pytest
+
+from labrunner.campaign import spec
+from labrunner.cli import main
+from labrunner.logs import read_run
+from test_campaign_support import campaign_text, cli, ledger_rows, project, spawn, wait_for, write  # noqa: F401
+
+TERMINAL = ("done", "aborted", "failed")
+GRID = '"controller.gamma" = { log10 = [1.0, 3.0], num = 10 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 12 }'
+
+
+def _terminal(directory) -> int:
+    return sum(r["state"] in TERMINAL for r in ledger_rows(directory))
+
+
+@pytest.mark.slow
+def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
+    rng = random.Random(6)
+    path = write(project / "crash.toml", campaign_text(name="crash", grid=GRID, duration=3.0))
+    planned = [p.id for p in spec.plan(spec.load(path))[0]]
+    assert len(planned) == 120
+    directory = project / "data" / "crash"
+    kills = cycles = 0
+    while kills < 10:
+        cycles += 1
+        assert cycles <= 40, "the campaign finished before 10 kills could land"
+        command = ("resume", "data/crash") if (directory / "ledger.sqlite").exists() else ("run", "crash.toml")
+        proc = spawn(*command, "--workers", "2", "--batch-size", str(rng.choice([1, 2, 3, 4])), cwd=project)
+        before = _terminal(directory)
+        if rng.random() < 0.3:  # anywhere: start-up, planning, ledger creation, recovery, running
+            time.sleep(rng.uniform(0.05, 1.5))
+        else:  # while runs are being committed
+            target = before + rng.randint(1, 6)
+            wait_for(lambda: proc.poll() is not None or _terminal(directory) >= target, 60)
+            time.sleep(rng.uniform(0.0, 0.2))
+        if proc.poll() is None and _terminal(directory) < len(planned):
+            os.kill(proc.pid, signal.SIGKILL)  # the runner only: its workers must not outlive it
+            kills += 1
+        proc.communicate(timeout=60)
+    final = cli("resume", "data/crash", "--workers", "2", cwd=project)
+    assert final.returncode == 0, final.stderr
+
+    rows = ledger_rows(directory)
+    assert [r["id"] for r in rows] == planned  # one row per point, none added or lost
+    assert {r["state"] for r in rows} <= {"done", "aborted"}
+    logs = sorted(p.name for p in (directory / "runs").iterdir())
+    assert logs == sorted(f"{pid}.mcap" for pid in planned)  # no temporary file, none missing or extra
+    for row in rows:
+        log = read_run(directory / row["log_path"])
+        assert not log.torn and log.n_samples > 0
+        assert log.outcome["status"] == row["outcome"]
+        assert log.metadata["run"]["point_id"] == row["id"]
+        assert log.metadata["run"]["attempt"] == row["attempts"]  # the log of the attempt that counted
+        assert log.metadata["metrics"]["rms_error"] == pytest.approx(row["rms_error"], rel=1e-12, nan_ok=True)
+
+    import sqlite3
+
+    db = sqlite3.connect(directory / "ledger.sqlite")
+    quarantined = db.execute("SELECT point_id, moved_to FROM quarantine").fetchall()
+    sessions = db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]
+    db.close()
+    on_disk = sorted(str(p.relative_to(directory)) for p in (directory / "quarantine").glob("*")) if (directory / "quarantine").exists() else []
+    assert sorted(m for _, m in quarantined) == on_disk  # every quarantined file recorded, every record on disk
+    assert {p for p, _ in quarantined} <= set(planned)
+    reruns = sum(r["attempts"] for r in rows) - len(rows)
+    recovered = sum(bool(json.loads(r["outcome_json"]).get("recovered")) for r in rows)
+    print(f"{kills} kills in {cycles} cycles, {sessions} sessions, {len(quarantined)} quarantined, "
+          f"{reruns} reruns, {recovered} published runs accepted on resume")
+
+    # the interrupted campaign agrees with an uninterrupted one, point by point
+    assert main(["run", str(path), "--out", "reference", "--workers", "2"]) == 0
+    ref = {r["id"]: r for r in ledger_rows(project / "reference")}
+    for row in rows:
+        assert (row["state"], row["outcome"]) == (ref[row["id"]]["state"], ref[row["id"]]["outcome"])
+        assert row["rms_error"] == pytest.approx(ref[row["id"]]["rms_error"], rel=1e-9, nan_ok=True)
