@@ -40,7 +40,9 @@ def test_json_with_cost_order_method_and_window(capsys):
     assert info["n_s"] == 261 and len(info["weights"]) == 262
     d = design(alpha=4, beta=4, omega_c=840, fs=32000, method="trapezoidal")
     assert info["cost_db"] == pytest.approx(cost_db(d, 2))
-    info = run_json(capsys, "--alpha", "2", "--beta", "3", "--N", "1", "--theta", "0.5", "--window", "0.145", "--fs", "200", "--order", "0")
+    info = run_json(
+        capsys, "--alpha", "2", "--beta", "3", "--N", "1", "--theta", "0.5", "--window", "0.145", "--fs", "200", "--order", "0"
+    )
     assert info["n_s"] == 29 and info["delay_s"] == pytest.approx(0.25 * 0.145)
     assert sum(info["weights"]) == pytest.approx(1.0)
 
@@ -79,7 +81,8 @@ def test_bad_input_exits_2_with_one_line(capsys, argv, fragment):
 
 def test_real_command_end_to_end():
     ok = subprocess.run(
-        [sys.executable, "-m", "labrunner", "differentiator", "--alpha", "6", "--beta", "6", "--omega-c", "200", "--fs", "200", "--json"],
+        [sys.executable, "-m", "labrunner", "differentiator", "--alpha", "6", "--beta", "6", "--omega-c", "200", "--fs", "200"]
+        + ["--json"],
         capture_output=True, text=True, check=False,
     )
     assert ok.returncode == 0 and json.loads(ok.stdout)["n_s"] == 9

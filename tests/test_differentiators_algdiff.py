@@ -114,7 +114,9 @@ def test_sweep_weights_match_algdiff():
     assert compared > 350 and dropped < len(SWEEP) // 4, (compared, dropped)  # 368 and 4 of 50
 
 
-@pytest.mark.parametrize("alpha, beta, N, omega_c, fs", [(2, 2, 0, 250, 4000), (4.5, 3, 1, 840, 32000), (7, 7, 2, 60, 1000)])
+@pytest.mark.parametrize(
+    "alpha, beta, N, omega_c, fs", [(2, 2, 0, 250, 4000), (4.5, 3, 1, 840, 32000), (7, 7, 2, 60, 1000)]
+)
 def test_window_from_cutoff_matches_algdiff(alpha, beta, N, omega_c, fs):
     d = design(alpha=alpha, beta=beta, N=N, omega_c=omega_c, fs=fs)
     o = AlgebraicDifferentiator(ts=1 / fs, alpha=alpha, beta=beta, N=N, T=None, wc=omega_c, display=False)
