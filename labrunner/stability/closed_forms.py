@@ -68,7 +68,7 @@ def crossing_p(z: np.ndarray, a0: float, a1: float) -> np.ndarray:
     return (z**2 - a0) * np.cos(z) + a1 * z * np.sin(z)
 
 
-_SAMPLES = 48  # width samples per D segment
+_SAMPLES = 32  # width samples per D segment
 
 
 @lru_cache(maxsize=512)
@@ -84,13 +84,20 @@ def _skeleton(a0: float, a1: float) -> tuple[np.ndarray, np.ndarray, int]:
     return ends, crossing_d(ends, a0, a1), n_periods
 
 
+def _binding_span(a0: float, a1: float, d: float) -> float:
+    """Roots beyond this z sit within ~(A0 + |A1| + |D|)/z of a multiple of π, where
+    |p| ≥ z² − A0 − |A1| z ≫ every bound of the first roots: they cannot bind P."""
+    return 4.0 * np.pi + 2.0 * (np.sqrt(a0) + abs(a1) + abs(d))
+
+
 def _p_window(a0: float, a1: float, d: float) -> tuple[float, float] | None:
     """(lower, upper) P bounds from interlacing at D, or None when the roots of Δ_Im are not all
     real (count condition 2.)."""
     ends, values, n_periods = _skeleton(a0, a1)
     if np.count_nonzero((values[:-1] - d) * (values[1:] - d) < 0) != 2 * n_periods:
         return None
-    z = roots_between(lambda x: crossing_d(x, a0, a1) - d, ends)
+    near = ends[: int(np.searchsorted(ends, _binding_span(a0, a1, d))) + 1]
+    z = roots_between(lambda x: crossing_d(x, a0, a1) - d, near)
     p = crossing_p(z, a0, a1)
     lo = max(-a0, float(np.max(p[1::2], initial=-np.inf)))   # z_2, z_4, ...: Δ_Re > 0
     hi = float(np.min(p[0::2], initial=np.inf))              # z_1, z_3, ...: Δ_Re < 0
