@@ -187,3 +187,13 @@ def test_reference_per_output_and_per_run_kinds():
     with pytest.raises(InvalidParameter) as err:
         factory.reference([edit(shared, "reference.amplitude", 1.0)], 1)
     assert err.value.field == "reference.amplitude"
+
+
+def test_valve_gamma_is_in_paper1_units():
+    """γ = 0.4 m³/(A s²) of paper 1 Sec. 5.3 is 0.4 · 60 000 (l/min)/(A s) on the l/min flow signal."""
+    p = {"controller": {"kind": "mfc1", "output": "flow", "gamma": 0.4, "k_p": 30.0, "i_min": 0.5},
+         "differentiator": {"alpha": 2, "beta": 2, "omega_c": 250.0},
+         "reference": {"kind": "setpoints", "levels": [1.0, 5.0, 1.0], "transition": 5.0, "hold": 5.0}}  # fmt: skip
+    c, _ = factory.build([p], VALVE, 4000.0)
+    assert c.gamma[0, 0] == pytest.approx(24_000.0) and c.k_p[0, 0] == 30.0
+    assert c.u_min[0, 0] == 0.5 and c.u_max[0, 0] == 1.01

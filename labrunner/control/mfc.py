@@ -16,6 +16,9 @@ the applied (saturated) input. Valve option (paper 1 Sec. 4.4.3–4.4.4): the mi
 ``i_min`` is the lower saturation bound and the current is set to ``i_min`` whenever the desired
 flow is ≤ 0.
 
+Units: γ relates the output's n-th derivative to the input (motor: rad/(V s²)); for the valve it
+is given in paper 1's m³/(A s²) and converted to the l/min of the flow signal (× 60 000).
+
 Kinds: ``mfc1``, ``mfc2`` and ``mfc1-ff``, the k_p = 0 "feed-forward tuning" law of Polack et al.
 (thesis (3.11)), which is ``mfc1`` with k_p fixed at 0 (a ``k_p`` key is rejected).
 """
@@ -43,13 +46,16 @@ class OutputMap:
     name: str
     index: int
     difference: bool = False
+    gamma_scale: float = 1.0  # controller.gamma × gamma_scale = γ in the output's own unit
 
 
-#: controller.output → (rig output unit, difference quotient?, ultra-local model orders allowed)
+#: controller.output → (rig output unit, difference quotient?, model orders allowed, γ scale)
 OUTPUTS = {
-    "velocity": ("rad", True, (1,)),  # Ω from θ by (2.34), first-order model (2.32)
-    "angle": ("rad", False, (2,)),  # θ, second-order model (2.47)
-    "flow": ("l/min", False, (1,)),  # valve flow q, first-order model (paper 1 eq. (13))
+    "velocity": ("rad", True, (1,), 1.0),  # Ω from θ by (2.34), first-order model (2.32)
+    "angle": ("rad", False, (2,), 1.0),  # θ, second-order model (2.47)
+    # valve flow q in l/min, first-order model (paper 1 eq. (13)); γ as paper 1 gives it, in
+    # m³/(A s²) (γ = 0.4, Sec. 5.3), is 60 000 × larger in (l/min)/(A s)
+    "flow": ("l/min", False, (1,), 60_000.0),
 }
 
 
@@ -59,12 +65,12 @@ def resolve_output(output: str | None, rig_info: RigInfo, order: int) -> OutputM
         if len(rig_info.outputs) != 1:
             raise InvalidParameter("controller.output", f"is required for rig {rig_info.name!r}: one of {', '.join(OUTPUTS)}")
         return OutputMap(rig_info.outputs[0].name, 0)
-    unit, difference, orders = OUTPUTS[output]
+    unit, difference, orders, scale = OUTPUTS[output]
     if order not in orders:
         raise InvalidParameter("controller.output", f"{output!r} needs an ultra-local model of order {orders[0]}, got order {order}")
     for index, sig in enumerate(rig_info.outputs):
         if sig.unit == unit:
-            return OutputMap("omega" if difference else sig.name, index, difference)
+            return OutputMap("omega" if difference else sig.name, index, difference, scale)
     raise InvalidParameter("controller.output", f"{output!r} needs a rig output in {unit}; rig {rig_info.name!r} has none")
 
 
@@ -146,7 +152,7 @@ class MFC(Controller):
 def _build(points: Sequence[Point], rig_info: RigInfo, fs: float, order: int, *, with_k_p: bool = True) -> tuple[MFC, Reference]:
     ctl = Section(points, "controller", used=("kind",))
     output = resolve_output(ctl.choice("output", tuple(OUTPUTS)) if ctl.has("output") else None, rig_info, order)
-    gamma = ctl.number("gamma", lo=0.0, lo_open=True)
+    gamma = ctl.number("gamma", lo=0.0, lo_open=True) * output.gamma_scale
     k_p = ctl.number("k_p", lo=0.0) if with_k_p else np.zeros(len(points))
     k_d = ctl.number("k_d", lo=0.0) if order == 2 else None
     filter_error = np.array(ctl.choice("filter", ("error", "output"), "error", per_run=True)) == "error"
@@ -169,7 +175,11 @@ def _build(points: Sequence[Point], rig_info: RigInfo, fs: float, order: int, *,
 
 
 def build_mfc1(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tuple[MFC, Reference]:
-    """First-order MFC (thesis (2.35)/(3.3)); keys: output, gamma, k_p, filter, u_min, u_max, i_min."""
+    """First-order MFC (thesis (2.35)/(3.3)); keys: output, gamma, k_p, filter, u_min, u_max, i_min.
+
+    ``gamma`` is in the unit of the output's derivative per input unit, except for ``output =
+    "flow"``, where it is in paper 1's m³/(A s²) (the flow itself stays in l/min).
+    """
     return _build(points, rig_info, fs, 1)
 
 
