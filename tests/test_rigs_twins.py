@@ -8,7 +8,6 @@ from scipy.integrate import solve_ivp
 
 from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
-from labrunner.rigs.sim.dcmotor import DCMotorTwin
 from labrunner.rigs.sim.valve import ValveTwin, static_flow
 
 A, B_GAIN = 39.44, 108.55
@@ -248,3 +247,17 @@ def test_paper1_campaign_is_feasible_and_gains_matter():
     assert rms[0] < 0.4
     assert rms[1] > 3.0
     assert rms[2] > 1.0
+
+
+# -- shared numerics -------------------------------------------------------------------------------
+def test_zoh_discretise_matches_closed_form_and_delay_line_per_run():
+    from labrunner.rigs.sim._integrate import DelayLine, zoh_discretise
+
+    a, h = np.array([2.0, 5.0]), 0.1
+    Phi, Gam = zoh_discretise(-a[:, None, None] * np.ones((2, 1, 1)), np.ones((2, 1, 1)), h)
+    np.testing.assert_allclose(Phi[:, 0, 0], np.exp(-a * h), rtol=1e-14)
+    np.testing.assert_allclose(Gam[:, 0, 0], (1 - np.exp(-a * h)) / a, rtol=1e-13)
+    line = DelayLine(np.array([0, 3]), fill=-1.0)
+    out = np.array([line.push(np.array([k, k], dtype=float)) for k in range(6)])
+    np.testing.assert_array_equal(out[:, 0], np.arange(6))
+    np.testing.assert_array_equal(out[:, 1], [-1, -1, -1, 0, 1, 2])

@@ -12,8 +12,8 @@ declares
   (keys of ``PARAMETERS`` or ``NOISE``; NaN entries keep the nominal value) applied and validated, and uses
   :class:`labrunner.rigs.sim._noise.NoiseStreams` so that run i's noise depends only on its seed.
 
-Shared numerics live in :mod:`labrunner.rigs.sim._integrate` (exact zero-order-hold
-discretisation, RK4 sub-steps, the play operator, sensor delay lines).
+Shared numerics live in :mod:`labrunner.rigs.sim._integrate` (sub-step counts, exact
+zero-order-hold discretisation, first-order decays, the play operator, sensor delay lines).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Numerics shared by the twins: sub-steps within one sample, exact ZOH discretisation, RK4, play, delay.
+"""Numerics shared by the twins: sub-steps within one sample, exact ZOH discretisation, play, delay.
 
 Every twin holds its input constant over a sample (zero-order hold) and advances its state in
 ``n`` equal sub-steps of ``h = 1/(n fs)`` so that switching effects (friction, backlash, end
@@ -7,15 +7,12 @@ stops) are resolved within the sample:
 - linear parts: :func:`zoh_discretise` gives the exact transition ``x⁺ = Φ x + Γ w`` for a
   sub-step with ``w`` held (Van Loan: ``expm([[A, B], [0, 0]] h)``), per run (batched);
 - first-order lags: :func:`decay` (``x⁺ = x_∞ + (x − x_∞)·e^(−h/τ)``, exact for a held target);
-- nonlinear parts (e.g. the plate's magnets): :func:`rk4`, classic 4th-order Runge–Kutta with the
-  input held, ``rhs(x) -> ẋ`` vectorised over the batch, state (B, n).
+- backlash and hysteresis: :func:`play`; sensor dead time: :class:`DelayLine`.
 
 All functions are pure and vectorised over a leading batch axis.
 """
 
 from __future__ import annotations
-
-from collections.abc import Callable
 
 import numpy as np
 from scipy.linalg import expm
@@ -49,17 +46,6 @@ def decay(tau: np.ndarray | float, h: float) -> np.ndarray:
         return np.where(tau > 0.0, np.exp(-h / np.where(tau > 0.0, tau, 1.0)), 0.0)
 
 
-def rk4(rhs: Callable[[np.ndarray], np.ndarray], x: np.ndarray, h: float, n: int) -> np.ndarray:
-    """``n`` classic RK4 sub-steps of length ``h`` for ``ẋ = rhs(x)`` (input held by ``rhs``)."""
-    for _ in range(n):
-        k1 = rhs(x)
-        k2 = rhs(x + 0.5 * h * k1)
-        k3 = rhs(x + 0.5 * h * k2)
-        k4 = rhs(x + h * k3)
-        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-    return x
-
-
 def play(y: np.ndarray, x: np.ndarray, width: np.ndarray | float) -> np.ndarray:
     """Play (backlash) operator: ``y`` follows ``x`` only once the gap ``width`` is taken up.
 
@@ -67,7 +53,7 @@ def play(y: np.ndarray, x: np.ndarray, width: np.ndarray | float) -> np.ndarray:
     gearbox backlash and, as the elementary Prandtl operator, magnetic hysteresis.
     """
     half = 0.5 * np.asarray(width, dtype=float)
-    return np.clip(y, x - half, x + half)
+    return np.minimum(np.maximum(y, x - half), x + half)
 
 
 class DelayLine:

@@ -33,7 +33,7 @@ from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo, Signal
 from labrunner.rigs.config import Param
 from labrunner.rigs.sim import SimRig
-from labrunner.rigs.sim._integrate import substeps, zoh_discretise
+from labrunner.rigs.sim._integrate import play, substeps, zoh_discretise
 from labrunner.rigs.sim._noise import NoiseStreams
 
 _POS = {"lo": 0.0, "lo_open": True}
@@ -105,7 +105,7 @@ class DCMotorTwin(SimRig):
         self._M = np.ascontiguousarray(np.concatenate([Phi, Gam], axis=2).transpose(1, 2, 0))
         self._z = np.zeros((5, batch))
         self._theta = np.zeros(batch)  # load angle behind the backlash [rad]
-        self._half_play = 0.5 * p["backlash"]
+        self._backlash = p["backlash"]
         self._coulomb = p["coulomb_friction"] > 0.0
         self._static = p["static_friction"] > 0.0
         counts = p["encoder_counts"]
@@ -135,7 +135,7 @@ class DCMotorTwin(SimRig):
             xn[1] *= ~stop
             xn[0] = np.where(hold, z[0], xn[0])
             z[:3] = xn
-            theta = np.minimum(np.maximum(theta, z[0] - self._half_play), z[0] + self._half_play)  # play()
+            theta = play(theta, z[0], self._backlash)
         self._theta = theta
         return self._measure_theta()[:, None]
 

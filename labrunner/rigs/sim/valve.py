@@ -41,7 +41,7 @@ from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo, Signal
 from labrunner.rigs.config import Param
 from labrunner.rigs.sim import SimRig
-from labrunner.rigs.sim._integrate import DelayLine, decay, substeps
+from labrunner.rigs.sim._integrate import DelayLine, decay, play, substeps
 from labrunner.rigs.sim._noise import NoiseStreams
 
 LPM_PER_M3S = 60_000.0  # 1 m³/s = 60 000 l/min
@@ -155,12 +155,12 @@ class ValveTwin(SimRig):
     def _step(self, u: np.ndarray) -> np.ndarray:
         p = self.p
         i = u[:, 0]
-        half = 0.5 * p["hysteresis"]
+        width = p["hysteresis"]
         th, fs_, fc = p["pilot_threshold"], p["main_static_friction"], p["main_coulomb_friction"]
         i_c, i_m, x_p, x_m, moving = self._i_c, self._i_m, self._x_p, self._x_m, self._moving
         for _ in range(self.n_sub):
             i_c = i + (i_c - i) * self._e_i
-            i_m = np.minimum(np.maximum(i_m, i_c - half), i_c + half)  # play(): magnetic hysteresis
+            i_m = play(i_m, i_c, width)  # magnetic hysteresis
             target = np.clip(i_m / p["i_max"], 0.0, 1.0)
             x_p = target + (x_p - target) * self._e_p
             x_t = (x_p - th) * self._inv_open  # < 0: the spring preload holds the main spool shut
