@@ -67,7 +67,10 @@ class MFCEstimator:
         self._not_m = 1.0 - self._m
         self.gamma = np.array(np.broadcast_to(np.reshape(gamma, (B, -1)) if np.ndim(gamma) else gamma, (B, C)), dtype=float)
         # tap vectors per run: y rows (shifted by ε), e rows (one per filter), v rows
-        taps = [[np.concatenate([[0.0], d.weights(order)])] + [d.weights(k) for k in range(order)] + [d.weights(0)] for d in designs]
+        taps = [
+            [np.concatenate([[0.0], d.weights(order)]), *(d.weights(k) for k in range(order)), d.weights(0)]
+            for d in designs
+        ]
         self._x = np.zeros((3, B, C))
         self._flat = self._x.reshape(-1)
         self._flat_e = self._x[1].reshape(-1)
