@@ -179,6 +179,15 @@ def test_condition_2_of_a6_is_not_sufficient_for_k_d():
                             -200.0, 20000.0, n_scan=81) == []
 
 
+def test_unstable_plant_second_order_matches_solver():
+    # remark 2.8 carried over to (2.57): a < 0, aδ = −0.7
+    k_d_range = bounds("mfc2-motor", gamma=B, delay=0.035, a=-20.0, b=B, k_d=0.0)["k_d"]
+    assert k_d_range[0] == pytest.approx(-20.0 * (1 - 1.0), abs=1e-12)   # a(1 − γ/b) = 0 at γ = b
+    result = bounds("mfc2-motor", gamma=B, delay=0.035, a=-20.0, b=B, k_d=np.mean(k_d_range), numeric=True)
+    assert_same_interval(result["numeric"]["k_d"], result["k_d"])
+    assert_same_interval(result["numeric"]["k_p"], result["k_p"])
+
+
 def test_remark_2_8_needs_a_delta_above_minus_one():
     # unstable plant a < 0: the bound holds for aδ > −1 only; beyond it no gain is stable
     ok = bounds("mfc1-motor", gamma=B, delay=0.035, a=-20.0, b=B, numeric=True)

@@ -11,12 +11,13 @@ Public API::
     rightmost_roots(qp, count=6, *, n_nodes=24) -> complex ndarray [1/s]
     spectral_abscissa(qp, *, n_nodes=24) -> float [1/s]
     gain_boundaries(family, lo, hi, *, n_scan=101) -> ndarray;  stable_intervals(...) -> list[(lo, hi)]
+    projected_intervals(family2, x_lo, x_hi, y_lo, y_hi) -> list[(lo, hi)]   # x for which some y is stable
     abscissa_map(family2, x, y) -> ndarray (len(y), len(x))
 """
 
 from labrunner.stability.cases import CASES, bounds, case_quasipolynomial, predict_stable, resolve
 from labrunner.stability.quasipoly import QuasiPolynomial
-from labrunner.stability.scan import abscissa_map, gain_boundaries, stable_intervals
+from labrunner.stability.scan import abscissa_map, gain_boundaries, projected_intervals, stable_intervals
 from labrunner.stability.spectrum import difference_abscissa, rightmost_roots, spectral_abscissa
 
 __all__ = [
@@ -28,6 +29,7 @@ __all__ = [
     "difference_abscissa",
     "gain_boundaries",
     "predict_stable",
+    "projected_intervals",
     "resolve",
     "rightmost_roots",
     "spectral_abscissa",

@@ -34,7 +34,9 @@ _EDGE = 1e-9  # normalised offset above the line κ_p = −a₀ on which the num
 
 @dataclass(frozen=True)
 class Loop:
-    """A resolved case: plant coefficients, input-gain ratio r = gain/γ and delay δ [s]."""
+    """A resolved case: plant ÿ + a1·ẏ + a0·y (first order: ẏ + a1·y, a1 = a of the motor), input-gain
+    ratio r = gain/γ and delay δ [s]. ``k_p_of``/``k_d_of``/``d_of`` convert between physical gains
+    and the normalised ones of :mod:`.closed_forms` (time in units of δ)."""
 
     case: str
     order: int
@@ -52,9 +54,10 @@ class Loop:
             return QuasiPolynomial.from_terms({0.0: [1.0, self.a1], d: [r * (k_p - self.a1)]})
         return QuasiPolynomial.from_terms({0.0: [1.0, self.a1, self.a0], d: [r * (k_d - self.a1), r * (k_p - self.a0)]})
 
-    # normalised ↔ physical gains (closed_forms works in time units of δ)
     def k_p_of(self, x: float) -> float:
-        return self.a0 + x / (self.ratio * self.delay**self.order) if self.order == 2 else self.a1 + x / (self.ratio * self.delay)
+        """k_p of a normalised C = c·δ (first order) or P = κ_p·δ² (second order)."""
+        offset = self.a0 if self.order == 2 else self.a1
+        return offset + x / (self.ratio * self.delay**self.order)
 
     def k_d_of(self, x: float) -> float:
         return self.a1 + x / (self.ratio * self.delay)
@@ -126,7 +129,8 @@ def _k_p_interval(loop: Loop, k_d: float | None) -> tuple[float, float] | None:
 
 def closed_form_bounds(loop: Loop, k_d: float | None) -> dict:
     """``{"k_p": [lo, hi] | None}`` (+ ``"k_d"`` for second order) from the corrected closed forms."""
-    out = {"k_p": _intervals([i for i in [_k_p_interval(loop, k_d)] if i is not None], loop.k_p_of)}
+    interval = _k_p_interval(loop, k_d)
+    out = {"k_p": None if interval is None else _pair(interval, loop.k_p_of)}
     if loop.order == 2:
         out["k_d"] = _intervals(cf.second_order_d_gain(loop.a0 * loop.delay**2, loop.a1 * loop.delay), loop.k_d_of)
     return out
@@ -167,7 +171,10 @@ def bounds(case: str, *, gamma: float, delay: float, rho: float | None = None, a
     """Stability intervals of ``case`` (open intervals), exactly the object ``labrunner bounds --json``
     prints: ``{"k_p": [lo, hi] | None}``, plus ``"k_d": [lo, hi] | None`` for second-order cases
     (k_p at the given ``k_d``; None when no k_p is stable there), plus ``"numeric"`` (the same keys
-    from the spectral-abscissa solver) when ``numeric``. See the module table for the cases."""
+    from the spectral-abscissa solver) when ``numeric``. See the module table for the cases;
+    ``a0``, ``a1`` belong to ``mfc2-second-order``, ``rho`` defaults to ``b`` for the ultra-local
+    cases. A k_d range made of several intervals (A.6 plants with a₀δ² ≳ 1 only) is a list of
+    [lo, hi] pairs; so is a numeric range that comes out in pieces."""
     loop = resolve(case, gamma=gamma, delay=delay, rho=rho, a=a, b=b, a0=a0, a1=a1)
     k_d = _check_k_d(loop, k_d)
     out = closed_form_bounds(loop, k_d)
@@ -196,7 +203,7 @@ def predict_stable(case: str, *, gamma, k_p, delay, k_d=None, rho: float | None 
     the broadcast shape (a plain bool when all are scalars). Each distinct (γ, δ, k_d) costs one
     closed-form evaluation; k_p is then compared in bulk.
     """
-    kd_in = np.nan if k_d is None else k_d
+    kd_in = 0.0 if k_d is None else k_d
     g, kp, dl, kd = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (gamma, k_p, delay, kd_in)))
     out = np.zeros(g.shape, dtype=bool)
     keys = np.stack([g.ravel(), dl.ravel(), kd.ravel()], axis=1)
@@ -206,7 +213,7 @@ def predict_stable(case: str, *, gamma, k_p, delay, k_d=None, rho: float | None 
         loop = resolve(case, gamma=gi, delay=di, rho=rho, a=a, b=b, a0=a0, a1=a1)
         interval = _k_p_interval(loop, _check_k_d(loop, None if k_d is None else kdi))
         if interval is not None:
-            lo, hi = sorted((loop.k_p_of(interval[0]), loop.k_p_of(interval[1])))
+            lo, hi = loop.k_p_of(interval[0]), loop.k_p_of(interval[1])
             sel = inverse.ravel() == idx
             flat_out[sel] = (flat_kp[sel] > lo) & (flat_kp[sel] < hi)
     return bool(out) if out.ndim == 0 else out
