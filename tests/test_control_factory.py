@@ -90,6 +90,8 @@ BAD = [
     (edit(QUICKSTART, "differentiator.omega_c", ...), "differentiator.omega_c"),
     (edit(QUICKSTART, "differentiator.theta", 0.5), "differentiator.theta"),  # θ only for N > 0
     (edit(QUICKSTART, "differentiator.N", 1.5), "differentiator.N"),
+    (edit(QUICKSTART, "differentiator.N", "one"), "differentiator.N"),
+    (edit(QUICKSTART, "differentiator.alpha", [9]), "differentiator.alpha"),
     (edit(QUICKSTART, "differentiator.method", "simpson"), "differentiator.method"),
     (edit(QUICKSTART, "differentiator.order", 2), "differentiator.order"),
     (edit(QUICKSTART, "reference.kind", "ramp"), "reference.kind"),

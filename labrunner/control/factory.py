@@ -119,9 +119,11 @@ class Section:
                 out[i] = float(d)
                 continue
             v = row[key]
-            if isinstance(v, bool) or (integer and not (isinstance(v, (int, np.integer)) or float(v).is_integer())):
-                raise InvalidParameter(self.key(key), f"must be {'an integer' if integer else 'a number'}, got {v!r}")
+            if isinstance(v, bool):
+                raise InvalidParameter(self.key(key), f"must be a number, got {v!r}")
             x = check_finite(self.key(key), v)  # type: ignore[arg-type]
+            if integer and not x.is_integer():
+                raise InvalidParameter(self.key(key), f"must be an integer, got {v!r}")
             if x < lo or (lo_open and x == lo) or x > hi:
                 left = "(" if lo_open else "["
                 raise InvalidParameter(self.key(key), f"must be in {left}{lo:g}, {hi:g}], got {v!r}")
