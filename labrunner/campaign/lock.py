@@ -21,6 +21,7 @@ from pathlib import Path
 from labrunner.errors import CampaignError
 
 LOCK_NAME = ".lock"
+_TRIES = 5
 
 
 @dataclass(frozen=True)
@@ -56,13 +57,17 @@ class DirectoryLock:
 
     def acquire(self) -> DirectoryLock:
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = _read(fd)
-            os.close(fd)
-            who = holder.describe() if holder else "another process"
-            raise CampaignError(f"{self.path.parent} is in use by {who}; wait for it or stop it first") from None
+        for attempt in range(_TRIES):  # `status` holds a shared lock for a moment: retry briefly
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if attempt == _TRIES - 1:
+                    holder = _read(fd)
+                    os.close(fd)
+                    who = holder.describe() if holder else "another process"
+                    raise CampaignError(f"{self.path.parent} is in use by {who}; wait for it or stop it first") from None
+                time.sleep(0.02)
         previous = _read(fd)  # a record left behind: its holder died without releasing
         if previous and previous.pid != os.getpid():
             self.took_over = previous

@@ -45,7 +45,10 @@ class Progress:
         if use_bar:
             from tqdm import tqdm
 
-            self._bar = tqdm(
+            class _Bar(tqdm):  # no monitor thread: the process pool forks after the bar exists
+                monitor_interval = 0
+
+            self._bar = _Bar(
                 total=total, initial=self.initial, desc=label, unit="run", file=self.stream,
                 dynamic_ncols=True, smoothing=0.1,
             )
@@ -78,6 +81,13 @@ class Progress:
         if self._bar is not None:
             self._bar.update(1)
             self._bar.set_postfix_str(self._counts(), refresh=False)
+        elif time.monotonic() - self._last_line >= self.interval_s:
+            self.write(self.line())
+
+    def tick(self) -> None:
+        """Called while waiting: a plain line every ``interval_s`` even when no run finished."""
+        if self._bar is not None:
+            self._bar.refresh()
         elif time.monotonic() - self._last_line >= self.interval_s:
             self.write(self.line())
 

@@ -94,9 +94,10 @@ class InProcessExecutor(Executor):
 
 
 def _init_worker(lock_fd: int | None) -> None:
-    """Pool worker set-up: ignore Ctrl-C, die with the parent, drop the inherited lock descriptor."""
+    """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it lets running batches finish or
+    kills the workers), die with the parent, drop the inherited lock descriptor."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() == 1:  # the parent died before prctl took effect
@@ -255,6 +256,8 @@ class Scheduler:
                     done, _ = wait(list(self.inflight), timeout=0.25, return_when=FIRST_COMPLETED)
                     for future in done:
                         self._collect(future, out)
+                    if self.progress:
+                        self.progress.tick()
             except KeyboardInterrupt:
                 out.interrupted = out.abandoned = True
                 for future in self.inflight:
