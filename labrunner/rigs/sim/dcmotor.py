@@ -88,19 +88,23 @@ class DCMotorTwin(SimRig):
         self.p = p
         self.n_sub = substeps(self.fs, float(p["max_substep"].min()))
         h = 1.0 / (self.fs * self.n_sub)
-        a, b, tau = p["a"], p["b"], p["electrical_tau"]
-        self._lag = tau > 0.0
-        inv_tau = np.where(self._lag, 1.0 / np.where(self._lag, tau, 1.0), 0.0)
-        A = np.zeros((batch, 3, 3))
-        Bm = np.zeros((batch, 3, 2))  # inputs w = (commanded voltage, friction voltage)
+        self._lag = p["electrical_tau"] > 0.0
+        # one matrix exponential per distinct (a, b, τ_e), not per run
+        rows, inverse = np.unique(np.stack([p["a"], p["b"], p["electrical_tau"]], axis=1), axis=0, return_inverse=True)
+        a, b, tau = rows.T
+        lag = tau > 0.0
+        inv_tau = np.where(lag, 1.0 / np.where(lag, tau, 1.0), 0.0)
+        A = np.zeros((len(rows), 3, 3))
+        Bm = np.zeros((len(rows), 3, 2))  # inputs w = (commanded voltage, friction voltage)
         A[:, 0, 1] = 1.0
         A[:, 1, 1] = -a
-        A[:, 1, 2] = np.where(self._lag, b, 0.0)
+        A[:, 1, 2] = np.where(lag, b, 0.0)
         A[:, 2, 2] = -inv_tau
-        Bm[:, 1, 0] = np.where(self._lag, 0.0, b)
+        Bm[:, 1, 0] = np.where(lag, 0.0, b)
         Bm[:, 1, 1] = -b
         Bm[:, 2, 0] = inv_tau
         Phi, Gam = zoh_discretise(A, Bm, h)
+        Phi, Gam = Phi[inverse.reshape(-1)], Gam[inverse.reshape(-1)]
         # transition over one sub-step, laid out (3, 5, B) for z = (θ_m, Ω, v, v_cmd, F) of shape (5, B)
         self._M = np.ascontiguousarray(np.concatenate([Phi, Gam], axis=2).transpose(1, 2, 0))
         self._z = np.zeros((5, batch))
