@@ -118,9 +118,11 @@ def _width(a0: float, a1: float, d: float) -> float:
     return -np.inf if window is None else window[1] - window[0]
 
 
-def second_order_d_gain(a0: float, a1: float) -> list[Interval]:
+@lru_cache(maxsize=512)
+def second_order_d_gain(a0: float, a1: float) -> tuple[Interval, ...]:
     """Intervals of D = κ_d·δ for which some P stabilises (corrected (2.53), (2.58), A.6), ascending;
-    one interval for the thesis's plants (a₀ = 0)."""
+    one interval for the thesis's plants (a₀ = 0). Cached: it depends on the plant and δ only, and
+    map overlays ask for it once per γ or k_d sample."""
     ends, values, _ = _skeleton(a0, a1)
     d_min = -a1 - a0
     inner = values[1:-1][ends[1:-1] <= ends[-1] / 2]
@@ -139,7 +141,7 @@ def second_order_d_gain(a0: float, a1: float) -> list[Interval]:
                 found[-1][1] = right
             else:
                 found.append([left, right])
-    return [(float(a), float(b)) for a, b in found]
+    return tuple((float(a), float(b)) for a, b in found)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
