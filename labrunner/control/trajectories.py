@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -160,7 +160,7 @@ class Steps(Trajectory):
 
     levels: tuple[float, ...]
     durations: tuple[float, ...]
-    delay_s: float = field(default=0.0)
+    delay_s: float = 0.0
 
     @classmethod
     def build(cls, levels: Sequence[float], durations: float | Sequence[float], *, field_prefix: str = "reference") -> Steps:
