@@ -22,16 +22,24 @@ OBSERVED_UNSTABLE = ("aborted",)
 GAIN_COLUMNS = {"gamma": "controller.gamma", "k_p": "controller.k_p", "k_d": "controller.k_d"}
 
 
+def table_gains(row: Mapping[str, object]) -> dict[str, float]:
+    """γ, k_p, k_d of a table row from its grid columns (``controller.gamma``, ...)."""
+    return {k: float(row[c]) for k, c in GAIN_COLUMNS.items() if c in row and pd.notna(row[c])}
+
+
 def agreement(
     table: pd.DataFrame,
     theory_of: Callable[[Mapping[str, object]], Theory | None],
     *,
+    gains_of: Callable[[Mapping[str, object]], Mapping[str, float]] = table_gains,
     margin: float = 0.1,
 ) -> dict[str, object]:
     """Share of compared points whose outcome matches the prediction, with the counts behind it.
 
     ``theory_of(row)`` gives the :class:`Theory` of a table row (its δ_t depends on the row's
-    differentiator), or None when no stability case applies. Returns ``{"case", "share",
+    differentiator), or None when no stability case applies; ``gains_of(row)`` its γ, k_p, k_d
+    (default: the grid columns; the analysis passes the resolved point, so fixed gains count
+    too). Returns ``{"case", "share",
     "margin", "n_compared", "n_match", "n_excluded", "false_stable", "false_unstable"}``;
     ``share`` is None when nothing could be compared.
     """
@@ -44,8 +52,8 @@ def agreement(
         if theory is None or not theory.cases():
             continue
         case = theory.cases()[-1]
-        params = {k: float(row[c]) for k, c in GAIN_COLUMNS.items() if c in row and pd.notna(row[c])}
-        if "gamma" not in params or "k_p" not in params:
+        params = gains_of(row)
+        if "gamma" not in params or "k_p" not in params or (case.startswith("mfc2") and "k_d" not in params):
             continue
         stable, distance = theory.predict(case, params)
         if distance <= margin:

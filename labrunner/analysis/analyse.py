@@ -91,6 +91,11 @@ class Theories:
         params = {k: row[k] for k in row.keys() if "." in k and pd.notna(row[k])}
         return self.campaign.resolve(params)
 
+    def gains(self, row: Mapping[str, Any]) -> dict[str, float]:
+        """γ, k_p, k_d of the row's resolved controller section (grid values and fixed ones)."""
+        controller = self.config(row).get("controller", {})
+        return {k: float(v) for k in ("gamma", "k_p", "k_d") if isinstance(v := controller.get(k), (int, float))}
+
     def __call__(self, row: Mapping[str, Any]) -> Theory | None:
         if self.campaign is None:
             return None
@@ -212,7 +217,7 @@ def analyse(
     maps = figures.draw_maps(frame, ctx, theories)
     chosen = chosen_runs(frame)
     runs = figures.draw_runs(chosen, ctx)
-    agree = agreement_mod.agreement(frame, theories, margin=margin)
+    agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
     summary = {**counts(frame), "best": _best(frame, ctx.axes), "maps": [str(p) for p, _ in maps],
                "run_plots": [str(p) for p in runs.values()], "agreement": agree,
                "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}

@@ -87,12 +87,6 @@ def common_theory(rows: pd.DataFrame, theories: Theories) -> Theory | None:
     return next(iter(found.values()), None)
 
 
-def _fixed(rows: pd.DataFrame, theories: Theories) -> dict[str, float]:
-    """γ, k_p, k_d of the first row's resolved controller section (for constant gains)."""
-    controller = theories.config(rows.iloc[0]).get("controller", {})
-    return {k: float(controller[k]) for k in ("gamma", "k_p", "k_d") if isinstance(controller.get(k), (int, float))}
-
-
 def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[OverlayLine], str]:
     """Overlay lines for a map of ``rows`` and a note on δ_t (or on why there are none)."""
     pair = (x.key, y.key)
@@ -105,7 +99,7 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
     if pair == ("controller.gamma", "controller.k_p") and theory.kind == "mfc1":
         return gamma_kp_lines(theory, dense_axis(cell_edges(x.values, x.log), x.log)), note
     if pair == ("controller.k_p", "controller.k_d") and theory.kind == "mfc2":
-        gammas = {round(float(theories.config(r).get("controller", {}).get("gamma", np.nan)), 12) for _, r in rows.iterrows()}
+        gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for _, r in rows.iterrows()}
         if len(gammas) == 1:
             gamma = gammas.pop()
             return kp_kd_lines(theory, gamma, dense_axis(cell_edges(y.values, y.log), y.log)), f"{note}, γ = {gamma:.5g}"
@@ -129,7 +123,7 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
         note = ""
         theory = common_theory(frame, theories) if key in GAINS and theories.campaign is not None else None
         if theory is not None:
-            fixed = _fixed(frame, theories)
+            fixed = theories.gains(frame.iloc[0])
             lines = sweep_lines(theory, GAINS[key], dense_axis(x.values, x.log, 400), fixed)
             others = ", ".join(f"{_SYMBOLS[k]} = {v:.5g}" for k, v in fixed.items() if k != GAINS[key])
             note = f"\nδ_t = {theory.delay * 1e3:.4g} ms" + (f", {others}" if others else "")

@@ -11,6 +11,7 @@ the delay δ_t of the campaign's differentiator.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -80,17 +81,10 @@ class Theory:
         return ([ultra] if self.rho is not None else []) + ([model] if self.has_model else [])
 
     def bounds(self, case: str, gamma: float, k_d: float | None = None) -> dict:
-        """:func:`labrunner.stability.bounds` of ``case`` at this γ (and k_d)."""
-        from labrunner import stability  # the solver is only needed where a map has a theory
-
-        kw: dict[str, float] = {"gamma": gamma, "delay": self.delay}
-        if case.endswith("ultralocal"):
-            kw["rho"] = self.rho
-        else:
-            kw["a"], kw["b"] = float(self.constants["a"]), float(self.constants["b"])
-        if k_d is not None:
-            kw["k_d"] = k_d
-        return stability.bounds(case, **kw)
+        """:func:`labrunner.stability.bounds` of ``case`` at this γ (and k_d); cached, since a grid
+        repeats each (γ, k_d) along its other axis."""
+        gains = {"rho": self.rho} if case.endswith("ultralocal") else {k: float(self.constants[k]) for k in ("a", "b")}
+        return _bounds(case, float(gamma), self.delay, tuple(sorted(gains.items())), None if k_d is None else float(k_d))
 
     def predict(self, case: str, params: Mapping[str, float]) -> tuple[bool, float]:
         """Whether ``case`` predicts a stable loop at ``params`` (gamma, k_p, k_d) and the relative
@@ -105,6 +99,16 @@ class Theory:
         stable = all(lo < g < hi for g, (lo, hi) in checks)
         distances = [abs(g - e) / e for g, pair in checks for e in pair if np.isfinite(e) and e > 0]
         return stable, min(distances, default=float("inf"))
+
+
+@functools.lru_cache(maxsize=1 << 16)
+def _bounds(case: str, gamma: float, delay: float, gains: tuple[tuple[str, float], ...], k_d: float | None) -> dict:
+    from labrunner import stability  # the solver is only needed where a map has a theory
+
+    kw = dict(gains)
+    if k_d is not None:
+        kw["k_d"] = k_d
+    return stability.bounds(case, gamma=gamma, delay=delay, **kw)
 
 
 def _interval(bounds: Mapping[str, object], key: str) -> tuple[float, float]:
