@@ -130,3 +130,12 @@ def test_abscissa_map_orientation():
     assert m.shape == (2, 3)
     expected = [[complex(lambertw(-k * d)).real / d for k in x] for d in y]
     np.testing.assert_allclose(m, expected, rtol=1e-10)
+
+
+def test_abscissa_falls_back_to_collocation_when_newton_rejects_all(monkeypatch):
+    from labrunner.stability import spectrum
+
+    monkeypatch.setattr(spectrum, "_newton", lambda q, start: start[:0])
+    expected = complex(lambertw(-2.0)).real     # unstable: must not turn into −inf
+    assert spectral_abscissa(scalar(2.0, 1.0)) == pytest.approx(expected, rel=1e-6)
+    assert rightmost_roots(scalar(2.0, 1.0)).size == 0

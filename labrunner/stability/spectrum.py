@@ -115,18 +115,24 @@ def _unique(roots: np.ndarray) -> np.ndarray:
     return np.array(kept, dtype=complex)
 
 
+def _refined(qp: QuasiPolynomial, count: int, n_nodes: int) -> tuple[np.ndarray, float]:
+    """Newton-refined rightmost roots (scaled back to 1/s) and the collocation's own rightmost
+    real part [1/s], the fallback should Newton reject every candidate."""
+    if qp.tau_max == 0.0:
+        roots = np.roots(qp.coeffs[0])
+        return _unique(roots)[:count], float(roots.real.max())
+    eig = np.linalg.eigvals(generator_matrix(qp, n_nodes))
+    eig = eig[eig.imag >= -1e-9]
+    start = eig[np.argsort(-eig.real)][: max(2 * count, 8)]
+    return _unique(_newton(qp.scaled(), start))[:count] / qp.tau_max, float(start[0].real) / qp.tau_max
+
+
 def rightmost_roots(qp: QuasiPolynomial, count: int = 6, *, n_nodes: int = DEFAULT_NODES) -> np.ndarray:
     """The ``count`` rightmost roots of Δ [1/s], one of each conjugate pair (Im ≥ 0), sorted by
     real part (descending). Every returned value is a Newton-converged root of Δ."""
     if count < 1:
         raise InvalidParameter("count", f"must be >= 1, got {count}")
-    q = qp.scaled()
-    if qp.tau_max == 0.0:
-        return _unique(np.roots(qp.coeffs[0]))[:count]
-    eig = np.linalg.eigvals(generator_matrix(qp, n_nodes))
-    eig = eig[eig.imag >= -1e-9]
-    start = eig[np.argsort(-eig.real)][: max(2 * count, 8)]
-    return _unique(_newton(q, start))[:count] / qp.tau_max
+    return _refined(qp, count, n_nodes)[0]
 
 
 def difference_abscissa(qp: QuasiPolynomial) -> float:
@@ -143,8 +149,9 @@ def difference_abscissa(qp: QuasiPolynomial) -> float:
 def spectral_abscissa(qp: QuasiPolynomial, *, n_nodes: int = DEFAULT_NODES) -> float:
     """Spectral abscissa max Re s over the roots of Δ [1/s]; < 0 means exponentially stable.
 
-    Neutral ``qp``: max(c_D, rightmost resolved root), see the module docstring.
+    Neutral ``qp``: max(c_D, rightmost resolved root), see the module docstring. Should Newton
+    reject every candidate, the collocation eigenvalue stands in (never a silent −inf).
     """
-    roots = rightmost_roots(qp, 1, n_nodes=n_nodes)
-    resolved = float(roots[0].real) if roots.size else -np.inf
+    roots, collocated = _refined(qp, 1, n_nodes)
+    resolved = float(roots[0].real) if roots.size else collocated
     return max(resolved, difference_abscissa(qp))
