@@ -116,3 +116,16 @@ def test_agreement_counts_and_margin():
     wide = agreement(table, lambda row: theory, margin=0.0)
     assert wide["n_excluded"] == 0 and wide["n_compared"] == 8
     assert agreement(table, lambda row: None)["share"] is None
+
+
+def test_agreement_of_a_kp_kd_grid_with_fixed_gamma():
+    """Second-order case: k_d comes from the grid, γ from the resolved point (gains_of)."""
+    theory = Theory("mfc2", DELAY, MOTOR)
+    k_d = 20.0
+    interval = theory.bounds("mfc2-motor", B, k_d)["k_p"]
+    table = pd.DataFrame({"controller.k_p": [interval[1] / 3, interval[1] * 3], "controller.k_d": k_d,
+                          "status": ["completed", "aborted"]})
+    result = agreement(table, lambda row: theory, gains_of=lambda row: {"gamma": B, "k_p": row["controller.k_p"],
+                                                                         "k_d": row["controller.k_d"]})
+    assert result["case"] == "mfc2-motor" and result["share"] == 1.0 and result["n_compared"] == 2
+    assert agreement(table, lambda row: theory)["n_compared"] == 0  # without γ nothing can be predicted

@@ -63,3 +63,12 @@ def test_rejects_bad_input():
     bad[3] = np.nan
     with pytest.raises(InvalidParameter):
         identify_signals(bad, u, FS)
+
+
+def test_identify_cli_bad_input(tmp_path, capsys):
+    from labrunner.cli import main
+
+    assert main(["identify", str(tmp_path / "missing.mcap")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["identify", str(tmp_path)]) == 2  # a directory without logs
+    assert "no run logs" in capsys.readouterr().err
