@@ -41,6 +41,9 @@ def test_null_when_nothing_is_stable(capsys):
     code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "108.55", "--delay", "0.035", "--b", "108.55",
                        "--k-d", "48", "--json")
     assert code == 0 and json.loads(out)["k_p"] is None
+    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "108.55", "--delay", "0.035", "--b", "108.55",
+                       "--k-d", "48")
+    assert code == 0 and "k_p: none stable at k_d = 48" in out
 
 
 def test_human_output(capsys):

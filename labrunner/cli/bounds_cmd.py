@@ -35,19 +35,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _fmt(interval) -> str:
     if interval is None:
-        return "none stable"
+        return ": none stable"
     if isinstance(interval[0], list):
-        return " or ".join(_fmt(i) for i in interval)
-    return f"({interval[0]:.10g}, {interval[1]:.10g})"
+        return " in " + " or ".join(f"({lo:.10g}, {hi:.10g})" for lo, hi in interval)
+    return f" in ({interval[0]:.10g}, {interval[1]:.10g})"
 
 
 def _lines(result: dict, k_d: float | None) -> list[str]:
     out = []
     if "k_d" in result:
-        out.append(f"k_d in {_fmt(result['k_d'])}")
-        out.append(f"k_p in {_fmt(result['k_p'])} at k_d = {k_d:g}")
+        out.append(f"k_d{_fmt(result['k_d'])}")
+        out.append(f"k_p{_fmt(result['k_p'])} at k_d = {k_d:g}")
     else:
-        out.append(f"k_p in {_fmt(result['k_p'])}")
+        out.append(f"k_p{_fmt(result['k_p'])}")
     return out
 
 
