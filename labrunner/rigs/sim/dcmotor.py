@@ -33,7 +33,7 @@ from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo, Signal
 from labrunner.rigs.config import Param
 from labrunner.rigs.sim import SimRig
-from labrunner.rigs.sim._integrate import play, substeps, zoh_discretise
+from labrunner.rigs.sim._integrate import substeps, zoh_discretise
 from labrunner.rigs.sim._noise import NoiseStreams
 
 _POS = {"lo": 0.0, "lo_open": True}
@@ -109,7 +109,7 @@ class DCMotorTwin(SimRig):
         self._M = np.ascontiguousarray(np.concatenate([Phi, Gam], axis=2).transpose(1, 2, 0))
         self._z = np.zeros((5, batch))
         self._theta = np.zeros(batch)  # load angle behind the backlash [rad]
-        self._backlash = p["backlash"]
+        self._half_play = 0.5 * p["backlash"]
         self._coulomb = p["coulomb_friction"] > 0.0
         self._static = p["static_friction"] > 0.0
         counts = p["encoder_counts"]
@@ -124,22 +124,29 @@ class DCMotorTwin(SimRig):
             v = v + p["input_v"] * self._noise.next()[:, 0]
         v = np.clip(v, -p["u_max"], p["u_max"])
         us, uc = p["static_friction"], p["coulomb_friction"]
-        z, M, theta = self._z, self._M, self._theta
+        z, M, theta, half = self._z, self._M, self._theta, self._half_play
         z[3] = v
-        any_lag = bool(self._lag.any())
+        any_lag, any_coulomb = bool(self._lag.any()), bool(self._coulomb.any())
         for _ in range(self.n_sub):
             # voltage on the motor at the end of the sub-step (the lag's row does not involve θ, Ω, F)
             drive = np.where(self._lag, M[2, 2] * z[2] + M[2, 3] * v, v) if any_lag else v
             stuck = z[1] == 0.0
-            s = np.sign(z[1] + stuck * drive)  # direction of motion, or of breakaway when stuck
-            hold = stuck & self._static & (np.abs(drive) <= us)
-            z[4] = uc * s
+            hold = None
+            if stuck.any():
+                s = np.sign(z[1] + stuck * drive)  # direction of motion, or of breakaway when stuck
+                hold = stuck & self._static & (np.abs(drive) <= us)
+            else:
+                s = np.sign(z[1])
+            np.multiply(uc, s, out=z[4])
             xn = (M * z[None]).sum(axis=1)
-            stop = hold | (self._coulomb & (xn[1] * s < 0.0))
-            xn[1] *= ~stop
-            xn[0] = np.where(hold, z[0], xn[0])
+            stop = (xn[1] * s < 0.0) & self._coulomb if any_coulomb else None
+            if hold is not None:
+                stop = hold if stop is None else stop | hold
+                xn[0] = np.where(hold, z[0], xn[0])
+            if stop is not None:
+                xn[1] *= ~stop
             z[:3] = xn
-            theta = play(theta, z[0], self._backlash)
+            theta = np.minimum(np.maximum(theta, z[0] - half), z[0] + half)  # play(theta, θ_m, backlash)
         self._theta = theta
         return self._measure_theta()[:, None]
 
