@@ -11,8 +11,7 @@ the report. Returns the summary that ``--json`` prints.
 from __future__ import annotations
 
 import json
-import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -218,14 +217,14 @@ def analyse(
     chosen = chosen_runs(frame)
     runs = figures.draw_runs(chosen, ctx)
     agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
-    summary = {**counts(frame), "best": _best(frame, ctx.axes), "maps": [str(p) for p, _ in maps],
+    summary = {**counts(frame), "best": _best(frame), "maps": [str(p) for p, _ in maps],
                "run_plots": [str(p) for p in runs.values()], "agreement": agree,
                "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}
     summary["report"] = str(report.campaign_report(frame, ctx, summary, maps, chosen, runs))
     return summary
 
 
-def _best(frame: pd.DataFrame, axes: Sequence[str]) -> dict[str, Any] | None:
+def _best(frame: pd.DataFrame) -> dict[str, Any] | None:
     best = chosen_runs(frame).get("best")
     if best is None:
         return None
@@ -236,7 +235,3 @@ def _best(frame: pd.DataFrame, axes: Sequence[str]) -> dict[str, Any] | None:
 
 def _plain(value: Any) -> Any:
     return value.item() if isinstance(value, np.generic) else value
-
-
-def default_workers() -> int:
-    return max(1, min(os.cpu_count() or 1, 8))

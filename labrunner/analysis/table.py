@@ -91,7 +91,7 @@ def _float(value: Any) -> float:
     return float(value) if value is not None else float("nan")
 
 
-def ledger_frame(rows: Sequence[Mapping[str, Any]], directory: Path) -> pd.DataFrame:
+def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
     """One row per ledger point: ids, state, outcome details, parameters (dotted keys), ledger metrics."""
     records = []
     for r in rows:
@@ -131,7 +131,7 @@ def build_table(
     workers: int | None = None,
 ) -> CampaignTable:
     """Merge ledger ``rows`` with metrics from their logs (reusing ``cache`` rows that still match)."""
-    frame = ledger_frame(rows, directory)
+    frame = ledger_frame(rows)
     problems: list[dict[str, str]] = []
     cached = _cached(cache)
     todo: list[int] = []
