@@ -80,7 +80,8 @@ def _delay(config: Mapping[str, Any], fs: float) -> float | None:
 
 
 class Theories:
-    """Theory (kind, δ_t, rig constants) per table row, δ_t cached per differentiator setting."""
+    """Theory (kind, δ_t, rig constants with the point's ``rig_parameters`` overrides) per table
+    row; δ_t cached per differentiator setting."""
 
     def __init__(self, campaign: Any | None) -> None:
         self.campaign = campaign
@@ -108,7 +109,8 @@ class Theories:
         kind = config.get("controller", {}).get("kind")
         if delay is None or not isinstance(kind, str):
             return None
-        return Theory(kind, delay, dict(self.campaign.rig_info.constants))
+        overrides = {k: float(v) for k, v in (config.get("rig_parameters") or {}).items() if k in ("a", "b", "rho")}
+        return Theory(kind, delay, {**self.campaign.rig_info.constants, **overrides})
 
 
 def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Any | None) -> str:
