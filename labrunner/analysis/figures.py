@@ -75,13 +75,13 @@ def facets(frame: pd.DataFrame, extra: Sequence[str]) -> list[tuple[str, pd.Data
 
 
 def common_theory(rows: pd.DataFrame, theories: Theories) -> Theory | None:
-    """The one theory valid for all ``rows`` (same kind and δ_t), else None."""
+    """The one theory valid for all ``rows`` (same kind, δ_t and rig constants), else None."""
     found = {}
     for _, row in rows.iterrows():
         theory = theories(row)
         if theory is None:
             return None
-        found[(theory.kind, round(theory.delay, 12))] = theory
+        found[(theory.kind, round(theory.delay, 12), tuple(sorted(theory.constants.items())))] = theory
         if len(found) > 1:
             return None
     return next(iter(found.values()), None)
@@ -94,7 +94,7 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
         return [], ""
     theory = common_theory(rows, theories)
     if theory is None:
-        return [], "no stability overlay: the map mixes controller kinds or differentiator delays"
+        return [], "no stability overlay: the map mixes controller kinds, differentiator delays or plants"
     note = f"δ_t = {theory.delay * 1e3:.4g} ms"
     if pair == ("controller.gamma", "controller.k_p") and theory.kind == "mfc1":
         return gamma_kp_lines(theory, dense_axis(cell_edges(x.values, x.log), x.log)), note
