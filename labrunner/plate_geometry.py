@@ -153,17 +153,25 @@ class PlateGeometry:
         return np.asarray(v) @ self.V.T
 
 
-def complete_over_actuated(x3: np.ndarray, weights: np.ndarray = (0.0, 0.5, 0.5)) -> np.ndarray:
+def over_actuation_weights(weights: object = (0.0, 0.5, 0.5)) -> np.ndarray:
+    """Validated a_k of paper 2 eq. (18): three numbers ≥ 0 with Σ a_k = 1 (Sec. 4.1: (0, ½, ½))."""
+    try:
+        a = np.asarray(weights, dtype=float)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0) or not np.isclose(a.sum(), 1.0):
+        raise InvalidParameter("weights", f"need three a_k >= 0 with sum 1 (paper 2 eq. (18)), got {weights!r}")
+    return a
+
+
+def complete_over_actuated(x3: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """(…, 4): (x_1, x_2, x_3, Σ a_k x_k), the fourth actuator's input by paper 2 eq. (18).
 
-    ``x3`` are forces, u = (i/h)² or currents of the three sensor-point MFCs; ``weights`` a_k ≥ 0
-    with Σ a_k = 1. Paper 2 Sec. 4.1 uses a = (0, ½, ½), i.e. F_d,4 = (F_2 + F_3)/2.
+    ``x3`` are the forces, u = (i/h)² or currents of the three sensor-point MFCs; ``weights`` the
+    a_k from :func:`over_actuation_weights`. F_d,4 = (F_2 + F_3)/2 for a = (0, ½, ½).
     """
-    a = np.asarray(weights, dtype=float)
-    if a.shape != (3,) or np.any(a < 0) or not np.isclose(a.sum(), 1.0):
-        raise InvalidParameter("weights", f"need three a_k >= 0 with sum 1 (paper 2 eq. (18)), got {weights!r}")
     x3 = np.asarray(x3, dtype=float)
-    return np.concatenate([x3, x3 @ a[:, None]], axis=-1)
+    return np.concatenate([x3, x3 @ weights[:, None]], axis=-1)
 
 
 def magnet_force(i: np.ndarray, h: np.ndarray, lam_inv_sqrt: float | np.ndarray = LAMBDA_INV_SQRT) -> np.ndarray:

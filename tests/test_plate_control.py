@@ -115,3 +115,67 @@ def test_batch_gains_and_validation():
             build([{"controller": controller_section, "differentiator": DIFF, "reference": {"kind": "lift"}}], info, FS)
     with pytest.raises(InvalidParameter, match="reference.targets"):
         build([{"controller": MFC, "differentiator": DIFF, "reference": {"kind": "tilt", "targets": [2e-3, 3e-3]}}], info, FS)
+
+
+def _drive(points, ticks=60, seed=3):
+    """Step a batch controller through a synthetic measurement around 3 mm; record u, y, r and estimates."""
+    info = PlateTwin.nominal_info("plate-sim", "", {})
+    controller, _ = build(points, info, FS)
+    B = len(points)
+    rng = np.random.default_rng(seed)
+    y = np.full((B, 4), 3e-3)
+    controller.reset(y)
+    r = np.zeros((B, 3, 4))
+    r[:, :, 0], r[:, :, 2] = 3e-3, -10.0  # pull up: the law demands positive forces
+    log = []
+    for _ in range(ticks):
+        y = 3e-3 + 2e-6 * rng.standard_normal((B, 4))
+        u = controller.step(y, r)
+        est = {k: v.copy() for k, v in controller.estimates.items()}
+        log.append((y, u, est))
+    return controller, r, log
+
+
+@pytest.mark.parametrize("variant", ["v", "force", "u", "current"])
+def test_law_reconstructed_from_estimates(variant):
+    """u from the controller equals eqs. (14)/(17)/(19)/(21) with (11)/(18) and (12), rebuilt from f̂, ê, ê̇."""
+    gamma = {"v": 1.0, "force": 0.9, "u": 1.5e-5, "current": 0.04}[variant]
+    point = {"controller": {**MFC, "input": variant, "gamma": gamma}, "differentiator": DIFF, "reference": {"kind": "lift"}}
+    controller, r, log = _drive([point])
+    checked = 0
+    for y, u, est in log:
+        if not np.all((u > 0) & (u < 8)):
+            continue  # saturated: the law is clipped
+        checked += 1
+        w = r[:, :, 2] - 5000 * est["e_hat"] - 195 * est["de_hat"] - est["f_hat"]
+        h = GEO.gaps_from_sensors(y)
+        forces = (u / (250 * h)) ** 2
+        if variant == "v":
+            np.testing.assert_allclose(GEO.input_from_forces(forces), w / gamma, rtol=1e-9)
+            np.testing.assert_allclose(forces, GEO.forces_pinv(w / gamma), rtol=1e-9)
+            continue
+        x = {"force": forces, "u": (u / h) ** 2, "current": u}[variant]
+        expected = -w / gamma * (y[:, :3] if variant == "current" else 1.0)
+        np.testing.assert_allclose(x[:, :3], expected, rtol=1e-9)
+        np.testing.assert_allclose(x[:, 3], 0.5 * (x[:, 1] + x[:, 2]), rtol=1e-12)  # F_d,4 = (F_2 + F_3)/2
+    assert checked > 10
+
+
+@pytest.mark.parametrize("kind", ["plate-mfc", "plate-mbc"])
+def test_batch_equals_single_runs(kind):
+    if kind == "plate-mfc":
+        points = [{"controller": {**MFC, "k_p": kp, "k_d": kd}, "differentiator": {"alpha": a, "omega_c": 840.0}, "reference": {"kind": "lift"}}
+                  for kp, kd, a in [(4000.0, 150.0, 4), (5000.0, 195.0, 3), (6000.0, 220.0, 4)]]  # fmt: skip
+    else:
+        points = [{"controller": {"kind": "plate-mbc", "c_p": cp, "observer_poles": poles}, "reference": {"kind": "lift"}}
+                  for cp, poles in [(4000.0, [700, 720, 740]), (5000.0, [820, 840, 860]), (6000.0, [900, 910, 920])]]  # fmt: skip
+    _, _, batch = _drive(points)
+    for b, point in enumerate(points):
+        # drive a single run with run b's samples of the batch
+        info = PlateTwin.nominal_info("plate-sim", "", {})
+        controller, _ = build([point], info, FS)
+        controller.reset(np.full((1, 4), 3e-3))
+        r = np.zeros((1, 3, 4))
+        r[:, :, 0], r[:, :, 2] = 3e-3, -10.0
+        for y, u, _ in batch:
+            np.testing.assert_allclose(controller.step(y[b : b + 1], r), u[b : b + 1], rtol=1e-12, atol=1e-12)

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from labrunner.errors import InvalidParameter
-from labrunner.plate_geometry import PlateGeometry, complete_over_actuated, current_for_force, magnet_force
+from labrunner.plate_geometry import (
+    PlateGeometry,
+    complete_over_actuated,
+    current_for_force,
+    magnet_force,
+    over_actuation_weights,
+)
 
 GEO = PlateGeometry()
 RNG = np.random.default_rng(7)
@@ -67,11 +73,11 @@ def test_eq11_pseudo_inverse_matches_printed_matrix_and_realises_v():
 
 def test_eq18_fourth_input():
     x = np.array([[1.0, 2.0, 4.0]])
-    np.testing.assert_allclose(complete_over_actuated(x), [[1.0, 2.0, 4.0, 3.0]])  # Sec. 4.1: (F2 + F3)/2
-    np.testing.assert_allclose(complete_over_actuated(x, (1.0, 0.0, 0.0))[:, 3], 1.0)
-    for bad in [(0.5, 0.5, 0.5), (-0.5, 1.0, 0.5), (1.0, 0.0)]:
+    np.testing.assert_allclose(complete_over_actuated(x, over_actuation_weights()), [[1.0, 2.0, 4.0, 3.0]])  # (F2 + F3)/2
+    np.testing.assert_allclose(complete_over_actuated(x, over_actuation_weights((1.0, 0.0, 0.0)))[:, 3], 1.0)
+    for bad in [(0.5, 0.5, 0.5), (-0.5, 1.0, 0.5), (1.0, 0.0), "abc", (np.nan, 0.5, 0.5)]:
         with pytest.raises(InvalidParameter, match="weights"):
-            complete_over_actuated(x, bad)
+            over_actuation_weights(bad)
 
 
 def test_magnet_force_and_eq12_inverse():

@@ -37,7 +37,14 @@ from labrunner.control.plate_trajectories import reference_from_points
 from labrunner.control.trajectories import Reference
 from labrunner.differentiators import Differentiator
 from labrunner.errors import InvalidParameter
-from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry, complete_over_actuated, current_for_force, magnet_force
+from labrunner.plate_geometry import (
+    LAMBDA_INV_SQRT,
+    PlateGeometry,
+    complete_over_actuated,
+    current_for_force,
+    magnet_force,
+    over_actuation_weights,
+)
 from labrunner.rigs.base import RigInfo
 
 INPUTS = ("v", "force", "u", "current")
@@ -63,7 +70,7 @@ class PlateMFC(Controller):
         geometry: PlateGeometry | None = None,
         lam_inv_sqrt: float = LAMBDA_INV_SQRT,
         weights: Sequence[float] = (0.0, 0.5, 0.5),
-        y_min: float = 0.8e-3,
+        y_min: float | np.ndarray = 0.8e-3,
         filter_error: bool = False,
         notch_omega: float = 942.0,
         notch_q: float = 2.0,
@@ -76,10 +83,9 @@ class PlateMFC(Controller):
         self.input = input
         self.geometry = geometry or PlateGeometry()
         self.lam_inv_sqrt = float(lam_inv_sqrt)
-        self.weights = np.asarray(weights, dtype=float)
-        complete_over_actuated(np.zeros((1, 3)), self.weights)  # validates the a_k
-        self.y_min = float(y_min)
-        col = lambda a: np.array(a, dtype=float).reshape(B, 1)  # noqa: E731
+        self.weights = over_actuation_weights(weights)
+        col = lambda a: np.array(np.broadcast_to(np.asarray(a, dtype=float).reshape(-1), (B,))).reshape(B, 1)  # noqa: E731
+        self.y_min = col(y_min)
         self.gamma, self.k_p, self.k_d = col(gamma), col(k_p), col(k_d)
         # signed input gain of the estimator's model ÿ = f + γ_s x: γ_v, or −γ for the magnet inputs;
         # for the current the estimator's input is γ_i(y)·i with γ_s = −1 (see the module docstring)
@@ -172,22 +178,19 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     if ctl.has("weights"):
         if kind == "v":
             raise InvalidParameter("controller.weights", "input 'v' allocates by the pseudo-inverse (eq. (11)); weights are for force, u, current")
-        rows = ctl.values("weights", weights)
-        if any(list(r) != list(rows[0]) for r in rows):  # type: ignore[call-overload]
-            raise InvalidParameter("controller.weights", "must be the same for every run of a batch")
         try:
-            complete_over_actuated(np.zeros((1, 3)), rows[0])  # type: ignore[arg-type]
+            rows = [over_actuation_weights(row) for row in ctl.values("weights", weights)]
         except InvalidParameter as exc:
             raise InvalidParameter("controller.weights", str(exc).split(": ", 1)[1]) from None
-        weights = tuple(float(a) for a in rows[0])  # type: ignore[union-attr]
+        if any(not np.array_equal(row, rows[0]) for row in rows):
+            raise InvalidParameter("controller.weights", "must be the same for every run of a batch")
+        weights = tuple(rows[0])
     notch_omega = ctl.number("notch_omega", 942.0, lo=0.0, hi=np.pi * fs)
     notch_q = ctl.number("notch_q", 2.0, lo=0.0, lo_open=True)
     for key, values in (("notch_omega", notch_omega), ("notch_q", notch_q)):
         if np.ptp(values) > 0:
             raise InvalidParameter(f"controller.{key}", "must be the same for every run of a batch")
-    y_min = 0.8e-3
-    if kind == "current" and ctl.has("y_min"):
-        y_min = float(ctl.number("y_min", 0.8e-3, lo=0.0, lo_open=True).min())
+    y_min = ctl.number("y_min", 0.8e-3, lo=0.0, lo_open=True) if kind == "current" else 0.8e-3
     ctl.finish()
     designs = differentiators(points, fs, 2)
     ref = reference_from_points(points, rig_info, delays_s=np.array([d.discrete_delay_s(0) for d in designs]))
