@@ -91,7 +91,8 @@ class StreamingSS:
     """B runs × C channels of discrete systems x⁺ = A x + B w, out = C x + D w; one system per run.
 
     ``systems`` holds one (A, B, C, D) per run (same numbers of inputs and outputs; state sizes
-    are zero-padded to the largest). Each tick is one batched product [x, w] @ [[Cᵀ, Aᵀ], [Dᵀ, Bᵀ]].
+    are zero-padded to the largest). Each tick is one product [x, w] @ [[Cᵀ, Aᵀ], [Dᵀ, Bᵀ]]: a single
+    2-d product when every run has the same system, else a batched one.
     """
 
     def __init__(self, systems: Sequence[StateSpace], channels: int) -> None:
@@ -108,6 +109,8 @@ class StreamingSS:
             if k:
                 self._steady[b, :k] = np.linalg.solve(np.eye(k) - A, Bm)
         self._z = np.zeros((B, channels, n + m))
+        self._shared = self._M[0] if np.all(self._M == self._M[0]) else None
+        self._flat = self._z.reshape(B * channels, n + m)
 
     def reset(self, w0: np.ndarray) -> None:
         """Start in the steady state of a constant input ``w0`` (B, C, m)."""
@@ -118,6 +121,9 @@ class StreamingSS:
         """Feed w[k] (B, C, m); return out[k] (B, C, p) and advance the state."""
         z = self._z
         z[:, :, self.n :] = w
-        out = z @ self._M
+        if self._shared is not None:
+            out = (self._flat @ self._shared).reshape(z.shape[0], z.shape[1], -1)
+        else:
+            out = z @ self._M
         z[:, :, : self.n] = out[:, :, self.p :]
         return out[:, :, : self.p]
