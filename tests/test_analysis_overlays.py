@@ -129,3 +129,16 @@ def test_agreement_of_a_kp_kd_grid_with_fixed_gamma():
                                                                          "k_d": row["controller.k_d"]})
     assert result["case"] == "mfc2-motor" and result["share"] == 1.0 and result["n_compared"] == 2
     assert agreement(table, lambda row: theory)["n_compared"] == 0  # without γ nothing can be predicted
+
+
+def test_lines_that_miss_the_map_say_so_in_the_legend():
+    from labrunner.analysis.figures import mark_outside
+    from labrunner.analysis.overlays import OverlayLine
+
+    x = Axis("controller.gamma", np.logspace(-2, 1, 4), True, "γ")
+    y = Axis("controller.k_p", np.logspace(0, 3, 4), True, "k_p")
+    lines = [OverlayLine("nominal", 8384.0, None, "white"), OverlayLine("inside", 1.0, None, "white"),
+             OverlayLine("curve", np.array([1e3, 1e4]), np.array([1e5, 1e6]), "red"),
+             OverlayLine("k_d", None, 50.0, "red")]
+    labels = [line.label for line in mark_outside(lines, x, y)]
+    assert labels == ["nominal (outside the map)", "inside", "curve (outside the map)", "k_d"]

@@ -9,6 +9,7 @@ one γ). Run plots reuse :func:`labrunner.runplot.plot_run`.
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -106,6 +107,22 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
     return [], ""
 
 
+def _outside(line: OverlayLine, x: Axis, y: Axis) -> bool:
+    """Whether ``line`` misses the map's area (cell edges) entirely."""
+    (x0, x1), (y0, y1) = cell_edges(x.values, x.log)[[0, -1]], cell_edges(y.values, y.log)[[0, -1]]
+    if line.y is None:
+        return not x0 <= float(line.x) <= x1
+    if line.x is None:
+        return not y0 <= float(line.y) <= y1
+    xs, ys = np.asarray(line.x, dtype=float), np.asarray(line.y, dtype=float)
+    return not np.any((xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1))
+
+
+def mark_outside(lines: Sequence[OverlayLine], x: Axis, y: Axis) -> list[OverlayLine]:
+    """The lines, those that miss the map labelled so, so that the legend does not promise a line."""
+    return [replace(line, label=f"{line.label} (outside the map)") if _outside(line, x, y) else line for line in lines]
+
+
 def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=DPI)
     return path
@@ -139,6 +156,7 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
     for i, (suffix, rows) in enumerate(facets(frame, extra)):
         x, y = axis_of(rows, kx, units), axis_of(rows, ky, units)
         lines, note = map_overlays(rows, x, y, theories)
+        lines = mark_outside(lines, x, y)
         for column, title, label in map_metrics(ctx.error):
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
