@@ -21,6 +21,10 @@ with "v substituted by i" for a constant y. Following eq. (25), only the measure
 by default (``filter = "output"``): ê = ŷ − y_r, ê̇ = ŷ̇ − ẏ_r. As in Fig. 10b, a notch filter at the
 plate's resonance (942 rad/s, :mod:`labrunner.control.plate_filters`) cleans the measurement
 before the algebraic differentiators; ``notch_omega = 0`` leaves it out.
+
+Units are SI throughout. Paper 2's γ_i,0 = 40 works only with y in millimetres in γ_i(y): with
+y in metres the equivalent is 0.04 m²/(A s²) (the linearised gain at 2 mm is ≈ 0.023). Eq. (12)
+reads i_d = d(h)·√F_d (the extracted text's √(F_d d(h)) is not dimensionally consistent with (2)).
 """
 
 from __future__ import annotations

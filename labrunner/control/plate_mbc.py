@@ -76,8 +76,7 @@ class MBCDesign:
 def matched_orders(alpha: float, beta: float) -> tuple[int, int, int]:
     """Low-pass orders on (ŷ, ŷ̇, η̂) matching the differentiator's slopes 20(μ − n) dB/dec, μ = 1 + min(α, β)."""
     mu = 1 + int(np.floor(min(alpha, beta)))
-    orders = tuple(max(mu - 1 - n, 0) for n in range(3))
-    return orders  # type: ignore[return-value]
+    return tuple(max(mu - 1 - n, 0) for n in range(3))  # type: ignore[return-value]
 
 
 def observer_gains(poles: Sequence[float]) -> np.ndarray:
