@@ -130,3 +130,11 @@ def test_cli_rejects_bad_arguments(tmp_path, capsys):
     assert main(["analyse", str(d), "--margin", "2"]) == 2
     assert main(["analyse", str(d), "--workers", "0"]) == 2
     shutil.rmtree(d)
+
+
+def test_one_axis_campaign_gives_a_sweep_plot(tmp_path):
+    d = tmp_path / "sweep"
+    make_campaign(d, gammas=(1000.0,), k_ps=(0.1, 1.0, 10.0, 100.0, 1000.0))
+    summary = analyse(d, workers=1)
+    assert [p.rsplit("/", 1)[-1] for p in summary["maps"]] == ["sweep.png"]
+    assert summary["aborted"] == 1 and summary["no_motion"] == 1  # k_p = 1000 > γ/2; γ/k_p = 10⁴ > 1000
