@@ -122,8 +122,8 @@ def _campaign_section(ctx, frame: pd.DataFrame) -> Section:
         "name": campaign.name, "rig": f"{campaign.rig} ({campaign.rig_info.description or campaign.rig_info.kind})",
         "sampling frequency f_s": f"{campaign.fs:g} Hz",
         "duration": f"{campaign.duration:g} s" if campaign.duration else "the reference's length",
-        "controller": ", ".join(f"{k} = {v}" for k, v in campaign.base.get("controller", {}).items()),
-        "differentiator": ", ".join(f"{k} = {v}" for k, v in campaign.base.get("differentiator", {}).items()) or "–",
+        "controller": _section_text(campaign, "controller"),
+        "differentiator": _section_text(campaign, "differentiator"),
         "points": campaign.size,
     }
     for group in campaign.grid.groups:
@@ -132,12 +132,19 @@ def _campaign_section(ctx, frame: pd.DataFrame) -> Section:
             span = f"{min(values):.4g} … {max(values):.4g}" if values else ", ".join(map(str, axis.values))
             facts[f"grid: {axis.key}"] = f"{len(axis.values)} values, {span}"
     for key, expr in campaign.derived:
-        facts[f"derived: {key}"] = getattr(expr, "source", str(expr))
+        facts[f"derived: {key}"] = expr.source
     constants = ", ".join(f"{k} = {v:g}" for k, v in campaign.rig_info.constants.items())
     if constants:
         facts["rig constants (nominal)"] = constants
     return Section("Campaign", paragraphs=[campaign.description] if campaign.description else [], facts=facts,
                    pre=campaign.source)
+
+
+def _section_text(campaign, section: str) -> str:
+    """``k = v`` of a base section, leaving out keys the grid or [derived] sets per point."""
+    varied = set(campaign.grid.keys) | {key for key, _ in campaign.derived}
+    items = [f"{k} = {v}" for k, v in campaign.base.get(section, {}).items() if f"{section}.{k}" not in varied]
+    return ", ".join(items) or "–"
 
 
 def _outcome_section(summary: Mapping[str, object]) -> Section:
