@@ -22,6 +22,26 @@ TERMINAL = ("done", "aborted", "failed")
 GRID = '"controller.gamma" = { log10 = [1.0, 3.0], num = 10 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 12 }'
 
 
+def _children(pid: int) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                if entry.isdigit() and int(fh.read().rsplit(")", 1)[1].split()[1]) == pid:
+                    out.append(int(entry))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def _terminal(directory) -> int:
     return sum(r["state"] in TERMINAL for r in ledger_rows(directory))
 
@@ -47,8 +67,11 @@ def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
             wait_for(lambda: proc.poll() is not None or _terminal(directory) >= target, 60)
             time.sleep(rng.uniform(0.0, 0.2))
         if proc.poll() is None and _terminal(directory) < len(planned):
+            workers = _children(proc.pid)
             os.kill(proc.pid, signal.SIGKILL)  # the runner only: its workers must not outlive it
             kills += 1
+            proc.communicate(timeout=60)
+            assert wait_for(lambda: not any(_alive(w) for w in workers), 10), "a worker outlived its runner"
         proc.communicate(timeout=60)
     final = cli("resume", "data/crash", "--workers", "2", cwd=project)
     assert final.returncode == 0, final.stderr

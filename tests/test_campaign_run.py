@@ -52,6 +52,13 @@ def test_run_then_status_and_logs(project, capsys):
     assert "9 points" in capsys.readouterr().out
 
 
+def test_bad_executor_address_is_refused_before_anything_exists(project, capsys):
+    path = write(project / "tiny.toml", campaign_text())
+    assert main(["run", str(path), "--executor", "localhost:8786"]) == 2
+    assert "--executor: must be a Dask scheduler address" in capsys.readouterr().err
+    assert not (project / "data").exists()
+
+
 def test_existing_campaign_directory_is_refused_with_a_resume_hint(project, capsys):
     path = write(project / "tiny.toml", campaign_text(grid='"controller.k_p" = { values = [10.0] }'))
     assert main(["run", str(path)]) == 0
@@ -93,6 +100,8 @@ def test_second_runner_refused_and_sigint_leaves_a_resumable_campaign(project):
     first = spawn("run", "long.toml", "--workers", "1", "--batch-size", "2", cwd=project)
     directory = project / "data" / "long"
     assert wait_for(lambda: sum(r["state"] in TERMINAL for r in ledger_rows(directory)) >= 2, 60), first.communicate()
+    st = json.loads(cli("status", "data/long", "--json", cwd=project).stdout)
+    assert st["running"] == {"host": socket.gethostname(), "pid": first.pid} and st["total"] == 64
     second = cli("resume", "data/long", cwd=project)
     assert second.returncode == 1
     assert f"host {socket.gethostname()} PID {first.pid}" in second.stderr

@@ -23,7 +23,14 @@ from labrunner.campaign import recovery, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
 from labrunner.campaign.progress import Progress
-from labrunner.campaign.scheduler import Outcome, Scheduler, kill_pool_workers, make_batches, open_executor
+from labrunner.campaign.scheduler import (
+    Outcome,
+    Scheduler,
+    check_executor_url,
+    kill_pool_workers,
+    make_batches,
+    open_executor,
+)
 from labrunner.campaign.worker import RUNS_DIR
 from labrunner.errors import CampaignError
 
@@ -119,6 +126,7 @@ def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slot
 
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
+    check_executor_url(opts.executor)
     campaign = spec.load(file)
     points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
@@ -175,6 +183,7 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
 def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) -> tuple[Outcome, str]:
     """``labrunner resume``: settle a crash, then run every point that is not terminal."""
     directory = Path(directory)
+    check_executor_url(opts.executor)
     if not (directory / LEDGER_NAME).is_file():
         raise CampaignError(f"{directory} holds no campaign ledger; start a campaign with `labrunner run FILE`")
     stream = opts.stream or sys.stderr

@@ -107,6 +107,12 @@ def _init_worker(lock_fd: int | None) -> None:
             os.close(lock_fd)
 
 
+def check_executor_url(url: str | None) -> None:
+    """``--executor`` must be a Dask scheduler address."""
+    if url is not None and not url.startswith(("tcp://", "tls://", "inproc://")):
+        raise InvalidParameter("--executor", f"must be a Dask scheduler address tcp://HOST:PORT, got {url!r}")
+
+
 @contextlib.contextmanager
 def open_executor(
     *, real_rig: bool, workers: int | None, url: str | None, lock_fd: int | None = None
@@ -116,8 +122,7 @@ def open_executor(
         yield InProcessExecutor(), 1
         return
     if url:
-        if not url.startswith(("tcp://", "tls://", "inproc://")):
-            raise InvalidParameter("--executor", f"must be a Dask scheduler address tcp://HOST:PORT, got {url!r}")
+        check_executor_url(url)
         from distributed import Client
 
         try:
