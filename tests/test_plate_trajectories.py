@@ -25,17 +25,18 @@ def test_lift_levels_and_times():
 
 def test_tilt_transition_times():
     """Fig. 12: from 2 mm, y_2's transition is done after 0.25 s, y_3's after 0.5 s; all return to 2 mm."""
-    trs = tilt(start_s=0.2)
-    ends = {0: 0.2 + 0.75, 1: 0.2 + 0.25, 2: 0.2 + 0.5}
+    trs = tilt(lift_s=2.0, settle_s=0.5)
+    start = 2.5  # lifted to the hover height and settled
+    ends = {0: start + 0.75, 1: start + 0.25, 2: start + 0.5}
     for k, tr in enumerate(trs):
-        v = tr.evaluate(np.array([0.0, ends[k] - 1e-3, ends[k], 0.2 + 0.75 + 0.5 - 1e-9]))[:, 0]
-        assert v[0] == pytest.approx(2e-3)
-        assert v[2] == pytest.approx((2.5e-3, 1.5e-3, 2.5e-3)[k])
-        assert v[3] == pytest.approx(v[2])  # still tilted while the slowest finishes and holds
-        assert abs(v[1] - v[2]) < 1e-6
+        v = tr.evaluate(np.array([0.0, start, ends[k] - 1e-3, ends[k], start + 0.75 + 0.5 - 1e-9]))[:, 0]
+        assert v[0] == pytest.approx(5.5e-3) and v[1] == pytest.approx(2e-3)
+        assert v[3] == pytest.approx((2.5e-3, 1.5e-3, 2.5e-3)[k])
+        assert v[4] == pytest.approx(v[3])  # still tilted while the slowest finishes and holds
+        assert abs(v[2] - v[3]) < 1e-6
         assert tr.evaluate(np.array([tr.duration]))[0, 0] == pytest.approx(2e-3)
     # each returns with its own transition time after the common hold
-    np.testing.assert_allclose([tr.duration for tr in trs], [0.2 + 0.75 + 0.5 + t + 0.5 for t in (0.75, 0.25, 0.5)])
+    np.testing.assert_allclose([tr.duration for tr in trs], [start + 0.75 + 0.5 + t + 0.5 for t in (0.75, 0.25, 0.5)])
 
 
 def test_reference_from_points_delay_and_defaults():

@@ -5,6 +5,7 @@
 - :func:`tilt`: Sec. 4.3.2 — from hovering horizontally at 2 mm, three individual transitions with
   different transition times (Fig. 12: y_2 done after 0.25 s, y_3 after 0.5 s) and back. The paper
   gives the times but not the levels; the default levels tilt the plate by ±0.5 mm at the sensors.
+  A run starts on the screws, so the tilt begins with the same lift to the hover height.
 
 Both return one :class:`~labrunner.control.trajectories.Setpoints` per sensor point, optionally
 delayed by the differentiator's delay δ_t (Sec. 4.3.1).
@@ -47,15 +48,18 @@ def lift(
 
 def tilt(
     *,
+    rest: float = 5.5e-3,
     hover: float = 2e-3,
     targets: Sequence[float] = (2.5e-3, 1.5e-3, 2.5e-3),
     transitions_s: Sequence[float] = (0.75, 0.25, 0.5),
-    start_s: float = 0.2,
+    lift_s: float = 2.0,
+    settle_s: float = 0.5,
     hold_s: float = 0.5,
     delay_s: float = 0.0,
     field_prefix: str = "reference",
 ) -> tuple[Setpoints, Setpoints, Setpoints]:
-    """Per sensor k: hover for ``start_s``, to ``targets[k]`` in ``transitions_s[k]``, hold, and back [m, s].
+    """Per sensor k: lift ``rest`` → ``hover`` in ``lift_s``, hover ``settle_s``, to ``targets[k]`` in
+    ``transitions_s[k]``, hold, and back [m, s].
 
     Each point holds its target until the slowest transition is done plus ``hold_s``, so that the
     plate is tilted about both axes at once before it returns.
@@ -65,9 +69,9 @@ def tilt(
     slowest = max(transitions_s)
     return tuple(  # type: ignore[return-value]
         Setpoints.build(
-            [hover, target, hover],
-            [t, t],
-            [start_s, slowest - t + hold_s, hold_s],
+            [rest, hover, target, hover],
+            [lift_s, t, t],
+            [0.0, settle_s, slowest - t + hold_s, hold_s],
             delay_s,
             field_prefix=field_prefix,
         )
@@ -80,8 +84,8 @@ def reference_from_points(points: Sequence[Point], rig_info: RigInfo, *, delays_
 
     ``kind = "lift"``: keys ``rest`` [m] (default: the rig's rest gap), ``hover``, ``high`` [m],
     ``lift``, ``settle``, ``transition``, ``hold`` [s] (see :func:`lift`); ``kind = "tilt"``: keys
-    ``hover`` [m], ``targets`` [m, one per sensor], ``transitions`` [s, one per sensor], ``start``,
-    ``hold`` [s] (see :func:`tilt`). Both take ``delay`` (bool): delay by the differentiator's δ_t
+    ``rest``, ``hover`` [m], ``targets`` [m, one per sensor], ``transitions`` [s, one per sensor],
+    ``lift``, ``settle``, ``hold`` [s] (see :func:`tilt`). Both take ``delay`` (bool): delay by the differentiator's δ_t
     (``delays_s``, per run). Other kinds (setpoints, steps, sine) go to
     :func:`labrunner.control.factory.reference` with three outputs.
     """
@@ -95,23 +99,24 @@ def reference_from_points(points: Sequence[Point], rig_info: RigInfo, *, delays_
     delays = np.asarray(delays_s, dtype=float) if delayed else np.zeros(len(points))
     gap = dict(lo=0.0, lo_open=True, hi=float(rig_info.outputs[0].hi))
     rows = []
+    rest = sec.number("rest", float(rig_info.constants.get("rest_gap", 5.5e-3)), **gap)
+    hover = sec.number("hover", 2e-3, **gap)
+    lift_s, settle = sec.number("lift", 2.0, lo=0.0, lo_open=True), sec.number("settle", 0.5, lo=0.0)
     if kind == "lift":
-        rest = sec.number("rest", float(rig_info.constants.get("rest_gap", 5.5e-3)), **gap)
-        hover, high = sec.number("hover", 2e-3, **gap), sec.number("high", 5e-3, **gap)
-        lift_s, settle = sec.number("lift", 2.0, lo=0.0, lo_open=True), sec.number("settle", 0.5, lo=0.0)
+        high = sec.number("high", 5e-3, **gap)
         trans, hold = sec.number("transition", 0.5, lo=0.0, lo_open=True), sec.number("hold", 0.2, lo=0.0)
         for i in range(len(points)):
             rows.append(lift(rest=rest[i], hover=hover[i], high=high[i], lift_s=lift_s[i], settle_s=settle[i],
                              transition_s=trans[i], hold_s=hold[i], delay_s=delays[i]))  # fmt: skip
     else:
-        hover = sec.number("hover", 2e-3, **gap)
         targets = sec.values("targets", [2.5e-3, 1.5e-3, 2.5e-3])
         transitions = sec.values("transitions", [0.75, 0.25, 0.5])
-        start, hold = sec.number("start", 0.2, lo=0.0), sec.number("hold", 0.5, lo=0.0)
+        hold = sec.number("hold", 0.5, lo=0.0)
         for i in range(len(points)):
             tg = _triple("reference.targets", targets[i], **gap)
             tr = _triple("reference.transitions", transitions[i], lo=0.0, lo_open=True, hi=np.inf)
-            rows.append(tilt(hover=hover[i], targets=tg, transitions_s=tr, start_s=start[i], hold_s=hold[i], delay_s=delays[i]))
+            rows.append(tilt(rest=rest[i], hover=hover[i], targets=tg, transitions_s=tr, lift_s=lift_s[i],
+                             settle_s=settle[i], hold_s=hold[i], delay_s=delays[i]))  # fmt: skip
     sec.finish()
     return Reference(rows)
 
