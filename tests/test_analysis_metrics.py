@@ -45,3 +45,14 @@ def test_torn_run_cuts_to_shortest_channel():
     signals = {"e_omega": np.array([2.0, 2.0, 7.0]), "u": np.array([1.0, 1.0])}
     m = run_metrics(signals, Roles(errors=("e_omega",), inputs=("u",)))
     assert m["n_samples"] == 2 and m["rms_error"] == pytest.approx(2.0) and m["input_energy"] == pytest.approx(2.0)
+
+
+def test_roles_from_log_channels_with_rig_units_as_fallback():
+    from labrunner.analysis.table import roles_of
+
+    channels = {"q": {"role": "output", "unit": "l/min"}, "i": {"role": "input", "unit": ""},
+                "e_q": {"role": "error", "unit": ""}, "e_hat_q": {"role": "estimate"}, "f_hat_q": {"role": "estimate"},
+                "ref_q": {"role": "reference"}}
+    roles = roles_of(channels, {"i": "A", "q": "l/min"})
+    assert roles == Roles(errors=("e_q",), inputs=("i",), error_hats=("e_hat_q",), currents=("i",))
+    assert roles_of(channels).currents == ()  # no unit anywhere: not known to be a current

@@ -202,7 +202,9 @@ def analyse(
         meta = ledger.meta()
         quarantine = [dict(r) for r in ledger.quarantined()]
     campaign, note = load_campaign(meta, directory)
-    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers)
+    rig_units = ({s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
+                 if campaign is not None else {})
+    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units)
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     csv, parquet = table_mod.write_table(frame, out)

@@ -12,6 +12,7 @@ moved to ``quarantine/`` are listed too.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from collections.abc import Mapping, Sequence
@@ -43,26 +44,31 @@ class CampaignTable:
     n_read: int = 0  # logs read now (the rest came from the cache)
 
 
-def roles_of(channels: Mapping[str, Mapping[str, Any]]) -> Roles:
-    """Metric roles from a log's ``channels`` record (signal → {"role", "unit"})."""
+def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str] | None = None) -> Roles:
+    """Metric roles from a log's ``channels`` record (signal → {"role", "unit"}); ``units`` (the
+    rig's signal units) stands in where the log records no unit."""
     by_role: dict[str, list[str]] = {}
     for name, info in channels.items():
         by_role.setdefault(str(info.get("role", "")), []).append(name)
-    currents = tuple(n for n, info in channels.items() if info.get("unit") == "A")
+    units = units or {}
+    currents = tuple(n for n, info in channels.items() if (info.get("unit") or units.get(n)) == "A")
     error_hats = tuple(n for n in by_role.get("estimate", []) if n.startswith("e_hat_"))
     return Roles(errors=tuple(by_role.get("error", [])), inputs=tuple(by_role.get("input", [])),
                  error_hats=error_hats, currents=currents)
 
 
-def log_metrics(path: str) -> dict[str, Any]:
-    """Metrics, outcome and torn flag of one MCAP; ``{"error": ...}`` if it cannot be read."""
+def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """Metrics, outcome and torn flag of one MCAP; ``{"error": ...}`` if it cannot be read.
+
+    ``units``: the rig's signal units, for logs that record none (see :func:`roles_of`).
+    """
     from labrunner.logs import read_run
 
     try:
         log = read_run(path)
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
-        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels))
+        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units))
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     outcome = log.outcome or {}
@@ -71,12 +77,13 @@ def log_metrics(path: str) -> dict[str, Any]:
     return out
 
 
-def _read_many(paths: Sequence[str], workers: int) -> list[dict[str, Any]]:
+def _read_many(paths: Sequence[str], workers: int, units: Mapping[str, str] | None) -> list[dict[str, Any]]:
+    read = functools.partial(log_metrics, units=dict(units or {}))
     if workers <= 1 or len(paths) < _PARALLEL_MIN:
-        return [log_metrics(p) for p in paths]
+        return [read(p) for p in paths]
     chunk = max(1, len(paths) // (workers * 8))
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(log_metrics, paths, chunksize=chunk))
+        return list(pool.map(read, paths, chunksize=chunk))
 
 
 def _stat(path: Path) -> tuple[int, int] | None:
@@ -129,8 +136,10 @@ def build_table(
     *,
     cache: pd.DataFrame | None = None,
     workers: int | None = None,
+    units: Mapping[str, str] | None = None,
 ) -> CampaignTable:
-    """Merge ledger ``rows`` with metrics from their logs (reusing ``cache`` rows that still match)."""
+    """Merge ledger ``rows`` with metrics from their logs (reusing ``cache`` rows that still match);
+    ``units`` are the rig's signal units, for logs that record none."""
     frame = ledger_frame(rows)
     problems: list[dict[str, str]] = []
     cached = _cached(cache)
@@ -151,7 +160,7 @@ def build_table(
         else:
             todo.append(i)
     paths = [str(directory / frame.at[i, "log_path"]) for i in todo]
-    for i, result in zip(todo, _read_many(paths, workers or os.cpu_count() or 1)):
+    for i, result in zip(todo, _read_many(paths, workers or os.cpu_count() or 1, units)):
         if "error" in result:
             problems.append({"path": frame.at[i, "log_path"], "kind": "unreadable", "detail": result["error"]})
             continue
