@@ -31,6 +31,8 @@ from labrunner.errors import LabrunnerError
 ID_COLUMNS = ("seq", "id", "state", "status", "monitor", "abort_time", "abort_value", "attempts", "log_path", "torn")
 #: Columns that tell whether a cached row still matches its log file.
 CACHE_COLUMNS = ("log_size", "log_mtime_ns")
+#: Bump when the metrics change meaning: cached tables of another version are recomputed.
+METRICS_VERSION = 1
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
 
@@ -127,6 +129,8 @@ def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
 def _cached(cache: pd.DataFrame | None) -> dict[tuple[str, str], dict[str, Any]]:
     if cache is None or cache.empty or not set(CACHE_COLUMNS) <= set(cache.columns):
         return {}
+    if "metrics_version" not in cache.columns or not (cache["metrics_version"] == METRICS_VERSION).all():
+        return {}
     return {(r["id"], r["log_path"]): r for r in cache.to_dict("records")}
 
 
@@ -177,6 +181,7 @@ def build_table(
         for col in CACHE_COLUMNS:
             frame[col] = frame[col].astype("Int64")
     frame["torn"] = frame["torn"].fillna(False).astype(bool)
+    frame["metrics_version"] = METRICS_VERSION
     for rec in frame[frame["torn"]].to_dict("records"):
         problems.append({"path": rec["log_path"], "kind": "torn", "detail": f"point {rec['id']}: salvaged a torn log"})
     return CampaignTable(frame, problems, n_read=len(todo))
