@@ -43,6 +43,7 @@ MAX_BATCH = 64  # runs per lockstep batch
 BATCH_MEMORY_BYTES = 256 * 2**20  # a batch's signal buffers stay below this
 _BYTES_PER_SAMPLE = 8 * 32  # float64 × (generous) number of logged traces per run
 _PR_SET_PDEATHSIG = 1
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 @dataclass
@@ -98,6 +99,7 @@ def _init_worker(lock_fd: int | None) -> None:
     kills the workers), die with the parent, drop the inherited lock descriptor."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)  # blocked by the parent while it forked us
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() == 1:  # the parent died before prctl took effect
@@ -208,8 +210,15 @@ class Scheduler:
         task = self._task(key, rows)
         ids = [r.point_id for r in task.runs]
         self.ledger.claim(ids)
-        try:
-            future = self.executor.submit(self.batch_fn, task)
+        forks = isinstance(self.executor, ProcessPoolExecutor)  # its first submit forks the workers:
+        try:  # a Ctrl-C must not reach a worker before its initializer ignores it (it stays pending here)
+            if forks:
+                signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+            try:
+                future = self.executor.submit(self.batch_fn, task)
+            finally:
+                if forks:
+                    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
         except BaseException:
             if not isinstance(self.executor, InProcessExecutor):
                 self.ledger.unclaim(ids)
