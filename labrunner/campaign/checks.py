@@ -9,7 +9,10 @@ re-checked point by point so that the error names the offending grid point.
 
 Compatibility ("may share a batch") is the campaign's rig, f_s, duration and every non-numeric
 value of the point (controller kind, output, differentiator method, reference kind, ...):
-builders require those to agree over a batch.
+builders require those to agree over a batch. A few numbers must agree too (e.g. the plate MFC's
+notch frequency); they are discovered here: when a chunk fails to build although each of its
+points builds alone, the key the error names joins :attr:`StaticChecker.split` and the chunk is
+split by its value.
 """
 
 from __future__ import annotations
@@ -27,6 +30,22 @@ MAX_SAMPLES = 10_000_000  # samples per run: beyond this a run's signals do not 
 CHUNK = 256  # points validated by one batched build
 
 Item = tuple[int, dict[str, Any], dict[str, Any]]  # (seq, parameters, resolved config)
+
+
+def lookup(config: dict[str, Any], key: str) -> Any:
+    """The value at dotted ``key`` of a resolved point (None when absent)."""
+    node: Any = config
+    for part in key.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def batch_key(rig: str, config: dict[str, Any], split: list[str]) -> str:
+    """Points with equal keys may share a lockstep batch (``config`` with its duration set)."""
+    head = config["campaign"]
+    return canonical_json([rig, head["fs"], head["duration"], choices(config), [lookup(config, k) for k in split]])
 
 
 def choices(config: dict[str, Any]) -> list[tuple[str, Any]]:
@@ -54,11 +73,12 @@ class StaticChecker:
         self._pending: dict[str, list[Item]] = {}
         self._safety: set[str] = set()
         self._fs: set[float] = set()
+        self.split: list[str] = []  # numeric keys that must agree within a batch (discovered)
 
     def add(self, seq: int, params: dict[str, Any], config: dict[str, Any]) -> Iterator[tuple[Item, float]]:
         """Queue one point; yields the checked points of a chunk once it is full."""
         self._scalars(params, config)
-        key = canonical_json([config["campaign"]["fs"], choices(config)])
+        key = canonical_json([config["campaign"]["fs"], choices(config), [lookup(config, k) for k in self.split]])
         chunk = self._pending.setdefault(key, [])
         chunk.append((seq, params, config))
         if len(chunk) >= CHUNK:
@@ -93,11 +113,21 @@ class StaticChecker:
         fs = float(chunk[0][2]["campaign"]["fs"])
         try:
             _, reference = factory.build([c for _, _, c in chunk], self.campaign.rig_info, fs)
-        except InvalidParameter:
+        except InvalidParameter as exc:
             for item in chunk:  # find the first bad point, to name it
                 with _at(item[1]):
                     factory.build([item[2]], self.campaign.rig_info, fs)
-            raise
+            # every point is fine alone: the points differ in a value a batch must share
+            values = {canonical_json(lookup(c, exc.field)) for _, _, c in chunk}
+            if exc.field in self.split or len(values) < 2:
+                raise
+            self.split.append(exc.field)
+            groups: dict[str, list[Item]] = {}
+            for item in chunk:
+                groups.setdefault(canonical_json(lookup(item[2], exc.field)), []).append(item)
+            for group in groups.values():
+                yield from self._check_chunk(group)
+            return
         for item, row in zip(chunk, reference.trajectories):
             duration = item[2]["campaign"]["duration"]
             if duration is None:  # default: the reference's own length

@@ -90,7 +90,7 @@ def dry_run(campaign: spec.Campaign, points: list[spec.PlannedPoint], opts: Opti
     lines = [f"campaign {campaign.name}: {len(points)} points on rig {campaign.rig!r}, {len(batches)} batches"]
     total_s = 0.0
     for key, sizes in groups.items():
-        _, fs, duration, choices = json.loads(key)
+        _, fs, duration, choices, _ = json.loads(key)
         kind = dict(choices).get("controller.kind")
         lines.append(f"  {sum(sizes)} points × {duration:g} s at {fs:g} Hz ({kind}): {len(sizes)} batches of ≤ {max(sizes)}")
         total_s += sum(sizes) * duration
@@ -109,17 +109,18 @@ def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slot
 
     group = [p for p in points if p.batch_key == points[0].batch_key]
     first = group[:: max(1, len(group) // min(size, 16))][: min(size, 16)]  # spread: early aborts end a batch early
-    _, fs, duration, _ = json.loads(first[0].batch_key)
+    _, fs, duration, *_ = json.loads(first[0].batch_key)
     configs = []
     for p in first:
         config = campaign.resolve(p.parameters)
         config["campaign"]["duration"] = duration
         configs.append(config)
+    probe_s = min(duration, max(0.5, 2000.0 / fs))  # a prefix of each run is enough to time the ticks
     t0 = time.perf_counter()
     with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as rig:
-        engine.run_batch(configs, rig, fs=fs, duration=duration, seeds=[campaign.seed] * len(configs),
+        engine.run_batch(configs, rig, fs=fs, duration=probe_s, seeds=[campaign.seed] * len(configs),
                          rig_safety=campaign.rig_safety)
-    per_run_sample = (time.perf_counter() - t0) / (len(first) * fs * duration)
+    per_run_sample = (time.perf_counter() - t0) / (len(first) * fs * probe_s)
     samples = sum(fs_d[0] * fs_d[1] for fs_d in (json.loads(p.batch_key)[1:3] for p in points))
     return per_run_sample * samples / slots + 0.01 * len(points)
 

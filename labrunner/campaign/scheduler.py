@@ -75,7 +75,7 @@ def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> l
         groups.setdefault(row["batch_key"], []).append(row)
     out = []
     for key, members in groups.items():
-        _, fs, duration, _ = json.loads(key)
+        _, fs, duration, *_ = json.loads(key)
         size = batch_size(len(members), slots, round(fs * duration), requested)
         out += [(key, members[i : i + size]) for i in range(0, len(members), size)]
     return out
@@ -192,7 +192,7 @@ class Scheduler:
         self.inflight: dict[Future, list[str]] = {}
 
     def _task(self, key: str, rows: list[Any]) -> BatchTask:
-        _, fs, duration, _ = json.loads(key)
+        _, fs, duration, *_ = json.loads(key)
         c = self.campaign
         runs = []
         for row in rows:

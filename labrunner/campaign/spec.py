@@ -286,25 +286,27 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     The checksum covers the resolved configuration of every point (not the file's bytes), so a
     comment edit keeps a campaign resumable while any change of what would run does not.
     """
-    from labrunner.campaign.checks import StaticChecker, choices
+    from labrunner.campaign.checks import StaticChecker, batch_key
 
     checker = StaticChecker(campaign)
-    points: list[PlannedPoint] = []
-    digests: list[tuple[int, str]] = []
+    checked: list[tuple[int, dict[str, Any], float, str]] = []
 
-    def accept(checked) -> None:
-        for (seq, params, config), duration in checked:
+    def accept(items) -> None:
+        for (seq, params, config), duration in items:
             config["campaign"]["duration"] = duration
-            key = canonical_json([campaign.rig, config["campaign"]["fs"], duration, choices(config)])
-            points.append(PlannedPoint(seq, point_id(campaign.name, params), params, key))
-            digests.append((seq, hashlib.sha256(canonical_json(config).encode()).hexdigest()))
+            checked.append((seq, params, duration, hashlib.sha256(canonical_json(config).encode()).hexdigest()))
 
     for seq, (params, config) in enumerate(campaign.points()):
         accept(checker.add(seq, params, config))
     accept(checker.flush())
-    points.sort(key=lambda p: p.seq)
+    checked.sort(key=lambda c: c[0])
+    points: list[PlannedPoint] = []
+    for seq, params, duration, _ in checked:  # batch keys once every batch-common key is known
+        config = campaign.resolve(params)
+        config["campaign"]["duration"] = duration
+        points.append(PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split)))
     gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
     digest = hashlib.sha256(canonical_json({"name": campaign.name, "rig": campaign.rig}).encode())
-    for _, d in sorted(digests):
+    for *_, d in checked:
         digest.update(d.encode())
     return points, digest.hexdigest()
