@@ -214,3 +214,29 @@ def test_dry_run_prints_points_batches_estimate_and_creates_nothing(project, cap
     out = capsys.readouterr().out
     assert "9 points" in out and "batches" in out and "estimated time" in out
     assert not (project / "data").exists()
+
+
+def test_numbers_a_batch_must_share_are_discovered_and_split_batches():
+    text = """
+[campaign]
+name = "plate-notch"
+rig = "plate-sim"
+duration = 0.01
+[controller]
+kind = "plate-mfc"
+gamma = 1.0
+k_p = 5000.0
+k_d = 195.0
+[differentiator]
+alpha = 4
+beta = 4
+omega_c = 840.0
+[reference]
+kind = "lift"
+[grid]
+"controller.notch_omega" = { values = [800.0, 942.0] }
+"controller.k_p" = { values = [4000.0, 5000.0] }
+"""
+    points, _ = spec.plan(load(text))
+    keys = {p.batch_key: {q.parameters["controller.notch_omega"] for q in points if q.batch_key == p.batch_key} for p in points}
+    assert len(keys) == 2 and all(len(v) == 1 for v in keys.values())  # the plate MFC needs one notch per batch
