@@ -34,7 +34,6 @@ QUICKSTART = (ROOT / "campaigns" / "quickstart.toml").read_text()
 
 def campaign(name: str, n_gamma: int, n_kp: int) -> str:
     text = QUICKSTART.replace('name = "quickstart"', f'name = "{name}"')
-    text = text.replace('rig = "dcmotor-sim"', f'rig = "{ROOT / "rigs" / "dcmotor-sim.toml"}"')
     text = text.replace("log10 = [1.0, 3.0], num = 10", f"log10 = [1.0, 3.0], num = {n_gamma}")
     return text.replace("log10 = [-1.0, 3.0], num = 10", f"log10 = [-1.0, 3.0], num = {n_kp}")
 
