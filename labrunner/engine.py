@@ -1,0 +1,222 @@
+"""Run engine: advances a batch of closed-loop runs tick by tick and classifies each run.
+
+Per tick k (t = k/fs), for all B runs at once ("lockstep", see docs/architecture.md):
+reference r[k] → controller u[k] = C(y[k], r[k]) → safety check of (u[k], y[k]) → tripped runs go
+to the rig's safe state in this same tick → y[k+1] = rig.step(u[k]). A tripped run's signals end
+at its abort sample; the batch goes on until every run has ended or the duration is reached.
+
+Outcomes: ``completed``; ``aborted`` (a safety monitor tripped: monitor, time, value,
+threshold); ``no-motion`` (completed, but the load never moved beyond the sensor resolution, or
+the flow never rose above its threshold); ``failed`` (an exception: its message). The same code
+drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from labrunner.control import factory
+from labrunner.errors import LabrunnerError
+from labrunner.rigs.base import Rig
+from labrunner.safety import SafetyConfig, SafetyMonitor
+
+_CHUNK = 1024  # reference samples evaluated at once, and samples per streamed block
+Sink = Callable[[int, Mapping[str, np.ndarray]], None]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How a run ended. ``status`` ∈ completed | aborted | no-motion | failed."""
+
+    status: str
+    monitor: str | None = None
+    time: float | None = None
+    value: float | None = None
+    threshold: float | None = None
+    message: str = ""
+
+    def as_dict(self) -> dict[str, object]:
+        return {k: v for k, v in self.__dict__.items()}
+
+
+@dataclass
+class RunResult:
+    """One run: outcome, signals (name → (K,) float64; sample k at k/fs), channel roles, metrics."""
+
+    outcome: Outcome
+    signals: dict[str, np.ndarray]
+    fs: float
+    channels: dict[str, list[str]]
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        return len(next(iter(self.signals.values()))) if self.signals else 0
+
+
+def run_metrics(signals: Mapping[str, np.ndarray], channels: Mapping[str, Sequence[str]]) -> dict[str, float]:
+    """RMS of the tracking error over all controlled outputs, input energy Σu² (thesis 3.5.1), max |u|."""
+    errors = [np.asarray(signals[n]) for n in channels.get("errors", [])]
+    inputs = [np.asarray(signals[n]) for n in channels.get("inputs", [])]
+    e = np.concatenate(errors) if errors else np.zeros(0)
+    u = np.concatenate(inputs) if inputs else np.zeros(0)
+    return {
+        "rms_error": float(np.sqrt(np.mean(e * e))) if e.size else float("nan"),
+        "input_energy": float(np.sum(u * u)),
+        "max_abs_input": float(np.max(np.abs(u))) if u.size else 0.0,
+    }
+
+
+def _channel_names(rig: Rig, outputs: Sequence[str], estimates: Mapping[str, np.ndarray]) -> dict[str, list[str]]:
+    est_names = []
+    for name, value in estimates.items():
+        if np.ndim(value) == 2:
+            est_names += [f"{name}_{o}" for o in outputs]
+        else:
+            est_names.append(f"{name}_{outputs[0]}" if len(outputs) == 1 else name)
+    return {
+        "outputs": list(outputs),
+        "references": [f"ref_{o}" for o in outputs],
+        "errors": [f"e_{o}" for o in outputs],
+        "inputs": [s.name for s in rig.info.inputs],
+        "measurements": [s.name for s in rig.info.outputs],
+        "estimates": est_names,
+    }
+
+
+def _motion(config: SafetyConfig, rig: Rig, y: np.ndarray) -> bool:
+    """Whether the run moved: ``y`` (K, n_rig_outputs) of one run."""
+    names = [s.name for s in rig.info.outputs]
+    j = names.index(config.motion_output) if config.motion_output else 0
+    trace = y[:, j]
+    if config.motion_min_level is not None:
+        return bool(np.nanmax(trace) > config.motion_min_level)
+    threshold = config.motion_min_change if config.motion_min_change is not None else rig.info.outputs[j].resolution
+    return bool(np.nanmax(np.abs(trace - trace[0])) > threshold)
+
+
+def run_batch(
+    points: Sequence[Mapping[str, object]],
+    rig: Rig,
+    *,
+    fs: float,
+    duration: float,
+    seeds: Sequence[int],
+    rig_safety: Mapping[str, object] | None = None,
+    sink: Sink | None = None,
+) -> list[RunResult]:
+    """Run B = len(points) resolved campaign points in lockstep on ``rig``; return one result each.
+
+    ``rig_safety`` is the rig file's ``[safety]`` section; each point's ``safety`` section
+    overrides it. ``sink(first_index, block)`` receives run 0's samples every 1024 ticks (real rigs
+    log while they run). Bad configuration raises :class:`~labrunner.errors.InvalidParameter`
+    before the rig moves; an exception during the run marks every unfinished run ``failed``.
+    """
+    B = len(points)
+    K = int(round(duration * fs))
+    controller, reference = factory.build(points, rig.info, fs)
+    configs = [SafetyConfig.from_sections(rig.info, rig_safety or {}, dict(p.get("safety", {}) or {})) for p in points]
+    overrides = _overrides(points)
+    monitor = SafetyMonitor(configs, rig.info, fs)
+
+    n_in, n_meas, n_out = len(rig.info.inputs), len(rig.info.outputs), controller.n_outputs
+    u_log = np.full((K, B, n_in), np.nan)
+    y_log = np.full((K, B, n_meas), np.nan)
+    c_log = np.full((K, B, n_out), np.nan)
+    r_log = np.full((K, B, n_out), np.nan)
+    est_log: dict[str, np.ndarray] = {}
+    end = np.full(B, K)  # samples recorded per run
+    active = np.ones(B, dtype=bool)
+    failure = ""
+    k = 0
+
+    try:
+        y = rig.reset(B, seeds, fs, overrides)
+        controller.reset(y)
+        monitor.reset(rig.applied_input)
+        r_chunk = np.empty(0)
+        for k in range(K):
+            if k % _CHUNK == 0:
+                r_chunk = reference.evaluate(np.arange(k, min(k + _CHUNK, K)) / fs)
+            r = r_chunk[k % _CHUNK]
+            u = controller.step(y, r)
+            tripped = monitor.check(k, u, y, active)
+            if tripped.any():
+                rig.safe_state(tripped)
+                end[tripped] = k + 1
+                active &= ~tripped
+            u_log[k], y_log[k], r_log[k, :, :] = u, y, r[:, :, 0]
+            c_log[k] = controller.controlled
+            for name, value in controller.estimates.items():
+                if name not in est_log:
+                    est_log[name] = np.full((K,) + np.shape(value), np.nan)
+                est_log[name][k] = value
+            if sink is not None and (k + 1) % _CHUNK == 0:
+                _stream(sink, k + 1 - _CHUNK, k + 1, rig, controller, u_log, y_log, c_log, r_log, est_log)
+            if not active.any():
+                break
+            y = rig.step(u)
+    except LabrunnerError:
+        rig.safe_state()
+        raise
+    except Exception as exc:  # a crash of the controller, the rig or the twin: fail the open runs
+        rig.safe_state()
+        failure = f"{type(exc).__name__}: {exc}"
+        end = np.where(active, np.minimum(end, k + 1), end)
+    else:
+        rig.safe_state()
+    if sink is not None and K % _CHUNK:
+        last = K - K % _CHUNK
+        _stream(sink, last, int(end[0]), rig, controller, u_log, y_log, c_log, r_log, est_log)
+
+    channels = _channel_names(rig, controller.output_names, controller.estimates)
+    results = []
+    for i in range(B):
+        n = int(end[i])
+        signals = _signals_of(i, 0, n, rig, controller.output_names, u_log, y_log, c_log, r_log, est_log, channels)
+        if failure and active[i]:
+            outcome = Outcome("failed", message=failure)
+        elif monitor.verdicts[i] is not None:
+            v = monitor.verdicts[i]
+            outcome = Outcome("aborted", v.monitor, v.time, v.value, v.threshold)
+        elif not _motion(configs[i], rig, y_log[:n, i]):
+            outcome = Outcome("no-motion", message="the load never moved beyond the sensor resolution")
+        else:
+            outcome = Outcome("completed")
+        results.append(RunResult(outcome, signals, float(fs), channels, run_metrics(signals, channels)))
+    return results
+
+
+def _overrides(points: Sequence[Mapping[str, object]]) -> dict[str, np.ndarray]:
+    """Per-run rig parameter overrides from each point's ``rig_parameters`` section."""
+    keys = sorted({k for p in points for k in dict(p.get("rig_parameters", {}) or {})})
+    return {k: np.array([float(dict(p.get("rig_parameters", {}) or {}).get(k, np.nan)) for p in points]) for k in keys}
+
+
+def _signals_of(i, lo, hi, rig, outputs, u_log, y_log, c_log, r_log, est_log, channels) -> dict[str, np.ndarray]:
+    """The named traces of run ``i``, samples lo..hi-1 (see docs/architecture.md for the naming)."""
+    sig: dict[str, np.ndarray] = {}
+    for j, s in enumerate(rig.info.outputs):
+        sig[s.name] = y_log[lo:hi, i, j].copy()
+    for j, s in enumerate(rig.info.inputs):
+        sig[s.name] = u_log[lo:hi, i, j].copy()
+    for j, o in enumerate(outputs):
+        sig[o] = c_log[lo:hi, i, j].copy()
+        sig[f"ref_{o}"] = r_log[lo:hi, i, j].copy()
+        sig[f"e_{o}"] = sig[o] - sig[f"ref_{o}"]
+    est_names = iter(channels["estimates"])
+    for log in est_log.values():
+        if log.ndim == 3:
+            for j in range(log.shape[2]):
+                sig[next(est_names)] = log[lo:hi, i, j].copy()
+        else:
+            sig[next(est_names)] = log[lo:hi, i].copy()
+    return sig
+
+
+def _stream(sink: Sink, lo: int, hi: int, rig, controller, u_log, y_log, c_log, r_log, est_log) -> None:
+    channels = _channel_names(rig, controller.output_names, controller.estimates)
+    sink(lo, _signals_of(0, lo, hi, rig, controller.output_names, u_log, y_log, c_log, r_log, est_log, channels))

@@ -1,0 +1,187 @@
+"""Safety monitors, checked every tick on the whole batch.
+
+The thesis's routine (Sec. 3.3, "Safety routine") stops a run when the commanded input changes too
+fast, |u̇[k]| ≥ 120 V/s, with u̇ estimated by an algebraic differentiator (N = 0, α = β = 6,
+ω_c = 200 rad/s, mid-point). Around it: bounds on outputs and inputs (air gap, currents, flow),
+non-finite values, and a run-time limit. A tripped run is reported with the monitor, the time,
+the offending value and the threshold; the engine sends it to the rig's safe state in the same
+tick.
+
+Limits come from the rig file's ``[safety]`` section, overridden by the campaign's ``[safety]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from labrunner.differentiators import StreamingFIR, design
+from labrunner.errors import InvalidParameter, check_finite
+from labrunner.rigs.base import RigInfo
+
+_BOUNDS_KEYS = ("output_bounds", "input_bounds")
+_SCALAR_KEYS = (
+    "max_du_dt",
+    "du_dt_alpha",
+    "du_dt_beta",
+    "du_dt_omega_c",
+    "max_duration",
+    "motion_output",
+    "motion_min_change",
+    "motion_min_level",
+)
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Validated safety limits of one run (SI units of the rig's signals).
+
+    ``max_du_dt`` [input unit / s] (``None`` disables the rate monitor) is estimated with an
+    algebraic differentiator of parameters ``du_dt_*``. ``output_bounds`` / ``input_bounds`` map a
+    signal name to its allowed closed interval. ``max_duration`` [s] aborts longer runs.
+    ``motion_*`` define "the load moved": the output ``motion_output`` changed by more than
+    ``motion_min_change`` from its first value, or rose above ``motion_min_level``.
+    """
+
+    max_du_dt: float | None = None
+    du_dt_alpha: float = 6.0
+    du_dt_beta: float = 6.0
+    du_dt_omega_c: float = 200.0
+    output_bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    input_bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    max_duration: float | None = None
+    motion_output: str | None = None
+    motion_min_change: float | None = None
+    motion_min_level: float | None = None
+
+    @classmethod
+    def from_sections(cls, rig_info: RigInfo, *sections: Mapping[str, object], prefix: str = "safety") -> SafetyConfig:
+        """Merge ``sections`` (rig file first, campaign last) and validate every key."""
+        merged: dict[str, object] = {}
+        for section in sections:
+            for key, value in (section or {}).items():
+                if key in _BOUNDS_KEYS and isinstance(value, Mapping):
+                    merged[key] = {**dict(merged.get(key, {})), **dict(value)}
+                else:
+                    merged[key] = value
+        unknown = sorted(set(merged) - set(_BOUNDS_KEYS) - set(_SCALAR_KEYS))
+        if unknown:
+            allowed = ", ".join(_SCALAR_KEYS + _BOUNDS_KEYS)
+            raise InvalidParameter(f"{prefix}.{unknown[0]}", f"unknown key; allowed: {allowed}")
+        kw: dict[str, object] = {}
+        for key in ("max_du_dt", "max_duration", "motion_min_change", "motion_min_level"):
+            if merged.get(key) is not None:
+                v = check_finite(f"{prefix}.{key}", merged[key])
+                if v <= 0 and key != "motion_min_level":
+                    raise InvalidParameter(f"{prefix}.{key}", f"must be > 0, got {v}")
+                kw[key] = v
+        for key in ("du_dt_alpha", "du_dt_beta", "du_dt_omega_c"):
+            if key in merged:
+                v = check_finite(f"{prefix}.{key}", merged[key])
+                if v <= 0.0:
+                    raise InvalidParameter(f"{prefix}.{key}", f"must be > 0, got {v}")
+                kw[key] = v
+        names = {"output_bounds": [s.name for s in rig_info.outputs], "input_bounds": [s.name for s in rig_info.inputs]}
+        for key in _BOUNDS_KEYS:
+            bounds = {}
+            for name, pair in dict(merged.get(key, {})).items():
+                path = f"{prefix}.{key}.{name}"
+                if name not in names[key]:
+                    raise InvalidParameter(path, f"unknown signal; rig {rig_info.name!r} has {names[key]}")
+                if not isinstance(pair, Sequence) or len(pair) != 2:
+                    raise InvalidParameter(path, f"must be [lo, hi], got {pair!r}")
+                lo, hi = (check_finite(path, v) for v in pair)
+                if lo >= hi:
+                    raise InvalidParameter(path, f"needs lo < hi, got [{lo}, {hi}]")
+                bounds[name] = (lo, hi)
+            kw[key] = bounds
+        if merged.get("motion_output") is not None:
+            out = str(merged["motion_output"])
+            if out not in names["output_bounds"]:
+                raise InvalidParameter(f"{prefix}.motion_output", f"must be one of {names['output_bounds']}, got {out!r}")
+            kw["motion_output"] = out
+        return cls(**kw)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Why a run was aborted: which monitor, when [s], the value seen and the threshold."""
+
+    monitor: str
+    time: float
+    value: float
+    threshold: float
+
+
+class SafetyMonitor:
+    """All monitors of a batch of B runs; ``check`` once per tick returns newly tripped runs."""
+
+    def __init__(self, configs: Sequence[SafetyConfig], rig_info: RigInfo, fs: float) -> None:
+        self.B = len(configs)
+        self.fs = float(fs)
+        self.n_inputs = len(rig_info.inputs)
+        self._max_du_dt = np.array([np.inf if c.max_du_dt is None else c.max_du_dt for c in configs])
+        self._rate: StreamingFIR | None = None
+        if np.isfinite(self._max_du_dt).any():
+            taps = []
+            for c in configs:
+                d = design(alpha=c.du_dt_alpha, beta=c.du_dt_beta, omega_c=c.du_dt_omega_c, fs=self.fs)
+                taps.append(d.weights(1))
+            from labrunner.differentiators import pad_taps
+
+            per_run = pad_taps(taps)  # (B, L)
+            self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
+        self._out_lo, self._out_hi = self._bounds(configs, rig_info.outputs, "output_bounds")
+        self._in_lo, self._in_hi = self._bounds(configs, rig_info.inputs, "input_bounds")
+        self._out_names = [s.name for s in rig_info.outputs]
+        self._in_names = [s.name for s in rig_info.inputs]
+        self._max_t = np.array([np.inf if c.max_duration is None else c.max_duration for c in configs])
+        self.verdicts: list[Verdict | None] = [None] * self.B
+
+    @staticmethod
+    def _bounds(configs: Sequence[SafetyConfig], signals: Sequence, key: str) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.full((len(configs), len(signals)), -np.inf)
+        hi = np.full((len(configs), len(signals)), np.inf)
+        for i, c in enumerate(configs):
+            for j, s in enumerate(signals):
+                if s.name in getattr(c, key):
+                    lo[i, j], hi[i, j] = getattr(c, key)[s.name]
+        return lo, hi
+
+    def reset(self, u0: np.ndarray) -> None:
+        """Start the rate estimator from a steady input ``u0`` (B, n_inputs)."""
+        if self._rate is not None:
+            self._rate.reset(self.B * self.n_inputs, fill=np.asarray(u0, float).reshape(-1))
+        self.verdicts = [None] * self.B
+
+    def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """Check tick ``k`` (commanded ``u`` (B, n_in), measured ``y`` (B, n_out)); return newly tripped (B,)."""
+        t = k / self.fs
+        tripped = np.zeros(self.B, dtype=bool)
+        rate = None
+        if self._rate is not None:
+            rate = np.abs(self._rate.step(np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0).reshape(-1)))
+            rate = rate.reshape(self.B, self.n_inputs)
+        checks = (
+            ("non_finite_input", ~np.isfinite(u), np.where(np.isfinite(u), 0.0, u), np.zeros_like(u), None),
+            ("non_finite_output", ~np.isfinite(y), np.where(np.isfinite(y), 0.0, y), np.zeros_like(y), None),
+            ("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
+            ("output_high", y > self._out_hi, y, self._out_hi, self._out_names),
+            ("input_low", u < self._in_lo, u, self._in_lo, self._in_names),
+            ("input_high", u > self._in_hi, u, self._in_hi, self._in_names),
+        )
+        if rate is not None:
+            lim = np.broadcast_to(self._max_du_dt[:, None], rate.shape)
+            checks = checks + (("du_dt", rate >= lim, rate, lim, self._in_names),)
+        duration = np.broadcast_to(self._max_t[:, None], (self.B, 1))
+        checks = checks + (("run_time", np.full((self.B, 1), t) >= duration, np.full((self.B, 1), t), duration, None),)
+        for monitor, hit, value, threshold, names in checks:
+            runs = np.flatnonzero(hit.any(axis=1) & active & ~tripped)
+            for i in runs:  # only runs that trip now: rare, so a loop here costs nothing per tick
+                j = int(np.argmax(hit[i]))
+                label = monitor if names is None or len(names) == 1 else f"{monitor}:{names[j]}"
+                self.verdicts[i] = Verdict(label, t, float(value[i, j]), float(threshold[i, j]))
+                tripped[i] = True
+        return tripped
