@@ -49,7 +49,7 @@ class RunResult:
     outcome: Outcome
     signals: dict[str, np.ndarray]
     fs: float
-    channels: dict[str, list[str]]
+    channels: dict[str, object]  # role group → names, and "units" (see _channel_names)
     metrics: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -70,20 +70,30 @@ def run_metrics(signals: Mapping[str, np.ndarray], channels: Mapping[str, Sequen
     }
 
 
-def _channel_names(rig: Rig, outputs: Sequence[str], estimates: Mapping[str, np.ndarray]) -> dict[str, list[str]]:
+def _channel_names(rig: Rig, controller, estimates: Mapping[str, np.ndarray]) -> dict[str, object]:
+    """Signal names grouped by role, in the log's vocabulary (:func:`labrunner.logs.write_run`):
+    ``outputs`` are the rig's measurements, ``controlled`` the tracked outputs computed from them
+    (e.g. Ω from θ by (2.34)), plus ``units`` (SI unit per signal; references and errors share their output's)."""
+    outputs = controller.output_names
     est_names = []
     for name, value in estimates.items():
         if np.ndim(value) == 2:
             est_names += [f"{name}_{o}" for o in outputs]
         else:
             est_names.append(f"{name}_{outputs[0]}" if len(outputs) == 1 else name)
+    measured = [s.name for s in rig.info.outputs]
+    units = {s.name: s.unit for s in (*rig.info.outputs, *rig.info.inputs)}
+    for o, unit in zip(outputs, controller.output_units):
+        units[o] = unit or units.get(o, "")
+        units[f"ref_{o}"] = units[f"e_{o}"] = units[o]
     return {
-        "outputs": list(outputs),
+        "outputs": measured,
+        "controlled": [o for o in outputs if o not in measured],  # a measured one keeps role "output"
         "references": [f"ref_{o}" for o in outputs],
         "errors": [f"e_{o}" for o in outputs],
         "inputs": [s.name for s in rig.info.inputs],
-        "measurements": [s.name for s in rig.info.outputs],
         "estimates": est_names,
+        "units": units,
     }
 
 
@@ -172,7 +182,7 @@ def run_batch(
         last = K - K % _CHUNK
         _stream(sink, last, int(end[0]), rig, controller, u_log, y_log, c_log, r_log, est_log)
 
-    channels = _channel_names(rig, controller.output_names, controller.estimates)
+    channels = _channel_names(rig, controller, controller.estimates)
     results = []
     for i in range(B):
         n = int(end[i])
@@ -218,5 +228,5 @@ def _signals_of(i, lo, hi, rig, outputs, u_log, y_log, c_log, r_log, est_log, ch
 
 
 def _stream(sink: Sink, lo: int, hi: int, rig, controller, u_log, y_log, c_log, r_log, est_log) -> None:
-    channels = _channel_names(rig, controller.output_names, controller.estimates)
+    channels = _channel_names(rig, controller, controller.estimates)
     sink(lo, _signals_of(0, lo, hi, rig, controller.output_names, u_log, y_log, c_log, r_log, est_log, channels))

@@ -19,7 +19,12 @@ class InvalidParameter(LabrunnerError, ValueError):
 
     def __init__(self, field: str, message: str) -> None:
         self.field = field
+        self.message = message
         super().__init__(f"{field}: {message}")
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        """Pickle by (field, message): the error crosses process pools and Dask workers intact."""
+        return (type(self), (self.field, self.message))
 
 
 class RigError(LabrunnerError):

@@ -10,7 +10,6 @@ import pytest
 
 from labrunner import engine
 from labrunner.campaign import spec
-from labrunner.campaign.worker import log_channels
 from labrunner.cli import main
 from labrunner.identification import identify_logs, nominal_constants
 from labrunner.logs import write_run
@@ -33,7 +32,7 @@ def _run_on(rig_name: str, directory: Path) -> list[Path]:
         assert result.outcome.status == "completed"
         path = directory / f"step{i}.mcap"
         write_run(path, metadata={"run": {"rig": rig_name}, "config": point}, fs=result.fs, signals=result.signals,
-                  outcome=result.outcome.as_dict(), channels=log_channels(result.channels))
+                  outcome=result.outcome.as_dict(), channels=result.channels)
         paths.append(path)
     return paths
 

@@ -23,6 +23,7 @@ from labrunner.analysis import agreement as agreement_mod
 from labrunner.analysis import figures, report, table as table_mod
 from labrunner.analysis.maps import gain_units
 from labrunner.analysis.overlays import Theory
+from labrunner.control.mfc import gamma_scale
 from labrunner.errors import InvalidParameter, LabrunnerError
 
 
@@ -110,7 +111,10 @@ class Theories:
         if delay is None or not isinstance(kind, str):
             return None
         overrides = {k: float(v) for k, v in (config.get("rig_parameters") or {}).items() if k in ("a", "b", "rho")}
-        return Theory(kind, delay, {**self.campaign.rig_info.constants, **overrides})
+        constants = {**self.campaign.rig_info.constants, **overrides}
+        if "rho" in constants:  # ρ in the unit controller.gamma is given in (the valve's m³/(A s²))
+            constants["rho"] = float(constants["rho"]) / gamma_scale(config["controller"].get("output"))
+        return Theory(kind, delay, constants)
 
 
 def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Any | None) -> str:

@@ -143,15 +143,6 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     return out
 
 
-def log_channels(channels: Mapping[str, Sequence[str]]) -> dict[str, list[str]]:
-    """The engine's channel groups in the log's role names: the engine calls the controlled outputs
-    ``outputs`` and the rig's outputs ``measurements``; the log calls them ``controlled`` and ``outputs``."""
-    if "measurements" not in channels:
-        return {k: list(v) for k, v in channels.items()}
-    renamed = {"outputs": "controlled", "measurements": "outputs"}
-    return {renamed.get(k, k): list(v) for k, v in channels.items()}
-
-
 def _publish_all(task: BatchTask, results: list[Any], out: BatchResult, engine_s: float, host: str, pid: int) -> None:
     """Write every log under a temporary name, fsync them concurrently (one journal flush for many
     files instead of one each), rename them into place, fsync the directory once."""
@@ -169,7 +160,7 @@ def _publish_all(task: BatchTask, results: list[Any], out: BatchResult, engine_s
             metadata["metrics"] = dict(result.metrics)
             outcome = result.outcome.as_dict()
             write_run(tmp, metadata=metadata, fs=task.fs, signals=result.signals, outcome=outcome,
-                      attachments=attachments, channels=log_channels(result.channels))
+                      attachments=attachments, channels=result.channels)
             written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1, syncer.submit(_fsync, tmp)))
         t2 = time.perf_counter()
         for run, tmp, _, _, _, synced in written:

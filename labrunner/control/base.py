@@ -34,6 +34,7 @@ class Controller(abc.ABC):
         u_min: np.ndarray,
         u_max: np.ndarray,
         u_init: np.ndarray | None = None,
+        output_units: Sequence[str] | None = None,
     ) -> None:
         self.u_min = np.array(u_min, dtype=float, ndmin=2)
         self.u_max = np.array(u_max, dtype=float, ndmin=2)
@@ -44,6 +45,8 @@ class Controller(abc.ABC):
         self.batch, self.n_inputs = self.u_min.shape
         self.output_names = tuple(output_names)
         self.n_outputs = len(self.output_names)
+        #: SI unit per controlled output; "" where the rig's signal of the same name says it
+        self.output_units = tuple(output_units) if output_units is not None else ("",) * self.n_outputs
         init = np.zeros(self.u_min.shape) if u_init is None else np.broadcast_to(u_init, self.u_min.shape)
         self._u_init = np.array(init, dtype=float)
         self.u_applied = self._u_init.copy()

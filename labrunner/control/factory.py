@@ -169,9 +169,8 @@ def no_section(points: Sequence[Point], name: str, kind: str) -> None:
 
 def _rekey(exc: InvalidParameter, section: str) -> InvalidParameter:
     """The same error with its field prefixed by ``section.`` (unless already a dotted path)."""
-    message = str(exc)[len(exc.field) + 2 :]
     field = exc.field if "." in exc.field else f"{section}.{exc.field}"
-    return InvalidParameter(field, message)
+    return InvalidParameter(field, exc.message)
 
 
 @functools.lru_cache(maxsize=4096)

@@ -47,6 +47,7 @@ class OutputMap:
     index: int
     difference: bool = False
     gamma_scale: float = 1.0  # controller.gamma × gamma_scale = γ in the output's own unit
+    unit: str = ""  # SI unit of the controlled output (the rig output's, per second when differenced)
 
 
 #: controller.output → (rig output unit, difference quotient?, model orders allowed, γ scale)
@@ -59,18 +60,25 @@ OUTPUTS = {
 }
 
 
+def gamma_scale(output: str | None) -> float:
+    """Factor from ``controller.gamma`` (the campaign's unit) to γ in the controlled output's unit."""
+    return OUTPUTS[output][3] if output in OUTPUTS else 1.0
+
+
 def resolve_output(output: str | None, rig_info: RigInfo, order: int) -> OutputMap:
     """Map ``controller.output`` to a rig output; without it, the rig's only output, read directly."""
     if output is None:
         if len(rig_info.outputs) != 1:
             raise InvalidParameter("controller.output", f"is required for rig {rig_info.name!r}: one of {', '.join(OUTPUTS)}")
-        return OutputMap(rig_info.outputs[0].name, 0)
+        return OutputMap(rig_info.outputs[0].name, 0, unit=rig_info.outputs[0].unit)
     unit, difference, orders, scale = OUTPUTS[output]
     if order not in orders:
         raise InvalidParameter("controller.output", f"{output!r} needs an ultra-local model of order {orders[0]}, got order {order}")
     for index, sig in enumerate(rig_info.outputs):
         if sig.unit == unit:
-            return OutputMap("omega" if difference else sig.name, index, difference, scale)
+            if difference:
+                return OutputMap("omega", index, True, scale, f"{sig.unit}/s")
+            return OutputMap(sig.name, index, False, scale, sig.unit)
     raise InvalidParameter("controller.output", f"{output!r} needs a rig output in {unit}; rig {rig_info.name!r} has none")
 
 
@@ -96,7 +104,7 @@ class MFC(Controller):
         i_min: np.ndarray | None = None,
         u_init: np.ndarray | None = None,
     ) -> None:
-        super().__init__((output.name,), u_min, u_max, u_init)
+        super().__init__((output.name,), u_min, u_max, u_init, output_units=(output.unit,))
         if self.n_inputs != 1:
             raise InvalidParameter("controller.kind", "MFC here is single-input; use a plate kind for the plate")
         B = self.batch
