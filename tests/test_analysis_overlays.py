@@ -5,6 +5,7 @@ z̃ ∈ (π/2, π) solving tan z = −z/(aδ) (computed here with brentq, indepe
 """
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -112,9 +113,10 @@ def test_agreement_counts_and_margin():
     assert result["case"] == "mfc1-motor"
     assert result["n_match"] == 4 and result["false_unstable"] == 1 and result["false_stable"] == 1
     assert result["n_excluded"] == 2 and result["n_compared"] == 6
+    assert result["observed_unstable"] == 3  # the compared aborted runs
     assert result["share"] == pytest.approx(4 / 6)
     wide = agreement(table, lambda row: theory, margin=0.0)
-    assert wide["n_excluded"] == 0 and wide["n_compared"] == 8
+    assert wide["n_excluded"] == 0 and wide["n_compared"] == 8 and wide["observed_unstable"] == 4
     assert agreement(table, lambda row: None)["share"] is None
 
 
@@ -142,3 +144,21 @@ def test_lines_that_miss_the_map_say_so_in_the_legend():
              OverlayLine("k_d", None, 50.0, "red")]
     labels = [line.label for line in mark_outside(lines, x, y)]
     assert labels == ["nominal (outside the map)", "inside", "curve (outside the map)", "k_d"]
+
+
+def test_valve_theory_adds_the_sensor_delay_and_uses_rho_in_the_unit_of_gamma():
+    """Paper 1's γ is in m³/(A s²) while the twin's flow is in l/min: the overlay's ρ must be the
+    twin's ρ in that unit (rho_si), and the 50 ms flow-sensor delay adds to δ_t in the loop."""
+    from labrunner.analysis.analyse import Theories
+    from labrunner.campaign import spec
+    from labrunner.rigs import registry
+
+    path = Path(__file__).resolve().parents[1] / "campaigns" / "valve-gamma-kp.toml"
+    campaign = spec.from_text(path.read_text(), source_path=path)
+    row = {"controller.gamma": 0.4, "controller.k_p": 30.0}
+    theory = Theories(campaign)(row)
+    constants = registry.load_rig("valve-sim").info.constants
+    assert theory.rho == pytest.approx(constants["rho_si"])
+    assert theory.dead_time == constants["sensor_delay"] == 0.05
+    assert theory.delay == pytest.approx(31 / 4000 + 0.05)  # δ_t of No. 1 (α = β = 2, ω_c = 250) at 4 kHz
+    assert "sensor delay" in theory.delay_note()

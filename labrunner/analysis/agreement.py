@@ -40,13 +40,14 @@ def agreement(
     differentiator), or None when no stability case applies; ``gains_of(row)`` its γ, k_p, k_d
     (default: the grid columns; the analysis passes the resolved point, so fixed gains count
     too). Returns ``{"case", "share",
-    "margin", "n_compared", "n_match", "n_excluded", "false_stable", "false_unstable"}``;
+    "margin", "n_compared", "n_match", "n_excluded", "false_stable", "false_unstable",
+    "observed_unstable"}`` (the last: compared runs that were aborted);
     ``share`` is None when nothing could be compared.
     """
     observed = table["status"].isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)
     rows = table[observed]
     case = None
-    match = excluded = false_stable = false_unstable = 0
+    match = excluded = false_stable = false_unstable = observed_unstable = 0
     for _, row in rows.iterrows():
         theory = theory_of(row)
         if theory is None or not theory.cases():
@@ -60,6 +61,7 @@ def agreement(
             excluded += 1
             continue
         ok = row["status"] in OBSERVED_STABLE
+        observed_unstable += not ok
         match += ok == stable
         false_stable += stable and not ok
         false_unstable += ok and not stable
@@ -73,4 +75,5 @@ def agreement(
         "n_excluded": int(excluded),
         "false_stable": int(false_stable),
         "false_unstable": int(false_unstable),
+        "observed_unstable": int(observed_unstable),
     }

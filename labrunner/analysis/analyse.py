@@ -23,7 +23,7 @@ from labrunner.analysis import agreement as agreement_mod
 from labrunner.analysis import figures, report, table as table_mod
 from labrunner.analysis.maps import gain_units
 from labrunner.analysis.overlays import Theory
-from labrunner.control.mfc import gamma_scale
+from labrunner.control.mfc import GAMMA_UNITS, gamma_scale
 from labrunner.errors import InvalidParameter, LabrunnerError
 
 
@@ -114,7 +114,8 @@ class Theories:
         constants = {**self.campaign.rig_info.constants, **overrides}
         if "rho" in constants:  # ρ in the unit controller.gamma is given in (the valve's m³/(A s²))
             constants["rho"] = float(constants["rho"]) / gamma_scale(config["controller"].get("output"))
-        return Theory(kind, delay, constants)
+        dead_time = float(constants.get("sensor_delay", 0.0))  # a measurement delay adds to δ_t in the loop
+        return Theory(kind, delay + dead_time, constants, dead_time)
 
 
 def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Any | None) -> str:
@@ -150,6 +151,8 @@ def _units(frame: pd.DataFrame, directory: Path, campaign: Any | None) -> dict[s
         order = {"mfc1": 1, "mfc1-ff": 1, "mfc2": 2}.get(str(kind))
         if order and e_unit and u_unit:
             units.update(gain_units(order, e_unit, u_unit))
+            output = campaign.base.get("controller", {}).get("output")
+            units["controller.gamma"] = GAMMA_UNITS.get(output, units["controller.gamma"])
         return units
     return {}
 

@@ -96,7 +96,7 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
     theory = common_theory(rows, theories)
     if theory is None:
         return [], "no stability overlay: the map mixes controller kinds, differentiator delays or plants"
-    note = f"δ_t = {theory.delay * 1e3:.4g} ms"
+    note = theory.delay_note()
     if pair == ("controller.gamma", "controller.k_p") and theory.kind == "mfc1":
         return gamma_kp_lines(theory, dense_axis(cell_edges(x.values, x.log), x.log)), note
     if pair == ("controller.k_p", "controller.k_d") and theory.kind == "mfc2":
@@ -143,7 +143,7 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
             fixed = theories.gains(frame.iloc[0])
             lines = sweep_lines(theory, GAINS[key], dense_axis(x.values, x.log, 400), fixed)
             others = ", ".join(f"{_SYMBOLS[k]} = {v:.5g}" for k, v in fixed.items() if k != GAINS[key])
-            note = f"\nδ_t = {theory.delay * 1e3:.4g} ms" + (f", {others}" if others else "")
+            note = f"\n{theory.delay_note()}" + (f", {others}" if others else "")
         columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in map_metrics(ctx.error)]
         fig = sweep_figure(frame, x, columns, title=f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}",
                            overlays=lines)

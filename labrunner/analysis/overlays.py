@@ -57,11 +57,20 @@ class OverlayLine:
 
 @dataclass(frozen=True)
 class Theory:
-    """Everything the bounds need: controller kind, rig constants (a, b, rho) and delay δ_t [s]."""
+    """Everything the bounds need: controller kind, rig constants (a, b, rho) and the loop's delay
+    δ [s]: the differentiator's δ_t plus the rig's measurement dead time (the valve's flow sensor)."""
 
     kind: str
     delay: float
     constants: Mapping[str, float]
+    dead_time: float = 0.0  # the part of ``delay`` that is the rig's sensor delay [s]
+
+    def delay_note(self) -> str:
+        """The delay as figures state it, e.g. ``δ_t = 35 ms`` or ``δ = δ_t + sensor delay = …``."""
+        if not self.dead_time:
+            return f"δ_t = {self.delay * 1e3:.4g} ms"
+        estimation = self.delay - self.dead_time
+        return f"δ = δ_t + sensor delay = {estimation * 1e3:.4g} + {self.dead_time * 1e3:.4g} ms"
 
     @property
     def rho(self) -> float | None:

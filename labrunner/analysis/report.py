@@ -185,7 +185,7 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], map
         sections.append(Section("Maps", paragraphs=[
             "Markers: red triangle = aborted by the safety routine, white circle = no motion (input too small to "
             "move the load), black cross = completed, grey square = failed. Grey cells: no metric for the whole run. "
-            "Lines: stability bounds of the theory for the campaign's differentiator delay δ_t."],
+            "Lines: stability bounds of the theory for the loop delay: the differentiator's δ_t plus the rig's sensor delay, if any."],
             images=[Image(title, _png(path)) for path, title in maps]))
     if runs:
         images = [Image(f"{label} run", _png(path), _run_caption(chosen[label], params, ctx.error))

@@ -62,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
     if agree.get("share") is not None:
         print(f"theory ({agree['case']}) agrees on {agree['share']:.1%} of {agree['n_compared']} points "
               f"({agree['n_excluded']} within ±{agree['margin']:.0%} of a bound left out)")
+        if agree["false_unstable"] and not agree["observed_unstable"]:
+            print("  no run was aborted, so no outcome can confirm a predicted instability: read the RMS map")
     for problem in summary["problems"]:
         print(f"{problem['kind']}: {problem['path']}: {problem['detail']}")
     print(f"report: {summary['report']}")

@@ -60,6 +60,10 @@ OUTPUTS = {
 }
 
 
+#: unit of ``controller.gamma`` where it is not the controlled output's own (paper 1 gives γ in SI)
+GAMMA_UNITS = {"flow": "m³/(A·s²)"}
+
+
 def gamma_scale(output: str | None) -> float:
     """Factor from ``controller.gamma`` (the campaign's unit) to γ in the controlled output's unit."""
     return OUTPUTS[output][3] if output in OUTPUTS else 1.0
