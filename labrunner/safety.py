@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from labrunner.differentiators import StreamingFIR, design
+from labrunner.differentiators import StreamingFIR, design, pad_taps
 from labrunner.errors import InvalidParameter, check_finite
 from labrunner.rigs.base import RigInfo
 
@@ -129,8 +129,6 @@ class SafetyMonitor:
             for c in configs:
                 d = design(alpha=c.du_dt_alpha, beta=c.du_dt_beta, omega_c=c.du_dt_omega_c, fs=self.fs)
                 taps.append(d.weights(1))
-            from labrunner.differentiators import pad_taps
-
             per_run = pad_taps(taps)  # (B, L)
             self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
         self._out_lo, self._out_hi = self._bounds(configs, rig_info.outputs, "output_bounds")

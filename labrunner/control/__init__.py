@@ -6,6 +6,9 @@ reference trajectories, all advancing B independent runs in lockstep (thesis ch.
 - :mod:`~labrunner.control.estimators`: streaming f̂, ê, ê̇ (thesis (2.20), (2.25), (3.4)).
 - :mod:`~labrunner.control.mfc`: ``mfc1``, ``mfc1-ff`` (Polack, k_p = 0), ``mfc2``.
 - :mod:`~labrunner.control.baselines`: ``open-loop`` and ``valve-ffc`` (paper 1 eq. (11)).
+- :mod:`~labrunner.control.plate`: ``plate-mfc`` (paper 2 eqs. (14)-(25), input variants, over-actuation);
+  :mod:`~labrunner.control.plate_mbc` with :mod:`~labrunner.control.plate_filters`: ``plate-mbc``
+  (paper 2 eqs. (7)-(12)); :mod:`~labrunner.control.plate_trajectories`: lift and tilt references.
 - :mod:`~labrunner.control.factory`: kind registry, :func:`build` and :func:`validate` of campaign points.
 """
 
