@@ -133,6 +133,8 @@ class SafetyMonitor:
             self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
         self._out_lo, self._out_hi = self._bounds(configs, rig_info.outputs, "output_bounds")
         self._in_lo, self._in_hi = self._bounds(configs, rig_info.inputs, "input_bounds")
+        self._has_output_bounds = bool(np.isfinite(self._out_lo).any() or np.isfinite(self._out_hi).any())
+        self._has_input_bounds = bool(np.isfinite(self._in_lo).any() or np.isfinite(self._in_hi).any())
         self._out_names = [s.name for s in rig_info.outputs]
         self._in_names = [s.name for s in rig_info.inputs]
         self._max_t = np.array([np.inf if c.max_duration is None else c.max_duration for c in configs])
@@ -155,31 +157,45 @@ class SafetyMonitor:
         self.verdicts = [None] * self.B
 
     def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """Check tick ``k`` (commanded ``u`` (B, n_in), measured ``y`` (B, n_out)); return newly tripped (B,)."""
+        """Check tick ``k`` (commanded ``u`` (B, n_in), measured ``y`` (B, n_out)); return newly tripped (B,).
+
+        Every monitor is one array comparison over the batch; the verdicts (which monitor, value,
+        threshold) are built only on a tick where some active run trips.
+        """
         t = k / self.fs
-        tripped = np.zeros(self.B, dtype=bool)
-        rate = None
+        rate = lim = None
         if self._rate is not None:
             rate = np.abs(self._rate.step(np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0).reshape(-1)))
             rate = rate.reshape(self.B, self.n_inputs)
-        checks = (
-            ("non_finite_input", ~np.isfinite(u), np.where(np.isfinite(u), 0.0, u), np.zeros_like(u), None),
-            ("non_finite_output", ~np.isfinite(y), np.where(np.isfinite(y), 0.0, y), np.zeros_like(y), None),
-            ("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
-            ("output_high", y > self._out_hi, y, self._out_hi, self._out_names),
-            ("input_low", u < self._in_lo, u, self._in_lo, self._in_names),
-            ("input_high", u > self._in_hi, u, self._in_hi, self._in_names),
-        )
-        if rate is not None:
             lim = np.broadcast_to(self._max_du_dt[:, None], rate.shape)
-            checks = checks + (("du_dt", rate >= lim, rate, lim, self._in_names),)
-        duration = np.broadcast_to(self._max_t[:, None], (self.B, 1))
-        checks = checks + (("run_time", np.full((self.B, 1), t) >= duration, np.full((self.B, 1), t), duration, None),)
+        duration = self._max_t[:, None]
+        # (monitor, hit (B, n), value, threshold, signal names); the comparisons only, for the fast path
+        checks = [
+            ("non_finite_input", ~np.isfinite(u), u, 0.0, None),
+            ("non_finite_output", ~np.isfinite(y), y, 0.0, None),
+        ]
+        if self._has_output_bounds:
+            checks += [("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
+                       ("output_high", y > self._out_hi, y, self._out_hi, self._out_names)]
+        if self._has_input_bounds:
+            checks += [("input_low", u < self._in_lo, u, self._in_lo, self._in_names),
+                       ("input_high", u > self._in_hi, u, self._in_hi, self._in_names)]
+        if rate is not None:
+            checks.append(("du_dt", rate >= lim, rate, lim, self._in_names))
+        checks.append(("run_time", t >= duration, np.full((self.B, 1), t), duration, None))
+        tripped = np.zeros(self.B, dtype=bool)
+        for _, hit, *_ in checks:
+            tripped |= hit.any(axis=1)
+        tripped &= active
+        if not tripped.any():
+            return tripped
+        tripped[:] = False
         for monitor, hit, value, threshold, names in checks:
             runs = np.flatnonzero(hit.any(axis=1) & active & ~tripped)
             for i in runs:  # only runs that trip now: rare, so a loop here costs nothing per tick
                 j = int(np.argmax(hit[i]))
                 label = monitor if names is None or len(names) == 1 else f"{monitor}:{names[j]}"
-                self.verdicts[i] = Verdict(label, t, float(value[i, j]), float(threshold[i, j]))
+                limit = np.broadcast_to(threshold, hit.shape)[i, j]
+                self.verdicts[i] = Verdict(label, t, float(np.broadcast_to(value, hit.shape)[i, j]), float(limit))
                 tripped[i] = True
         return tripped

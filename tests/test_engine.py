@@ -1,0 +1,125 @@
+"""The run engine on the simulated DC motor: thesis-like closed loops (Sec. 3.5.1), the safety
+routine's abort, no-motion runs, lockstep batches equal single runs, failures leave the rig safe."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from labrunner import engine, stability
+from labrunner.campaign import spec
+from labrunner.errors import InvalidParameter
+from labrunner.rigs import registry
+
+ROOT = Path(__file__).resolve().parents[1]
+CAMPAIGN = spec.load(ROOT / "campaigns" / "quickstart.toml", root=ROOT)  # γ = b, k_p = 50, α = β = 9, ω_c = 200, 200 Hz
+A, B, DELAY = 39.44, 108.55, 0.035  # rigs/dcmotor-sim.toml; δ_t of the thesis's differentiator
+
+
+def point(**gains):
+    return CAMPAIGN.resolve({f"controller.{k}": v for k, v in gains.items()})
+
+
+def run(points, seeds=None, rig="dcmotor-sim", **kw):
+    with registry.load_rig(rig, search=[ROOT / "rigs"]) as r:
+        return engine.run_batch(points, r, fs=CAMPAIGN.fs, duration=CAMPAIGN.duration,
+                                seeds=seeds or list(range(len(points))), rig_safety=CAMPAIGN.rig_safety, **kw)
+
+
+@pytest.fixture(scope="module")
+def thesis_points():
+    """Nominal tuning, far above bound (2.46), and a tiny input (huge γ, small k_p)."""
+    hi = stability.bounds("mfc1-motor", gamma=B, delay=DELAY, a=A, b=B)["k_p"][1]
+    points = [point(gamma=B, k_p=50.0), point(gamma=B, k_p=5 * hi), point(gamma=1e4, k_p=0.1)]
+    return points, run(points)
+
+
+def test_nominal_mfc_tracks_the_poly5_reference(thesis_points):
+    result = thesis_points[1][0]
+    assert result.outcome.status == "completed"
+    assert result.n_samples == int(CAMPAIGN.duration * CAMPAIGN.fs)
+    e = result.signals["e_omega"]
+    assert result.metrics["rms_error"] == pytest.approx(np.sqrt(np.mean(e**2)))
+    assert result.metrics["rms_error"] < 1.0  # rad/s, against a 20 rad/s level
+    assert np.max(np.abs(e[-100:])) < 0.5  # friction compensated once the reference is back at 0
+    u = result.signals["u"]
+    assert result.metrics["input_energy"] == pytest.approx(np.sum(u**2))
+    np.testing.assert_allclose(result.signals["omega"] - result.signals["ref_omega"], e)
+
+
+def test_far_above_bound_246_is_aborted_by_the_rate_routine(thesis_points):
+    result = thesis_points[1][1]
+    out = result.outcome
+    assert out.status == "aborted" and out.monitor == "du_dt"
+    assert out.value >= out.threshold == 120.0
+    abort = round(out.time * CAMPAIGN.fs)
+    assert result.n_samples == abort + 1  # signals end at the abort sample
+    theta = result.signals["theta"]
+    moved = int(np.flatnonzero(theta != theta[0])[0])  # static friction holds the load until u breaks it away
+    assert 0 < abort - moved <= 20  # the routine stops the diverging loop within a few samples of its start
+
+
+def test_tiny_input_is_no_motion(thesis_points):
+    result = thesis_points[1][2]
+    assert result.outcome.status == "no-motion"
+    theta = result.signals["theta"]
+    assert np.max(np.abs(theta - theta[0])) <= 2 * np.pi / 2048  # never beyond one encoder count
+
+
+def test_batch_equals_single_runs(thesis_points):
+    points, batch = thesis_points
+    for i, p in enumerate(points):
+        (single,) = run([p], seeds=[i])
+        assert single.outcome.status == batch[i].outcome.status and single.outcome.time == batch[i].outcome.time
+        if batch[i].outcome.value is not None:  # the rate estimate sums its taps in another order per batch size
+            assert single.outcome.value == pytest.approx(batch[i].outcome.value, rel=1e-12)
+        assert single.signals.keys() == batch[i].signals.keys()
+        for name, trace in single.signals.items():
+            np.testing.assert_allclose(trace, batch[i].signals[name], rtol=0, atol=1e-12, err_msg=name)
+
+
+def test_channels_have_log_roles_and_si_units(thesis_points):
+    ch = thesis_points[1][0].channels
+    assert ch["outputs"] == ["theta"] and ch["controlled"] == ["omega"] and ch["inputs"] == ["u"]
+    assert ch["references"] == ["ref_omega"] and ch["errors"] == ["e_omega"]
+    assert {"f_hat_omega", "e_hat_omega"} <= set(ch["estimates"])
+    assert ch["units"]["theta"] == "rad" and ch["units"]["omega"] == "rad/s" and ch["units"]["u"] == "V"
+    assert ch["units"]["e_omega"] == ch["units"]["ref_omega"] == "rad/s"
+
+
+def test_sink_streams_run_zero_in_blocks(thesis_points):
+    blocks = []
+    (result,) = run([thesis_points[0][0]], seeds=[0], sink=lambda first, block: blocks.append((first, block)))
+    assert [first for first, _ in blocks] == [0]  # 1000 samples: one (final, partial) block
+    for name, trace in result.signals.items():
+        np.testing.assert_array_equal(np.concatenate([b[name] for _, b in blocks]), trace)
+
+
+def test_a_crash_mid_run_fails_the_open_runs_and_leaves_the_rig_safe(monkeypatch):
+    rig = registry.load_rig("dcmotor-sim", search=[ROOT / "rigs"])
+    step, calls, safe = rig._step, [0], []
+
+    def flaky(u):
+        calls[0] += 1
+        if calls[0] == 100:
+            raise RuntimeError("encoder lost")
+        return step(u)
+
+    monkeypatch.setattr(rig, "_step", flaky)
+    original_safe = rig.safe_state
+    monkeypatch.setattr(rig, "safe_state", lambda mask=None: (safe.append(mask), original_safe(mask)))
+    results = engine.run_batch([point(gamma=B, k_p=50.0)] * 2, rig, fs=CAMPAIGN.fs, duration=CAMPAIGN.duration,
+                               seeds=[0, 1], rig_safety=CAMPAIGN.rig_safety)
+    assert [r.outcome.status for r in results] == ["failed", "failed"]
+    assert "RuntimeError: encoder lost" in results[0].outcome.message
+    assert results[0].n_samples == 100
+    assert safe and safe[-1] is None  # the whole batch sent to its safe state
+    np.testing.assert_array_equal(rig.applied_input, 0.0)
+
+
+def test_bad_configuration_raises_before_the_rig_moves(monkeypatch):
+    rig = registry.load_rig("dcmotor-sim", search=[ROOT / "rigs"])
+    monkeypatch.setattr(rig, "reset", lambda *a, **k: pytest.fail("the rig was reset"))
+    with pytest.raises(InvalidParameter) as err:
+        engine.run_batch([point(gamma=-1.0, k_p=50.0)], rig, fs=CAMPAIGN.fs, duration=1.0, seeds=[0])
+    assert err.value.field == "controller.gamma"

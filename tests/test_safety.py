@@ -1,0 +1,114 @@
+"""Safety monitors (thesis Sec. 3.3): the |du/dt| routine with its own algebraic differentiator,
+bounds, non-finite values and the run-time limit, each verdict with monitor, time, value, threshold."""
+
+import numpy as np
+import pytest
+
+from labrunner.errors import InvalidParameter
+from labrunner.rigs.base import RigInfo, Signal
+from labrunner.safety import SafetyConfig, SafetyMonitor
+
+FS = 200.0
+INFO = RigInfo(
+    name="test-motor",
+    kind="dcmotor",
+    inputs=(Signal("u", "V", -12.0, 12.0),),
+    outputs=(Signal("theta", "rad", resolution=2 * np.pi / 2048),),
+    fs_range=(10.0, 10_000.0),
+    fs_default=FS,
+    safe_input=(0.0,),
+)
+
+
+def monitor(*sections, batch=1):
+    configs = [SafetyConfig.from_sections(INFO, *sections)] * batch
+    m = SafetyMonitor(configs, INFO, FS)
+    m.reset(np.zeros((batch, 1)))
+    return m
+
+
+def feed(m, u_of_k, y_of_k=lambda k: 0.0, ticks=400, batch=1):
+    """Run ``ticks`` checks; return the first tick at which each run tripped (-1: never)."""
+    active = np.ones(batch, dtype=bool)
+    first = np.full(batch, -1)
+    for k in range(ticks):
+        u = np.broadcast_to(np.asarray(u_of_k(k), float), (batch,)).reshape(batch, 1)
+        y = np.broadcast_to(np.asarray(y_of_k(k), float), (batch,)).reshape(batch, 1)
+        tripped = m.check(k, u, y, active)
+        first[tripped] = k
+        active &= ~tripped
+    return first
+
+
+@pytest.mark.parametrize("slope, trips", [(100.0, False), (119.0, False), (121.0, True), (400.0, True)])
+def test_rate_routine_trips_at_120_volts_per_second(slope, trips):
+    """A ramp u = slope·t: the N = 0, α = β = 6 estimator is exact for it, so the routine trips
+    exactly when |slope| ≥ 120 V/s, once its window (n_s = 9) is full of the ramp."""
+    m = monitor({"max_du_dt": 120.0})
+    start = 50
+    first = feed(m, lambda k: slope * max(k - start, 0) / FS)
+    assert (first[0] >= 0) == trips
+    if trips:
+        v = m.verdicts[0]
+        assert v.monitor == "du_dt" and v.threshold == 120.0
+        assert 120.0 <= v.value <= slope * (1 + 1e-9)  # the first estimate over the limit, on the window's rising edge
+        assert start < first[0] <= start + 10  # within the estimator's window of the ramp's start
+    else:
+        assert m.verdicts[0] is None
+
+
+def test_rate_estimate_of_a_steady_ramp_is_exact():
+    m = monitor({"max_du_dt": 1000.0})
+    slope = 300.0
+    feed(m, lambda k: slope * k / FS, ticks=100)
+    rate = np.abs(m._rate.step(np.array([slope * 100 / FS])))
+    assert rate[0] == pytest.approx(slope, rel=1e-9)
+
+
+def test_bounds_nan_and_run_time_verdicts():
+    m = monitor({"output_bounds": {"theta": [-1.0, 2.0]}, "input_bounds": {"u": [-5.0, 5.0]}, "max_duration": 1.0},
+                batch=4)
+    u = lambda k: np.array([0.0, 6.0 if k >= 10 else 0.0, np.nan if k >= 20 else 0.0, 0.0])  # noqa: E731
+    y = lambda k: np.array([0.01 * k, 0.0, 0.0, -2.0 if k >= 30 else 0.0])  # noqa: E731
+    first = feed(m, u, y, ticks=400, batch=4)
+    # run 0 passes 2.0 rad at k = 201; but the run-time limit of 1 s (k = 200) comes first
+    assert list(first) == [200, 10, 20, 30]
+    assert (m.verdicts[0].monitor, m.verdicts[0].time, m.verdicts[0].threshold) == ("run_time", 1.0, 1.0)
+    assert (m.verdicts[1].monitor, m.verdicts[1].value, m.verdicts[1].threshold) == ("input_high", 6.0, 5.0)
+    assert m.verdicts[2].monitor == "non_finite_input" and np.isnan(m.verdicts[2].value)
+    assert (m.verdicts[3].monitor, m.verdicts[3].value, m.verdicts[3].threshold) == ("output_low", -2.0, -1.0)
+    assert m.verdicts[3].time == pytest.approx(30 / FS)
+
+
+def test_a_tripped_run_is_reported_once():
+    m = monitor({"input_bounds": {"u": [-1.0, 1.0]}}, batch=2)
+    active = np.ones(2, dtype=bool)
+    hits = [m.check(k, np.array([[2.0], [0.0]]), np.zeros((2, 1)), active).copy() for k in range(3)]
+    assert hits[0].tolist() == [True, False]
+    active[0] = False
+    assert not m.check(3, np.array([[2.0], [0.0]]), np.zeros((2, 1)), active).any()
+
+
+def test_campaign_section_overrides_the_rig_file():
+    config = SafetyConfig.from_sections(INFO, {"max_du_dt": 120.0, "input_bounds": {"u": [-12, 12]}},
+                                        {"max_du_dt": 60.0})
+    assert config.max_du_dt == 60.0 and config.input_bounds == {"u": (-12.0, 12.0)}
+
+
+@pytest.mark.parametrize(
+    "section, field",
+    [
+        ({"max_du_dt": -1.0}, "safety.max_du_dt"),
+        ({"max_du_dt": float("nan")}, "safety.max_du_dt"),
+        ({"speed": 1.0}, "safety.speed"),
+        ({"output_bounds": {"omega": [0, 1]}}, "safety.output_bounds.omega"),
+        ({"output_bounds": {"theta": [1, 0]}}, "safety.output_bounds.theta"),
+        ({"input_bounds": {"u": [1]}}, "safety.input_bounds.u"),
+        ({"du_dt_alpha": 0.0}, "safety.du_dt_alpha"),
+        ({"motion_output": "q"}, "safety.motion_output"),
+    ],
+)
+def test_bad_sections_name_the_key(section, field):
+    with pytest.raises(InvalidParameter) as err:
+        SafetyConfig.from_sections(INFO, section)
+    assert err.value.field == field
