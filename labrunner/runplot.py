@@ -62,6 +62,11 @@ def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
 def _title(log: RunLog) -> str:
     run = log.metadata.get("run", {})
     head = str(run.get("point_id") or run.get("name") or "run")
+    params = log.metadata.get("parameters") or {}
+    if params:  # the grid values that make this run what it is, e.g. "(gamma = 108.6, k_p = 50)"
+        shown = ", ".join(f"{k.rsplit('.', 1)[-1]} = {v:.4g}" if _number(v) else f"{k.rsplit('.', 1)[-1]} = {v}"
+                          for k, v in params.items())
+        head = f"{head} ({shown})"
     out: dict[str, Any] | None = log.outcome
     if out is None:
         return f"{head}: torn log, no outcome ({log.n_samples} samples salvaged)"
