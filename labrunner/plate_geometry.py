@@ -176,9 +176,23 @@ def complete_over_actuated(x3: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 def magnet_force(i: np.ndarray, h: np.ndarray, lam_inv_sqrt: float | np.ndarray = LAMBDA_INV_SQRT) -> np.ndarray:
     """F = i²/d(h)² with d(h) = λ^(−1/2)·h [N] (paper 2 eq. (2), Sec. 3.2.3); ``i`` [A], ``h`` [m]."""
-    return (np.asarray(i) / (lam_inv_sqrt * np.asarray(h))) ** 2
+    return force_at(np.asarray(i), lam_inv_sqrt * np.asarray(h))
 
 
 def current_for_force(f: np.ndarray, h: np.ndarray, lam_inv_sqrt: float | np.ndarray = LAMBDA_INV_SQRT) -> np.ndarray:
     """i_d = d(h)·√F_d [A], the inverse of :func:`magnet_force` (paper 2 eq. (12)); F_d < 0 → 0 A."""
-    return lam_inv_sqrt * np.asarray(h) * np.sqrt(np.maximum(f, 0.0))
+    return current_at(f, lam_inv_sqrt * np.asarray(h))
+
+
+def force_at(i: np.ndarray, d: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """F = (i/d)² [N] for a given d(h) [A s/(kg m)^(1/2)·m] (eq. (2)); into ``out`` if given (a tick's buffer)."""
+    if out is None:
+        return np.square(np.divide(i, d))
+    return np.square(np.divide(i, d, out=out), out=out)
+
+
+def current_at(f: np.ndarray, d: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """i = d·√F for F ≥ 0, 0 A for F < 0 (eq. (12)) at a given d(h); into ``out`` (may be ``f``) if given."""
+    if out is None:
+        return np.multiply(d, np.sqrt(np.maximum(f, 0.0)))
+    return np.multiply(d, np.sqrt(np.maximum(f, 0.0, out=out), out=out), out=out)

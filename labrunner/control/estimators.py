@@ -15,13 +15,20 @@ differentiator (newest sample first). The error is filtered by the same differen
 or, for runs with ``filter_error`` false (paper 2 eq. (25): only the measurement is filtered),
 ê[k] = ŷ[k] − y_r[k] and ê̇[k] = ŷ̇[k] − ẏ_r[k].
 
-The sums run through :class:`~labrunner.differentiators.StreamingFIR` over the stacked signal
-rows [y; y − m·y_r; v] of the B·C channels (B runs, C outputs; m = 1 where the error is
-filtered, 0 where the measurement is). The y taps carry one leading zero, which realises the
-shift ε = t_s. Two layouts, same numbers: when every run shares one design and the batch is
-large, one FIR per tap vector with the taps shared by all rows (a BLAS product per tick);
-otherwise one FIR bank with per-row taps, zero-padded to a common length (one call per tick,
-best for B = 1 and for batches mixing designs).
+The sums are products of tap vectors with the signal histories (a
+:class:`~labrunner.differentiators.History`); the y taps carry one leading zero, which realises the
+shift ε = t_s. Two layouts, same numbers to rounding:
+
+- *shared*: a batch of at least ``SHARED_MIN_ROWS`` rows B·C sharing one design keeps the
+  histories of y, e (none when only the measurement is filtered: then e = y) and v and takes one
+  BLAS product per tap vector over its signal's block;
+- *bank*: otherwise (small batches, batches mixing designs) the row blocks [y; e; …; e; v] (the
+  error once per filter on it) carry per-row taps, zero-padded to a common length, and one einsum
+  sums each row in order, so that padding changes nothing and a run gives the same numbers alone
+  as in any such batch.
+
+Either way the products write straight into the estimates: a tick is a handful of ufunc calls
+on preallocated buffers.
 """
 
 from __future__ import annotations
@@ -30,11 +37,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from labrunner.differentiators import Differentiator, StreamingFIR, pad_taps
+from labrunner.differentiators import Differentiator, History
 from labrunner.errors import InvalidParameter
 
-
-SHARED_MIN_ROWS = 32  # B·C from which shared taps (one FIR per tap vector) beat one per-row bank
+#: B·C from which a batch sharing one design uses the BLAS products (BLAS sums the taps in another
+#: order than the bank, so smaller batches, B = 1 above all, stay with the bank).
+SHARED_MIN_ROWS = 32
 
 
 class MFCEstimator:
@@ -63,33 +71,61 @@ class MFCEstimator:
         C = channels
         m = np.broadcast_to(np.asarray(filter_error, dtype=bool), (B,))
         self._mode = "error" if m.all() else "output" if not m.any() else "mixed"
-        self._m = m.astype(float).reshape(B, 1)
+        self._m = np.array(np.broadcast_to(m[:, None], (B, C)), dtype=float)
         self._not_m = 1.0 - self._m
         self.gamma = np.array(np.broadcast_to(np.reshape(gamma, (B, -1)) if np.ndim(gamma) else gamma, (B, C)), dtype=float)
-        # tap vectors per run: y rows (shifted by ε), e rows (one per filter), v rows
+        # tap vectors per run: y (shifted by ε), e (one per filter), v
         taps = [
             [np.concatenate([[0.0], d.weights(order)]), *(d.weights(k) for k in range(order)), d.weights(0)]
             for d in designs
         ]
-        self._x = np.zeros((3, B, C))
-        self._flat = self._x.reshape(-1)
-        self._flat_e = self._x[1].reshape(-1)
+        # products of the row blocks y, e_0 … e_{n−1}, v; e_k is ê^(k) itself when the error is filtered
+        self._out = np.zeros((order + 2, B, C))
+        self._out_y, self._out_e, self._out_v = self._out[0], list(self._out[1 : 1 + order]), self._out[-1]
+        filtered = self._mode == "error"
+        self.e_hat = self._out_e[0] if filtered else np.zeros((B, C))
+        self.de_hat = self._out_e[1] if filtered and order == 2 else np.zeros((B, C))
+        self.f_hat = np.zeros((B, C))
+        self._tmp = np.zeros((B, C))
         self._shared = B * C >= SHARED_MIN_ROWS and all(d == designs[0] for d in designs)
         if self._shared:
-            self._firs = [StreamingFIR(t) for t in taps[0]]  # y, e (order filters), v
+            self._init_shared(taps[0])
         else:
-            L = max(t.size for row in taps for t in row)
-            bank = np.zeros((3, B, C, order, L))
-            for b, row in enumerate(taps):
-                bank[0, b, :, 0, : row[0].size] = row[0]
-                for k in range(order):
-                    bank[1, b, :, k, : row[1 + k].size] = row[1 + k]
-                bank[2, b, :, 0, : row[-1].size] = row[-1]
-            self._firs = [StreamingFIR(bank.reshape(3 * B * C, order, L))]
-        self._tmp = np.zeros((B, C))
-        self.f_hat = np.zeros((B, C))
-        self.e_hat = np.zeros((B, C))
-        self.de_hat = np.zeros((B, C))
+            self._init_bank(taps)
+
+    def _init_shared(self, taps: list[np.ndarray]) -> None:
+        """Histories of y, e (unless e = y) and v; one BLAS product per tap vector."""
+        B, C, n = self.batch, self.channels, self.order
+        L = taps[-1].size  # the y taps are one longer (the leading zero)
+        e_signal = 0 if self._mode == "output" else 1
+        self._hist = History(L + 1, B * C, 3 - (e_signal == 0))
+        self._fill_rows = [0, 2] if e_signal == 0 else [0, 1, 2]
+        self._taps = taps
+        targets = [o.reshape(-1) for o in self._out]  # y, e_0 …, v
+        self._views = []  # per window position: rows (B, C) to write y, e, v; (taps, block, target) products
+        for rows, blocks in zip(self._hist.rows, self._hist.blocks):
+            ry, re, rv = rows[0].reshape(B, C), rows[e_signal].reshape(B, C), rows[-1].reshape(B, C)
+            products = [(taps[0], blocks[0], targets[0])]
+            products += [(taps[1 + k], blocks[e_signal][:L], targets[1 + k]) for k in range(n)]
+            products.append((taps[-1], blocks[-1][:L], targets[-1]))
+            self._views.append((ry, re, (), rv, products))
+
+    def _init_bank(self, taps: list[list[np.ndarray]]) -> None:
+        """Row blocks [y; e; …; e; v] with per-row taps, zero-padded: one einsum summing in order."""
+        B, C, n = self.batch, self.channels, self.order
+        L = max(t.size for row in taps for t in row)
+        bank = np.zeros((n + 2, B, C, L))
+        for b, row in enumerate(taps):
+            for block, t in enumerate(row):
+                bank[block, b, :, : t.size] = t
+        self._bank = np.ascontiguousarray(bank.reshape(-1, L).T)  # (L, rows), like the history block
+        self._hist = History(L, bank.shape[0] * B * C)
+        self._fill_rows = [0] + [1] * n + [2]
+        target = self._out.reshape(-1)
+        self._views = []
+        for rows, blocks in zip(self._hist.rows, self._hist.blocks):
+            x = rows[0].reshape(n + 2, B, C)
+            self._views.append((x[0], x[1], tuple(x[2 : 1 + n]), x[-1], [(self._bank, blocks[0], target)]))
 
     def reset(self, y0: np.ndarray, r0: np.ndarray | float = 0.0, v0: np.ndarray | float = 0.0) -> None:
         """Pre-fill the histories as a stationary past: y ≡ y0, y_r ≡ r0 (filtered errors only;
@@ -98,44 +134,40 @@ class MFCEstimator:
         fill[0] = y0
         fill[1] = y0 - self._m * r0
         fill[2] = v0
-        if self._shared:
-            rows = self.batch * self.channels
-            for fir, i in zip(self._firs, [0] + [1] * self.order + [2]):
-                fir.reset(rows, fill[i].reshape(-1))
-        else:
-            self._firs[0].reset(self._flat.size, fill.reshape(-1))
+        rows = fill.reshape(3, -1)[self._fill_rows]
+        self._hist.fill(rows if self._shared else rows.reshape(-1))
 
     def step(self, y: np.ndarray, v_prev: np.ndarray, r: np.ndarray) -> None:
         """Advance by one tick and update :attr:`f_hat`, :attr:`e_hat`, :attr:`de_hat` (B, C).
 
         ``y`` y[k] (B, C), ``v_prev`` the applied v[k−1] (B, C), ``r`` (B, C, 4) the reference
-        and its derivatives at tick k. Few, allocation-light ufunc calls: this runs every tick.
+        and its derivatives at tick k.
         """
-        x, tmp, mode = self._x, self._tmp, self._mode
-        shape = (self.batch, self.channels)
+        mode, tmp = self._mode, self._tmp
+        ry, re, copies, rv, products = self._views[self._hist.advance()]
+        ry[...] = y
+        rv[...] = v_prev
         if mode == "error":
-            np.subtract(y, r[:, :, 0], out=x[1])
-        elif mode == "output":
-            x[1] = y
-        else:
+            np.subtract(y, r[:, :, 0], out=re)
+        elif mode == "mixed":
             np.multiply(self._m, r[:, :, 0], out=tmp)
-            np.subtract(y, tmp, out=x[1])
-        if self._shared:  # push y, e and v straight into their FIRs
-            f = self._firs
-            out_y = f[0].step(np.reshape(y, -1)).reshape(shape)
-            out_e = [fir.step(self._flat_e).reshape(shape) for fir in f[1:-1]]
-            out_v = f[-1].step(np.reshape(v_prev, -1)).reshape(shape)
+            np.subtract(y, tmp, out=re)
+        elif re is not ry:
+            re[...] = y
+        for row in copies:  # the bank's second error row (ê̇)
+            row[...] = re
+        if self._shared:
+            for taps, block, target in products:
+                np.dot(taps, block, out=target)
         else:
-            x[0] = y
-            x[2] = v_prev
-            out = self._firs[0].step(self._flat).reshape(3, *shape, self.order)
-            out_y, out_e, out_v = out[0, :, :, 0], [out[1, :, :, k] for k in range(self.order)], out[2, :, :, 0]
-        np.multiply(self.gamma, out_v, out=tmp)
-        np.subtract(out_y, tmp, out=self.f_hat)
-        for k, (o, est) in enumerate(zip(out_e, (self.e_hat, self.de_hat))):
-            if mode == "error":
-                est[...] = o
-            elif mode == "output":
+            taps, block, target = products[0]
+            np.einsum("lb,lb->b", taps, block, out=target)
+        np.multiply(self.gamma, self._out_v, out=tmp)
+        np.subtract(self._out_y, tmp, out=self.f_hat)
+        if mode == "error":
+            return
+        for k, (o, est) in enumerate(zip(self._out_e, (self.e_hat, self.de_hat))):
+            if mode == "output":
                 np.subtract(o, r[:, :, k], out=est)
             else:
                 np.multiply(self._not_m, r[:, :, k], out=tmp)

@@ -44,9 +44,8 @@ from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import (
     LAMBDA_INV_SQRT,
     PlateGeometry,
-    complete_over_actuated,
-    current_for_force,
-    magnet_force,
+    current_at,
+    force_at,
     over_actuation_weights,
 )
 from labrunner.rigs.base import RigInfo
@@ -96,8 +95,18 @@ class PlateMFC(Controller):
         self._gamma_est = {"v": self.gamma, "force": -self.gamma, "u": -self.gamma, "current": -np.ones((B, 1))}[input]
         self.estimator = MFCEstimator(designs, 2, self._gamma_est, 3, filter_error=filter_error)
         self.estimates = {"f_hat": self.estimator.f_hat, "e_hat": self.estimator.e_hat, "de_hat": self.estimator.de_hat}
-        self._h = np.zeros((B, 4))
-        self._y = np.zeros((B, 3))
+        # per-tick buffers; gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
+        full = lambda a: np.array(np.broadcast_to(a, (B, 3)))  # noqa: E731
+        self._k_p3, self._k_d3, self._gamma3 = full(self.k_p), full(self.k_d), full(self.gamma)
+        self._P_inv_B_T = self.geometry.P_inv_B.T
+        self._V_T = self.geometry.V.T
+        self._K_T = self.geometry.K.T
+        self._weights_col = self.weights[:, None]
+        self._h = np.zeros((B, 4))  # the gaps of eq. (4) at the last tick
+        self._lam_h = np.zeros((B, 4))  # d(h) = λ^(−1/2) h at those gaps
+        self._gamma_y = np.zeros((B, 3))  # γ_i(y) at the last tick (input current)
+        self._w, self._t, self._x = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 3))
+        self._u4 = np.zeros((B, 4))
         self._notch = None
         if notch_omega > 0:
             fs = designs[0].fs
@@ -111,44 +120,60 @@ class PlateMFC(Controller):
     def _reset(self, y0: np.ndarray) -> None:
         if self._notch is not None:
             self._notch.reset(y0[:, :3, None])
-        self._y = y0[:, :3].copy()
-        self._h = self.geometry.gaps_from_sensors(y0)
-        self.controlled[...] = self._y
-        self.estimator.reset(self._y, self._y, self._model_input(self.u_applied))  # start at rest, e ≡ 0
+        self._measured(y0)
+        self.estimator.reset(self.controlled, self.controlled, self._model_input(self.u_applied))  # start at rest, e ≡ 0
 
-    def _gamma_i(self, y: np.ndarray) -> np.ndarray:
+    def _measured(self, y: np.ndarray) -> None:
+        """Keep this tick's y_1..y_3, gaps h = K y (eq. (4)), d(h) and γ_i(y) for the law and the next tick."""
+        y3 = y[:, :3]
+        self.controlled[...] = y3
+        np.dot(y3, self._K_T, out=self._h)
+        np.multiply(self.lam_inv_sqrt, self._h, out=self._lam_h)
+        if self.input == "current":
+            self._gamma_i(y3, out=self._gamma_y)
+
+    def _gamma_i(self, y: np.ndarray, out: np.ndarray) -> np.ndarray:
         """γ_i(y) = γ_i,0 / y, eq. (20)-(21), with y bounded below by ``y_min``."""
-        return self.gamma / np.maximum(y, self.y_min)
+        np.maximum(y, self.y_min, out=out)
+        return np.divide(self.gamma, out, out=out)
 
     def _model_input(self, currents: np.ndarray) -> np.ndarray:
         """(B, 3) the applied input x_k of the ultra-local models for ``currents`` at the last gaps."""
-        h = self._h
-        if self.input == "v":
-            return self.geometry.input_from_forces(magnet_force(currents, h, self.lam_inv_sqrt))
+        x, t = self._x, self._u4
+        if self.input == "v":  # v = P⁻¹ B f (eq. (5)) with f = i²/d(h)² (eq. (2))
+            return np.dot(force_at(currents, self._lam_h, out=t), self._P_inv_B_T, out=x)
         if self.input == "force":
-            return magnet_force(currents[:, :3], h[:, :3], self.lam_inv_sqrt)
+            return force_at(currents[:, :3], self._lam_h[:, :3], out=x)
         if self.input == "u":
-            return (currents[:, :3] / h[:, :3]) ** 2
-        return self._gamma_i(self._y) * currents[:, :3]
+            return force_at(currents[:, :3], self._h[:, :3], out=x)  # (i/h)²
+        return np.multiply(self._gamma_y, currents[:, :3], out=x)
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
-        est = self.estimator
-        y3 = y[:, :3]
-        est.step(self._filtered(y3), self._model_input(self.u_applied), r)
-        w = r[:, :, 2] - self.k_p * est.e_hat - self.k_d * est.de_hat - est.f_hat
-        self._y = y3.copy()
-        self._h = self.geometry.gaps_from_sensors(y)
-        self.controlled[...] = y3
+        est, w, t, u = self.estimator, self._w, self._t, self._u4
+        est.step(self._filtered(y[:, :3]), self._model_input(self.u_applied), r)
+        # w = ÿ_r − k_p ê − k_d ê̇ − f̂
+        np.multiply(self._k_p3, est.e_hat, out=t)
+        np.subtract(r[:, :, 2], t, out=w)
+        np.multiply(self._k_d3, est.de_hat, out=t)
+        np.subtract(w, t, out=w)
+        np.subtract(w, est.f_hat, out=w)
+        self._measured(y)
         if self.input == "v":  # (14), then (11) and (12)
-            forces = self.geometry.forces_pinv(w / self.gamma)
-            return current_for_force(forces, self._h, self.lam_inv_sqrt)
+            np.divide(w, self._gamma3, out=t)
+            np.dot(t, self._V_T, out=u)
+            return current_at(u, self._lam_h, out=u)
+        np.negative(w, out=w)
         if self.input == "current":  # (21): i = −(1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i)
-            return complete_over_actuated(-w / self._gamma_i(y3), self.weights)
-        x = complete_over_actuated(-w / self.gamma, self.weights)  # (17) or (19), then (18)
-        if self.input == "force":
-            return current_for_force(x, self._h, self.lam_inv_sqrt)
-        return np.sqrt(np.maximum(x, 0.0)) * self._h  # i = √u · h (Sec. 3.2.3)
+            return self._over_actuated(np.divide(w, self._gamma_y, out=t))
+        self._over_actuated(np.divide(w, self._gamma3, out=t))  # (17) or (19), then (18)
+        return current_at(u, self._lam_h if self.input == "force" else self._h, out=u)  # (12), or i = √u·h (Sec. 3.2.3)
 
+    def _over_actuated(self, x3: np.ndarray) -> np.ndarray:
+        """(B, 4) = (x_1, x_2, x_3, Σ a_k x_k) in the input buffer (eq. (18))."""
+        u = self._u4
+        u[:, :3] = x3
+        np.matmul(x3, self._weights_col, out=u[:, 3:])
+        return u
 
 def plate_geometry(rig_info: RigInfo) -> tuple[PlateGeometry, float]:
     """The nominal geometry and λ^(−1/2) of the rig (its constants), or paper 2's Table 2."""

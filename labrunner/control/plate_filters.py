@@ -108,22 +108,24 @@ class StreamingSS:
             self._M[b, :k, p : p + k], self._M[b, n:, p : p + k] = A.T, Bm.T
             if k:
                 self._steady[b, :k] = np.linalg.solve(np.eye(k) - A, Bm)
-        self._z = np.zeros((B, channels, n + m))
+        self._z = np.zeros((B, channels, n + m))  # [x[k], w[k]] per run and channel
+        self._out = np.zeros((B, channels, p + n))  # [out[k], x[k+1]]
         self._shared = self._M[0] if np.all(self._M == self._M[0]) else None
-        self._flat = self._z.reshape(B * channels, n + m)
+        self._flat, self._out_flat = self._z.reshape(B * channels, n + m), self._out.reshape(B * channels, p + n)
+        self._state, self._input = self._z[:, :, :n], self._z[:, :, n:]
+        self._output, self._next = self._out[:, :, :p], self._out[:, :, p:]
 
     def reset(self, w0: np.ndarray) -> None:
         """Start in the steady state of a constant input ``w0`` (B, C, m)."""
         self._z[...] = 0.0
-        self._z[:, :, : self.n] = np.einsum("bnj,bcj->bcn", self._steady, np.asarray(w0, dtype=float))
+        self._state[...] = np.einsum("bnj,bcj->bcn", self._steady, np.asarray(w0, dtype=float))
 
     def step(self, w: np.ndarray) -> np.ndarray:
-        """Feed w[k] (B, C, m); return out[k] (B, C, p) and advance the state."""
-        z = self._z
-        z[:, :, self.n :] = w
+        """Feed w[k] (B, C, m); return out[k] (B, C, p), a view the next step overwrites, and advance the state."""
+        self._input[...] = w
         if self._shared is not None:
-            out = (self._flat @ self._shared).reshape(z.shape[0], z.shape[1], -1)
+            np.dot(self._flat, self._shared, out=self._out_flat)
         else:
-            out = z @ self._M
-        z[:, :, : self.n] = out[:, :, self.p :]
-        return out[:, :, : self.p]
+            np.matmul(self._z, self._M, out=self._out)
+        self._state[...] = self._next
+        return self._output

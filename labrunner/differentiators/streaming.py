@@ -28,12 +28,48 @@ def pad_taps(taps: Sequence[np.ndarray]) -> np.ndarray:
     return out
 
 
+class History:
+    """The last ``length`` samples of ``signals`` signals of ``width`` channels, newest first.
+
+    A sliding window over a buffer of ``length + spare`` rows per signal: a tick writes one row
+    and moves no data; every ``spare`` ticks the newest ``length − 1`` rows are copied back to
+    the end of the buffer at once. So each signal's last ``length`` samples are always one
+    contiguous (length, width) block, as BLAS wants it. The views of every window position are
+    made once, so a tick costs a list lookup, not a slice.
+    """
+
+    def __init__(self, length: int, width: int, signals: int = 1) -> None:
+        if length < 1 or width < 1 or signals < 1:
+            raise InvalidParameter("length", f"length, width and signals must be >= 1, got {length}, {width}, {signals}")
+        self.length, self.width, self.signals = length, width, signals
+        self._spare = max(length, 64)  # ticks between two copies; a copy of length − 1 rows each time
+        self._buf = np.zeros((signals, self._spare + length, width))
+        #: per window position: the rows to write the newest sample to, and the blocks, per signal
+        self.rows = [tuple(self._buf[:, pos]) for pos in range(self._spare + 1)]
+        self.blocks = [tuple(self._buf[:, pos : pos + length]) for pos in range(self._spare + 1)]
+        self.pos = self._spare
+
+    def fill(self, value: float | np.ndarray) -> None:
+        """A constant past: every stored sample of signal s equals ``value[s]`` (broadcast to (signals, width))."""
+        self._buf[...] = np.broadcast_to(value, (self.signals, self.width))[:, None, :]
+        self.pos = self._spare
+
+    def advance(self) -> int:
+        """Open the next window position and return it; write the newest samples to ``rows[pos]``."""
+        pos = self.pos
+        if pos == 0:
+            n = self.length - 1
+            self._buf[:, self._spare + 1 :] = self._buf[:, :n]
+            pos = self._spare + 1
+        self.pos = pos = pos - 1
+        return pos
+
+
 class StreamingFIR:
     """A bank of causal FIR filters over one history buffer, advanced one sample per tick.
 
     ``taps`` is (L,) (one filter for every run), (B, L) (one per run) or (B, M, L) (M filters per
-    run, e.g. derivatives 0..M−1); newest sample first. The history is a doubled ring buffer of
-    shape (2L, B), so the last L samples are always one contiguous (L, B) block, newest first.
+    run, e.g. derivatives 0..M−1); newest sample first. The history is a :class:`History`.
     """
 
     def __init__(self, taps: np.ndarray) -> None:
@@ -68,30 +104,36 @@ class StreamingFIR:
         fill_arr = np.asarray(fill, dtype=float)
         if fill_arr.ndim > 1 or (fill_arr.ndim == 1 and fill_arr.size != batch):
             raise InvalidParameter("fill", f"must be a scalar or have shape ({batch},), got shape {fill_arr.shape}")
-        self._buf = np.empty((2 * self._length, int(batch)))
-        self._buf[:] = fill_arr
-        self._pos = 0
+        if getattr(self, "_history", None) is None or self._history.width != batch:
+            self._history = History(self._length, int(batch))
+        self._history.fill(fill_arr)
 
-    def step(self, x: np.ndarray) -> np.ndarray:
-        """Push the newest sample x (B,) and return the filter outputs (B,) or (B, M)."""
-        pos = self._pos - 1 if self._pos else self._length - 1
-        buf = self._buf
-        buf[pos] = x
-        buf[pos + self._length] = x
-        self._pos = pos
-        block = buf[pos : pos + self._length]  # (L, B), newest first
+    def step(self, x: np.ndarray, out: np.ndarray | None = None, filter_major: bool = False) -> np.ndarray:
+        """Push the newest sample x (B,) and return the filter outputs (B,) or (B, M), in ``out`` if given.
+
+        ``filter_major``: outputs (M, B) instead of (B, M), each filter's outputs contiguous.
+        """
+        h = self._history
+        pos = h.advance()
+        h.rows[pos][0][...] = x
+        block = h.blocks[pos][0]  # (L, B), newest first
+        if out is None:
+            shape = (block.shape[1], self._taps.shape[0]) if self._out_ndim else (block.shape[1],)
+            out = np.empty(shape[::-1] if filter_major else shape)
         if self._shared:
             if self._out_ndim == 0:
-                return self._taps @ block
+                return np.dot(self._taps, block, out=out)
             # One matrix-vector product per filter: OpenBLAS is several times slower on an (M, L)
             # by (L, B) product with small M than on M products (L,) by (L, B).
-            out = np.empty((block.shape[1], self._taps.shape[0]))
             for m, row in enumerate(self._taps):
-                out[:, m] = row @ block
+                if filter_major:
+                    np.dot(row, block, out=out[m])
+                else:
+                    out[:, m] = np.dot(row, block)
             return out
         if self._out_ndim == 0:
-            return np.einsum("lb,lb->b", self._taps, block)
-        return np.einsum("mlb,lb->bm", self._taps, block)
+            return np.einsum("lb,lb->b", self._taps, block, out=out)
+        return np.einsum("mlb,lb->mb" if filter_major else "mlb,lb->bm", self._taps, block, out=out)
 
 
 def estimate(design: Differentiator, x: np.ndarray, order: int) -> np.ndarray:
