@@ -99,7 +99,7 @@ def test_substeps_converge():
     def flight(max_substep):
         rig = twin({"max_substep": max_substep})
         rig.reset(1, [0], FS)
-        rig.x[:] = [[4e-3, 1e-3, -1e-3, 0.0]]  # tilted, in mid air, at rest
+        rig.set_state([[4e-3, 1e-3, -1e-3, 0.0]])  # tilted, in mid air, at rest
         i = np.array([[1.03, 1.0, 0.98, 1.0]]) * lift_current(4e-3)
         return np.array([rig.step(i) for _ in range(int(0.015 * FS))])
 

@@ -125,6 +125,8 @@ class MFC(Controller):
         if order == 2:
             self.estimates["de_hat"] = self.estimator.de_hat
         self._col = slice(output.index, output.index + 1)
+        self._difference = output.difference
+        self._fs = np.array(self.fs)  # a 0-d array multiplies faster than a Python float
         self._prev = np.zeros((B, 1))
         self._u = np.zeros((B, 1))
         self._tmp = np.zeros((B, 1))
@@ -142,12 +144,13 @@ class MFC(Controller):
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
         c, est, u, tmp = self.controlled, self.estimator, self._u, self._tmp
-        if self.output.difference:  # (2.34)
-            np.subtract(y[:, self._col], self._prev, out=c)
-            np.multiply(c, self.fs, out=c)
-            self._prev[...] = y[:, self._col]
+        y_out = y[:, self._col]
+        if self._difference:  # (2.34)
+            np.subtract(y_out, self._prev, out=c)
+            np.multiply(c, self._fs, out=c)
+            self._prev[...] = y_out
         else:
-            c[...] = y[:, self._col]
+            c[...] = y_out
         est.step(c, self.u_applied, r)
         np.subtract(r[:, :, self.order], est.f_hat, out=u)  # (y_r⁽ⁿ⁾ − f̂ − k_p ê − k_d ê̇)/γ
         np.multiply(u, self._inv_gamma, out=u)

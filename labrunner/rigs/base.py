@@ -101,6 +101,7 @@ class Rig(abc.ABC):
         self.k = 0  # samples stepped since reset
         self._safe = np.zeros(0, dtype=bool)
         self.applied_input = np.zeros((0, len(info.inputs)))
+        self._faulty = self.faults.any
 
     # -- public template methods -------------------------------------------------------------
     def reset(
@@ -121,18 +122,27 @@ class Rig(abc.ABC):
         self.k = 0
         self._safe = np.zeros(batch, dtype=bool)
         self.applied_input = np.tile(np.asarray(self.info.safe_input, float), (batch, 1))
+        self._faulty = self.faults.any  # decided once per batch, not every tick
+        # per-tick constants at the batch's shape (ufuncs on equal shapes are cheapest)
+        self._lo = np.tile(self.info.input_lo, (batch, 1))
+        self._hi = np.tile(self.info.input_hi, (batch, 1))
+        self._safe_input = self.applied_input.copy()
         y = self._reset(batch, seeds, dict(overrides or {}))
         return self._measure(np.asarray(y, dtype=float))
 
     def step(self, u: np.ndarray) -> np.ndarray:
         """Apply ``u`` (B, n_inputs) for one sample period; return the next measurement (B, n_outputs)."""
         u = np.asarray(u, dtype=float).reshape(self.batch, len(self.info.inputs))
-        u = np.clip(u, self.info.input_lo, self.info.input_hi)
-        u = np.where(self._safe[:, None], np.asarray(self.info.safe_input, float), u)
-        if self.faults.any and self.k / self.fs >= self.faults.t_start:
+        u = np.maximum(u, self._lo)  # np.clip's result, a new array, with fewer calls
+        np.minimum(u, self._hi, out=u)
+        safe = self._safe[:, None] if self._safe.any() else None
+        if safe is not None:
+            np.copyto(u, self._safe_input, where=safe)
+        if self._faulty and self.k / self.fs >= self.faults.t_start:
             f = self.faults
             u = (1.0 + np.asarray(f.actuator_gain)) * u + np.asarray(f.actuator_offset)
-            u = np.where(self._safe[:, None], np.asarray(self.info.safe_input, float), u)
+            if safe is not None:
+                np.copyto(u, self._safe_input, where=safe)
         self.applied_input = u
         y = self._step(u)
         self.k += 1
@@ -179,6 +189,6 @@ class Rig(abc.ABC):
 
     # -- shared helpers ------------------------------------------------------------------------
     def _measure(self, y: np.ndarray) -> np.ndarray:
-        if self.faults.any and self.k / self.fs >= self.faults.t_start:
+        if self._faulty and self.k / self.fs >= self.faults.t_start:
             y = y + np.asarray(self.faults.sensor_step)
         return y

@@ -14,22 +14,36 @@ import numpy as np
 
 
 class NoiseStreams:
-    """Standard-normal draws of shape (B, width), one per :meth:`next` call (one per tick)."""
+    """Normal draws of shape (B, width), one per :meth:`next` call (one per tick).
 
-    def __init__(self, seeds: Sequence[int] | np.ndarray, width: int, stream: int, block: int = 512) -> None:
+    Standard normal, or times ``scale`` (broadcast to (B, width): the noise levels per run and
+    channel), applied once per block rather than once per tick.
+    """
+
+    def __init__(
+        self, seeds: Sequence[int] | np.ndarray, width: int, stream: int, block: int = 512, scale: np.ndarray | float | None = None
+    ) -> None:
         self._gens = [
             np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(s) % 2**64, stream])))
             for s in np.asarray(seeds, dtype=np.int64).reshape(-1)
         ]
         self.width = int(width)
         self.block = int(block)
+        self._scale = None if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (len(self._gens), self.width))
         self._buf = np.empty((0, len(self._gens), self.width))
         self._i = 0
 
     def next(self) -> np.ndarray:
         """The next tick's draws, (B, width)."""
         if self._i >= self._buf.shape[0]:
-            self._buf = np.stack([g.standard_normal((self.block, self.width)) for g in self._gens], axis=1)
+            if self._buf.shape[0] != self.block:
+                self._buf = np.empty((self.block, len(self._gens), self.width))
+            for i, g in enumerate(self._gens):  # once per block, not per tick
+                draws = g.standard_normal((self.block, self.width))
+                if self._scale is None:
+                    self._buf[:, i] = draws
+                else:
+                    np.multiply(self._scale[i], draws, out=self._buf[:, i])
             self._i = 0
         out = self._buf[self._i]
         self._i += 1

@@ -120,7 +120,10 @@ class PlateTwin(SimRig):
         self._G = np.vstack([self.geometry.magnet_matrix.T, np.ones(4)])
         self._S = np.vstack([self.geometry.sensor_matrix.T, np.full(4, float(c["mode_sensor_shape"]))])
         self.substeps = substeps(self.fs, float(c["max_substep"]))
+        h = 1.0 / (self.fs * self.substeps)
+        self._h_steps = np.array(h), np.array(0.5 * h)
         col = lambda v: np.asarray(v, dtype=float)[:, None]  # noqa: E731 - (B,) → (B, 1)
+        full = lambda v: np.array(np.broadcast_to(col(v), (batch, 4)))  # noqa: E731 - (B,) → (B, 4): equal shapes are cheaper per tick
         gains = np.column_stack([p[f"d_gain_{j}"] for j in range(1, 5)])
         self._lam = col(p["lambda_inv_sqrt"]) * gains  # (B, 4)
         self._inv_mass = 1.0 / np.column_stack([p["m"], p["J_x"], p["J_y"], p["mode_mass"]])  # (B, 4)
@@ -131,30 +134,48 @@ class PlateTwin(SimRig):
         self._damp[:, 3] = 2.0 * p["mode_zeta"] * p["mode_omega"]
         # one stop's stiffness and damping from the lightest corner mass 1/λ_max(Gᵀ M⁻¹ G)
         corner_mass = 1.0 / np.linalg.eigvalsh(np.einsum("ja,ba,ak->bjk", self._G.T, self._inv_mass, self._G))[:, -1]
-        self._k_c = col(corner_mass * p["contact_omega"] ** 2)
-        self._c_c = col(2.0 * p["contact_zeta"] * corner_mass * p["contact_omega"])
-        self._screw, self._top = col(p["screw_gap"]), col(p["top_gap"])
+        self._k_c = full(corner_mass * p["contact_omega"] ** 2)
+        self._c_c = full(2.0 * p["contact_zeta"] * corner_mass * p["contact_omega"])
+        self._screw, self._top = full(p["screw_gap"]), full(p["top_gap"])
         self._screw_min, self._top_max = float(p["screw_gap"].min()), float(p["top_gap"].max())
-        self._offset, self._f_max = col(p["d_offset"]), col(p["force_max"])
-        self._sensor_std, self._current_std = col(p["sensor_std"]), col(p["current_std"])
-        self._noise = NoiseStreams(seeds, 8, stream=3, block=2048)
+        self._offset, self._f_max = full(p["d_offset"]), full(p["force_max"])
+        # noise drawn pre-scaled: sensors (B, 4) | current ripple (B, 4)
+        scale = np.column_stack([np.repeat(col(p["sensor_std"]), 4, axis=1), np.repeat(col(p["current_std"]), 4, axis=1)])
+        self._noise = NoiseStreams(seeds, 8, stream=3, block=2048, scale=scale)
+        self._G_T = self._G.T
+        self._buffers = {name: np.zeros((batch, 4)) for name in ("gaps", "dd", "pen", "sign", "kpen", "stiff_x", "cs", "f", "acc", "v_half", "tmp")}
         # at rest on the four screws, sagging: (k G Gᵀ + S) x = M g + k G 1 screw_gap, S the mode's stiffness
-        stiffness = self._k_c[:, :, None] * (self._G @ self._G.T) + np.einsum("bi,ij->bij", self._stiff / self._inv_mass, np.eye(4))
-        load = self._gravity / self._inv_mass + self._k_c * self._screw * self._G.sum(axis=1)
-        self.x = np.linalg.solve(stiffness, load[:, :, None])[:, :, 0]
-        self.v = np.zeros((batch, 4))
+        stiffness = self._k_c[:, :1, None] * (self._G @ self._G.T) + np.einsum("bi,ij->bij", self._stiff / self._inv_mass, np.eye(4))
+        load = self._gravity / self._inv_mass + self._k_c[:, :1] * self._screw[:, :1] * self._G.sum(axis=1)
+        x = np.linalg.solve(stiffness, load[:, :, None])[:, :, 0]
+        self.set_state(x, np.zeros((batch, 4)))
         return self._sensors(self._noise.next()[:, :4])
+
+    def set_state(self, x: np.ndarray, v: np.ndarray | None = None) -> None:
+        """Put the batch at generalised coordinates ``x`` (B, 4) (and velocities ``v``, default unchanged)."""
+        self.x = np.array(np.broadcast_to(x, (self.batch, 4)), dtype=float)
+        if v is not None:
+            self.v = np.array(np.broadcast_to(v, (self.batch, 4)), dtype=float)
+        self._at_position()
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         noise = self._noise.next()
-        current_sq = np.maximum(u + self._current_std * noise[:, 4:], 0.0) ** 2
-        h = 1.0 / (self.fs * self.substeps)
-        acc = self._acceleration(current_sq, self.v)
+        b = self._buffers
+        cs, acc, v_half, tmp, x, v = b["cs"], b["acc"], b["v_half"], b["tmp"], self.x, self.v
+        np.add(u, noise[:, 4:], out=cs)  # the currents with their ripple, squared
+        np.maximum(cs, 0.0, out=cs)
+        np.square(cs, out=cs)
+        h, half = self._h_steps  # 0-d arrays: cheaper in a ufunc than Python floats
+        self._acceleration(cs, v, out=acc)
         for _ in range(self.substeps):  # velocity Verlet: second order, one evaluation per sub-step
-            v_half = self.v + 0.5 * h * acc
-            self.x += h * v_half
-            acc = self._acceleration(current_sq, v_half)
-            self.v = v_half + 0.5 * h * acc
+            np.multiply(half, acc, out=tmp)
+            np.add(v, tmp, out=v_half)
+            np.multiply(h, v_half, out=tmp)
+            np.add(x, tmp, out=x)
+            self._at_position()
+            self._acceleration(cs, v_half, out=acc)
+            np.multiply(half, acc, out=tmp)
+            np.add(v_half, tmp, out=v)
         return self._sensors(noise[:, :4])
 
     # -- model -----------------------------------------------------------------------------------
@@ -169,20 +190,63 @@ class PlateTwin(SimRig):
 
     def magnet_forces(self, current_sq: np.ndarray, gaps: np.ndarray) -> np.ndarray:
         """(B, 4) magnet forces [N] for squared currents [A²] at ``gaps`` (eq. (2), saturated)."""
-        d = self._lam * np.maximum(gaps + self._offset, 1e-6)
-        return np.minimum(current_sq / (d * d), self._f_max)
+        return self._forces(current_sq, self._d_squared(gaps, np.empty(np.shape(gaps))), np.empty(np.shape(gaps)))
 
-    def _acceleration(self, current_sq: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """(B, 4) ẍ at the current x for squared currents (B, 4) and velocity ``v`` (B, 4)."""
-        gaps = self.x @ self._G
-        f_up = self.magnet_forces(current_sq, gaps)
-        if gaps.max() > self._screw_min or gaps.min() < self._top_max:  # any corner on a stop
-            rate = v @ self._G
-            below = gaps - self._screw
-            above = self._top - gaps
-            f_up += np.where(below > 0, np.maximum(self._k_c * below + self._c_c * rate, 0.0), 0.0)
-            f_up -= np.where(above > 0, np.maximum(self._k_c * above - self._c_c * rate, 0.0), 0.0)
-        return self._gravity - (f_up @ self._G.T) * self._inv_mass - self._stiff * self.x - self._damp * v
+    def _d_squared(self, gaps: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """d_j(h_j)² of eq. (2), d = λ^(−1/2)·d_gain·(h + offset), h kept above 1 µm."""
+        np.add(gaps, self._offset, out=out)
+        np.maximum(out, 1e-6, out=out)
+        np.multiply(self._lam, out, out=out)
+        return np.multiply(out, out, out=out)
+
+    def _forces(self, current_sq: np.ndarray, dd: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """i²/d² limited to ``force_max`` (magnetic saturation)."""
+        np.divide(current_sq, dd, out=out)
+        return np.minimum(out, self._f_max, out=out)
+
+    def _at_position(self) -> None:
+        """What depends only on x, for the accelerations at it: gaps, d², the stops, the mode's spring.
+
+        A corner below the screws (gap > screw_gap) or above the stop (gap < top_gap) has the
+        penetration pen = gap − clip(gap, top, screw) (> 0 below, < 0 above) and pushes back with
+        sign(pen)·max(sign(pen)·(k pen + c ṗ), 0): a one-sided spring-damper (:meth:`_acceleration`).
+        """
+        b = self._buffers
+        gaps = b["gaps"]
+        np.dot(self.x, self._G, out=gaps)
+        self._d_squared(gaps, b["dd"])
+        self._contact = gaps.max() > self._screw_min or gaps.min() < self._top_max  # any corner on a stop
+        if self._contact:
+            pen = b["pen"]
+            np.maximum(gaps, self._top, out=pen)
+            np.minimum(pen, self._screw, out=pen)
+            np.subtract(gaps, pen, out=pen)
+            np.sign(pen, out=b["sign"])
+            np.multiply(self._k_c, pen, out=b["kpen"])
+        np.multiply(self._stiff, self.x, out=b["stiff_x"])
+
+    def _acceleration(self, current_sq: np.ndarray, v: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """(B, 4) ẍ at the current x (see :meth:`_at_position`) for squared currents and velocity ``v``."""
+        b = self._buffers
+        f_up, tmp = b["f"], b["tmp"]
+        self._forces(current_sq, b["dd"], f_up)
+        if self._contact:
+            s = b["sign"]
+            np.dot(v, self._G, out=tmp)  # the gaps' rates
+            np.multiply(self._c_c, tmp, out=tmp)
+            np.add(b["kpen"], tmp, out=tmp)
+            np.multiply(s, tmp, out=tmp)
+            np.maximum(tmp, 0.0, out=tmp)
+            np.multiply(s, tmp, out=tmp)
+            np.add(f_up, tmp, out=f_up)
+        np.dot(f_up, self._G_T, out=tmp)  # generalised forces of the upward corner forces
+        np.multiply(tmp, self._inv_mass, out=tmp)
+        np.subtract(self._gravity, tmp, out=out)
+        np.subtract(out, b["stiff_x"], out=out)
+        np.multiply(self._damp, v, out=tmp)
+        return np.subtract(out, tmp, out=out)
 
     def _sensors(self, noise: np.ndarray) -> np.ndarray:
-        return self.x @ self._S + self._sensor_std * noise
+        """The four sensor readings (a new array) with their (pre-scaled) noise."""
+        y = np.dot(self.x, self._S)
+        return np.add(y, noise, out=y)
