@@ -139,6 +139,17 @@ class SafetyMonitor:
         self._in_names = [s.name for s in rig_info.inputs]
         self._max_t = np.array([np.inf if c.max_duration is None else c.max_duration for c in configs])
         self.verdicts: list[Verdict | None] = [None] * self.B
+        # the per-tick screen: one clip per signal array catches bounds and non-finite values at once
+        # (finite values inside [lo, hi] are exactly those a clip to the finite part leaves unchanged)
+        big = np.finfo(float).max
+        self._screens = [
+            (np.maximum(lo, -big), np.minimum(hi, big), np.zeros(lo.shape), np.zeros(lo.shape, dtype=bool))
+            for lo, hi in ((self._in_lo, self._in_hi), (self._out_lo, self._out_hi))
+        ]
+        self._lim = np.repeat(self._max_du_dt, self.n_inputs)  # per rate-estimator row
+        self._rate_abs = np.zeros(self.B * self.n_inputs)
+        self._rate_hit = np.zeros(self.B * self.n_inputs, dtype=bool)
+        self._next_time_limit = float(self._max_t.min())  # the earliest run-time limit of a run not yet tripped
 
     @staticmethod
     def _bounds(configs: Sequence[SafetyConfig], signals: Sequence, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -155,21 +166,55 @@ class SafetyMonitor:
         if self._rate is not None:
             self._rate.reset(self.B * self.n_inputs, fill=np.asarray(u0, float).reshape(-1))
         self.verdicts = [None] * self.B
+        self._next_time_limit = float(self._max_t.min())
 
     def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray) -> np.ndarray:
         """Check tick ``k`` (commanded ``u`` (B, n_in), measured ``y`` (B, n_out)); return newly tripped (B,).
 
-        Every monitor is one array comparison over the batch; the verdicts (which monitor, value,
-        threshold) are built only on a tick where some active run trips.
+        A screen of a few array operations clears the usual tick in which nothing trips; only a
+        tick the screen flags runs every monitor by itself and builds the verdicts of the active
+        runs that trip (which monitor, value, threshold).
         """
         t = k / self.fs
-        rate = lim = None
+        everyone = active.all()
+        u_off = self._off(0, u)
+        u_odd = np.count_nonzero(u_off) > 0
+        u_flagged = u_odd and self._active_hit(u_off, active, everyone)
+        rate = None
         if self._rate is not None:
-            rate = np.abs(self._rate.step(np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0).reshape(-1)))
-            rate = rate.reshape(self.B, self.n_inputs)
-            lim = np.broadcast_to(self._max_du_dt[:, None], rate.shape)
+            # the estimator sees non-finite inputs as 0 (a NaN would stay in its window for good)
+            x = np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0) if u_odd else u
+            rate = np.abs(self._rate.step(np.reshape(x, -1)), out=self._rate_abs)
+            hit = np.greater_equal(rate, self._lim, out=self._rate_hit)
+            rate_flagged = np.count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active, everyone)
+        else:
+            rate_flagged = False
+        if not (u_flagged or rate_flagged or t >= self._next_time_limit):
+            y_off = self._off(1, y)
+            if not (np.count_nonzero(y_off) > 0 and self._active_hit(y_off, active, everyone)):
+                return np.zeros(self.B, dtype=bool)
+        tripped = self._verdicts(t, u, y, active, None if rate is None else rate.reshape(self.B, self.n_inputs))
+        open_runs = [i for i, v in enumerate(self.verdicts) if v is None]
+        self._next_time_limit = float(self._max_t[open_runs].min()) if open_runs else np.inf
+        return tripped
+
+    def _off(self, which: int, x: np.ndarray) -> np.ndarray:
+        """(B, n) where ``x`` is non-finite or out of bounds (``which``: 0 inputs, 1 outputs), in a buffer."""
+        lo, hi, clipped, off = self._screens[which]
+        np.maximum(x, lo, out=clipped)
+        np.minimum(clipped, hi, out=clipped)
+        return np.not_equal(clipped, x, out=off)  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
+
+    @staticmethod
+    def _active_hit(hit: np.ndarray, active: np.ndarray, everyone: bool) -> bool:
+        """Whether ``hit`` (B, n), known to hold some True, holds one for an active run."""
+        return everyone or np.count_nonzero(hit & active[:, None]) > 0
+
+    def _verdicts(self, t: float, u: np.ndarray, y: np.ndarray, active: np.ndarray, rate: np.ndarray | None) -> np.ndarray:
+        """Every monitor by itself on a flagged tick: the active runs that trip now, with their verdicts."""
+        lim = None if rate is None else np.broadcast_to(self._max_du_dt[:, None], rate.shape)
         duration = self._max_t[:, None]
-        # (monitor, hit (B, n), value, threshold, signal names); the comparisons only, for the fast path
+        # (monitor, hit (B, n), value, threshold, signal names), in the order verdicts take precedence
         checks = [
             ("non_finite_input", ~np.isfinite(u), u, 0.0, None),
             ("non_finite_output", ~np.isfinite(y), y, 0.0, None),
@@ -184,12 +229,6 @@ class SafetyMonitor:
             checks.append(("du_dt", rate >= lim, rate, lim, self._in_names))
         checks.append(("run_time", t >= duration, np.full((self.B, 1), t), duration, None))
         tripped = np.zeros(self.B, dtype=bool)
-        for _, hit, *_ in checks:
-            tripped |= hit.any(axis=1)
-        tripped &= active
-        if not tripped.any():
-            return tripped
-        tripped[:] = False
         for monitor, hit, value, threshold, names in checks:
             runs = np.flatnonzero(hit.any(axis=1) & active & ~tripped)
             for i in runs:  # only runs that trip now: rare, so a loop here costs nothing per tick

@@ -89,6 +89,95 @@ def test_a_tripped_run_is_reported_once():
     assert not m.check(3, np.array([[2.0], [0.0]]), np.zeros((2, 1)), active).any()
 
 
+def reference_verdicts(configs, u, y):
+    """Every monitor of every run at every tick, by plain loops: (tick, monitor, value, threshold) of the first trip."""
+    from labrunner.differentiators import design
+
+    out = []
+    for i, c in enumerate(configs):
+        rate = np.full(len(u), np.nan)
+        if c.max_du_dt is not None:
+            w = design(alpha=c.du_dt_alpha, beta=c.du_dt_beta, omega_c=c.du_dt_omega_c, fs=FS).weights(1)
+            x = np.nan_to_num(u[:, i], nan=0.0, posinf=0.0, neginf=0.0)
+            past = np.concatenate([np.zeros(w.size - 1), x])  # reset from u0 = 0
+            rate = np.abs([np.dot(w, past[k : k + w.size][::-1]) for k in range(len(u))])
+        lo_y, hi_y = c.output_bounds.get("theta", (-np.inf, np.inf))
+        lo_u, hi_u = c.input_bounds.get("u", (-np.inf, np.inf))
+        first = None
+        for k in range(len(u)):
+            t = k / FS
+            for monitor, hit, value, threshold in [
+                ("non_finite_input", not np.isfinite(u[k, i]), u[k, i], 0.0),
+                ("non_finite_output", not np.isfinite(y[k, i]), y[k, i], 0.0),
+                ("output_low", y[k, i] < lo_y, y[k, i], lo_y),
+                ("output_high", y[k, i] > hi_y, y[k, i], hi_y),
+                ("input_low", u[k, i] < lo_u, u[k, i], lo_u),
+                ("input_high", u[k, i] > hi_u, u[k, i], hi_u),
+                ("du_dt", c.max_du_dt is not None and rate[k] >= c.max_du_dt, rate[k], c.max_du_dt),
+                ("run_time", c.max_duration is not None and t >= c.max_duration, t, c.max_duration),
+            ]:
+                if hit:
+                    first = (k, monitor, value, threshold)
+                    break
+            if first:
+                break
+        out.append(first)
+    return out
+
+
+def test_every_tick_screen_misses_no_trip():
+    """Random batches with spikes, NaN, inf, bound crossings, fast ramps and run-time limits per run:
+    the monitor (a cheap screen per tick, full checks only on flagged ticks) trips each run at
+    the tick, with the monitor, value and threshold, that checking everything every tick gives."""
+    rng = np.random.default_rng(7)
+    B, K = 24, 300
+    sections = [
+        {"max_du_dt": float(rng.choice([None, 60.0, 120.0, 500.0]) or 0) or None, "max_duration": float(rng.choice([0.7, 9.0, 9.0])),
+         "input_bounds": {"u": [-float(rng.uniform(3, 9)), float(rng.uniform(3, 9))]}, "output_bounds": {"theta": [-2.0, float(rng.uniform(1, 3))]}}
+        for _ in range(B)
+    ]
+    for sec in sections[::5]:
+        del sec["input_bounds"], sec["output_bounds"]  # some runs without bounds: only the non-finite checks
+    for sec in sections[-3:]:  # quiet runs that never trip
+        sec.update(max_du_dt=500.0, max_duration=9.0)
+    configs = [SafetyConfig.from_sections(INFO, {k: v for k, v in sec.items() if v is not None}) for sec in sections]
+    u = rng.normal(size=(K, B)) * 0.5 + np.linspace(0, 1, B) * np.linspace(0, 8, K)[:, None]
+    y = np.cumsum(rng.normal(size=(K, B)) * 0.03, axis=0)
+    u[:, -3:] = rng.normal(size=(K, 3)) * 0.1
+    for i in range(B - 3):
+        k = int(rng.integers(20, 120))
+        kind = i % 6
+        if kind == 0:
+            u[k, i] = np.nan
+        elif kind == 1:
+            y[k, i] = -np.inf
+        elif kind == 2:
+            u[k:, i] += 0.02 * np.arange(K - k) * FS / 100  # a ramp of 40 V/s per 0.01 s step
+        elif kind == 3:
+            y[k, i] = 50.0
+        elif kind == 4:
+            y[k, i] = -2.5
+    expected = reference_verdicts(configs, u, y)
+    m = SafetyMonitor(configs, INFO, FS)
+    m.reset(np.zeros((B, 1)))
+    active = np.ones(B, dtype=bool)
+    first = [None] * B
+    for k in range(K):
+        tripped = m.check(k, u[k][:, None], y[k][:, None], active)
+        for i in np.flatnonzero(tripped):
+            first[i] = k
+        active &= ~tripped
+    assert sum(e is not None for e in expected) > B // 2 and any(e is None for e in expected)  # the data exercise both
+    for i, e in enumerate(expected):
+        if e is None:
+            assert first[i] is None and m.verdicts[i] is None
+            continue
+        v = m.verdicts[i]
+        assert (first[i], v.monitor) == e[:2], i
+        assert v.time == e[0] / FS and v.threshold == e[3]
+        assert v.value == pytest.approx(e[2], rel=1e-12, nan_ok=True)
+
+
 def test_campaign_section_overrides_the_rig_file():
     config = SafetyConfig.from_sections(INFO, {"max_du_dt": 120.0, "input_bounds": {"u": [-12, 12]}},
                                         {"max_du_dt": 60.0})
