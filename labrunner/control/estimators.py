@@ -102,9 +102,11 @@ class MFCEstimator:
         self._fill_rows = [0, 2] if e_signal == 0 else [0, 1, 2]
         self._taps = taps
         targets = [o.reshape(-1) for o in self._out]  # y, e_0 …, v
-        self._views = []  # per window position: rows (B, C) to write y, e, v; (taps, block, target) products
+        # per window position: where y, e (None: e = y), copies of e and v go; (taps, block, target) products
+        self._views = []
         for rows, blocks in zip(self._hist.rows, self._hist.blocks):
-            ry, re, rv = rows[0].reshape(B, C), rows[e_signal].reshape(B, C), rows[-1].reshape(B, C)
+            ry, rv = rows[0].reshape(B, C), rows[-1].reshape(B, C)
+            re = None if e_signal == 0 else rows[1].reshape(B, C)
             products = [(taps[0], blocks[0], targets[0])]
             products += [(taps[1 + k], blocks[e_signal][:L], targets[1 + k]) for k in range(n)]
             products.append((taps[-1], blocks[-1][:L], targets[-1]))
@@ -123,9 +125,11 @@ class MFCEstimator:
         self._fill_rows = [0] + [1] * n + [2]
         target = self._out.reshape(-1)
         self._views = []
+        output = self._mode == "output"  # e = y: y goes to its block and the error blocks in one copy
         for rows, blocks in zip(self._hist.rows, self._hist.blocks):
             x = rows[0].reshape(n + 2, B, C)
-            self._views.append((x[0], x[1], tuple(x[2 : 1 + n]), x[-1], [(self._bank, blocks[0], target)]))
+            y_to, e_to, copies = (x[: 1 + n], None, ()) if output else (x[0], x[1], tuple(x[2 : 1 + n]))
+            self._views.append((y_to, e_to, copies, x[-1], [(self._bank, blocks[0], target)]))
 
     def reset(self, y0: np.ndarray, r0: np.ndarray | float = 0.0, v0: np.ndarray | float = 0.0) -> None:
         """Pre-fill the histories as a stationary past: y ≡ y0, y_r ≡ r0 (filtered errors only;
@@ -144,16 +148,14 @@ class MFCEstimator:
         and its derivatives at tick k.
         """
         mode, tmp = self._mode, self._tmp
-        ry, re, copies, rv, products = self._views[self._hist.advance()]
-        ry[...] = y
+        y_to, re, copies, rv, products = self._views[self._hist.advance()]
+        y_to[...] = y
         rv[...] = v_prev
         if mode == "error":
             np.subtract(y, r[:, :, 0], out=re)
         elif mode == "mixed":
             np.multiply(self._m, r[:, :, 0], out=tmp)
             np.subtract(y, tmp, out=re)
-        elif re is not ry:
-            re[...] = y
         for row in copies:  # the bank's second error row (ê̇)
             row[...] = re
         if self._shared:

@@ -120,9 +120,18 @@ class StreamingSS:
         self._z[...] = 0.0
         self._state[...] = np.einsum("bnj,bcj->bcn", self._steady, np.asarray(w0, dtype=float))
 
+    @property
+    def input(self) -> np.ndarray:
+        """(B, C, m) where w[k] goes before :meth:`advance` (what :meth:`step` copies ``w`` to)."""
+        return self._input
+
     def step(self, w: np.ndarray) -> np.ndarray:
         """Feed w[k] (B, C, m); return out[k] (B, C, p), a view the next step overwrites, and advance the state."""
         self._input[...] = w
+        return self.advance()
+
+    def advance(self) -> np.ndarray:
+        """:meth:`step` with w[k] already written to :attr:`input`."""
         if self._shared is not None:
             np.dot(self._flat, self._shared, out=self._out_flat)
         else:

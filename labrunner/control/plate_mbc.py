@@ -30,7 +30,7 @@ from labrunner.control.plate_filters import StateSpace, StreamingSS, identity, l
 from labrunner.control.plate_trajectories import reference_from_points
 from labrunner.control.trajectories import Reference
 from labrunner.errors import InvalidParameter, check_finite
-from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry, current_for_force, magnet_force
+from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry, current_at, force_at
 from labrunner.rigs.base import RigInfo
 
 
@@ -127,34 +127,49 @@ class PlateMBC(Controller):
         self.lam_inv_sqrt = float(lam_inv_sqrt)
         self.c_p = np.array([[d.c_p] for d in designs])
         self.c_d = np.array([[d.c_d] for d in designs])
-        self._chain = StreamingSS([estimation_chain(d)["chain"] for d in designs], channels=3)
-        self._w = np.zeros((B, 3, 2))  # chain inputs per sensor point: (y, v + g)
-        self._h = np.zeros((B, 4))
+        chains = {d: estimation_chain(d)["chain"] for d in set(designs)}  # one design per distinct run
+        self._chain = StreamingSS([chains[d] for d in designs], channels=3)
         self.estimates = {"f_hat": np.zeros((B, 3)), "e_hat": np.zeros((B, 3)), "de_hat": np.zeros((B, 3))}
+        # per-tick buffers; gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
+        self._c_p3, self._c_d3 = np.repeat(self.c_p, 3, axis=1), np.repeat(self.c_d, 3, axis=1)
+        self._g = np.array(self.geometry.g)
+        self._K_T, self._P_inv_B_T, self._V_T = self.geometry.K.T, self.geometry.P_inv_B.T, self.geometry.V.T
+        self._lam_h = np.zeros((B, 4))  # d(h) = λ^(−1/2) h at the last tick's gaps (eq. (4))
+        self._v, self._t, self._f = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 4))
+
+    def _measured(self, y: np.ndarray) -> None:
+        """Keep this tick's y_1..y_3 and d(h) at the gaps h = K y (eq. (4)) for the law and the next tick."""
+        y3 = y[:, :3]
+        self.controlled[...] = y3
+        np.dot(y3, self._K_T, out=self._lam_h)
+        np.multiply(self.lam_inv_sqrt, self._lam_h, out=self._lam_h)
 
     def _reset(self, y0: np.ndarray) -> None:
-        g = self.geometry
-        self._h = g.gaps_from_sensors(y0)
-        self._w[:, :, 0] = y0[:, :3]
-        self._w[:, :, 1] = g.g  # at rest: v = 0
-        self._chain.reset(self._w)
-        self.controlled[...] = y0[:, :3]
+        self._measured(y0)
+        w = np.empty((self.batch, 3, 2))  # chain inputs per sensor point: (y, v + g)
+        w[:, :, 0] = y0[:, :3]
+        w[:, :, 1] = self.geometry.g  # at rest: v = 0
+        self._chain.reset(w)
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
-        g = self.geometry
-        v_applied = g.input_from_forces(magnet_force(self.u_applied, self._h, self.lam_inv_sqrt))
-        self._w[:, :, 0] = y[:, :3]
-        self._w[:, :, 1] = v_applied + g.g
-        x_hat = self._chain.step(self._w)  # (B, 3, 3): ŷ, ŷ̇, η̂ per sensor point
-        e_hat = x_hat[:, :, 0] - r[:, :, 0]
-        de_hat = x_hat[:, :, 1] - r[:, :, 1]
-        v = r[:, :, 2] - self.c_d * de_hat - self.c_p * e_hat - g.g - x_hat[:, :, 2]  # eq. (7)
-        self._h = g.gaps_from_sensors(y)
-        self.controlled[...] = y[:, :3]
-        self.estimates["f_hat"][...] = x_hat[:, :, 2] + g.g
-        self.estimates["e_hat"][...] = e_hat
-        self.estimates["de_hat"][...] = de_hat
-        return current_for_force(g.forces_pinv(v), self._h, self.lam_inv_sqrt)  # eq. (11), (12)
+        chain, v, t, f, g = self._chain, self._v, self._t, self._f, self._g
+        w = chain.input  # (B, 3, 2): y and the applied v + g of the last tick, eq. (5)
+        w[:, :, 0] = y[:, :3]
+        np.dot(force_at(self.u_applied, self._lam_h, out=f), self._P_inv_B_T, out=t)
+        np.add(t, g, out=w[:, :, 1])
+        x_hat = chain.advance()  # (B, 3, 3): ŷ, ŷ̇, η̂ per sensor point
+        e_hat, de_hat, f_hat = self.estimates["e_hat"], self.estimates["de_hat"], self.estimates["f_hat"]
+        np.subtract(x_hat[:, :, 0], r[:, :, 0], out=e_hat)
+        np.subtract(x_hat[:, :, 1], r[:, :, 1], out=de_hat)
+        np.multiply(self._c_d3, de_hat, out=t)  # eq. (7): v = ÿ_r − c_D ê̇ − c_P ê − g − η̂
+        np.subtract(r[:, :, 2], t, out=v)
+        np.multiply(self._c_p3, e_hat, out=t)
+        np.subtract(v, t, out=v)
+        np.subtract(v, g, out=v)
+        np.subtract(v, x_hat[:, :, 2], out=v)
+        np.add(x_hat[:, :, 2], g, out=f_hat)
+        self._measured(y)
+        return current_at(np.dot(v, self._V_T, out=f), self._lam_h, out=f)  # eq. (11), (12)
 
 
 def build_plate_mbc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tuple[PlateMBC, Reference]:
