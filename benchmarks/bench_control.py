@@ -88,9 +88,12 @@ def main() -> None:
         verdict = "" if np.isnan(target) else "ok" if best <= target else "MISSED"
         print(f"{name:34s} {best:11.1f} {med:14.1f} {target:7.0f} {verdict}")
     ref = factory.reference([{"reference": REF}] * 1000)
-    t0 = time.perf_counter()
-    ref.evaluate(np.arange(1024) / FS)
-    print(f"reference.evaluate, 1024 ticks × B=1000: {(time.perf_counter() - t0) / 1024 * 1e6:.1f} µs per tick")
+    cpu = []
+    for _ in range(5):
+        c0 = time.process_time()
+        ref.evaluate(np.arange(1024) / FS)
+        cpu.append(time.process_time() - c0)
+    print(f"reference.evaluate, 1024 ticks × B=1000: {min(cpu) / 1024 * 1e6:.1f} µs per tick (best cpu)")
 
 
 if __name__ == "__main__":

@@ -235,7 +235,9 @@ class Reference:
 
     ``evaluate(t)`` with t of shape (K,) [s] → (K, B, n_outputs, 4): value and derivatives 1..3.
     Equal trajectories (a γ–k_p grid shares one) are evaluated once; the distinct ones are grouped
-    by type and each group is evaluated in one vectorised call.
+    by type and each group is evaluated in one vectorised call. The array is stored derivative
+    by derivative (a (K, 4, B, n_outputs) block seen through a transposed view), so that a tick's
+    value or derivative ``r[k][:, :, j]``, which a controller reads every tick, is contiguous.
     """
 
     def __init__(self, trajectories: Sequence[Sequence[Trajectory]]) -> None:
@@ -266,4 +268,5 @@ class Reference:
         out = np.empty((t.size, self._n_distinct, 4))
         for kind, index, params in self._groups:
             out[:, index, :] = kind._eval(params, t[:, None])
-        return out[:, self._gather, :].reshape(t.size, self.batch, self.n_outputs, 4)
+        planes = np.take(np.ascontiguousarray(out.transpose(0, 2, 1)), self._gather, axis=2)  # (K, 4, B·n_outputs)
+        return planes.reshape(t.size, 4, self.batch, self.n_outputs).transpose(0, 2, 3, 1)
