@@ -143,7 +143,8 @@ class PlateTwin(SimRig):
         scale = np.column_stack([np.repeat(col(p["sensor_std"]), 4, axis=1), np.repeat(col(p["current_std"]), 4, axis=1)])
         self._noise = NoiseStreams(seeds, 8, stream=3, block=2048, scale=scale)
         self._G_T = self._G.T
-        self._buffers = {name: np.zeros((batch, 4)) for name in ("gaps", "dd", "pen", "sign", "kpen", "stiff_x", "cs", "f", "acc", "v_half", "tmp")}
+        self._buffers = {name: np.zeros((batch, 4)) for name in ("gaps", "dd", "pen", "sign", "kpen", "lin", "cs", "f", "acc", "v_half", "tmp")}
+        self._beyond = np.zeros((batch, 4), dtype=bool)
         # at rest on the four screws, sagging: (k G Gᵀ + S) x = M g + k G 1 screw_gap, S the mode's stiffness
         stiffness = self._k_c[:, :1, None] * (self._G @ self._G.T) + np.einsum("bi,ij->bij", self._stiff / self._inv_mass, np.eye(4))
         load = self._gravity / self._inv_mass + self._k_c[:, :1] * self._screw[:, :1] * self._G.sum(axis=1)
@@ -215,7 +216,10 @@ class PlateTwin(SimRig):
         gaps = b["gaps"]
         np.dot(self.x, self._G, out=gaps)
         self._d_squared(gaps, b["dd"])
-        self._contact = gaps.max() > self._screw_min or gaps.min() < self._top_max  # any corner on a stop
+        # any corner on a stop? (count_nonzero of a comparison: cheaper than max() and min())
+        self._contact = bool(np.count_nonzero(np.greater(gaps, self._screw_min, out=self._beyond))) or bool(
+            np.count_nonzero(np.less(gaps, self._top_max, out=self._beyond))
+        )
         if self._contact:
             pen = b["pen"]
             np.maximum(gaps, self._top, out=pen)
@@ -223,7 +227,10 @@ class PlateTwin(SimRig):
             np.subtract(gaps, pen, out=pen)
             np.sign(pen, out=b["sign"])
             np.multiply(self._k_c, pen, out=b["kpen"])
-        np.multiply(self._stiff, self.x, out=b["stiff_x"])
+        # gravity minus the mode's spring: gravity acts on z only, the spring on q only, so
+        # (gravity − F) − spring = (gravity − spring) − F exactly, and one subtraction moves here
+        np.multiply(self._stiff, self.x, out=b["lin"])
+        np.subtract(self._gravity, b["lin"], out=b["lin"])
 
     def _acceleration(self, current_sq: np.ndarray, v: np.ndarray, out: np.ndarray) -> np.ndarray:
         """(B, 4) ẍ at the current x (see :meth:`_at_position`) for squared currents and velocity ``v``."""
@@ -241,8 +248,7 @@ class PlateTwin(SimRig):
             np.add(f_up, tmp, out=f_up)
         np.dot(f_up, self._G_T, out=tmp)  # generalised forces of the upward corner forces
         np.multiply(tmp, self._inv_mass, out=tmp)
-        np.subtract(self._gravity, tmp, out=out)
-        np.subtract(out, b["stiff_x"], out=out)
+        np.subtract(b["lin"], tmp, out=out)
         np.multiply(self._damp, v, out=tmp)
         return np.subtract(out, tmp, out=out)
 
