@@ -176,7 +176,7 @@ class SafetyMonitor:
         runs that trip (which monitor, value, threshold).
         """
         t = k / self.fs
-        everyone = active.all()
+        everyone = np.count_nonzero(active) == self.B  # count_nonzero: cheaper than all() per tick
         u_off = self._off(0, u)
         u_odd = np.count_nonzero(u_off) > 0
         u_flagged = u_odd and self._active_hit(u_off, active, everyone)

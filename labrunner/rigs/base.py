@@ -135,7 +135,7 @@ class Rig(abc.ABC):
         u = np.asarray(u, dtype=float).reshape(self.batch, len(self.info.inputs))
         u = np.maximum(u, self._lo)  # np.clip's result, a new array, with fewer calls
         np.minimum(u, self._hi, out=u)
-        safe = self._safe[:, None] if self._safe.any() else None
+        safe = self._safe[:, None] if np.count_nonzero(self._safe) else None
         if safe is not None:
             np.copyto(u, self._safe_input, where=safe)
         if self._faulty and self.k / self.fs >= self.faults.t_start:

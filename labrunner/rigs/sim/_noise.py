@@ -12,16 +12,26 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from labrunner.errors import InvalidParameter
+
 
 class NoiseStreams:
     """Normal draws of shape (B, width), one per :meth:`next` call (one per tick).
 
     Standard normal, or times ``scale`` (broadcast to (B, width): the noise levels per run and
-    channel), applied once per block rather than once per tick.
+    channel), applied once per block rather than once per tick. With ``groups`` = G, a tick's
+    draws come as G contiguous (B, width/G) arrays (channels 0..width/G−1, then the next ones),
+    the same numbers, each ready for a ufunc without strides.
     """
 
     def __init__(
-        self, seeds: Sequence[int] | np.ndarray, width: int, stream: int, block: int = 512, scale: np.ndarray | float | None = None
+        self,
+        seeds: Sequence[int] | np.ndarray,
+        width: int,
+        stream: int,
+        block: int = 512,
+        scale: np.ndarray | float | None = None,
+        groups: int = 1,
     ) -> None:
         self._gens = [
             np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(s) % 2**64, stream])))
@@ -30,21 +40,24 @@ class NoiseStreams:
         self.width = int(width)
         self.block = int(block)
         self._scale = None if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (len(self._gens), self.width))
-        self._buf = np.empty((0, len(self._gens), self.width))
+        if groups < 1 or self.width % groups:
+            raise InvalidParameter("groups", f"must divide the width {self.width}, got {groups}")
+        self.groups = groups
+        self._buf = np.empty((0, groups, len(self._gens), self.width // groups))
         self._i = 0
 
     def next(self) -> np.ndarray:
-        """The next tick's draws, (B, width)."""
+        """The next tick's draws: (B, width), or (G, B, width/G) in groups; valid until the next block."""
         if self._i >= self._buf.shape[0]:
+            G, B, per = self.groups, len(self._gens), self.width // self.groups
             if self._buf.shape[0] != self.block:
-                self._buf = np.empty((self.block, len(self._gens), self.width))
+                self._buf = np.empty((self.block, G, B, per))
             for i, g in enumerate(self._gens):  # once per block, not per tick
                 draws = g.standard_normal((self.block, self.width))
-                if self._scale is None:
-                    self._buf[:, i] = draws
-                else:
-                    np.multiply(self._scale[i], draws, out=self._buf[:, i])
+                if self._scale is not None:
+                    draws *= self._scale[i]
+                self._buf[:, :, i, :] = draws.reshape(self.block, G, per)
             self._i = 0
         out = self._buf[self._i]
         self._i += 1
-        return out
+        return out if self.groups > 1 else out[0]

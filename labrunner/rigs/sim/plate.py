@@ -139,9 +139,10 @@ class PlateTwin(SimRig):
         self._screw, self._top = full(p["screw_gap"]), full(p["top_gap"])
         self._screw_min, self._top_max = float(p["screw_gap"].min()), float(p["top_gap"].max())
         self._offset, self._f_max = full(p["d_offset"]), full(p["force_max"])
+        self._any_offset = bool(np.any(self._offset))
         # noise drawn pre-scaled: sensors (B, 4) | current ripple (B, 4)
         scale = np.column_stack([np.repeat(col(p["sensor_std"]), 4, axis=1), np.repeat(col(p["current_std"]), 4, axis=1)])
-        self._noise = NoiseStreams(seeds, 8, stream=3, block=2048, scale=scale)
+        self._noise = NoiseStreams(seeds, 8, stream=3, block=2048, scale=scale, groups=2)
         self._G_T = self._G.T
         self._buffers = {name: np.zeros((batch, 4)) for name in ("gaps", "dd", "pen", "sign", "kpen", "lin", "cs", "f", "acc", "v_half", "tmp")}
         self._beyond = np.zeros((batch, 4), dtype=bool)
@@ -150,7 +151,7 @@ class PlateTwin(SimRig):
         load = self._gravity / self._inv_mass + self._k_c[:, :1] * self._screw[:, :1] * self._G.sum(axis=1)
         x = np.linalg.solve(stiffness, load[:, :, None])[:, :, 0]
         self.set_state(x, np.zeros((batch, 4)))
-        return self._sensors(self._noise.next()[:, :4])
+        return self._sensors(self._noise.next()[0])
 
     def set_state(self, x: np.ndarray, v: np.ndarray | None = None) -> None:
         """Put the batch at generalised coordinates ``x`` (B, 4) (and velocities ``v``, default unchanged)."""
@@ -160,10 +161,10 @@ class PlateTwin(SimRig):
         self._at_position()
 
     def _step(self, u: np.ndarray) -> np.ndarray:
-        noise = self._noise.next()
+        sensor_noise, current_noise = self._noise.next()
         b = self._buffers
         cs, acc, v_half, tmp, x, v = b["cs"], b["acc"], b["v_half"], b["tmp"], self.x, self.v
-        np.add(u, noise[:, 4:], out=cs)  # the currents with their ripple, squared
+        np.add(u, current_noise, out=cs)  # the currents with their ripple, squared
         np.maximum(cs, 0.0, out=cs)
         np.square(cs, out=cs)
         h, half = self._h_steps  # 0-d arrays: cheaper in a ufunc than Python floats
@@ -177,7 +178,7 @@ class PlateTwin(SimRig):
             self._acceleration(cs, v_half, out=acc)
             np.multiply(half, acc, out=tmp)
             np.add(v_half, tmp, out=v)
-        return self._sensors(noise[:, :4])
+        return self._sensors(sensor_noise)
 
     # -- model -----------------------------------------------------------------------------------
     @property
@@ -195,8 +196,11 @@ class PlateTwin(SimRig):
 
     def _d_squared(self, gaps: np.ndarray, out: np.ndarray) -> np.ndarray:
         """d_j(h_j)² of eq. (2), d = λ^(−1/2)·d_gain·(h + offset), h kept above 1 µm."""
-        np.add(gaps, self._offset, out=out)
-        np.maximum(out, 1e-6, out=out)
+        if self._any_offset:
+            np.add(gaps, self._offset, out=out)
+            np.maximum(out, 1e-6, out=out)
+        else:  # h + 0 is h (the bound removes a −0)
+            np.maximum(gaps, 1e-6, out=out)
         np.multiply(self._lam, out, out=out)
         return np.multiply(out, out, out=out)
 
