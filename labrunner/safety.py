@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from labrunner._ufunc import clip
 from labrunner.differentiators import StreamingFIR, design, pad_taps
 from labrunner.errors import InvalidParameter, check_finite
 from labrunner.rigs.base import RigInfo
@@ -201,9 +202,7 @@ class SafetyMonitor:
     def _off(self, which: int, x: np.ndarray) -> np.ndarray:
         """(B, n) where ``x`` is non-finite or out of bounds (``which``: 0 inputs, 1 outputs), in a buffer."""
         lo, hi, clipped, off = self._screens[which]
-        np.maximum(x, lo, out=clipped)
-        np.minimum(clipped, hi, out=clipped)
-        return np.not_equal(clipped, x, out=off)  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
+        return np.not_equal(clip(x, lo, hi, out=clipped), x, out=off)  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
 
     @staticmethod
     def _active_hit(hit: np.ndarray, active: np.ndarray, everyone: bool) -> bool:

@@ -112,10 +112,15 @@ class PlateMFC(Controller):
             fs = designs[0].fs
             notch = tustin(tf_ss(*notch_tf(notch_omega, notch_q)), fs, notch_omega)
             self._notch = StreamingSS([notch] * B, channels=3)
+            self._notch_in, self._notch_out = self._notch.input[:, :, 0], self._notch.output[:, :, 0]
 
     def _filtered(self, y3: np.ndarray) -> np.ndarray:
         """The measurement after the notch filter (Fig. 10b), (B, 3)."""
-        return y3 if self._notch is None else self._notch.step(y3[:, :, None])[:, :, 0]
+        if self._notch is None:
+            return y3
+        self._notch_in[...] = y3
+        self._notch.advance()
+        return self._notch_out
 
     def _reset(self, y0: np.ndarray) -> None:
         if self._notch is not None:

@@ -125,6 +125,11 @@ class StreamingSS:
         """(B, C, m) where w[k] goes before :meth:`advance` (what :meth:`step` copies ``w`` to)."""
         return self._input
 
+    @property
+    def output(self) -> np.ndarray:
+        """(B, C, p) where :meth:`advance` leaves out[k] (the array it returns)."""
+        return self._output
+
     def step(self, w: np.ndarray) -> np.ndarray:
         """Feed w[k] (B, C, m); return out[k] (B, C, p), a view the next step overwrites, and advance the state."""
         self._input[...] = w

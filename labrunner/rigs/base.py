@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from labrunner._ufunc import clip
 from labrunner.errors import InvalidParameter
 
 
@@ -133,8 +134,7 @@ class Rig(abc.ABC):
     def step(self, u: np.ndarray) -> np.ndarray:
         """Apply ``u`` (B, n_inputs) for one sample period; return the next measurement (B, n_outputs)."""
         u = np.asarray(u, dtype=float).reshape(self.batch, len(self.info.inputs))
-        u = np.maximum(u, self._lo)  # np.clip's result, a new array, with fewer calls
-        np.minimum(u, self._hi, out=u)
+        u = clip(u, self._lo, self._hi)  # a new array
         safe = self._safe[:, None] if np.count_nonzero(self._safe) else None
         if safe is not None:
             np.copyto(u, self._safe_input, where=safe)
