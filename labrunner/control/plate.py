@@ -130,9 +130,9 @@ class PlateMFC(Controller):
 
     def _measured(self, y: np.ndarray) -> None:
         """Keep this tick's y_1..y_3, gaps h = K y (eq. (4)), d(h) and γ_i(y) for the law and the next tick."""
-        y3 = y[:, :3]
-        self.controlled[...] = y3
-        np.dot(y3, self._K_T, out=self._h)
+        y3 = self.controlled
+        y3[...] = y[:, :3]
+        np.dot(y3, self._K_T, out=self._h)  # from the contiguous copy: half the cost of the strided view
         np.multiply(self.lam_inv_sqrt, self._h, out=self._lam_h)
         if self.input == "current":
             self._gamma_i(y3, out=self._gamma_y)

@@ -139,9 +139,9 @@ class PlateMBC(Controller):
 
     def _measured(self, y: np.ndarray) -> None:
         """Keep this tick's y_1..y_3 and d(h) at the gaps h = K y (eq. (4)) for the law and the next tick."""
-        y3 = y[:, :3]
-        self.controlled[...] = y3
-        np.dot(y3, self._K_T, out=self._lam_h)
+        y3 = self.controlled
+        y3[...] = y[:, :3]
+        np.dot(y3, self._K_T, out=self._lam_h)  # from the contiguous copy: half the cost of the strided view
         np.multiply(self.lam_inv_sqrt, self._lam_h, out=self._lam_h)
 
     def _reset(self, y0: np.ndarray) -> None:
