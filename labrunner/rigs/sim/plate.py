@@ -169,7 +169,7 @@ class PlateTwin(SimRig):
         np.square(cs, out=cs)
         h, half = self._h_steps  # 0-d arrays: cheaper in a ufunc than Python floats
         self._acceleration(cs, v, out=acc)
-        for _ in range(self.substeps):  # velocity Verlet: second order, one evaluation per sub-step
+        for _ in range(self.substeps):  # velocity Verlet (second order): one more evaluation per sub-step
             np.multiply(half, acc, out=tmp)
             np.add(v, tmp, out=v_half)
             np.multiply(h, v_half, out=tmp)
