@@ -30,6 +30,8 @@ PLATE_POINTS = {
         "reference": LIFT,
     },
 }
+# the other inputs of paper 2's MFC (eq. 17, 19, 21), at B = 1 only: "any controller"
+PLATE_INPUTS = {"force": 1.0 / 4.69, "u": 4.0 / (4.69 * 250.0**2), "current": 0.04}
 
 
 def mfc(order: int, n_s: int, batch: int) -> list[dict]:
@@ -81,6 +83,10 @@ def main() -> None:
         for batch in (1, 32):
             target = 30.0 if batch == 1 else float("nan")  # B = 32: the share of bench_plate.py's closed loop
             cases.append((f"{name:13s} B={batch:<4d}", [point] * batch, plate, target, PLATE_FS, 5.5e-3))
+    for name, gamma in PLATE_INPUTS.items():
+        base = PLATE_POINTS["plate-mfc v"]
+        point = {**base, "controller": {**base["controller"], "input": name, "gamma": gamma}}
+        cases.append((f"plate-mfc {name:7s} B=1   ", [point], plate, 30.0, PLATE_FS, 5.5e-3))
     print(f"{'case':34s} {'best cpu µs':>11s} {'median wall µs':>14s} {'target':>7s}")
     for name, points, rig, target, *plate_args in cases:
         # plate sensors: 1e-3 noise on 5.5e-3 is far off any real gap, but the cost per tick does not depend on values

@@ -106,7 +106,7 @@ class PlateMFC(Controller):
         self._lam_h = np.zeros((B, 4))  # d(h) = λ^(−1/2) h at those gaps
         self._gamma_y = np.zeros((B, 3))  # γ_i(y) at the last tick (input current)
         self._w, self._t, self._x = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 3))
-        self._u4 = np.zeros((B, 4))
+        self._u4, self._x4 = np.zeros((B, 4)), np.zeros((B, 1))
         self._notch = None
         if notch_omega > 0:
             fs = designs[0].fs
@@ -177,8 +177,9 @@ class PlateMFC(Controller):
         """(B, 4) = (x_1, x_2, x_3, Σ a_k x_k) in the input buffer (eq. (18))."""
         u = self._u4
         u[:, :3] = x3
-        np.matmul(x3, self._weights_col, out=u[:, 3:])
+        u[:, 3:] = np.dot(x3, self._weights_col, out=self._x4)
         return u
+
 
 def plate_geometry(rig_info: RigInfo) -> tuple[PlateGeometry, float]:
     """The nominal geometry and λ^(−1/2) of the rig (its constants), or paper 2's Table 2."""
