@@ -8,28 +8,24 @@ block in wall-clock time (which includes the neighbours' load).
 
 from __future__ import annotations
 
-import time
+import os
 
-import numpy as np
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core: the CPU time of this process counts every thread
 
-from labrunner.control import factory
-from labrunner.rigs.base import RigInfo, Signal
-from labrunner.rigs.registry import load_rig
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from bench_plate import FS as PLATE_FS, POINTS  # noqa: E402 - the plate's closed loops (paper 2), as bench_plate.py runs them
+from labrunner.control import factory  # noqa: E402
+from labrunner.rigs.base import RigInfo, Signal  # noqa: E402
+from labrunner.rigs.registry import load_rig  # noqa: E402
 
 FS = 1000.0
 MOTOR = RigInfo("motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 40000.0), FS, (0.0,))
 VALVE = RigInfo("valve", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"),), (1.0, 40000.0), FS, (0.0,))
 REF = {"kind": "setpoints", "levels": [0.0, 1.0, 0.0], "transition": 0.5, "hold": 0.5}
-PLATE_FS = 32_000.0
-LIFT = {"kind": "setpoints", "levels": [5.5e-3, 2e-3], "transition": 0.3, "hold": [0.0, 0.2]}
-PLATE_POINTS = {
-    "plate-mbc": {"controller": {"kind": "plate-mbc"}, "reference": LIFT},
-    "plate-mfc v": {
-        "controller": {"kind": "plate-mfc", "input": "v", "gamma": 1.0, "k_p": 5000.0, "k_d": 195.0},
-        "differentiator": {"alpha": 4, "omega_c": 840.0},
-        "reference": LIFT,
-    },
-}
 # the other inputs of paper 2's MFC (eq. 17, 19, 21), at B = 1 only: "any controller"
 PLATE_INPUTS = {"force": 1.0 / 4.69, "u": 4.0 / (4.69 * 250.0**2), "current": 0.04}
 
@@ -79,12 +75,13 @@ def main() -> None:
         ("valve-ffc     B=1   ", ffc, VALVE, 30.0),
     ]
     plate = load_rig("plate-sim").info
-    for name, point in PLATE_POINTS.items():
+    plate_points = {f"{p['controller']['kind']} {p['controller'].get('input', '')}".strip(): p for p in POINTS.values()}
+    for name, point in plate_points.items():
         for batch in (1, 32):
             target = 30.0 if batch == 1 else float("nan")  # B = 32: the share of bench_plate.py's closed loop
             cases.append((f"{name:13s} B={batch:<4d}", [point] * batch, plate, target, PLATE_FS, 5.5e-3))
     for name, gamma in PLATE_INPUTS.items():
-        base = PLATE_POINTS["plate-mfc v"]
+        base = plate_points["plate-mfc v"]
         point = {**base, "controller": {**base["controller"], "input": name, "gamma": gamma}}
         cases.append((f"plate-mfc {name:7s} B=1   ", [point], plate, 30.0, PLATE_FS, 5.5e-3))
     print(f"{'case':34s} {'best cpu µs':>11s} {'median wall µs':>14s} {'target':>7s}")
