@@ -6,12 +6,14 @@ import json
 import os
 import signal
 import socket
+import tomllib
 
 import pytest
 
 from labrunner.cli import main
 from labrunner.logs import read_run
 from labrunner.rigs.registry import register_rig
+from labrunner.rigs.sim.dcmotor import DCMotorTwin
 from test_campaign_support import (  # noqa: F401 - fixture
     MOTOR_RIG,
     campaign_text,
@@ -43,6 +45,11 @@ def test_run_then_status_and_logs(project, capsys):
     assert log.metadata["parameters"] == json.loads(row["parameters"])
     assert log.metadata["metrics"]["rms_error"] == pytest.approx(row["rms_error"], rel=1e-12)
     assert log.attachments["campaign.toml"].decode() == path.read_text()
+    rig_file = tomllib.loads(MOTOR_RIG)  # the rig as it ran: the file's sections, defaults filled in
+    rig = log.metadata["rig"]
+    assert rig["rig"]["kind"] == "dcmotor" and rig["rig"]["description"] == rig_file["rig"]["description"]
+    assert rig["parameters"] == {**{k: p.default for k, p in DCMotorTwin.PARAMETERS.items()}, **rig_file["parameters"]}
+    assert rig["noise"] == {"input_v": DCMotorTwin.NOISE["input_v"].default} and rig["safety"] == rig_file["safety"]
     capsys.readouterr()
     assert main(["status", str(directory), "--json"]) == 0
     st = json.loads(capsys.readouterr().out)
