@@ -2,8 +2,9 @@
 
 Stacked panels over a shared time axis: the controlled outputs with their references (dashed,
 same colour), the inputs, the estimates (``f_hat_*`` ...), then signals of unknown role. An aborted run gets a dotted red
-line at the abort time on every panel, the rest of the run greyed out, and a cross on each input
-at that instant; the title says what happened (monitor, value, threshold). Used by
+line at the abort time on every panel, the rest of the run (up to its planned ``run.duration``
+where the log records it: the engine ends the signals at the abort) greyed out, and a cross on
+each input at that instant; the title says what happened (monitor, value, threshold). Used by
 ``labrunner plot`` and by the analysis report (pass a figure or sub-figure to draw into).
 No pyplot: the figure is a plain :class:`matplotlib.figure.Figure`, safe in worker threads.
 """
@@ -105,6 +106,10 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     t = log.frame.index.to_numpy()
     out = log.outcome or {}
     t_abort = out.get("time") if out.get("status") == "aborted" and _number(out.get("time")) else None
+    t_end = t[-1] if len(t) else 0.0
+    planned = log.metadata.get("run", {}).get("duration")
+    if t_abort is not None and _number(planned):
+        t_end = max(t_end, float(planned))  # an aborted run on the axis of the run it should have been
     for ax, (title, lines) in zip(axes, panels):
         colours: dict[str, str] = {}
         unit, scale = _unit(log, [n for n, _ in lines])
@@ -121,10 +126,9 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
         ax.legend(loc="best", fontsize="small", ncols=min(4, len(lines)))
         if t_abort is not None:
             ax.axvline(t_abort, color=_ABORT, ls=":", lw=1.5)
-            if len(t):
-                ax.axvspan(t_abort, max(t[-1], t_abort), color="0.9", zorder=0)
+            ax.axvspan(t_abort, max(t_end, t_abort), color="0.9", zorder=0)
     axes[-1].set_xlabel("t [s]")
-    if len(t):
-        axes[-1].set_xlim(t[0], t[-1])
+    if len(t) and t_end > t[0]:
+        axes[-1].set_xlim(t[0], t_end)
     fig.suptitle(_title(log), fontsize="medium")
     return fig
