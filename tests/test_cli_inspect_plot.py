@@ -177,3 +177,12 @@ def test_aborted_run_is_drawn_on_its_planned_time_axis(tmp_path):
     del meta["run"]["duration"]  # a log without a planned duration ends at its last sample
     write_run(path, metadata=meta, fs=200.0, signals=signals, outcome=ABORTED, channels=CHANNELS)
     assert plot_run(path).axes[0].get_xlim() == (0.0, 520 / 200.0)
+
+
+def test_inspect_into_a_closed_pipe_is_quiet(aborted_run):
+    """``labrunner inspect RUN.mcap --json | head -1``: the reader leaves early; no traceback."""
+    done = subprocess.Popen([sys.executable, "-m", "labrunner", "inspect", str(aborted_run), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    done.stdout.close()  # the reader is gone before the first byte
+    err = done.stderr.read().decode()
+    assert done.wait(timeout=120) == 141 and "Traceback" not in err and "Exception ignored" not in err

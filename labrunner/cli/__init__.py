@@ -5,13 +5,15 @@ Each sub-command lives in its own module below ``labrunner.cli`` and exposes
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
 Errors: :class:`~labrunner.errors.InvalidParameter` → one line on stderr, exit 2;
-any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1.
+any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1. A reader that goes away
+(``labrunner inspect RUN.mcap --json | head``) ends the command quietly with 141, like SIGPIPE.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -67,7 +69,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit
+        return code
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing more to flush at exit
+        return 141
     except InvalidParameter as exc:
         print(f"labrunner {args.command}: error: {exc}", file=sys.stderr)
         return 2
