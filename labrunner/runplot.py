@@ -1,7 +1,8 @@
 """The figure of one run, drawn like the thesis's Figs. 3.12 and 3.20.
 
 Stacked panels over a shared time axis: the controlled outputs with their references (dashed,
-same colour), the inputs, the estimates (``f_hat_*`` ...), then signals of unknown role. An aborted run gets a dotted red
+same colour), the inputs, the estimates (one panel per quantity: ``f_hat_*``, ``e_hat_*``,
+``de_hat_*``), then signals of unknown role. An aborted run gets a dotted red
 line at the abort time on every panel, the rest of the run (up to its planned ``run.duration``
 where the log records it: the engine ends the signals at the abort) greyed out, and a cross on
 each input at that instant; the title says what happened (monitor, value, threshold). Used by
@@ -51,10 +52,13 @@ def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
     else:
         outputs = [(n, "-") for role in ("controlled", "output", "reference", "signal") for n in roles.get(role, [])]
     drawn = {n for n, _ in outputs}
+    kinds: dict[str, list[tuple[str, str]]] = {}  # f̂, ê, ê̇ differ in unit and scale: one panel each
+    for name in roles.get("estimate", []):
+        kinds.setdefault(name.partition("_hat")[0], []).append((name, "-"))
     panels = [
         ("outputs", outputs),
         ("inputs", [(n, "-") for n in roles.get("input", [])]),
-        ("estimates", [(n, "-") for n in roles.get("estimate", [])]),
+        *(("estimates", lines) for lines in kinds.values()),
         ("signals", [(n, "-") for n in roles.get("signal", []) if n not in drawn]),  # role unknown
     ]
     return [(title, lines) for title, lines in panels if lines]

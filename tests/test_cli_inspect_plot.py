@@ -186,3 +186,16 @@ def test_inspect_into_a_closed_pipe_is_quiet(aborted_run):
     done.stdout.close()  # the reader is gone before the first byte
     err = done.stderr.read().decode()
     assert done.wait(timeout=120) == 141 and "Traceback" not in err and "Exception ignored" not in err
+
+
+def test_each_estimated_quantity_gets_its_own_panel(tmp_path):
+    """f̂ [m/s²], ê [m] and ê̇ [m/s] of the plate differ by orders of magnitude: one panel each."""
+    n = 50
+    signals = {"y1": np.full(n, 2e-3), "ref_y1": np.full(n, 2e-3), "i1": np.full(n, 1.7),
+               "f_hat_y1": np.full(n, 9.81), "e_hat_y1": np.full(n, 1e-6), "de_hat_y1": np.full(n, 1e-4),
+               "f_hat_y2": np.full(n, 9.7)}  # fmt: skip
+    path = tmp_path / "plate.mcap"
+    write_run(path, metadata={}, fs=100.0, signals=signals, outcome=COMPLETED,
+              channels={"y1": {"role": "controlled", "unit": "m"}, "i1": {"role": "input", "unit": "A"}})
+    panels = [[l.get_label() for l in ax.get_lines()] for ax in plot_run(path).axes]
+    assert panels == [["y1", "ref_y1"], ["i1"], ["f_hat_y1", "f_hat_y2"], ["e_hat_y1"], ["de_hat_y1"]]

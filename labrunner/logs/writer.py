@@ -47,10 +47,10 @@ def infer_role(name: str) -> str:
     """Role of a signal from the engine's naming (``ref_<y>``, ``e_<y>``, ``<estimate>_<y>``)."""
     if name.startswith("ref_"):
         return "reference"
+    if "_hat" in name:  # before e_: ``e_hat_<y>`` is the filtered error, an estimate
+        return "estimate"
     if name.startswith("e_"):
         return "error"
-    if "_hat" in name:
-        return "estimate"
     return "signal"
 
 
