@@ -143,3 +143,22 @@ def test_a_tripped_run_is_safe_in_the_same_tick(thesis_points):
     np.testing.assert_array_equal(applied[k:, 1], 0.0)  # from the abort tick on: the safe input
     np.testing.assert_array_equal(applied[:, 0], nominal.signals["u"][: len(applied)])
     assert nominal.outcome.status == "completed"
+
+
+def test_valve_run_whose_flow_never_rises_is_no_motion():
+    """Paper 1's valve: with its MFC gains (γ = 0.4 m³/(A s²), k_p = 30 1/s) the flow rises through
+    the sensor's range; with a huge γ the current stays far below the main stage's ≈ 50 % threshold,
+    the reading never passes the sensor's 1.2 l/min (the rig file's motion_min_level): no-motion."""
+    config = registry.load_rig_config("valve-sim", search=[ROOT / "rigs"])
+
+    def point(gamma):
+        return {"controller": {"kind": "mfc1", "output": "flow", "gamma": gamma, "k_p": 30.0},
+                "differentiator": {"alpha": 2, "beta": 2, "omega_c": 250.0},
+                "reference": {"kind": "setpoints", "levels": [1.0, 5.0, 1.0], "transition": 0.3, "hold": 0.3}}  # fmt: skip
+
+    with registry.load_rig(config) as rig:
+        tracked, tiny = engine.run_batch([point(0.4), point(1e4)], rig, fs=4000.0, duration=1.5, seeds=[0, 1],
+                                         rig_safety=config.safety)
+    assert tracked.outcome.status == "completed" and tracked.signals["q"].max() > 3.0
+    assert tiny.outcome.status == "no-motion" and tiny.signals["q"].max() <= 1.2
+    assert tiny.signals["i"].max() < 0.5 * 1.01
