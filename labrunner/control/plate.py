@@ -142,7 +142,9 @@ class PlateMFC(Controller):
         if self.input == "v":  # (14), then (11) and (12)
             forces = self.geometry.forces_pinv(w / self.gamma)
             return current_for_force(forces, self._h, self.lam_inv_sqrt)
-        if self.input == "current":  # (21): i = −(1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i)
+        # (21) with the sign of (17) and (19): i = (1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i); the printed
+        # extra leading minus would be positive feedback on ÿ = f_i − γ_i(y) i (20)
+        if self.input == "current":
             return complete_over_actuated(-w / self._gamma_i(y3), self.weights)
         x = complete_over_actuated(-w / self.gamma, self.weights)  # (17) or (19), then (18)
         if self.input == "force":
