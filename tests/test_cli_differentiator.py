@@ -32,6 +32,10 @@ def test_json_thesis_design(capsys):
     d = design(alpha=9, beta=9, omega_c=200, fs=200)
     np.testing.assert_array_equal(info["weights"], d.weights(1))  # full float precision round trip
     assert info["omega_c_actual"] == d.omega_c_actual
+    # newest sample first, aligned at discrete_delay_s: α = β is exact for x = t², x' = 2t
+    times_newest_first = 1.0 - np.arange(len(info["weights"])) / 200
+    estimate = np.dot(info["weights"], times_newest_first**2)
+    assert estimate == pytest.approx(2 * (1.0 - info["discrete_delay_s"]), rel=1e-12)
 
 
 def test_json_with_cost_order_method_and_window(capsys):
