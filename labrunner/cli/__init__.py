@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from labrunner import __version__
 from labrunner.errors import InvalidParameter, LabrunnerError
 
-# Sub-command modules, in the order ``--help`` lists them. A module that is not there yet is skipped.
+# Sub-command modules, in the order ``--help`` lists them.
 COMMANDS = (
     "run",
     "resume",
@@ -52,13 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"labrunner {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"labrunner.cli.{name}_cmd")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"labrunner.cli.{name}_cmd":
-                continue
-            raise
-        module.register(sub)
+        importlib.import_module(f"labrunner.cli.{name}_cmd").register(sub)
     return parser
 
 
