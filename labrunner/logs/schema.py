@@ -25,6 +25,7 @@ the little-endian float64 array itself — which is ~50× faster than filling me
 
 from __future__ import annotations
 
+import functools
 import re
 import struct
 from collections.abc import Sequence
@@ -159,20 +160,33 @@ def signal_prefixes(names: Sequence[str]) -> list[bytes]:
     return [b"\x0a" + varint(len(b)) + b for b in (n.encode() for n in names)]
 
 
-def encode_block(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> bytes:
-    """Wire bytes of a ``SignalBlock``; ``columns`` are float64 arrays of equal length.
+def block_parts(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> list[bytes | np.ndarray]:
+    """Wire bytes of a ``SignalBlock`` as pieces to concatenate; ``columns`` are float64 arrays
+    of equal length (``prefixes`` from :func:`signal_prefixes`).
 
-    A packed double field is the little-endian float64 array itself: the arrays are joined into
-    the message by their buffers, without an intermediate copy.
+    A packed double field is the little-endian float64 array itself, so the arrays are pieces as
+    they are: the message is first assembled when its chunk is, without an intermediate copy.
     """
     parts: list[bytes | np.ndarray] = [
-        b"\x08", varint(first_index), b"\x11", _DOUBLE.pack(first_index / fs), b"\x19", _DOUBLE.pack(fs)
+        b"\x08" + varint(first_index) + b"\x11" + _DOUBLE.pack(first_index / fs) + b"\x19" + _DOUBLE.pack(fs)
     ]
     for prefix, column in zip(prefixes, columns, strict=True):
         values = np.ascontiguousarray(column, dtype="<f8")
-        values_len = varint(values.nbytes)
-        parts += [b"\x22" + varint(len(prefix) + 1 + len(values_len) + values.nbytes) + prefix + b"\x12" + values_len, values]
-    return b"".join(parts)
+        parts += [_signal_header(prefix, values.nbytes), values]
+    return parts
+
+
+@functools.lru_cache(maxsize=256)
+def _signal_header(prefix: bytes, nbytes: int) -> bytes:
+    """``SignalBlock.signals`` tag and length, the ``Signal.name`` field, the ``values`` tag and
+    length: what precedes ``nbytes`` of packed doubles (the same for every full block)."""
+    values_len = varint(nbytes)
+    return b"\x22" + varint(len(prefix) + 1 + len(values_len) + nbytes) + prefix + b"\x12" + values_len
+
+
+def encode_block(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> bytes:
+    """Wire bytes of a ``SignalBlock`` (:func:`block_parts` joined)."""
+    return b"".join(block_parts(first_index, fs, prefixes, columns))
 
 
 def _doubles(buf: bytes | memoryview, wire: int, start: int, stop: int) -> np.ndarray:
@@ -216,8 +230,10 @@ def decode_block(buf: bytes | memoryview) -> tuple[int, float, dict[str, np.ndar
     return first_index, fs, signals
 
 
-def encode_preview(t: np.ndarray, columns: Sequence[np.ndarray]) -> list[bytes]:
-    """Wire bytes of one ``RunSample`` per element of ``t`` (vectorised: fixed-size records)."""
+def encode_preview(t: np.ndarray, columns: Sequence[np.ndarray]) -> np.ndarray:
+    """Wire bytes of one ``RunSample`` per element of ``t``: a (len(t), 9 · (1 + len(columns)))
+    uint8 array, row k the message of sample k (vectorised: every field is a 1-byte tag and a
+    little-endian double, zeros included, so all records have one size)."""
     fields = [("t", t), *((f"s{j}", c) for j, c in enumerate(columns))]
     tags = [varint((number << 3) | 1) for number in range(1, len(fields) + 1)]
     dtype = np.dtype(
@@ -227,5 +243,4 @@ def encode_preview(t: np.ndarray, columns: Sequence[np.ndarray]) -> list[bytes]:
     for (key, values), tag in zip(fields, tags):
         records[f"k_{key}"] = np.frombuffer(tag, dtype="u1")
         records[key] = values
-    raw, size = records.tobytes(), dtype.itemsize
-    return [raw[i : i + size] for i in range(0, len(raw), size)]
+    return records.view(np.uint8).reshape(len(t), dtype.itemsize)
