@@ -1,11 +1,12 @@
 """Writing one run to one MCAP file: streaming (:class:`RunLogWriter`) or at once (:func:`write_run`).
 
-File layout, in order (zstd chunks, full MCAP indexes and summary):
+File layout, in order (zstd chunks, full MCAP indexes and summary; written by
+:class:`labrunner.logs.mcap_writer.BulkWriter`, which takes a block's preview samples at once):
 
 1. metadata ``run`` (caller's record plus ``fs`` [Hz] and ``labrunner_version``), ``config``
    (the resolved point), any further caller records, then ``channels`` (per signal: ``role``,
-   ``unit``); attachments (e.g. the campaign file); **flushed**, so even a file killed before its
-   first sample names its run;
+   ``unit``); attachments (e.g. the campaign file); the two schemas and channels; **flushed**, so
+   even a file killed before its first sample names its run and its topics;
 2. chunks of ``/run/blocks`` and ``/run/preview`` messages (see :mod:`labrunner.logs.schema`),
    flushed every ``flush_interval_s`` of wall time, so a killed writer leaves a file whose
    complete chunks :func:`labrunner.logs.read_run` salvages;
