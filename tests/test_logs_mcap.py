@@ -13,6 +13,7 @@ import struct
 import zlib
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.data_stream import ReadDataStream
@@ -172,9 +173,10 @@ def test_run_log_written_by_mcap_writer_uncompressed_is_read(tmp_path):
         assert np.array_equal(bits(log.frame[name].to_numpy()), bits(values)), name
 
 
-def test_frame_grows_past_a_wrong_size_hint(tmp_path):
+@pytest.mark.parametrize("n_samples", [5, 10**15])
+def test_frame_ignores_a_wrong_size_hint(tmp_path, n_samples):
     """The outcome's n_samples only sizes the frame: blocks beyond it, or signals no channel
-    names, still land in the frame."""
+    names, still land in the frame, and a huge one allocates nothing the chunks cannot fill."""
     path = tmp_path / "hint.mcap"
     with open(path, "wb") as f:
         w = Writer(f)
@@ -186,7 +188,7 @@ def test_frame_grows_past_a_wrong_size_hint(tmp_path):
         for k in (0, 20):
             data = log_schema.encode_block(k, 10.0, log_schema.signal_prefixes(["y", "z"]), [y[k : k + 10], z[k : k + 10]])
             w.add_message(cid, log_time=k * 100_000_000, data=data, publish_time=k * 100_000_000)
-        w.add_metadata("outcome", encode_record("outcome", {**COMPLETED, "n_samples": 5}))
+        w.add_metadata("outcome", encode_record("outcome", {**COMPLETED, "n_samples": n_samples}))
         w.finish()
     frame = read_run(path).frame
     assert list(frame.columns) == ["y", "z"] and len(frame) == 30

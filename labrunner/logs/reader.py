@@ -219,8 +219,12 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
         (c for c in summary.chunk_indexes if not c.message_index_offsets or ids & c.message_index_offsets.keys()),
         key=lambda c: c.chunk_start_offset,
     )
-    n_samples = records.get("outcome", {}).get("n_samples", 0)  # a size hint: the frame grows if it is wrong
-    frame = _Frame(list(records.get("channels", {})), n_samples if isinstance(n_samples, int) else 0)
+    names = list(records.get("channels", {}))
+    # the outcome's sample count sizes the frame (which grows if it is wrong), bounded by what the
+    # chunks can hold so that a damaged record cannot ask for more memory than the file implies
+    hint = records.get("outcome", {}).get("n_samples", 0)
+    bound = sum(c.uncompressed_size for c in chunks) // (8 * max(1, len(names)))
+    frame = _Frame(names, min(hint, bound) if isinstance(hint, int) and hint > 0 else 0)
     chunk_reader = _ChunkReader(f, chunks)
     for index in chunks:
         for payload in _block_payloads(chunk_reader.records(index), ids):

@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
-
 from labrunner import __version__
 from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
@@ -217,15 +216,16 @@ class RunLogWriter:
         keep = np.arange((-first_index) % self.decimation, n, self.decimation)
         if keep.size:
             k = first_index + keep
+            rows = schema.encode_preview(k / self.fs, [c[keep] for c in columns])
             sequences = np.arange(self._sequence, self._sequence + k.size)
-            self._mcap.add_messages(self._preview_channel, self._log_time(k), sequences, schema.encode_preview(k / self.fs, [c[keep] for c in columns]))
+            self._mcap.add_messages(self._preview_channel, self._log_time(k), sequences, rows)
             self._sequence += k.size
         self.n_samples = max(self.n_samples, first_index + n)
         if time.monotonic() - self._last_flush >= self.flush_interval_s:
             self._mcap.flush()
             self._last_flush = time.monotonic()
 
-    def _log_time(self, k):
+    def _log_time(self, k: int | np.ndarray) -> int | np.ndarray:
         """Log time [ns since the run's first sample] of sample(s) ``k``: round(k · 10⁹ / f_s)."""
         return round(k * 1e9 / self.fs) if isinstance(k, int) else np.rint(k * 1e9 / self.fs).astype(np.uint64)
 
