@@ -132,3 +132,23 @@ def test_progress_plain_lines_when_not_a_terminal(tmp_path):
     out.seek(0)
     lines = out.read().splitlines()
     assert lines[-1].startswith("camp: 4/10 (done 3 aborted 1 failed 0)") and "runs/s" in lines[-1] and "ETA" in lines[-1]
+
+
+def test_progress_bar_on_a_terminal_shows_counts_rate_and_eta():
+    import io
+    import re
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    out = Terminal()
+    p = Progress("camp", 10, done=2, stream=out, interval_s=0.0)  # bar chosen because the stream is a TTY
+    for state in ("done", "aborted", "failed"):
+        p.update(state)
+    p.tick()
+    bar = out.getvalue().split("\r")[-1]
+    assert re.search(r"camp: +50%.*\| 5/10 \[", bar), bar  # tqdm: label, share, bar, count
+    assert "run/s" in bar and "<" in bar and "done 3 aborted 1 failed 1" in bar  # rate, elapsed<ETA, counts
+    p.close()
+    assert out.getvalue().splitlines()[-1].startswith("camp: 5/10 (done 3 aborted 1 failed 1)")

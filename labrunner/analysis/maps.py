@@ -71,7 +71,7 @@ def axis_label(key: str, units: dict[str, str] | None = None) -> str:
 
 
 def is_log_spaced(values: np.ndarray) -> bool:
-    """Whether sorted axis values are evenly spaced in log10 (a ``log10`` grid axis) and span > 1 decade."""
+    """Whether sorted axis values (a grid axis of listed values) are evenly spaced in log10 and span > 1 decade."""
     v = np.asarray(values, dtype=float)
     if v.size < 2 or np.any(v <= 0) or v[-1] / v[0] <= 10:
         return False

@@ -5,13 +5,15 @@ Each sub-command lives in its own module below ``labrunner.cli`` and exposes
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
 Errors: :class:`~labrunner.errors.InvalidParameter` → one line on stderr, exit 2;
-any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1.
+any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1. A reader that closes the
+pipe early (``labrunner analyse DIR --json | head``) ends the command quietly, as in other tools.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -77,6 +79,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"labrunner {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # stdout closed by the reader: no traceback, no flush error at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for a command killed by it
 
 
 if __name__ == "__main__":  # pragma: no cover
