@@ -152,3 +152,17 @@ def test_progress_bar_on_a_terminal_shows_counts_rate_and_eta():
     assert "run/s" in bar and "<" in bar and "done 3 aborted 1 failed 1" in bar  # rate, elapsed<ETA, counts
     p.close()
     assert out.getvalue().splitlines()[-1].startswith("camp: 5/10 (done 3 aborted 1 failed 1)")
+
+
+def test_progress_rate_of_a_slow_rig_keeps_two_digits(monkeypatch):
+    import io
+
+    from labrunner.campaign import progress
+
+    now = [0.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
+    p = Progress("rig", 10, stream=io.StringIO(), bar=False, interval_s=1e9)
+    now[0] = 24.0
+    p.update("done")
+    p.update("done")  # 2 runs in 24 s: 0.083 runs/s, 8 left → 96 s
+    assert "0.083 runs/s" in p.line() and "ETA 1:36" in p.line()

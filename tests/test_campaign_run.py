@@ -266,6 +266,7 @@ def test_issue_example_runs_and_its_ledger_rows_agree_with_the_logs(project, cap
     assert by_key[(10.0, 0)]["rms_error"] != by_key[(10.0, 1)]["rms_error"]  # the seed sets the noise
     db = sqlite3.connect(directory / "ledger.sqlite")
     meta = dict(db.execute("SELECT key, value FROM meta"))
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     db.close()
     assert meta["campaign_file"] == text == (directory / "campaign.toml").read_text()
     assert meta["plan_checksum"] == spec.plan(spec.load(path))[1]
@@ -298,3 +299,44 @@ def test_default_workers_are_all_cores():
 
     with open_executor(real_rig=False, workers=None, url=None) as (executor, slots):
         assert slots == len(os.sched_getaffinity(0)) == executor._max_workers
+
+
+def test_each_log_is_written_fsynced_and_renamed_before_its_row_is_committed(project, monkeypatch):
+    """Issue 6: "publishes its MCAP atomically (temp name, fsync, rename) and then commits its row".
+    A real rig runs in this process, so every step is observed in order."""
+    from pathlib import Path
+
+    from labrunner.campaign import worker
+    from labrunner.campaign.ledger import Ledger
+
+    register_rig("inprocess-motor", "test_campaign_support:InProcessMotor")
+    write(project / "rigs" / "bench.toml", MOTOR_RIG.replace('kind = "dcmotor"', 'kind = "inprocess-motor"'))
+    path = write(project / "bench.toml", campaign_text(name="order", rig="rigs/bench.toml"))
+    events: list[tuple[str, str]] = []
+    fsync, fsync_dir, replace, commit = worker._fsync, worker.fsync_dir, os.replace, Ledger.commit
+
+    def on_replace(src, dst):
+        if Path(dst).parent.name == "runs":
+            events.append(("rename", f"{Path(src).name}>{Path(dst).name}"))
+        return replace(src, dst)
+
+    def on_commit(self, record, **kw):
+        final = self.directory / record.log_path
+        assert final.is_file() and not list(final.parent.glob(f".tmp-{record.point_id}-*"))
+        events.append(("commit", record.point_id))
+        return commit(self, record, **kw)
+
+    monkeypatch.setattr(worker, "_fsync", lambda p: (events.append(("fsync", Path(p).name)), fsync(p))[1])
+    monkeypatch.setattr(worker, "fsync_dir", lambda d: (events.append(("fsync_dir", Path(d).name)), fsync_dir(d))[1])
+    monkeypatch.setattr(os, "replace", on_replace)
+    monkeypatch.setattr(Ledger, "commit", on_commit)
+    assert main(["run", str(path)]) == 0
+    rows = ledger_rows(project / "data" / "order")
+    assert len(rows) == 9
+    for row in rows:
+        pid = row["id"]
+        synced = next(i for i, (k, v) in enumerate(events) if k == "fsync" and v.startswith(f".tmp-{pid}-"))
+        tmp = events[synced][1]
+        renamed = events.index(("rename", f"{tmp}>{pid}.mcap"))
+        dir_synced = next(i for i, (k, v) in enumerate(events) if k == "fsync_dir" and v == "runs" and i > renamed)
+        assert synced < renamed < dir_synced < events.index(("commit", pid))
