@@ -63,6 +63,10 @@ def test_creation_is_atomic(tmp_path):
     with pytest.raises(RuntimeError):
         Ledger.create(tmp_path, meta={}, points=points())
     assert not (tmp_path / LEDGER_NAME).exists()
+    assert list(tmp_path.iterdir()) == []  # nor its temporary file
+    (tmp_path / f".{LEDGER_NAME}.99999.tmp").write_bytes(b"left by a runner killed while planning")
+    Ledger.create(tmp_path, meta={}, points=[(0, "p0", {}, "k")]).close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [LEDGER_NAME]
 
 
 def test_lock_refuses_second_holder_naming_host_and_pid(tmp_path):
