@@ -214,6 +214,7 @@ MALFORMED = {
     "unknown-controller-kind": (GOOD.replace('kind = "mfc1"', 'kind = "pid"'), "controller.kind"),
     "rig-not-a-toml-file": (GOOD.replace('rig = "rigs/motor.toml"', 'rig = "pyproject.tom"'), "campaign.rig"),
     "duplicate-grid-values": (campaign_text(grid='"controller.k_p" = { values = [1.0, 1.0] }'), "grid"),
+    "input-limit-beyond-rig": (GOOD.replace("k_p = 50.0", "k_p = 50.0\nu_max = 100.0"), "controller.u_max"),
     "derived-above-nyquist": (
         campaign_text(grid='"controller.k_p" = { values = [1.0] }') + '\n[derived]\n"differentiator.omega_c" = "1e3 * pi"\n',
         "differentiator.omega_c",
