@@ -69,6 +69,7 @@ def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
         np.testing.assert_allclose(markers[label].get_paths()[0].vertices, expected)
         assert markers[label].get_facecolor()[0][:3] == pytest.approx(face)
     assert markers["aborted by the safety routine"].get_offsets().shape == (1, 2)
+    assert markers["completed"].get_path_effects()  # white halo: visible on dark cells too
     np.testing.assert_allclose(markers["no motion (input too small)"].get_offsets(), [[g[-1], kp[0]]])
     gids = {line.get_gid(): line for line in ax.get_lines() if isinstance(line, Line2D)}
     assert set(gids) == {"bound:mfc1-motor:k_p_max", "nominal-gain"}
