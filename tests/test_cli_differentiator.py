@@ -103,3 +103,14 @@ def test_output_into_a_closed_pipe_ends_quietly():
                           text=True, timeout=60)
     os.close(write)
     assert done.returncode == 141 and done.stderr == ""
+
+
+def test_a_broken_pipe_elsewhere_is_not_hidden(monkeypatch):
+    from labrunner.cli import differentiator_cmd
+
+    def broken(args):
+        raise BrokenPipeError("a rig's socket")
+
+    monkeypatch.setattr(differentiator_cmd, "run", broken)
+    with pytest.raises(BrokenPipeError):
+        main(["differentiator", "--alpha", "9", "--beta", "9", "--omega-c", "200", "--fs", "200"])

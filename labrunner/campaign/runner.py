@@ -67,16 +67,13 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
         except CampaignError:
             meta = {}
         other = meta.get("campaign", "?")
-        if other != name:
-            what = f"campaign {other!r}"
-        elif meta.get("plan_checksum") == checksum:
-            what = "this campaign"
-        else:
+        if other == name and meta.get("plan_checksum") != checksum:
             raise CampaignError(
                 f"{directory} already holds campaign {name!r} planned from another version of this file (grid or "
                 f"settings differ); run this file with --out DIR, or continue the stored one with "
                 f"`labrunner resume {directory}`"
             )
+        what = "this campaign" if other == name else f"campaign {other!r}"
         raise CampaignError(f"{directory} already holds {what}; continue it with `labrunner resume {directory}`")
     if directory.exists() and (not directory.is_dir() or any(not _ours(p) for p in directory.iterdir())):
         raise CampaignError(f"{directory} exists and is not an empty campaign directory; choose another --out")
