@@ -246,7 +246,11 @@ def test_dry_run_prints_points_batches_estimate_and_creates_nothing(project, cap
     path = write(project / "c.toml", GOOD)
     assert main(["run", str(path), "--dry-run", "--workers", "2"]) == 0
     out = capsys.readouterr().out
-    assert "9 points" in out and "batches" in out and "estimated time" in out
+    # 9 points on 2 workers: ≥ 2 batches per worker → batches of ⌈9/4⌉ = 3
+    assert out.startswith("campaign tiny: 9 points on rig 'rigs/motor.toml', 3 batches\n"), out
+    assert "9 points × 2 s at 200 Hz (mfc1): 3 batches of ≤ 3" in out
+    estimate = re.search(r"estimated time ≈ (\d+) s on 2 worker\(s\) \(18 s of simulated time\)", out)
+    assert estimate and 0 <= int(estimate[1]) < 60, out
     assert not (project / "data").exists()
 
 
