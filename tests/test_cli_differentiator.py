@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -117,3 +118,25 @@ def test_real_command_end_to_end():
         capture_output=True, text=True, check=False,
     )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "omega_c" in bad.stderr
+
+
+def test_output_into_a_closed_pipe_ends_quietly():
+    """`labrunner … --json | head` must not print a traceback when the reader stops early."""
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before anything is written
+    done = subprocess.run([sys.executable, "-m", "labrunner", "differentiator", "--alpha", "9", "--beta", "9",
+                           "--omega-c", "200", "--fs", "200", "--json"], stdout=write, stderr=subprocess.PIPE,
+                          text=True, timeout=60)
+    os.close(write)
+    assert done.returncode == 141 and done.stderr == ""
+
+
+def test_a_broken_pipe_elsewhere_is_not_hidden(monkeypatch):
+    from labrunner.cli import differentiator_cmd
+
+    def broken(args):
+        raise BrokenPipeError("a rig's socket")
+
+    monkeypatch.setattr(differentiator_cmd, "run", broken)
+    with pytest.raises(BrokenPipeError):
+        main(["differentiator", "--alpha", "9", "--beta", "9", "--omega-c", "200", "--fs", "200"])

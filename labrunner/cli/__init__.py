@@ -5,8 +5,8 @@ Each sub-command lives in its own module below ``labrunner.cli`` and exposes
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
 Errors: :class:`~labrunner.errors.InvalidParameter` → one line on stderr, exit 2;
-any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1. A reader that goes away
-(``labrunner inspect RUN.mcap --json | head``) ends the command quietly with 141, like SIGPIPE.
+any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1. A reader that closes the
+pipe early (``labrunner analyse DIR --json | head``) ends the command quietly, as in other tools.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import select
 import sys
 from collections.abc import Sequence
 
@@ -66,9 +67,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit
         return code
-    except BrokenPipeError:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing more to flush at exit
-        return 141
     except InvalidParameter as exc:
         print(f"labrunner {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -78,6 +76,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"labrunner {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        if not _reader_gone(sys.stdout):
+            raise  # some other pipe broke: a real error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no flush error at exit either
+        return 141  # 128 + SIGPIPE, what a shell reports for a command killed by it
+
+
+def _reader_gone(stream) -> bool:
+    """Whether ``stream`` is a pipe whose reading end is closed (poll reports an error on it)."""
+    try:
+        fd = stream.fileno()
+    except (AttributeError, OSError, ValueError):  # not a file (e.g. captured in tests)
+        return False
+    poller = select.poll()
+    poller.register(fd, select.POLLOUT)
+    return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
 
 
 if __name__ == "__main__":  # pragma: no cover
