@@ -20,6 +20,7 @@ import numpy as np
 
 from labrunner.control import factory
 from labrunner.errors import LabrunnerError
+from labrunner.metrics import Roles, run_metrics
 from labrunner.rigs.base import Rig
 from labrunner.safety import SafetyConfig, SafetyMonitor
 
@@ -55,19 +56,6 @@ class RunResult:
     @property
     def n_samples(self) -> int:
         return len(next(iter(self.signals.values()))) if self.signals else 0
-
-
-def run_metrics(signals: Mapping[str, np.ndarray], channels: Mapping[str, Sequence[str]]) -> dict[str, float]:
-    """RMS of the tracking error over all controlled outputs, input energy Σu² (thesis 3.5.1), max |u|."""
-    errors = [np.asarray(signals[n]) for n in channels.get("errors", [])]
-    inputs = [np.asarray(signals[n]) for n in channels.get("inputs", [])]
-    e = np.concatenate(errors) if errors else np.zeros(0)
-    u = np.concatenate(inputs) if inputs else np.zeros(0)
-    return {
-        "rms_error": float(np.sqrt(np.mean(e * e))) if e.size else float("nan"),
-        "input_energy": float(np.sum(u * u)),
-        "max_abs_input": float(np.max(np.abs(u))) if u.size else 0.0,
-    }
 
 
 def _channel_names(rig: Rig, controller, estimates: Mapping[str, np.ndarray]) -> dict[str, object]:
@@ -183,6 +171,9 @@ def run_batch(
         _stream(sink, last, int(end[0]), rig, controller, u_log, y_log, c_log, r_log, est_log)
 
     channels = _channel_names(rig, controller, controller.estimates)
+    roles = Roles(errors=tuple(channels["errors"]), inputs=tuple(channels["inputs"]),
+                  error_hats=tuple(n for n in channels["estimates"] if n.startswith("e_hat_")),
+                  currents=tuple(n for n, unit in channels["units"].items() if unit == "A"))
     results = []
     for i in range(B):
         n = int(end[i])
@@ -196,7 +187,7 @@ def run_batch(
             outcome = Outcome("no-motion", message="the load never moved beyond the sensor resolution")
         else:
             outcome = Outcome("completed")
-        results.append(RunResult(outcome, signals, float(fs), channels, run_metrics(signals, channels)))
+        results.append(RunResult(outcome, signals, float(fs), channels, run_metrics(signals, roles)))
     return results
 
 

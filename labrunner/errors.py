@@ -35,12 +35,24 @@ class CampaignError(LabrunnerError):
     """A campaign cannot proceed (directory locked, file edited since planning, ...)."""
 
 
-def check_finite(field: str, value: float) -> float:
-    """Return ``float(value)`` or raise :class:`InvalidParameter` for NaN/inf/non-numbers."""
+def check_finite(field: str, value: float, allowed: str | None = None) -> float:
+    """Return ``float(value)`` or raise :class:`InvalidParameter` for NaN/inf/non-numbers.
+
+    ``allowed`` (e.g. ``"a finite number > -1"``) states the range the caller checks next; the
+    message then reads "must be <allowed>", so a NaN is told the same range as any bad value.
+    """
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise InvalidParameter(field, f"must be a number, got {value!r}") from None
+        raise InvalidParameter(field, f"must be {allowed or 'a number'}, got {value!r}") from None
     if v != v or v in (float("inf"), float("-inf")):
-        raise InvalidParameter(field, f"must be finite, got {value!r}")
+        raise InvalidParameter(field, f"must be {allowed or 'finite'}, got {value!r}")
+    return v
+
+
+def check_positive(field: str, value: float) -> float:
+    """Return ``float(value)`` or raise :class:`InvalidParameter` unless it is finite and > 0."""
+    v = check_finite(field, value, "a finite number > 0")
+    if v <= 0.0:
+        raise InvalidParameter(field, f"must be > 0, got {value!r}")
     return v

@@ -1,9 +1,11 @@
 """The figure of one run, drawn like the thesis's Figs. 3.12 and 3.20.
 
 Stacked panels over a shared time axis: the controlled outputs with their references (dashed,
-same colour), the inputs, the estimates (``f_hat_*`` ...), then signals of unknown role. An aborted run gets a dotted red
-line at the abort time on every panel, the rest of the run greyed out, and a cross on each input
-at that instant; the title says what happened (monitor, value, threshold). Used by
+same colour), the inputs, the estimates (one panel per quantity: ``f_hat_*``, ``e_hat_*``,
+``de_hat_*``), then signals of unknown role. An aborted run gets a dotted red
+line at the abort time on every panel, the rest of the run (up to its planned ``run.duration``
+where the log records it: the engine ends the signals at the abort) greyed out, and a cross on
+each input at that instant; the title says what happened (monitor, value, threshold). Used by
 ``labrunner plot`` and by the analysis report (pass a figure or sub-figure to draw into).
 No pyplot: the figure is a plain :class:`matplotlib.figure.Figure`, safe in worker threads.
 """
@@ -50,10 +52,13 @@ def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
     else:
         outputs = [(n, "-") for role in ("controlled", "output", "reference", "signal") for n in roles.get(role, [])]
     drawn = {n for n, _ in outputs}
+    kinds: dict[str, list[tuple[str, str]]] = {}  # f̂, ê, ê̇ differ in unit and scale: one panel each
+    for name in roles.get("estimate", []):
+        kinds.setdefault(name.partition("_hat")[0], []).append((name, "-"))
     panels = [
         ("outputs", outputs),
         ("inputs", [(n, "-") for n in roles.get("input", [])]),
-        ("estimates", [(n, "-") for n in roles.get("estimate", [])]),
+        *(("estimates", lines) for lines in kinds.values()),
         ("signals", [(n, "-") for n in roles.get("signal", []) if n not in drawn]),  # role unknown
     ]
     return [(title, lines) for title, lines in panels if lines]
@@ -105,6 +110,10 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     t = log.frame.index.to_numpy()
     out = log.outcome or {}
     t_abort = out.get("time") if out.get("status") == "aborted" and _number(out.get("time")) else None
+    t_end = t[-1] if len(t) else 0.0
+    planned = log.metadata.get("run", {}).get("duration")
+    if t_abort is not None and _number(planned):
+        t_end = max(t_end, float(planned))  # an aborted run on the axis of the run it should have been
     for ax, (title, lines) in zip(axes, panels):
         colours: dict[str, str] = {}
         unit, scale = _unit(log, [n for n, _ in lines])
@@ -121,10 +130,9 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
         ax.legend(loc="best", fontsize="small", ncols=min(4, len(lines)))
         if t_abort is not None:
             ax.axvline(t_abort, color=_ABORT, ls=":", lw=1.5)
-            if len(t):
-                ax.axvspan(t_abort, max(t[-1], t_abort), color="0.9", zorder=0)
+            ax.axvspan(t_abort, max(t_end, t_abort), color="0.9", zorder=0)
     axes[-1].set_xlabel("t [s]")
-    if len(t):
-        axes[-1].set_xlim(t[0], t[-1])
+    if len(t) and t_end > t[0]:
+        axes[-1].set_xlim(t[0], t_end)
     fig.suptitle(_title(log), fontsize="medium")
     return fig

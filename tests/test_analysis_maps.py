@@ -59,6 +59,18 @@ def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
     assert markers["aborted by the safety routine"].get_facecolor()[0][:3] == pytest.approx((1, 0, 0))
     assert markers["no motion (input too small)"].get_facecolor()[0][:3] == pytest.approx((1, 1, 1))
     assert len(markers["completed"].get_offsets()) == 20 - 3
+    # the thesis's shapes (Figs. 3.10, 3.14): red triangle, white circle, black cross
+    from matplotlib.markers import MarkerStyle
+
+    for label, shape, face in [("aborted by the safety routine", "^", (1, 0, 0)),
+                               ("no motion (input too small)", "o", (1, 1, 1)), ("completed", "x", (0, 0, 0))]:
+        style = MarkerStyle(shape)
+        expected = style.get_path().transformed(style.get_transform()).vertices
+        np.testing.assert_allclose(markers[label].get_paths()[0].vertices, expected)
+        assert markers[label].get_facecolor()[0][:3] == pytest.approx(face)
+    assert markers["aborted by the safety routine"].get_offsets().shape == (1, 2)
+    assert markers["completed"].get_path_effects()  # white halo: visible on dark cells too
+    np.testing.assert_allclose(markers["no motion (input too small)"].get_offsets(), [[g[-1], kp[0]]])
     gids = {line.get_gid(): line for line in ax.get_lines() if isinstance(line, Line2D)}
     assert set(gids) == {"bound:mfc1-motor:k_p_max", "nominal-gain"}
     np.testing.assert_allclose(gids["nominal-gain"].get_xdata(), [108.55, 108.55])

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from labrunner.analysis.metrics import Roles, run_metrics
+from labrunner.metrics import Roles, run_metrics
 
 
 def test_single_output_hand_values():

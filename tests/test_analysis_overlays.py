@@ -162,3 +162,53 @@ def test_valve_theory_adds_the_sensor_delay_and_uses_rho_in_the_unit_of_gamma():
     assert theory.dead_time == constants["sensor_delay"] == 0.05
     assert theory.delay == pytest.approx(31 / 4000 + 0.05)  # δ_t of No. 1 (α = β = 2, ω_c = 250) at 4 kHz
     assert "sensor delay" in theory.delay_note()
+
+
+def test_kp_kd_map_of_the_shipped_campaign_carries_the_corrected_bounds():
+    """campaigns/dcmotor-angle-kp-kd.toml (thesis Fig. 3.14, γ_θ = b from [derived]): the overlay
+    lines of its map, checked against the spectral-abscissa solver (an independent method) and
+    drawn as artists on the map."""
+    from labrunner import stability
+    from labrunner.analysis.analyse import Theories
+    from labrunner.analysis.figures import axis_of, grid_forms, map_overlays
+    from labrunner.campaign import spec
+
+    path = Path(__file__).resolve().parents[1] / "campaigns" / "dcmotor-angle-kp-kd.toml"
+    campaign = spec.from_text(path.read_text(), source_path=path)
+    points, _ = spec.plan(campaign)
+    table = pd.DataFrame([{**p.parameters, "status": "completed", "rms_error": 1.0} for p in points])
+    table.loc[table["controller.k_d"] > 150, "status"] = "aborted"
+    forms = grid_forms(campaign)
+    assert forms == {"controller.k_p": "log10", "controller.k_d": "log10"}
+    x, y = (axis_of(table, k, {}, forms[k]) for k in ("controller.k_p", "controller.k_d"))
+    lines, note = map_overlays(table, x, y, Theories(campaign))
+    assert note == "δ_t = 35 ms, γ = 108.55"
+    by_gid = {line.gid: line for line in lines}
+    assert set(by_gid) == {"bound:mfc2-ultralocal:k_p_max", "bound:mfc2-ultralocal:k_d_max",
+                           "bound:mfc2-motor:k_p_max", "bound:mfc2-motor:k_d_max"}
+    kp_max = by_gid["bound:mfc2-motor:k_p_max"]
+    assert np.isnan(kp_max.x[kp_max.y > 112.3]).all()  # no stable k_p above the k_d limit
+    for i in (0, 60, 120, 150):  # k_d ≈ 0.75, 5.1, 34, 89 1/s
+        numeric = stability.bounds("mfc2-motor", gamma=B, delay=DELAY, a=A, b=B, k_d=float(kp_max.y[i]), numeric=True)
+        assert kp_max.x[i] == pytest.approx(numeric["numeric"]["k_p"][1], rel=1e-3)
+    numeric = stability.bounds("mfc2-motor", gamma=B, delay=DELAY, a=A, b=B, k_d=10.0, numeric=True)["numeric"]
+    assert by_gid["bound:mfc2-motor:k_d_max"].y == pytest.approx(numeric["k_d"][1], rel=1e-3)
+    fig = map_figure(table, x, y, "rms_error", title="t", colour_label="c", overlays=lines)
+    ax = fig.axes[0]
+    assert ax.get_xscale() == ax.get_yscale() == "log"
+    drawn = {line.get_gid(): line for line in ax.get_lines()}
+    assert set(drawn) == set(by_gid)
+    np.testing.assert_allclose(drawn["bound:mfc2-motor:k_p_max"].get_xdata(), kp_max.x)
+    np.testing.assert_allclose(drawn["bound:mfc2-ultralocal:k_d_max"].get_ydata(), [math.pi / 2 / DELAY] * 2)
+    assert {c.get_label() for c in ax.collections if c.get_label().startswith(("aborted", "completed"))} == {
+        "aborted by the safety routine", "completed"}
+
+
+def test_map_axes_follow_the_grid_form():
+    """A log10 axis is drawn on a log scale even over less than a decade, a linspace axis linearly
+    even when its values span decades; listed values are judged by their spacing."""
+    from labrunner.analysis.figures import axis_of
+
+    table = pd.DataFrame({"g": [100.0, 177.8, 316.2], "k": [1.0, 10.0, 100.0]})
+    assert axis_of(table, "g", {}, "log10").log and not axis_of(table, "g", {}, "values").log
+    assert not axis_of(table, "k", {}, "linspace").log and axis_of(table, "k", {}, "values").log

@@ -63,6 +63,10 @@ def test_creation_is_atomic(tmp_path):
     with pytest.raises(RuntimeError):
         Ledger.create(tmp_path, meta={}, points=points())
     assert not (tmp_path / LEDGER_NAME).exists()
+    assert list(tmp_path.iterdir()) == []  # nor its temporary file
+    (tmp_path / f".{LEDGER_NAME}.99999.tmp").write_bytes(b"left by a runner killed while planning")
+    Ledger.create(tmp_path, meta={}, points=[(0, "p0", {}, "k")]).close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [LEDGER_NAME]
 
 
 def test_lock_refuses_second_holder_naming_host_and_pid(tmp_path):
@@ -132,3 +136,37 @@ def test_progress_plain_lines_when_not_a_terminal(tmp_path):
     out.seek(0)
     lines = out.read().splitlines()
     assert lines[-1].startswith("camp: 4/10 (done 3 aborted 1 failed 0)") and "runs/s" in lines[-1] and "ETA" in lines[-1]
+
+
+def test_progress_bar_on_a_terminal_shows_counts_rate_and_eta():
+    import io
+    import re
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    out = Terminal()
+    p = Progress("camp", 10, done=2, stream=out, interval_s=0.0)  # bar chosen because the stream is a TTY
+    for state in ("done", "aborted", "failed"):
+        p.update(state)
+    p.tick()
+    bar = out.getvalue().split("\r")[-1]
+    assert re.search(r"camp: +50%.*\| 5/10 \[", bar), bar  # tqdm: label, share, bar, count
+    assert "run/s" in bar and "<" in bar and "done 3 aborted 1 failed 1" in bar  # rate, elapsed<ETA, counts
+    p.close()
+    assert out.getvalue().splitlines()[-1].startswith("camp: 5/10 (done 3 aborted 1 failed 1)")
+
+
+def test_progress_rate_of_a_slow_rig_keeps_two_digits(monkeypatch):
+    import io
+
+    from labrunner.campaign import progress
+
+    now = [0.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
+    p = Progress("rig", 10, stream=io.StringIO(), bar=False, interval_s=1e9)
+    now[0] = 24.0
+    p.update("done")
+    p.update("done")  # 2 runs in 24 s: 0.083 runs/s, 8 left → 96 s
+    assert "0.083 runs/s" in p.line() and "ETA 1:36" in p.line()

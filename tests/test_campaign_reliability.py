@@ -42,6 +42,14 @@ def _alive(pid: int) -> bool:
         return False
 
 
+def _temporary(directory) -> set[str]:
+    """Names of the temporary (unpublished) logs in ``runs/``."""
+    try:
+        return {e.name for e in os.scandir(directory / "runs") if e.name.startswith(".tmp-")}
+    except FileNotFoundError:
+        return set()
+
+
 def _terminal(directory) -> int:
     return sum(r["state"] in TERMINAL for r in ledger_rows(directory))
 
@@ -54,13 +62,18 @@ def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
     assert len(planned) == 120
     directory = project / "data" / "crash"
     kills = cycles = 0
+    torn_left: set[str] = set()  # temporary logs that kills left behind: resume must quarantine each
     while kills < 10:
         cycles += 1
         assert cycles <= 40, "the campaign finished before 10 kills could land"
         command = ("resume", "data/crash") if (directory / "ledger.sqlite").exists() else ("run", "crash.toml")
-        proc = spawn(*command, "--workers", "2", "--batch-size", str(rng.choice([1, 2, 3, 4])), cwd=project)
+        mid_write = kills % 3 == 1  # every third kill lands while a worker writes its batch's logs
+        batch = rng.choice([8, 12]) if mid_write else rng.choice([1, 2, 3, 4])
+        proc = spawn(*command, "--workers", "2", "--batch-size", str(batch), cwd=project)
         before = _terminal(directory)
-        if rng.random() < 0.3:  # anywhere: start-up, planning, ledger creation, recovery, running
+        if mid_write:
+            wait_for(lambda: proc.poll() is not None or bool(_temporary(directory)), 60, interval=0.0005)
+        elif rng.random() < 0.3:  # anywhere: start-up, planning, ledger creation, recovery, running
             time.sleep(rng.uniform(0.05, 1.5))
         else:  # while runs are being committed
             target = before + rng.randint(1, 6)
@@ -72,6 +85,7 @@ def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
             kills += 1
             proc.communicate(timeout=60)
             assert wait_for(lambda: not any(_alive(w) for w in workers), 10), "a worker outlived its runner"
+            torn_left |= _temporary(directory)
         proc.communicate(timeout=60)
     final = cli("resume", "data/crash", "--workers", "2", cwd=project)
     assert final.returncode == 0, final.stderr
@@ -92,15 +106,19 @@ def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
     import sqlite3
 
     db = sqlite3.connect(directory / "ledger.sqlite")
-    quarantined = db.execute("SELECT point_id, moved_to FROM quarantine").fetchall()
+    quarantined = db.execute("SELECT point_id, moved_to, original FROM quarantine").fetchall()
     sessions = db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]
     db.close()
     on_disk = sorted(str(p.relative_to(directory)) for p in (directory / "quarantine").glob("*")) if (directory / "quarantine").exists() else []
-    assert sorted(m for _, m in quarantined) == on_disk  # every quarantined file recorded, every record on disk
-    assert {p for p, _ in quarantined} <= set(planned)
+    assert sorted(m for _, m, _ in quarantined) == on_disk  # every quarantined file recorded, every record on disk
+    assert {p for p, _, _ in quarantined} <= set(planned)
+    assert torn_left, "no kill landed while logs were being written: the quarantine path went untested"
+    assert {f"runs/{name}" for name in torn_left} <= {o for _, _, o in quarantined}  # each torn file moved aside
+    attempts = {r["id"]: r["attempts"] for r in rows}
+    assert all(attempts[p] >= 2 for p, _, o in quarantined if o.startswith("runs/.tmp-"))  # and its point rerun
     reruns = sum(r["attempts"] for r in rows) - len(rows)
     recovered = sum(bool(json.loads(r["outcome_json"]).get("recovered")) for r in rows)
-    print(f"{kills} kills in {cycles} cycles, {sessions} sessions, {len(quarantined)} quarantined, "
+    print(f"{kills} kills in {cycles} cycles ({len(torn_left)} torn logs left), {sessions} sessions, {len(quarantined)} quarantined, "
           f"{reruns} reruns, {recovered} published runs accepted on resume")
 
     # the interrupted campaign agrees with an uninterrupted one, point by point

@@ -6,12 +6,14 @@ import json
 import os
 import signal
 import socket
+import tomllib
 
 import pytest
 
 from labrunner.cli import main
 from labrunner.logs import read_run
 from labrunner.rigs.registry import register_rig
+from labrunner.rigs.sim.dcmotor import DCMotorTwin
 from test_campaign_support import (  # noqa: F401 - fixture
     MOTOR_RIG,
     campaign_text,
@@ -43,6 +45,11 @@ def test_run_then_status_and_logs(project, capsys):
     assert log.metadata["parameters"] == json.loads(row["parameters"])
     assert log.metadata["metrics"]["rms_error"] == pytest.approx(row["rms_error"], rel=1e-12)
     assert log.attachments["campaign.toml"].decode() == path.read_text()
+    rig_file = tomllib.loads(MOTOR_RIG)  # the rig as it ran: the file's sections, defaults filled in
+    rig = log.metadata["rig"]
+    assert rig["rig"]["kind"] == "dcmotor" and rig["rig"]["description"] == rig_file["rig"]["description"]
+    assert rig["parameters"] == {**{k: p.default for k, p in DCMotorTwin.PARAMETERS.items()}, **rig_file["parameters"]}
+    assert rig["noise"] == {"input_v": DCMotorTwin.NOISE["input_v"].default} and rig["safety"] == rig_file["safety"]
     capsys.readouterr()
     assert main(["status", str(directory), "--json"]) == 0
     st = json.loads(capsys.readouterr().out)
@@ -152,3 +159,191 @@ def test_rig_failure_stops_the_campaign_and_resume_continues(project, capsys):
     assert main(["resume", "data/bus"]) == 1  # resume goes on with the next point (and the bus fails again)
     states = [r["state"] for r in ledger_rows(project / "data" / "bus")]
     assert states.count("failed") == 2 and states.count("planned") == 7
+
+
+#: The campaign file of issue 6, verbatim (its [grid] shortened to four points below).
+ISSUE_EXAMPLE = """\
+[campaign]
+name = "quickstart"          # [a-z0-9_-]+
+description = "γ–k_p sweep of first-order MFC on the simulated DC motor"
+rig = "dcmotor-sim"          # rigs/<name>.toml, or a path
+fs = 200.0                   # Hz
+duration = 5.0               # s; default: the reference's length
+seed = 0
+
+[controller]                 # kind: mfc1 | mfc2 | open-loop | valve-ffc | plate-mbc | ...
+kind = "mfc1"
+output = "velocity"          # for the motor: velocity | angle
+gamma = 108.55
+k_p = 50.0
+
+[differentiator]
+alpha = 9
+beta = 9
+N = 0
+omega_c = 200.0
+method = "midpoint"
+
+[reference]
+kind = "setpoints"
+levels = [0.0, 20.0, 0.0]    # in the output's unit
+transition = 1.0
+hold = 1.0
+
+[safety]
+max_du_dt = 120.0
+
+[grid]                       # axes over dotted keys of this file
+"controller.gamma" = { log10 = [0.0, 4.0], num = 17 }
+"controller.k_p" = { log10 = [-1.0, 3.0], num = 17 }
+
+[derived]                    # safe arithmetic over grid keys and constants; no eval
+# "controller.k_d" = "0.5 * controller.k_p"
+"""
+
+
+def test_issue_example_plans_its_289_points_with_every_key():
+    from labrunner.campaign import spec
+
+    campaign = spec.from_text(ISSUE_EXAMPLE)
+    points, _ = spec.plan(campaign)
+    assert len(points) == 17 * 17
+    gammas = sorted({p.parameters["controller.gamma"] for p in points})
+    k_ps = sorted({p.parameters["controller.k_p"] for p in points})
+    assert gammas == pytest.approx([10 ** (i / 4) for i in range(17)], rel=1e-12)  # 10^a … 10^b, a, b exponents
+    assert k_ps == pytest.approx([10 ** (-1 + i / 4) for i in range(17)], rel=1e-12)
+    assert {p.batch_key for p in points} == {points[0].batch_key}
+    assert json.loads(points[0].batch_key)[1:3] == [200.0, 5.0]
+    config = campaign.resolve(points[0].parameters)
+    assert config["campaign"] == {"name": "quickstart", "rig": "dcmotor-sim", "fs": 200.0, "duration": 5.0, "seed": 0}
+    assert config["differentiator"] == {"alpha": 9, "beta": 9, "N": 0, "omega_c": 200.0, "method": "midpoint"}
+    assert config["reference"] == {"kind": "setpoints", "levels": [0.0, 20.0, 0.0], "transition": 1.0, "hold": 1.0}
+    assert config["safety"] == {"max_du_dt": 120.0} and config["controller"]["output"] == "velocity"
+    # the commented [derived] line, switched on for the second-order MFC it belongs to
+    second = ISSUE_EXAMPLE.replace('kind = "mfc1"\noutput = "velocity"', 'kind = "mfc2"\noutput = "angle"\nk_d = 1.0')
+    second = second.replace('# "controller.k_d"', '"controller.k_d"').replace("num = 17", "num = 3")
+    for p in spec.plan(spec.from_text(second))[0]:
+        assert p.parameters["controller.k_d"] == 0.5 * p.parameters["controller.k_p"]
+
+
+def test_issue_example_runs_and_its_ledger_rows_agree_with_the_logs(project, capsys):
+    """Every key of the example reaches the runs, and every ledger column of issue 6 holds what
+    the run's log says, recomputed here from the logged signals."""
+    import sqlite3
+    import time
+
+    import numpy as np
+
+    from labrunner.campaign import spec
+
+    grid = '"controller.k_p" = { values = [10.0, 1000.0] }\n"campaign.seed" = { values = [0, 1] }\n'
+    text = ISSUE_EXAMPLE.split("[grid]")[0] + "[grid]\n" + grid
+    path = write(project / "issue.toml", text)
+    t0 = time.time()
+    assert main(["run", str(path), "--workers", "2"]) == 0
+    directory = project / "data" / "quickstart"
+    rows = ledger_rows(directory)
+    assert len(rows) == 4
+    by_key = {}
+    for row in rows:
+        params = json.loads(row["parameters"])
+        by_key[(params["controller.k_p"], params["campaign.seed"])] = row
+        log = read_run(directory / row["log_path"])
+        assert row["log_path"] == f"runs/{row['id']}.mcap" and log.metadata["parameters"] == params
+        assert log.metadata["config"]["reference"] == {"kind": "setpoints", "levels": [0.0, 20.0, 0.0],
+                                                       "transition": 1.0, "hold": 1.0}
+        assert log.metadata["run"]["seed"] == params["campaign.seed"] and log.fs == 200.0
+        e, u = log.frame["e_omega"].to_numpy(), log.frame["u"].to_numpy()
+        assert row["rms_error"] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
+        assert row["input_energy"] == pytest.approx(np.sum(u**2), rel=1e-12)
+        assert row["max_abs_input"] == pytest.approx(np.max(np.abs(u)), rel=1e-12)
+        outcome = json.loads(row["outcome_json"])
+        assert outcome["status"] == row["outcome"] == log.outcome["status"]
+        assert row["attempts"] == 1 and row["host"] == socket.gethostname() and row["pid"] != os.getpid()
+        assert t0 <= row["claimed_at"] <= row["finished_at"] <= time.time()
+        assert row["engine_s"] > 0 and row["write_s"] > 0 and row["publish_s"] >= 0
+        if row["outcome"] == "completed":
+            assert log.n_samples == 1000  # duration 5 s at 200 Hz
+        else:  # the safety routine's |du/dt| ≥ 120 V/s of [safety]
+            assert row["state"] == "aborted"
+            assert outcome["monitor"] == "du_dt" and outcome["threshold"] == 120.0 and outcome["value"] >= 120.0
+            assert outcome["time"] == pytest.approx((log.n_samples - 1) / 200.0)
+    assert by_key[(10.0, 0)]["outcome"] == by_key[(10.0, 1)]["outcome"] == "completed"
+    assert by_key[(1000.0, 0)]["outcome"] == "aborted"
+    assert by_key[(10.0, 0)]["rms_error"] != by_key[(10.0, 1)]["rms_error"]  # the seed sets the noise
+    db = sqlite3.connect(directory / "ledger.sqlite")
+    meta = dict(db.execute("SELECT key, value FROM meta"))
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    db.close()
+    assert meta["campaign_file"] == text == (directory / "campaign.toml").read_text()
+    assert meta["plan_checksum"] == spec.plan(spec.load(path))[1]
+    capsys.readouterr()
+    assert main(["status", str(directory), "--json"]) == 0
+    st = json.loads(capsys.readouterr().out)
+    listed = {"campaign", "total", "planned", "claimed", "done", "aborted", "failed", "elapsed_s", "estimate_s"}
+    assert listed <= set(st)
+    states = [r["state"] for r in rows]
+    assert {k: st[k] for k in listed - {"campaign", "elapsed_s", "estimate_s"}} == {
+        "total": 4, **{s: states.count(s) for s in ("planned", "claimed", "done", "aborted", "failed")}}
+    assert st["campaign"] == "quickstart" and st["estimate_s"] == 0.0 and 0 < st["elapsed_s"] < time.time() - t0
+
+
+def test_dry_run_of_an_existing_campaign_says_run_would_refuse(project, capsys):
+    path = write(project / "tiny.toml", campaign_text(grid='"controller.k_p" = { values = [10.0] }'))
+    assert main(["run", str(path)]) == 0
+    capsys.readouterr()
+    assert main(["run", str(path), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "1 points" in out and "note: `labrunner run` would refuse" in out and "labrunner resume data/tiny" in out
+    path.write_text(path.read_text().replace("values = [10.0]", "values = [20.0]"))
+    assert main(["run", str(path)]) == 1  # same name, other grid: not "this campaign"
+    err = capsys.readouterr().err
+    assert "planned from another version of this file" in err and "--out" in err and err.count("\n") == 1
+
+
+def test_default_workers_are_all_cores():
+    from labrunner.campaign.scheduler import open_executor
+
+    with open_executor(real_rig=False, workers=None, url=None) as (executor, slots):
+        assert slots == len(os.sched_getaffinity(0)) == executor._max_workers
+
+
+def test_each_log_is_written_fsynced_and_renamed_before_its_row_is_committed(project, monkeypatch):
+    """Issue 6: "publishes its MCAP atomically (temp name, fsync, rename) and then commits its row".
+    A real rig runs in this process, so every step is observed in order."""
+    from pathlib import Path
+
+    from labrunner.campaign import worker
+    from labrunner.campaign.ledger import Ledger
+
+    register_rig("inprocess-motor", "test_campaign_support:InProcessMotor")
+    write(project / "rigs" / "bench.toml", MOTOR_RIG.replace('kind = "dcmotor"', 'kind = "inprocess-motor"'))
+    path = write(project / "bench.toml", campaign_text(name="order", rig="rigs/bench.toml"))
+    events: list[tuple[str, str]] = []
+    fsync, fsync_dir, replace, commit = worker._fsync, worker.fsync_dir, os.replace, Ledger.commit
+
+    def on_replace(src, dst):
+        if Path(dst).parent.name == "runs":
+            events.append(("rename", f"{Path(src).name}>{Path(dst).name}"))
+        return replace(src, dst)
+
+    def on_commit(self, record, **kw):
+        final = self.directory / record.log_path
+        assert final.is_file() and not list(final.parent.glob(f".tmp-{record.point_id}-*"))
+        events.append(("commit", record.point_id))
+        return commit(self, record, **kw)
+
+    monkeypatch.setattr(worker, "_fsync", lambda p: (events.append(("fsync", Path(p).name)), fsync(p))[1])
+    monkeypatch.setattr(worker, "fsync_dir", lambda d: (events.append(("fsync_dir", Path(d).name)), fsync_dir(d))[1])
+    monkeypatch.setattr(os, "replace", on_replace)
+    monkeypatch.setattr(Ledger, "commit", on_commit)
+    assert main(["run", str(path)]) == 0
+    rows = ledger_rows(project / "data" / "order")
+    assert len(rows) == 9
+    for row in rows:
+        pid = row["id"]
+        synced = next(i for i, (k, v) in enumerate(events) if k == "fsync" and v.startswith(f".tmp-{pid}-"))
+        tmp = events[synced][1]
+        renamed = events.index(("rename", f"{tmp}>{pid}.mcap"))
+        dir_synced = next(i for i, (k, v) in enumerate(events) if k == "fsync_dir" and v == "runs" and i > renamed)
+        assert synced < renamed < dir_synced < events.index(("commit", pid))

@@ -74,11 +74,14 @@ def test_plan_checksum_ignores_comments_but_not_settings():
 
 def test_derived_keys_follow_the_grid_and_use_rig_constants():
     g = '"controller.gamma" = { values = [108.55, 217.1] }'
-    extra = '[derived]\n"controller.k_p" = "pi / (2 * 0.035) * controller.gamma / b"\n'
+    extra = ('[derived]\n"controller.k_p" = "pi / (2 * 0.035) * controller.gamma / b"\n'
+             '"safety.max_du_dt" = "3 * a + controller.k_p / 100"\n')
     c = load(campaign_text(grid=g, extra=extra))
     points, _ = spec.plan(c)
-    for p in points:  # k_p,max of thesis (2.41) with ρ = b, δ_t = 35 ms
-        assert p.parameters["controller.k_p"] == pytest.approx(math.pi / 0.07 * p.parameters["controller.gamma"] / 108.55)
+    for p in points:  # k_p,max of thesis (2.41) with ρ = b, δ_t = 35 ms; a, b of rigs/motor.toml
+        k_p = math.pi / 0.07 * p.parameters["controller.gamma"] / 108.55
+        assert p.parameters["controller.k_p"] == pytest.approx(k_p)
+        assert p.parameters["safety.max_du_dt"] == pytest.approx(3 * 39.44 + k_p / 100)  # derived from derived
 
 
 def test_duration_defaults_to_the_reference_length():
@@ -91,6 +94,23 @@ def test_batches_separate_controller_kinds_and_fs():
     g = '"campaign.fs" = { values = [100.0, 200.0] }\n"controller.k_p" = { values = [1.0, 2.0] }'
     points, _ = spec.plan(load(campaign_text(grid=g)))
     assert len({p.batch_key for p in points}) == 2
+
+
+@pytest.mark.parametrize(
+    "axis",
+    [
+        '"campaign.duration" = { values = [1.0, 1.5] }',
+        '"differentiator.method" = { values = ["midpoint", "trapezoidal"] }',
+    ],
+)
+def test_batches_separate_durations_and_choices_but_not_gains(axis):
+    g = f'{axis}\n"controller.k_p" = {{ values = [1.0, 2.0, 4.0] }}'
+    points, _ = spec.plan(load(campaign_text(grid=g)))
+    groups: dict[str, set] = {}
+    for p in points:
+        first = next(iter(p.parameters))
+        groups.setdefault(p.batch_key, set()).add(p.parameters[first])
+    assert len(groups) == 2 and all(len(v) == 1 for v in groups.values())  # one batch key per value, gains shared
 
 
 # -- expressions --------------------------------------------------------------------------------
@@ -185,6 +205,20 @@ MALFORMED = {
     "unknown-safety-key": (GOOD.replace("max_du_dt = 120.0", "max_du_dt = 120.0\nmax_dudt = 1.0"), "safety.max_dudt"),
     "derived-shadows-axis": (GOOD + '\n[derived]\n"controller.k_p" = "2.0"\n', "derived.\"controller.k_p\""),
     "not-toml": ("[campaign\nname = 'x'\n", "c.toml"),
+    "gain-string-in-grid": (campaign_text(grid='"controller.k_p" = { values = ["fast"] }'), "controller.k_p"),
+    "gain-boolean": (
+        campaign_text(grid='"controller.gamma" = { values = [1.0] }').replace("k_p = 50.0", "k_p = true"), "controller.k_p"
+    ),
+    "num-not-integer": (campaign_text(grid='"controller.k_p" = { linspace = [1, 2], num = 2.5 }'), "controller.k_p\".num"),
+    "levels-not-a-list": (GOOD.replace("levels = [0.0, 20.0, 0.0]", 'levels = "high"'), "reference.levels"),
+    "unknown-controller-kind": (GOOD.replace('kind = "mfc1"', 'kind = "pid"'), "controller.kind"),
+    "rig-not-a-toml-file": (GOOD.replace('rig = "rigs/motor.toml"', 'rig = "pyproject.tom"'), "campaign.rig"),
+    "duplicate-grid-values": (campaign_text(grid='"controller.k_p" = { values = [1.0, 1.0] }'), "grid"),
+    "input-limit-beyond-rig": (GOOD.replace("k_p = 50.0", "k_p = 50.0\nu_max = 100.0"), "controller.u_max"),
+    "derived-above-nyquist": (
+        campaign_text(grid='"controller.k_p" = { values = [1.0] }') + '\n[derived]\n"differentiator.omega_c" = "1e3 * pi"\n',
+        "differentiator.omega_c",
+    ),
 }
 
 
@@ -193,7 +227,7 @@ def test_malformed_campaign_fails_with_key_path_exit_2_and_creates_nothing(case,
     text, key = MALFORMED[case]
     path = write(project / "campaigns" / "c.toml", text)
     before = sorted(p.relative_to(project) for p in project.rglob("*"))
-    code = main(["run", str(path), "--out", "out/c"])
+    code = main(["run", str(path)])  # into the default data/<name>/
     err = capsys.readouterr().err
     assert code == 2, err
     assert err.count("\n") == 1 and err.startswith("labrunner run: error: "), err
@@ -212,7 +246,11 @@ def test_dry_run_prints_points_batches_estimate_and_creates_nothing(project, cap
     path = write(project / "c.toml", GOOD)
     assert main(["run", str(path), "--dry-run", "--workers", "2"]) == 0
     out = capsys.readouterr().out
-    assert "9 points" in out and "batches" in out and "estimated time" in out
+    # 9 points on 2 workers: ≥ 2 batches per worker → batches of ⌈9/4⌉ = 3
+    assert out.startswith("campaign tiny: 9 points on rig 'rigs/motor.toml', 3 batches\n"), out
+    assert "9 points × 2 s at 200 Hz (mfc1): 3 batches of ≤ 3" in out
+    estimate = re.search(r"estimated time ≈ (\d+) s on 2 worker\(s\) \(18 s of simulated time\)", out)
+    assert estimate and 0 <= int(estimate[1]) < 60, out
     assert not (project / "data").exists()
 
 

@@ -53,27 +53,50 @@ def test_human_output(capsys):
     assert "k_d in (0, 157.0796327)" in out and "k_p in (0, " in out and "numerical solver" in out
 
 
+UL = ["--case", "mfc1-ultralocal"]
+
+
 @pytest.mark.parametrize(
-    "args",
-    [["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "0", "--rho", "1"],
-     ["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "-0.1", "--rho", "1"],
-     ["--case", "mfc1-ultralocal", "--gamma", "0", "--delay", "0.1", "--rho", "1"],
-     ["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "0.1", "--rho", "-2"],
-     ["--case", "mfc1-ultralocal", "--gamma", "nan", "--delay", "0.1", "--rho", "1"],
-     ["--case", "mfc1-ultralocal", "--gamma", "1", "--delay", "0.1"],
-     ["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR],
-     ["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--b", "2"],
-     ["--case", "mfc1-ultralocal", "--gamma", "abc", "--delay", "0.1", "--rho", "1"],
-     ["--case", "mfc9", "--gamma", "1", "--delay", "0.1", "--rho", "1"]],
+    ("args", "message"),
+    [([*UL, "--gamma", "1", "--delay", "0", "--rho", "1"], "delay: must be > 0, got 0.0"),
+     ([*UL, "--gamma", "1", "--delay", "-0.1", "--rho", "1"], "delay: must be > 0, got -0.1"),
+     ([*UL, "--gamma", "1", "--delay", "nan", "--rho", "1"], "delay: must be a finite number > 0, got nan"),
+     ([*UL, "--gamma", "0", "--delay", "0.1", "--rho", "1"], "gamma: must be > 0, got 0.0"),
+     ([*UL, "--gamma", "nan", "--delay", "0.1", "--rho", "1"], "gamma: must be a finite number > 0, got nan"),
+     ([*UL, "--gamma", "1", "--delay", "0.1", "--rho", "-2"], "rho: must be > 0, got -2.0"),
+     ([*UL, "--gamma", "1", "--delay", "0.1", "--rho", "nan"], "rho: must be a finite number > 0, got nan"),
+     ([*UL, "--gamma", "1", "--delay", "0.1", "--b", "0"], "b: must be > 0, got 0.0"),  # --rho taken from --b
+     ([*UL, "--gamma", "1", "--delay", "0.1"], "rho: is required for case mfc1-ultralocal (or give b)"),
+     (["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR], "k_d: is required for the second-order case mfc2-motor"),
+     (["--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.1", "--rho", "1"], "k_d: is required for the second-order case"),
+     (["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR, "--k-d", "nan"], "k_d: must be finite, got nan"),
+     (["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--a", "nan", "--b", "2"], "a: must be finite, got nan"),
+     (["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--b", "2"], "a: is required for case mfc1-motor"),
+     (["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", *MOTOR, "--k-d", "3"], "k_d: is not used by the first-order case"),
+     (["--case", "mfc2-second-order", "--gamma", "1", "--delay", "0.1", "--a0", "-1", "--a1", "1", "--b", "1", "--k-d", "1"],
+      "a0: must be >= 0 (thesis A.6), got -1.0"),
+     ([*UL, "--gamma", "abc", "--delay", "0.1", "--rho", "1"], "argument --gamma: must be a number > 0, got 'abc'"),
+     (["--case", "mfc9", "--gamma", "1", "--delay", "0.1", "--rho", "1"], "argument --case: invalid choice: 'mfc9' (choose from")],
 )
-def test_bad_input_exits_2_with_one_line(capsys, args):
+def test_bad_input_exits_2_with_one_line(capsys, args, message):
+    """One line on stderr naming the parameter and what it accepts; nothing on stdout."""
     try:
         code = main(["bounds", *args])
     except SystemExit as exc:   # argparse usage errors (not a number, unknown case)
         code = exc.code
-    err = capsys.readouterr().err
-    assert code == 2
-    assert len(err.strip().splitlines()) == 1 and "error" in err
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and err.startswith("labrunner bounds: error: ") and message in err, err
+
+
+def test_json_numeric_second_order(capsys):
+    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.01", "--b", "1",
+                       "--k-d", "50", "--numeric", "--json")
+    result = json.loads(out)
+    assert code == 0 and set(result) == {"k_p", "k_d", "numeric"} and set(result["numeric"]) == {"k_p", "k_d"}
+    assert result == bounds("mfc2-ultralocal", gamma=1.0, delay=0.01, rho=1.0, k_d=50.0, numeric=True)  # rho = b
+    for key in ("k_p", "k_d"):
+        assert result["numeric"][key] == pytest.approx(result[key], rel=1e-6, abs=1e-6 * result[key][1])
 
 
 def test_end_to_end_subprocess():

@@ -159,3 +159,43 @@ def test_plot_without_roles_still_shows_every_kind(tmp_path):
     write_run(path, metadata={}, fs=200.0, signals=signals, outcome=COMPLETED)  # roles from names only
     panels = [[l.get_label() for l in ax.get_lines()] for ax in plot_run(path).axes]
     assert panels == [[r"$\Omega$", r"$\Omega_r$"], [r"$\hat{f}_{\Omega}$"], [r"$\theta$", "u"]]
+
+
+def test_aborted_run_is_drawn_on_its_planned_time_axis(tmp_path):
+    """The engine ends an aborted run's signals at the abort sample; the plot keeps the planned
+    duration (run.duration) on its time axis and greys out the part the run never reached."""
+    signals = {name: values[:521] for name, values in motor_run().items()}  # up to the abort at 2.6 s
+    meta = metadata()
+    meta["run"]["duration"] = 5.0
+    path = tmp_path / "cut.mcap"
+    write_run(path, metadata=meta, fs=200.0, signals=signals, outcome=ABORTED, channels=CHANNELS)
+    fig = plot_run(path)
+    for ax in fig.axes:
+        assert ax.get_xlim() == (0.0, 5.0)
+        (grey,) = ax.patches
+        assert grey.get_x() == pytest.approx(2.6) and grey.get_x() + grey.get_width() == pytest.approx(5.0)
+    del meta["run"]["duration"]  # a log without a planned duration ends at its last sample
+    write_run(path, metadata=meta, fs=200.0, signals=signals, outcome=ABORTED, channels=CHANNELS)
+    assert plot_run(path).axes[0].get_xlim() == (0.0, 520 / 200.0)
+
+
+def test_inspect_into_a_closed_pipe_is_quiet(aborted_run):
+    """``labrunner inspect RUN.mcap --json | head -1``: the reader leaves early; no traceback."""
+    done = subprocess.Popen([sys.executable, "-m", "labrunner", "inspect", str(aborted_run), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    done.stdout.close()  # the reader is gone before the first byte
+    err = done.stderr.read().decode()
+    assert done.wait(timeout=120) == 141 and "Traceback" not in err and "Exception ignored" not in err
+
+
+def test_each_estimated_quantity_gets_its_own_panel(tmp_path):
+    """f̂ [m/s²], ê [m] and ê̇ [m/s] of the plate differ by orders of magnitude: one panel each."""
+    n = 50
+    signals = {"y1": np.full(n, 2e-3), "ref_y1": np.full(n, 2e-3), "i1": np.full(n, 1.7),
+               "f_hat_y1": np.full(n, 9.81), "e_hat_y1": np.full(n, 1e-6), "de_hat_y1": np.full(n, 1e-4),
+               "f_hat_y2": np.full(n, 9.7)}  # fmt: skip
+    path = tmp_path / "plate.mcap"
+    write_run(path, metadata={}, fs=100.0, signals=signals, outcome=COMPLETED,
+              channels={"y1": {"role": "controlled", "unit": "m"}, "i1": {"role": "input", "unit": "A"}})
+    panels = [[l.get_label() for l in ax.get_lines()] for ax in plot_run(path).axes]
+    assert panels == [["y1", "ref_y1"], ["i1"], ["f_hat_y1", "f_hat_y2"], ["e_hat_y1"], ["de_hat_y1"]]

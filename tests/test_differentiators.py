@@ -217,6 +217,38 @@ def test_large_alpha_with_log_gamma():
     assert d.weights(0).sum() == pytest.approx(1.0, rel=1e-12)
 
 
+@pytest.mark.parametrize("alpha, beta", [(120, 120), (105, 140)])
+def test_large_alpha_kernel_derivatives_in_closed_form(alpha, beta):
+    """N = 0: g' = g·(α/τ − β/(T−τ)) and g'' = g·((α/τ − β/(T−τ))² − α/τ² − β/(T−τ)²), with g of
+    (B.8) in log form; at α ≥ 100 the factorials alone overflow, so this needs log-gamma."""
+    d = design(alpha=alpha, beta=beta, window=0.2, fs=1000)
+    T = d.window_s
+    tau = np.linspace(0.3, 0.7, 21) * T
+    g = np.exp(
+        math.lgamma(alpha + beta + 2) - math.lgamma(alpha + 1) - math.lgamma(beta + 1)
+        + alpha * np.log(tau) + beta * np.log(T - tau) - (alpha + beta + 1) * math.log(T)
+    )
+    v = alpha / tau - beta / (T - tau)
+    for n, expected in ((1, g * v), (2, g * (v**2 - alpha / tau**2 - beta / (T - tau) ** 2))):
+        got = d.kernel(n, tau)
+        np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-11 * np.abs(expected).max())
+
+
+def test_large_alpha_kernel_derivatives_with_N_match_finite_differences():
+    """N = 1, ϑ = 0.4, α = 105, β = 130: g⁽ⁿ⁾ equals the central difference of g⁽ⁿ⁻¹⁾ (Richardson)."""
+    d = design(alpha=105, beta=130, N=1, theta=0.4, window=0.2, fs=1000)
+    T = d.window_s
+    tau = np.linspace(0.3, 0.65, 15) * T
+    h = 1e-4 * T
+    for n in (1, 2):
+        def diff(step, n=n):
+            return (d.kernel(n - 1, tau + step) - d.kernel(n - 1, tau - step)) / (2 * step)
+
+        richardson = (4 * diff(h / 2) - diff(h)) / 3
+        expected = d.kernel(n, tau)
+        np.testing.assert_allclose(richardson, expected, rtol=0, atol=1e-7 * np.abs(expected).max())
+
+
 def test_weights_cached_and_read_only():
     d = design(alpha=2, beta=2, window=0.05, fs=1000)
     assert d.weights(1) is d.weights(1)
@@ -241,11 +273,15 @@ def test_window_from_n_s_over_fs_keeps_all_samples():
 
 
 def test_window_floor_and_actual_cutoff():
+    """n_s = floor(T·f_s), not rounded; T = n_s/f_s; the reported cutoff is the realised window's."""
     d = design(alpha=2, beta=2, window=0.01049, fs=1000)
     assert d.n_s == 10 and d.window_s == 0.01
+    k_c = 60.0 ** (1 / 3)  # α = β = 2: ω_c·T = (Γ(6)/Γ(3))^(1/3)
+    assert k_c / 250 * 4000 == pytest.approx(62.64, abs=0.01)  # rounding would give 63
     d = design(alpha=2, beta=2, omega_c=250, fs=4000)
-    assert d.omega_c_actual >= 250  # a shorter realised window has a higher cutoff
-    assert d.omega_c_actual * d.window_s == pytest.approx(250 * d.window_s * d.omega_c_actual / 250)
+    assert d.n_s == 62 and d.window_s == 62 / 4000
+    assert d.omega_c_actual == pytest.approx(k_c * 4000 / 62, rel=1e-14)
+    assert d.omega_c_actual > 250  # the shorter realised window has the higher cutoff
 
 
 # --- bad input -----------------------------------------------------------------------------------------

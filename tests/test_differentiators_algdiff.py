@@ -10,6 +10,9 @@ The library never imports AlgDiff. Where we differ on purpose the test says why:
 - for trapezoidal weights whose kernel is infinite at the window ends (min(α, β) < n) it silently
   puts 0 there; we refuse the design (InvalidParameter).
 - its spectra set mpmath's global precision to 150 digits; the fixture below restores it.
+- its Simpson, 3/8 and Boole variants place L nodes on linspace(0, T, L) with L rounded up to a
+  multiple of the rule's order, i.e. not at multiples of t_s, so they do not form an FIR over the
+  sampled signal; we offer mid-point, trapezoidal and analytic only (InvalidParameter otherwise).
 """
 
 from __future__ import annotations
@@ -112,6 +115,29 @@ def test_sweep_weights_match_algdiff():
                     assert d.discrete_delay_s(n) == pytest.approx(o.get_delayDiscrete()[name], rel=1e-12, abs=1e-15)
                     compared += 1
     assert compared > 350 and dropped < len(SWEEP) // 4, (compared, dropped)  # 368 and 4 of 50
+
+
+@pytest.mark.parametrize(
+    "alpha, beta, N, theta, fs, n_s",
+    [(2, 2, 1, 0.3, 1000.0, 40), (1.5, 4, 1, -0.2, 4000.0, 64), (3, 2, 2, 0.6, 200.0, 17), (6, 6, 2, 1.0, 32000.0, 131),
+     (12.5, 9, 1, 0.0, 20.0, 64)],
+)
+def test_non_default_theta_matches_algdiff(alpha, beta, N, theta, fs, n_s):
+    """A chosen ϑ (set_theta; ϑ = 1 is the delay-free one): cutoff of the window (general-N rule),
+    delay and mid-point weights of orders 0-2, and the window AlgDiff derives from a cutoff."""
+    o = oracle(alpha, beta, N, fs, n_s)
+    o.set_theta(theta, False)
+    assert int(o.get_T() / o.get_ts()) == n_s  # these windows keep every tap in AlgDiff
+    d = design(alpha=alpha, beta=beta, N=N, theta=theta, window=n_s / fs, fs=fs)
+    assert d.omega_c_actual == pytest.approx(o.get_cutoffFreq(), rel=1e-12)
+    assert d.delay_s == pytest.approx(o.get_delay(), rel=1e-12, abs=1e-15)
+    for n in range(3):
+        ours = d.weights(n)
+        np.testing.assert_allclose(ours, o.discretize(n, "mid-point")[n]["mid-point"], rtol=0, atol=1e-10 * np.abs(ours).max())
+    omega_c = 0.93 * d.omega_c_actual
+    from_cutoff = AlgebraicDifferentiator(ts=1 / fs, alpha=alpha, beta=beta, N=N, T=None, wc=omega_c, display=False)
+    from_cutoff.set_theta(theta, False)  # recomputes T from ω_c with this ϑ
+    assert design(alpha=alpha, beta=beta, N=N, theta=theta, omega_c=omega_c, fs=fs).n_s == round(from_cutoff.get_T() * fs)
 
 
 @pytest.mark.parametrize(

@@ -63,6 +63,23 @@ def test_stopband_slope_is_20_mu_minus_n_db_per_decade():
         assert drop[0] == pytest.approx(20 * (3 - n), abs=1.0)
 
 
+@pytest.mark.parametrize(
+    "alpha, beta, N, theta",
+    [(1, 1, 0, None), (1, 2.5, 0, None), (2, 2, 1, None), (1.5, 3, 1, 0.2), (3, 1.5, 2, -0.3), (2, 2, 2, 0.5),
+     (2.5, 2.5, 1, 0.9)],
+)
+def test_cutoff_rule_is_the_amplitude_asymptote(alpha, beta, N, theta):
+    """The ω_c ↔ T rule (Othmane et al. 2022, Sec. 4.2.2; any N and ϑ) from the spectrum alone: far above
+    ω_c, |G| oscillates between the sum and the difference of the two window ends' contributions
+    ~ c_end/(ωT)^(1+exponent); the middle of that band is the larger one, which is (ω_c/ω)^μ."""
+    d = design(alpha=alpha, beta=beta, N=N, theta=theta, window=1.0, fs=1000)
+    mu = 1 + min(alpha, beta)
+    omega = (3000.0 + np.linspace(0.0, 2 * np.pi, 801)) / d.window_s  # one period of the beat
+    amp = np.abs(continuous_response(d, 0, omega))
+    middle = 0.5 * (amp.max() + amp.min()) * (omega.mean() / d.omega_c_actual) ** mu
+    assert middle == pytest.approx(1.0, abs=5e-3)
+
+
 def test_discrete_response_converges_to_continuous_at_low_frequency():
     omega = np.linspace(0, 40, 30)
     errs = []

@@ -23,7 +23,9 @@ A, B = 39.44, 108.55  # rigs/dcmotor-*.toml, thesis Sec. 3.2
 def _run_on(rig_name: str, directory: Path) -> list[Path]:
     """The campaign's four step experiments on ``rig_name``, logged like a campaign worker does."""
     campaign = spec.load(CAMPAIGN)
+    assert campaign.fs == 100.0 and campaign.rig_info.kind == "dcmotor"  # thesis Sec. 3.2: 100 Hz, open loop
     points = [config for _, config in campaign.points()]
+    assert all(p["controller"]["kind"] == "open-loop" for p in points)
     with registry.load_rig(rig_name, search=[ROOT / "rigs"]) as rig:
         results = engine.run_batch(points, rig, fs=campaign.fs, duration=campaign.duration, seeds=[0] * len(points),
                                    rig_safety=campaign.rig_safety)

@@ -245,7 +245,11 @@ def test_channels_forms():
         "u": {"role": "input", "unit": "V"},
         "f_hat_omega": {"role": "estimate", "unit": ""},  # inferred from the engine's naming
     }
-    assert normalise_channels(["e_x", "x"]) == {"e_x": {"role": "error", "unit": ""}, "x": {"role": "signal", "unit": ""}}
+    assert normalise_channels(["e_x", "x", "e_hat_x"]) == {
+        "e_x": {"role": "error", "unit": ""},
+        "x": {"role": "signal", "unit": ""},
+        "e_hat_x": {"role": "estimate", "unit": ""},  # the filtered error ê is an estimate
+    }
     with pytest.raises(InvalidParameter, match="channels.x.role"):
         normalise_channels({"x": {"role": "bogus"}})
     with pytest.raises(InvalidParameter, match="channels.speeds"):

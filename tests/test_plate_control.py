@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from labrunner.control.factory import build
+from labrunner.control.factory import build, differentiators
 from labrunner.control.plate import PlateMFC
 from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import PlateGeometry
@@ -193,3 +193,35 @@ def test_batch_equals_single_runs(kind):
         r[:, :, 0], r[:, :, 2] = 3e-3, -10.0
         for y, u, _ in batch:
             np.testing.assert_allclose(controller.step(y[b : b + 1], r), u[b : b + 1], rtol=1e-12, atol=1e-12)
+
+
+def test_estimator_uses_the_applied_saturated_currents():
+    """Eq. (24b)/(25) with the *applied* input (thesis Sec. 3.3 on the hardware): f̂_v[k] =
+    Σ ŵ₂ y[k−1−j] − γ_v Σ ŵ₀ v[k−1−j], v[k] = P⁻¹B f(i_sat[k], h[k]) (eqs. (2), (4), (5)), rebuilt
+    from the logged measurements and the saturated currents; with the law's unsaturated currents
+    the same sum misses the controller's f̂. Notch off, so f̂ sees the raw measurement."""
+    point = {"controller": {**MFC, "notch_omega": 0.0, "i_max": 2.7}, "differentiator": DIFF, "reference": {"kind": "lift"}}
+    _, r, log = _drive([point], ticks=120)
+    d = differentiators([point], FS, 2)[0]
+    w2, w0, n = d.weights(2), d.weights(0), d.n_s
+    Y = np.array([y[0, :3] for y, _, _ in log])
+    U = np.array([u[0] for _, u, _ in log])
+    assert (U == 2.7).sum() > 20 and (U < 2.7).any()  # saturated on many ticks, not on all
+
+    def v_of(currents, y):
+        return GEO.input_from_forces((currents / (250 * GEO.gaps_from_sensors(y))) ** 2)
+
+    unsat = [GEO.forces_pinv(r[0, :, 2] - 5000 * e["e_hat"][0] - 195 * e["de_hat"][0] - e["f_hat"][0]) for _, _, e in log]
+    unsat = np.array([250 * GEO.gaps_from_sensors(y) * np.sqrt(np.maximum(f, 0.0)) for y, f in zip(Y, unsat)])
+    y_h = np.vstack([np.full((n + 1, 3), 3e-3), Y])  # the stationary past of reset
+    for currents, expect_match in ((U, True), (unsat, False)):
+        v_h = np.vstack([np.zeros((n + 1, 3)), v_of(currents, Y)])  # at rest: no current, v = 0
+        errors = []
+        for k, (_, _, est) in enumerate(log):
+            past = n + k - np.arange(n)  # rows of y[k−1−j], v[k−1−j]
+            f_hat = w2 @ y_h[past] - 1.0 * (w0 @ v_h[past])
+            errors.append(np.abs(f_hat - est["f_hat"][0]).max())
+        if expect_match:
+            assert max(errors) < 1e-9 * GEO.g
+        else:
+            assert max(errors) > 1e-4 * GEO.g  # 10⁵ times the rounding of the match

@@ -15,6 +15,8 @@ from labrunner.control.plate_filters import (
     tustin,
 )
 from labrunner.control.plate_mbc import MBCDesign, estimation_chain, matched_orders, observer_gains, observer_ss
+from labrunner.differentiators import design
+from labrunner.differentiators.spectra import continuous_response
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.sim.plate import PlateTwin
 
@@ -92,6 +94,24 @@ def test_lowpass_orders_match_differentiator_slopes():
     # without them the observer alone falls with only 20 dB/decade on every estimate
     H0 = np.abs(frequency_response(observer_ss(DESIGN.observer_poles), np.array([1e5, 1e6]))[:, :, 0])
     np.testing.assert_allclose(20 * np.log10(H0[1] / H0[0]), [-20, -20, -20], atol=0.5)
+
+
+def test_chain_amplitude_matches_the_differentiator_up_to_its_cutoff():
+    """Paper 2 Sec. 4.2, Fig. 9: observer + notch + low-pass (discretised, 32 kHz) and the algebraic
+    differentiator (α = β = 4, ω_c = 840 rad/s, continuous spectrum) combined with the notch have
+    similar amplitude spectra up to the cutoff: within 4 dB of each other for ω ≤ ω_c/2 relative to
+    the ideal |jω|ⁿ, and both at least 6 dB down at ω_c (the observer's cutoff is also ≈ 840 rad/s)."""
+    w = np.array([10.0, 50.0, 100.0, 200.0, 300.0, 420.0])
+    chain = frequency_response(estimation_chain(DESIGN)["chain"], np.r_[w, 840.0], FS)[:, :, 0]
+    notch = frequency_response(tf_ss(*notch_tf(942.0, 2.0)), np.r_[w, 840.0])[:, 0, 0]
+    d = design(alpha=4, beta=4, fs=FS, omega_c=840.0)
+    for n in range(3):
+        ideal = np.r_[w, 840.0] ** n
+        mbc = 20 * np.log10(np.abs(chain[:, n]) / ideal)
+        mfc = 20 * np.log10(np.abs(continuous_response(d, n, np.r_[w, 840.0]) * notch) / ideal)
+        np.testing.assert_allclose(mbc[:-1], mfc[:-1], atol=4.0, err_msg=f"derivative {n}")
+        assert mbc[0] == pytest.approx(0.0, abs=0.05) and mfc[0] == pytest.approx(0.0, abs=0.05)
+        assert mbc[-1] < -6.0 and mfc[-1] < -6.0
 
 
 def test_discrete_chain_is_stable_and_causal():

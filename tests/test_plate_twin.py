@@ -47,6 +47,17 @@ def test_no_current_rests_on_the_screws():
     assert np.ptp(ys[:, 0, :]) < 1e-6
 
 
+def test_sensor_noise_is_white_with_the_rig_files_std():
+    """The [noise] sensor_std (0.5 µm in rigs/plate-sim.toml) is added to each sensor, uncorrelated."""
+    std = load_rig("plate-sim").config.noise["sensor_std"]
+    noisy = run(twin(noise={"sensor_std": std, "current_std": 0.0}), 0.0, 0.05)
+    clean = run(twin(), 0.0, 0.05)
+    n = (noisy - clean).reshape(-1, 4)
+    assert np.std(n) == pytest.approx(std, rel=0.05)
+    assert np.abs(np.corrcoef(n.T) - np.eye(4)).max() < 0.1  # 4 standard errors at 1600 samples
+    assert abs(np.corrcoef(n[1:, 0], n[:-1, 0])[0, 1]) < 0.1  # white in time
+
+
 def test_open_loop_unstable_between_stick_and_snap():
     """2 % below the lift-off current the plate stays on the screws; 2 % above it snaps to the top stop:
     no stable equilibrium in between (the magnet force grows as the gap shrinks)."""

@@ -195,3 +195,40 @@ def test_register_rig_at_run_time(monkeypatch):
     monkeypatch.setattr(registry, "_registered", {})
     register_rig("toy-rt", f"{__name__}:ToyRig")
     assert rig_class("toy-rt") is ToyRig
+
+
+@pytest.mark.parametrize(
+    ("kind", "fs", "u", "actuator", "sensor"),
+    [
+        ("dcmotor", 200.0, [3.0], {"actuator_offset": 1.5, "actuator_gain": -0.5}, {"sensor_step": 0.1}),
+        ("valve", 4000.0, [0.6], {"actuator_offset": 0.05, "actuator_gain": -0.5}, {"sensor_step": 2.0}),
+        ("plate", 32000.0, [2.0, 2.0, 2.0, 2.0], {"actuator_offset": [0.0, 0.3, 0.0, 0.0], "actuator_gain": [-0.5, 0.0, 0.0, 0.2]},
+         {"sensor_step": [2e-4, 0.0, 0.0, -1e-4]}),
+    ],
+)
+def test_faults_from_a_given_time_on_every_twin(kind, fs, u, actuator, sensor):
+    """Paper 2 Sec. 4.4 on any rig: from t_start on, the applied input is (1 + gain)·u + offset per
+    channel (before it, u itself), and a sensor step adds to the measurement of the same plant."""
+    k0, ticks = 5, 12
+    t_start = k0 / fs
+
+    def drive(faults):
+        rig = load_rig({"rig": {"kind": kind}, "faults": {"t_start": t_start, **faults} if faults else {}})
+        ys = [rig.reset(1, [3], fs)[0]]
+        applied = []
+        for _ in range(ticks):
+            ys.append(rig.step(np.array([u]))[0])
+            applied.append(rig.applied_input[0].copy())
+        return np.array(ys), np.array(applied)
+
+    clean_y, clean_u = drive({})
+    _, faulty_u = drive(actuator)
+    np.testing.assert_array_equal(clean_u, np.tile(u, (ticks, 1)))
+    gain = np.broadcast_to(actuator["actuator_gain"], len(u))
+    offset = np.broadcast_to(actuator["actuator_offset"], len(u))
+    np.testing.assert_array_equal(faulty_u[:k0], clean_u[:k0])
+    np.testing.assert_allclose(faulty_u[k0:], np.tile((1 + gain) * np.array(u) + offset, (ticks - k0, 1)), rtol=1e-15)
+    stepped_y, _ = drive(sensor)
+    np.testing.assert_array_equal(stepped_y[:k0], clean_y[:k0])  # y[k] is the measurement at t = k/fs
+    step = np.broadcast_to(sensor["sensor_step"], clean_y.shape[1])
+    np.testing.assert_allclose(stepped_y[k0:] - clean_y[k0:], np.tile(step, (ticks + 1 - k0, 1)), rtol=1e-9, atol=1e-12)

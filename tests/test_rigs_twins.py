@@ -165,6 +165,54 @@ def test_magnetic_hysteresis_more_flow_on_the_way_down():
     assert flow[k_down] > flow[k_up] + 0.5
 
 
+def _settle_then(rig, i_then, overrides):
+    """Ramp up to 0.62 A, settle 0.25 s (17 main-spool time constants), then hold ``i_then`` for
+    0.25 s; return the change of the main stroke and of the true flow (no noise)."""
+    rig.reset(1, [0], 4000.0, {"flow_lpm": 0.0, **overrides})
+    for i in np.r_[np.linspace(0.5, 0.62, 1000), np.full(1000, 0.62)]:
+        rig.step(np.array([[i]]))
+    before = rig.state
+    for _ in range(1000):
+        rig.step(np.array([[i_then]]))
+    return rig.state["main"][0] - before["main"][0], rig.state["flow"][0] - before["flow"][0]
+
+
+def test_main_spool_friction_gives_lost_motion_on_reversal():
+    """Static and Coulomb friction of the main spool (hysteresis off to isolate it): after a rise,
+    a small current reversal leaves the spool stuck; a larger one breaks it away and the spool ends
+    2·F_c short of the frictionless stroke change Δx_t = Δi / (i_max (1 − p_th))."""
+    rig = load_rig("valve-sim")
+    p = rig.config.parameters
+    fc = p["main_coulomb_friction"]
+    per_amp = 1.0 / (p["i_max"] * (1.0 - p["pilot_threshold"]))
+    frictionless = {"hysteresis": 0.0, "main_static_friction": 0.0, "main_coulomb_friction": 0.0}
+    small, large = -0.003, -0.008  # Δx_t = −0.0059 (inside F_c + F_s = 0.010), −0.0158
+    moved, dq = _settle_then(rig, 0.62 + small, {"hysteresis": 0.0})
+    assert moved == 0.0 and abs(dq) < 1e-3  # only the pilot stage's tiny flow changes
+    assert _settle_then(rig, 0.62 + small, frictionless)[0] == pytest.approx(small * per_amp, rel=1e-6)
+    moved, _ = _settle_then(rig, 0.62 + large, {"hysteresis": 0.0})
+    assert moved == pytest.approx(large * per_amp + 2 * fc, rel=1e-6)
+
+
+def test_flow_is_orifice_flow_through_valve_and_return_path():
+    """q = G(x)·√Δp_valve with G = K_m x_m + K_p x_p, the valve's drop Δp_valve = p_s − (q/G_d)²
+    left by the return path; so at a fixed opening the flow scales with √p_s (30 bar vs 7.5 bar: ×2)."""
+    rig = load_rig("valve-sim")
+    p = rig.config.parameters
+    flows = []
+    for supply in (30.0, 7.5):
+        rig.reset(1, [0], 4000.0, {"flow_lpm": 0.0, "supply_pressure": supply})
+        for _ in range(2000):
+            rig.step(np.array([[0.6]]))
+        s = rig.state
+        g = p["main_conductance"] * s["main"][0] + p["pilot_conductance"] * s["pilot"][0]
+        q = s["flow"][0]
+        assert 1.0 < q < p["pump_flow"]  # open, below the pump's limit
+        assert q == pytest.approx(g * np.sqrt(supply - (q / p["downstream_conductance"]) ** 2), rel=1e-12)
+        flows.append(q)
+    assert flows[0] / flows[1] == pytest.approx(2.0, rel=1e-9)
+
+
 def test_flow_sensor_delay_about_50_ms():
     """Paper 1 Sec. 5.4: the sensor shows the flow ≈ 50 ms late."""
     rig = load_rig("valve-sim")

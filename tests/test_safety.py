@@ -65,6 +65,16 @@ def test_rate_estimate_of_a_steady_ramp_is_exact():
     assert rate[0] == pytest.approx(slope, rel=1e-9)
 
 
+def test_rate_estimator_window_is_the_thesis_nine_samples_at_200_hz():
+    """Thesis Sec. 3.3: N = 0, α = β = 6, ω_c = 200 rad/s at f_s = 200 Hz is a window of n_s = 9
+    samples: an impulse in u shows in the rate estimate over exactly nine ticks (the centre tap of
+    the antisymmetric α = β kernel is zero)."""
+    m = monitor({"max_du_dt": 1e9})
+    response = [m._rate.step(np.array([1.0 if k == 3 else 0.0]))[0] for k in range(20)]
+    nonzero = [k for k, r in enumerate(response) if r != 0.0]
+    assert nonzero[0] == 3 and nonzero[-1] == 3 + 9 - 1 and len(nonzero) >= 8
+
+
 def test_bounds_nan_and_run_time_verdicts():
     m = monitor({"output_bounds": {"theta": [-1.0, 2.0]}, "input_bounds": {"u": [-5.0, 5.0]}, "max_duration": 1.0},
                 batch=4)

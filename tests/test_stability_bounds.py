@@ -17,7 +17,7 @@ from labrunner.stability import (
     stable_intervals,
 )
 from labrunner.stability.closed_forms import second_order_p_gain
-from labrunner.stability.roots import first_order_crossing
+from labrunner.stability.roots import ascending_roots, first_order_crossing
 
 A, B = 39.44, 108.55          # DC motor of the thesis: a [1/s], b [rad/(V s²)]
 GAMMAS = (0.9 * B, B, 1.1 * B)
@@ -43,6 +43,19 @@ def assert_same_interval(numeric, closed, rtol=1e-6):
 
 def alpha(case, **kw) -> float:
     return spectral_abscissa(case_quasipolynomial(case, **kw))
+
+
+def roots_on_grid(h, z_max: float, step: float = 1e-3) -> np.ndarray:
+    """Positive roots of h on (0, z_max] from sign changes on a fine grid (no turning points),
+    independent of labrunner.stability.roots."""
+    z = np.arange(step, z_max, step)
+    v = h(z)
+    return np.array([brentq(h, z[i], z[i + 1], xtol=1e-15) for i in np.flatnonzero(np.sign(v[:-1]) != np.sign(v[1:]))])
+
+
+def tilde_z(a_delta: float) -> float:
+    """z̃ ∈ (π/2, π) with tan z̃ = −z̃/(aδ) (thesis (2.46), (2.58))."""
+    return brentq(lambda z: np.tan(z) + z / a_delta, np.pi / 2 + 1e-12, np.pi)
 
 
 # --- closed forms against the solver -------------------------------------------------------------
@@ -82,6 +95,63 @@ def test_motor_bound_is_2_46(gamma):
     z = brentq(lambda z: np.tan(z) + z / (A * delay), np.pi / 2 + 1e-9, np.pi)
     assert lo == pytest.approx(A * (1 - gamma / B), abs=1e-12)
     assert hi == pytest.approx(A + gamma / (B * delay) * np.hypot(z, A * delay), rel=1e-12)
+
+
+@pytest.mark.parametrize("d", [0.1, 0.5, 1.0, 1.5, 1.56])
+def test_ultralocal_k_p_bound_is_2_54(d):
+    """(2.54): 0 < k_p < min_{j odd} (γ/(ρδ²)) z_j² cos z_j, z_j the ascending roots of
+    ρ k_d / sin z = (γ/δ) z, i.e. z sin z = ρ k_d δ/γ = d, for k_d below the corrected bound."""
+    gamma, rho, delay = 0.9 * B, B, 0.035
+    k_d = d * gamma / (rho * delay)
+    z = roots_on_grid(lambda z: z * np.sin(z) - d, 30 * np.pi)
+    assert z.size % 2 == 0 and z[0] < np.pi / 2 < z[1] < np.pi  # z_1, z_2 in (0, π): real roots
+    expected = np.min(gamma / (rho * delay**2) * z[0::2] ** 2 * np.cos(z[0::2]))
+    lo, hi = bounds("mfc2-ultralocal", gamma=gamma, rho=rho, delay=delay, k_d=k_d)["k_p"]
+    assert lo == 0.0 and hi == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("delay", DELAYS)
+@pytest.mark.parametrize("gamma", GAMMAS)
+def test_motor_k_d_interval_is_2_58_as_printed(gamma, delay):
+    """(2.58): a(1 − γ/b) < k_d < a + γ/(bδ)·sqrt(z̃² + (aδ)²), tan z̃ = −z̃/(aδ) in (π/2, π)."""
+    lo, hi = bounds("mfc2-motor", gamma=gamma, delay=delay, a=A, b=B, k_d=0.0)["k_d"]
+    assert lo == pytest.approx(A * (1 - gamma / B), rel=1e-12, abs=1e-12)
+    assert hi == pytest.approx(A + gamma / (B * delay) * np.hypot(tilde_z(A * delay), A * delay), rel=1e-12)
+
+
+@pytest.mark.parametrize(("gamma", "k_d"), [(0.9 * B, 60.0), (B, 20.0), (1.1 * B, 5.0), (1.1 * B, 100.0)])
+def test_motor_k_p_bound_is_2_59_with_the_corrected_root_equation(gamma, k_d):
+    """(2.59): 0 < k_p < min_{j odd} (aγ z_j/(bδ))(sin z_j + z_j/(aδ) cos z_j), z_j the ascending roots
+    of (b/γ)(k_d − a) + a cos z = (z/δ) sin z (Farkh et al. 2009 with K = b/γ, as appendix A.5 maps it)."""
+    delay = 0.035
+    z = roots_on_grid(lambda z: B / gamma * (k_d - A) + A * np.cos(z) - z / delay * np.sin(z), 30 * np.pi)
+    zo = z[0::2]
+    expected = np.min(A * gamma * zo / (B * delay) * (np.sin(zo) + zo / (A * delay) * np.cos(zo)))
+    lo, hi = bounds("mfc2-motor", gamma=gamma, delay=delay, a=A, b=B, k_d=k_d)["k_p"]
+    assert lo == 0.0 and hi == pytest.approx(expected, rel=1e-12)
+
+
+def test_roots_ascend_between_turning_points_from_z1():
+    """Every positive root of z sin z − D, ascending, the first one z_1 (z_0 = 0 is not listed),
+    equal to a brute-force grid search; likewise the roots of (2.59)'s corrected equation."""
+    for d in (0.3, 1.2, 1.8):
+        got = ascending_roots(lambda z: z * np.sin(z) - d, lambda z: np.sin(z) + z * np.cos(z), 12 * np.pi)
+        ref = roots_on_grid(lambda z: z * np.sin(z) - d, 12 * np.pi)
+        assert got.size == ref.size and np.all(np.diff(got) > 0) and got[0] > 0
+        np.testing.assert_allclose(got, ref, rtol=1e-13)
+    h = lambda z: 2.0 + 1.4 * np.cos(z) - z * np.sin(z)  # noqa: E731
+    dh = lambda z: -1.4 * np.sin(z) - np.sin(z) - z * np.cos(z)  # noqa: E731
+    np.testing.assert_allclose(ascending_roots(h, dh, 12 * np.pi), roots_on_grid(h, 12 * np.pi), rtol=1e-13)
+
+
+@pytest.mark.parametrize("a_delta", [0.01, 0.4, 1.0, 1.38, 25.0, -0.3, -0.9])
+def test_first_order_crossing_solves_tan_z(a_delta):
+    """z̃ of tan z = −z/(aδ): in (π/2, π) for aδ > 0, in (0, π/2) for −1 < aδ < 0 (remark 2.8)."""
+    z = first_order_crossing(a_delta)
+    lo, hi = (np.pi / 2 + 1e-12, np.pi) if a_delta > 0 else (1e-9, np.pi / 2 - 1e-12)
+    assert z == pytest.approx(brentq(lambda x: np.tan(x) + x / a_delta, lo, hi, xtol=1e-15), rel=1e-13)
+    assert first_order_crossing(0.0) == pytest.approx(np.pi / 2, rel=1e-14)
+    assert first_order_crossing(-1.0) is None
 
 
 def test_z_tilde_is_2_0288_not_2_088():
@@ -200,6 +270,18 @@ def test_remark_2_8_needs_a_delta_above_minus_one():
 
 # --- neutral equation (A.11) ---------------------------------------------------------------------
 
+@pytest.mark.parametrize("gamma", [0.4 * B, 0.9 * B, 1.3 * B])
+def test_neutral_quasipolynomial_is_a11(gamma):
+    """(A.11) written out: ė − ((γ−b)/γ)ė(t−δ) + a e + (b/γ)(k_p − a)e(t−δ) − ((γ−b)a/γ)e(t−δ) = 0."""
+    delay, k_p = 0.035, 37.0
+    qp = case_quasipolynomial("mfc1-motor", gamma=gamma, delay=delay, a=A, b=B, k_p=k_p, neutral=True)
+    assert qp.is_neutral
+    s = np.array([0.3 + 2.0j, -40.0 + 150.0j, 12.0 - 7.0j])
+    e = np.exp(-s * delay)
+    expected = s - (gamma - B) / gamma * s * e + A + B / gamma * (k_p - A) * e - (gamma - B) * A / gamma * e
+    np.testing.assert_allclose(qp.evaluate(s)[0], expected, rtol=1e-13)
+
+
 def test_neutral_equals_retarded_at_gamma_b():
     kw = {"gamma": B, "delay": 0.035, "a": A, "b": B, "k_p": 50.0}
     assert alpha("mfc1-motor", neutral=True, **kw) == pytest.approx(alpha("mfc1-motor", **kw), rel=1e-12)
@@ -245,6 +327,7 @@ def test_predict_stable_second_order_and_scalar():
      ("mfc1-ultralocal", {"gamma": -1.0, "delay": 0.1, "rho": 1.0}, "gamma"),
      ("mfc1-ultralocal", {"gamma": 1.0, "delay": 0.1, "rho": 0.0}, "rho"),
      ("mfc1-ultralocal", {"gamma": 1.0, "delay": 0.1}, "rho"),
+     ("mfc1-ultralocal", {"gamma": 1.0, "delay": 0.1, "b": -1.0}, "b"),      # rho defaults to b: b is named
      ("mfc1-motor", {"gamma": 1.0, "delay": 0.1, "b": 1.0}, "a"),
      ("mfc1-motor", {"gamma": float("nan"), "delay": 0.1, "a": 1.0, "b": 1.0}, "gamma"),
      ("mfc1-motor", {"gamma": 1.0, "delay": 0.1, "a": 1.0, "b": 1.0, "k_d": 3.0}, "k_d"),

@@ -57,9 +57,19 @@ def choose_pair(axes: Sequence[str]) -> tuple[str, str]:
     return axes[0], axes[1]
 
 
-def axis_of(frame: pd.DataFrame, key: str, units: Mapping[str, str]) -> Axis:
+def axis_of(frame: pd.DataFrame, key: str, units: Mapping[str, str], form: str = "values") -> Axis:
+    """The map axis of grid key ``key``: log scale for a ``log10`` grid axis, linear for a
+    ``linspace`` one, and for listed ``values`` log if they are evenly spaced in log10."""
     values = np.sort(frame[key].dropna().unique().astype(float))
-    return Axis(key, values, is_log_spaced(values), axis_label(key, units))
+    log = form == "log10" if form in ("linspace", "log10") else is_log_spaced(values)
+    return Axis(key, values, log, axis_label(key, units))
+
+
+def grid_forms(campaign) -> dict[str, str]:
+    """Form (values | linspace | log10) of each grid axis of ``campaign`` (empty without one)."""
+    if campaign is None:
+        return {}
+    return {axis.key: axis.form for group in campaign.grid.groups for axis in group}
 
 
 def facets(frame: pd.DataFrame, extra: Sequence[str]) -> list[tuple[str, pd.DataFrame]]:
@@ -132,10 +142,10 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
     """RMS and energy maps (2-D grids) or sweep plots (1-D): (PNG path, title) each."""
     paths: list[tuple[Path, str]] = []
     name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
-    units = ctx.units
+    units, forms = ctx.units, grid_forms(ctx.campaign)
     if len(ctx.axes) == 1:
         key = ctx.axes[0]
-        x = axis_of(frame, key, units)
+        x = axis_of(frame, key, units, forms.get(key, "values"))
         lines: list[OverlayLine] = []
         note = ""
         theory = common_theory(frame, theories) if key in GAINS and theories.campaign is not None else None
@@ -154,7 +164,7 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
     kx, ky = choose_pair(ctx.axes)
     extra = [k for k in ctx.axes if k not in (kx, ky)]
     for i, (suffix, rows) in enumerate(facets(frame, extra)):
-        x, y = axis_of(rows, kx, units), axis_of(rows, ky, units)
+        x, y = axis_of(rows, kx, units, forms.get(kx, "values")), axis_of(rows, ky, units, forms.get(ky, "values"))
         lines, note = map_overlays(rows, x, y, theories)
         lines = mark_outside(lines, x, y)
         for column, title, label in map_metrics(ctx.error):

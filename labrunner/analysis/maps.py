@@ -1,7 +1,8 @@
 """Heat maps of a metric over two grid axes and line plots over one, with the thesis's markers.
 
 Markers as in the thesis (Figs. 3.10, 3.14): an aborted run is a red triangle, a run whose input
-was too small to move the load (no-motion) a white circle, a completed run a black cross. Failed
+was too small to move the load (no-motion) a white circle, a completed run a black cross (with a
+thin white halo, so that it stays visible on the dark end of the colour map). Failed
 runs (an exception, not the plant) get a grey square. Cells of aborted and failed runs are left
 uncoloured: their metric covers only part of the run and would mislead the colour scale.
 """
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 import matplotlib
 import numpy as np
 import pandas as pd
-from matplotlib import colors
+from matplotlib import colors, patheffects
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
@@ -27,6 +28,9 @@ MARKERS = {
     "completed": ("completed", "x", "black", "black"),
     "failed": ("failed (error)", "s", "grey", "black"),
 }
+
+#: A thin white halo keeps the black crosses visible on the dark end of the colour map.
+_HALO = [patheffects.withStroke(linewidth=2.4, foreground="white")]
 
 #: Statuses whose metric describes the whole run and may colour a cell.
 COLOURED = ("completed", "no-motion")
@@ -71,7 +75,7 @@ def axis_label(key: str, units: dict[str, str] | None = None) -> str:
 
 
 def is_log_spaced(values: np.ndarray) -> bool:
-    """Whether sorted axis values are evenly spaced in log10 (a ``log10`` grid axis) and span > 1 decade."""
+    """Whether sorted axis values (a grid axis of listed values) are evenly spaced in log10 and span > 1 decade."""
     v = np.asarray(values, dtype=float)
     if v.size < 2 or np.any(v <= 0) or v[-1] / v[0] <= 10:
         return False
@@ -133,7 +137,7 @@ def draw_markers(ax: Axes, table: pd.DataFrame, x_key: str, y_key: str | None, y
         if sub.empty:
             continue
         yv = sub[y_key] if y_key else sub[y_column]
-        style = {"c": face, "edgecolors": edge} if marker != "x" else {"c": face}
+        style = {"c": face, "edgecolors": edge} if marker != "x" else {"c": face, "path_effects": _HALO}
         ax.scatter(sub[x_key], yv, marker=marker, s=28, linewidths=1.0, label=label, zorder=4, **style)
 
 

@@ -1,7 +1,7 @@
 """The metrics table of a campaign directory: one row per grid point, from the ledger and the MCAPs.
 
 The ledger gives each point's parameters, state, outcome and log path; each run's MCAP gives the
-full metrics (:mod:`labrunner.analysis.metrics`). Logs are read in parallel worker processes.
+full metrics (:mod:`labrunner.metrics`). Logs are read in parallel worker processes.
 The table doubles as a cache: a row whose log has the same size and modification time as when
 it was computed is reused, so re-analysing a finished campaign reads no log at all.
 
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from labrunner.analysis.metrics import BASE_METRICS, Roles, run_metrics
+from labrunner.metrics import BASE_METRICS, Roles, run_metrics
 from labrunner.errors import LabrunnerError
 
 #: Columns that identify a point and its run, in this order at the left of the table.

@@ -35,10 +35,12 @@ _MAX_EXPONENT = 300.0
 
 @dataclass(frozen=True)
 class Axis:
-    """One grid axis: a dotted key of the campaign file and its values in order."""
+    """One grid axis: a dotted key of the campaign file, its values in order, and its form
+    (``values``, ``linspace`` or ``log10``: maps draw a log10 axis on a log scale)."""
 
     key: str
     values: tuple[Any, ...]
+    form: str = "values"
 
 
 @dataclass(frozen=True)
@@ -137,7 +139,7 @@ def parse_axis(field: str, key: str, spec: Any) -> Axis:
         raise InvalidParameter(f"{field}.log10", f"exponents must be within ±{_MAX_EXPONENT:g}, got [{a:g}, {b:g}]")
     lin = np.linspace(a, b, num)
     values = 10.0**lin if form == "log10" else lin
-    return Axis(key, tuple(float(v) for v in values))
+    return Axis(key, tuple(float(v) for v in values), form)
 
 
 def _zip_groups(spec: Any) -> list[list[str]]:

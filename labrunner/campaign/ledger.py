@@ -116,12 +116,16 @@ class Ledger:
         meta: Mapping[str, str],
         points: Iterable[tuple[int, str, Mapping[str, Any], str]],
     ) -> Ledger:
-        """Write a new ledger atomically: (seq, id, parameters, batch key) rows, all ``planned``."""
+        """Write a new ledger atomically: (seq, id, parameters, batch key) rows, all ``planned``.
+
+        The caller holds the directory's lock, so a temporary ledger found here is a leftover of a
+        runner killed while it planned, and is removed."""
         final = directory / LEDGER_NAME
         if final.exists():
             raise CampaignError(f"{final} already exists")
+        for stale in directory.glob(f".{LEDGER_NAME}.*.tmp"):  # a creation killed before its rename
+            stale.unlink()
         tmp = directory / f".{LEDGER_NAME}.{os.getpid()}.tmp"
-        tmp.unlink(missing_ok=True)
         db = _connect(tmp)
         try:
             db.executescript(_SCHEMA)
@@ -135,8 +139,11 @@ class Ledger:
                 ((s, i, json.dumps(dict(p), sort_keys=True), k) for s, i, p, k in points),
             )
             db.execute("COMMIT")
-        finally:
+        except BaseException:  # Ctrl-C or an error while planning: leave nothing half-written
             db.close()
+            tmp.unlink(missing_ok=True)
+            raise
+        db.close()
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, final)

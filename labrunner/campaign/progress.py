@@ -18,6 +18,11 @@ def _clock(seconds: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
+def _rate(runs_per_s: float) -> str:
+    """Runs per second to two significant digits below 10 (a real rig's 0.083 is not "0.1")."""
+    return f"{runs_per_s:.1f}" if runs_per_s >= 10 else f"{runs_per_s:.2g}"
+
+
 class Progress:
     """Counts of finished runs; ``total`` and the counts already terminal when the session began."""
 
@@ -72,7 +77,7 @@ class Progress:
         eta = (self.total - self.finished) / rate if rate > 0 else float("nan")
         return (
             f"{self.label}: {self.finished}/{self.total} ({self._counts()}) "
-            f"{rate:.1f} runs/s, elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}"
+            f"{_rate(rate)} runs/s, elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}"
         )
 
     def update(self, state: str) -> None:

@@ -57,14 +57,23 @@ def _ours(path: Path) -> bool:
     return path.name == LOCK_NAME or path.name.startswith(f".{LEDGER_NAME}.")
 
 
-def _check_new_directory(directory: Path, name: str) -> None:
+def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
+    """Refuse a directory that holds a campaign (naming it: this one, an edited version, another)
+    or other files."""
     if (directory / LEDGER_NAME).exists():
         try:
             with Ledger.open_readonly(directory) as ledger:
-                other = ledger.meta().get("campaign", "?")
+                meta = ledger.meta()
         except CampaignError:
-            other = "?"
-        what = f"campaign {other!r}" if other != name else "this campaign"
+            meta = {}
+        other = meta.get("campaign", "?")
+        if other == name and meta.get("plan_checksum") != checksum:
+            raise CampaignError(
+                f"{directory} already holds campaign {name!r} planned from another version of this file (grid or "
+                f"settings differ); run this file with --out DIR, or continue the stored one with "
+                f"`labrunner resume {directory}`"
+            )
+        what = "this campaign" if other == name else f"campaign {other!r}"
         raise CampaignError(f"{directory} already holds {what}; continue it with `labrunner resume {directory}`")
     if directory.exists() and (not directory.is_dir() or any(not _ours(p) for p in directory.iterdir())):
         raise CampaignError(f"{directory} exists and is not an empty campaign directory; choose another --out")
@@ -131,12 +140,17 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     campaign = spec.load(file)
     points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
-    _check_new_directory(directory, campaign.name)
     if dry:
-        return None, dry_run(campaign, points, opts)
+        text = dry_run(campaign, points, opts)
+        try:
+            _check_new_directory(directory, campaign.name, checksum)
+        except CampaignError as exc:
+            text += f"\nnote: `labrunner run` would refuse: {exc}"
+        return None, text
+    _check_new_directory(directory, campaign.name, checksum)
     directory.mkdir(parents=True, exist_ok=True)
     with DirectoryLock(directory, "run") as lock:
-        _check_new_directory(directory, campaign.name)  # again, now that nobody else can create it
+        _check_new_directory(directory, campaign.name, checksum)  # again, now that nobody else can create it
         meta = {
             "campaign": campaign.name,
             "campaign_file": campaign.source,

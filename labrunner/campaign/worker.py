@@ -70,9 +70,12 @@ def final_path(point_id: str) -> str:
 
 
 def _load_rig(task: BatchTask):
+    """The rig and its validated rig file, whose JSON form every run log keeps as its ``rig`` record."""
     from labrunner.rigs import registry
+    from labrunner.rigs.config import load_rig_config
 
-    return registry.load_rig(task.rig, search=task.rig_search)
+    config = load_rig_config(task.rig, search=task.rig_search)
+    return registry.load_rig(config), config.to_dict()
 
 
 def _fsync(path: Path) -> None:
@@ -83,7 +86,7 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
-def _metadata(task: BatchTask, run: RunTask, host: str) -> dict[str, dict[str, Any]]:
+def _metadata(task: BatchTask, run: RunTask, host: str, rig: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     return {
         "run": {
             "campaign": task.campaign,
@@ -98,6 +101,7 @@ def _metadata(task: BatchTask, run: RunTask, host: str) -> dict[str, dict[str, A
         },
         "config": dict(run.config),
         "parameters": dict(run.parameters),
+        "rig": dict(rig),  # kind, parameters, limits, noise, faults, safety as the rig file gave them
     }
 
 
@@ -117,7 +121,7 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     out = BatchResult()
     t0 = time.perf_counter()
     try:
-        rig = _load_rig(task)
+        rig, rig_record = _load_rig(task)
     except Exception as exc:  # no rig, no campaign: stop; nothing ran, so the points stay claimed for resume
         out.stop = f"rig {task.rig!r} cannot be opened: {type(exc).__name__}: {exc}"
         return out
@@ -137,13 +141,15 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
         return _failed(task, out, detail, host, pid)
     engine_s = (time.perf_counter() - t0) / max(len(task.runs), 1)
     try:
-        _publish_all(task, results, out, engine_s, host, pid)
+        _publish_all(task, results, out, engine_s, host, pid, rig_record)
     except Exception as exc:  # re-raised as a plain, picklable error: the parent stops the campaign
         raise CampaignError(f"publishing the logs of batch {task.runs[0].point_id}… failed: {type(exc).__name__}: {exc}") from None
     return out
 
 
-def _publish_all(task: BatchTask, results: list[Any], out: BatchResult, engine_s: float, host: str, pid: int) -> None:
+def _publish_all(
+    task: BatchTask, results: list[Any], out: BatchResult, engine_s: float, host: str, pid: int, rig: Mapping[str, Any]
+) -> None:
     """Write every log under a temporary name, fsync them concurrently (one journal flush for many
     files instead of one each), rename them into place, fsync the directory once."""
     from labrunner.logs import write_run
@@ -156,7 +162,7 @@ def _publish_all(task: BatchTask, results: list[Any], out: BatchResult, engine_s
             result, results[i] = results[i], None  # free each run's signals as soon as it is written
             t1 = time.perf_counter()
             tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{secrets.token_hex(4)}.mcap"
-            metadata = _metadata(task, run, host)
+            metadata = _metadata(task, run, host, rig)
             metadata["metrics"] = dict(result.metrics)
             outcome = result.outcome.as_dict()
             write_run(tmp, metadata=metadata, fs=task.fs, signals=result.signals, outcome=outcome,

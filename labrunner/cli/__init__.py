@@ -5,20 +5,23 @@ Each sub-command lives in its own module below ``labrunner.cli`` and exposes
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
 Errors: :class:`~labrunner.errors.InvalidParameter` → one line on stderr, exit 2;
-any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1.
+any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1. A reader that closes the
+pipe early (``labrunner analyse DIR --json | head``) ends the command quietly, as in other tools.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import select
 import sys
 from collections.abc import Sequence
 
 from labrunner import __version__
 from labrunner.errors import InvalidParameter, LabrunnerError
 
-# Sub-command modules, in the order ``--help`` lists them. A module that is not there yet is skipped.
+# Sub-command modules, in the order ``--help`` lists them.
 COMMANDS = (
     "run",
     "resume",
@@ -50,13 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"labrunner {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"labrunner.cli.{name}_cmd")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"labrunner.cli.{name}_cmd":
-                continue
-            raise
-        module.register(sub)
+        importlib.import_module(f"labrunner.cli.{name}_cmd").register(sub)
     return parser
 
 
@@ -67,7 +64,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit
+        return code
     except InvalidParameter as exc:
         print(f"labrunner {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -77,6 +76,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"labrunner {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        if not _reader_gone(sys.stdout):
+            raise  # some other pipe broke: a real error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no flush error at exit either
+        return 141  # 128 + SIGPIPE, what a shell reports for a command killed by it
+
+
+def _reader_gone(stream) -> bool:
+    """Whether ``stream`` is a pipe whose reading end is closed (poll reports an error on it)."""
+    try:
+        fd = stream.fileno()
+    except (AttributeError, OSError, ValueError):  # not a file (e.g. captured in tests)
+        return False
+    poller = select.poll()
+    poller.register(fd, select.POLLOUT)
+    return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
 
 
 if __name__ == "__main__":  # pragma: no cover

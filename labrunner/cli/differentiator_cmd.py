@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from labrunner.cli.argtypes import numeric
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -15,14 +17,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "print its realised window, delays, cutoff and normalised FIR weights (newest sample first)."
         ),
     )
-    p.add_argument("--alpha", type=float, required=True, help="weight exponent alpha > -1 (alpha > n - 1)")
-    p.add_argument("--beta", type=float, required=True, help="weight exponent beta > -1 (beta > n - 1)")
-    p.add_argument("--N", type=int, default=0, help="truncation order N >= 0 of the Jacobi expansion (default 0)")
-    p.add_argument("--theta", type=float, help="theta in [-1, 1] for N > 0 (default: largest root of P_{N+1})")
-    p.add_argument("--omega-c", type=float, dest="omega_c", help="desired cutoff frequency [rad/s]")
-    p.add_argument("--window", type=float, help="filter window length T [s]")
-    p.add_argument("--fs", type=float, required=True, help="sampling frequency [Hz]")
-    p.add_argument("--order", type=int, default=1, help="derivative order n of the weights (default 1)")
+    p.add_argument("--alpha", type=numeric(float, "> -1"), required=True, help="weight exponent alpha > -1 (alpha > n - 1)")
+    p.add_argument("--beta", type=numeric(float, "> -1"), required=True, help="weight exponent beta > -1 (beta > n - 1)")
+    p.add_argument("--N", type=numeric(int, ">= 0"), default=0, help="truncation order N >= 0 of the Jacobi expansion (default 0)")
+    p.add_argument("--theta", type=numeric(float, "in [-1, 1]"), help="theta in [-1, 1] for N > 0 (default: largest root of P_{N+1})")
+    p.add_argument("--omega-c", type=numeric(float, "> 0"), dest="omega_c", help="desired cutoff frequency [rad/s]")
+    p.add_argument("--window", type=numeric(float, "> 0"), help="filter window length T [s]")
+    p.add_argument("--fs", type=numeric(float, "> 0"), required=True, help="sampling frequency [Hz]")
+    p.add_argument("--order", type=numeric(int, ">= 0"), default=1, help="derivative order n of the weights (default 1)")
     p.add_argument(
         "--method", choices=("midpoint", "trapezoidal", "analytic"), default="midpoint",
         help="discretisation of the convolution integral (default midpoint)",

@@ -168,7 +168,9 @@ class PlateMFC(Controller):
             np.dot(t, self._V_T, out=u)
             return current_at(u, self._lam_h, out=u)
         np.negative(w, out=w)
-        if self.input == "current":  # (21): i = −(1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i)
+        # (21) with the sign of (17) and (19): i = (1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i); the printed
+        # extra leading minus would be positive feedback on ÿ = f_i − γ_i(y) i (20)
+        if self.input == "current":
             return self._over_actuated(np.divide(w, self._gamma_y, out=t))
         self._over_actuated(np.divide(w, self._gamma3, out=t))  # (17) or (19), then (18)
         return current_at(u, self._lam_h if self.input == "force" else self._h, out=u)  # (12), or i = √u·h (Sec. 3.2.3)

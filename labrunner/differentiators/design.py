@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from labrunner.differentiators.kernel import default_theta, kernel_u, log_cutoff_product
-from labrunner.errors import InvalidParameter, check_finite
+from labrunner.errors import InvalidParameter, check_finite, check_positive
 
 METHODS = ("midpoint", "trapezoidal", "analytic")
 MAX_SAMPLES = 2**24  # longest window [samples]; guards against windows that cannot be held in memory
@@ -59,7 +59,7 @@ class Differentiator:
 
     def check_order(self, order: int) -> int:
         """Return ``order`` or raise :class:`InvalidParameter` if this design cannot estimate it."""
-        if isinstance(order, bool) or not check_finite("order", order).is_integer() or order < 0:
+        if isinstance(order, bool) or not check_finite("order", order, "an integer >= 0").is_integer() or order < 0:
             raise InvalidParameter("order", f"must be an integer >= 0, got {order!r}")
         order = int(order)
         for name, value in (("alpha", self.alpha), ("beta", self.beta)):
@@ -129,13 +129,6 @@ def whole_samples(x: float) -> int:
     return int(nearest) if abs(x - nearest) <= _INTEGER_TOL else math.floor(x)
 
 
-def _positive(field_name: str, value: float) -> float:
-    v = check_finite(field_name, value)
-    if v <= 0.0:
-        raise InvalidParameter(field_name, f"must be > 0, got {value!r}")
-    return v
-
-
 def design(
     *,
     alpha: float,
@@ -153,13 +146,13 @@ def design(
     cutoff of that T by Othmane et al. (2022, eq. (31)). ϑ defaults to the largest root of
     P_{N+1}^{(α,β)} for N > 0 and must stay unset for N = 0. Raises :class:`InvalidParameter`.
     """
-    a = check_finite("alpha", alpha)
-    b = check_finite("beta", beta)
+    a = check_finite("alpha", alpha, "a finite number > -1")
+    b = check_finite("beta", beta, "a finite number > -1")
     for name, value in (("alpha", a), ("beta", b)):
         if value <= -1.0:
             raise InvalidParameter(name, f"must be > -1, got {value!r}")
-    f = _positive("fs", fs)
-    if isinstance(N, bool) or not float(check_finite("N", N)).is_integer() or N < 0:
+    f = check_positive("fs", fs)
+    if isinstance(N, bool) or not float(check_finite("N", N, "an integer >= 0")).is_integer() or N < 0:
         raise InvalidParameter("N", f"must be an integer >= 0, got {N!r}")
     n_poly = int(N)
     if method not in METHODS:
@@ -171,7 +164,7 @@ def design(
     elif theta is None:
         th = default_theta(a, b, n_poly)
     else:
-        th = check_finite("theta", theta)
+        th = check_finite("theta", theta, "in [-1, 1]")
         if not -1.0 <= th <= 1.0:
             raise InvalidParameter("theta", f"must be in [-1, 1], got {theta!r}")
     log_k = log_cutoff_product(a, b, n_poly, th)
@@ -182,7 +175,7 @@ def design(
         got = "both" if omega_c is not None else "neither"
         raise InvalidParameter("omega_c", f"give exactly one of omega_c [rad/s] and window [s], got {got}")
     field_name = "omega_c" if omega_c is not None else "window"
-    samples = k_c / _positive("omega_c", omega_c) * f if omega_c is not None else _positive("window", window) * f
+    samples = k_c / check_positive("omega_c", omega_c) * f if omega_c is not None else check_positive("window", window) * f
     n_min = max(2, math.ceil(k_c / math.pi))  # ω_c,actual = k_c·f_s/n_s ≤ π·f_s
     if samples > MAX_SAMPLES:
         limit = f">= {k_c * f / MAX_SAMPLES:.6g} rad/s" if omega_c is not None else f"<= {MAX_SAMPLES / f:.6g} s"

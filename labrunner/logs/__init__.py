@@ -2,7 +2,8 @@
 
 ``write_run`` writes a finished (simulated) run, ``RunLogWriter`` streams a run from a real rig,
 ``read_run`` reads one back (salvaging torn files), ``read_metadata`` / ``read_outcome`` read the
-records alone, fast enough for thousands of runs. Layout and schemas: :mod:`.writer`, :mod:`.schema`.
+records alone, fast enough for thousands of runs. Layout and schemas: :mod:`.writer`, :mod:`.schema`;
+the MCAP encoding itself: :mod:`.mcap_writer`.
 """
 
 from labrunner.logs.reader import RunLog, read_metadata, read_outcome, read_run

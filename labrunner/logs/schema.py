@@ -19,12 +19,14 @@ Both schemas are stored in the file as serialised ``FileDescriptorSet`` (MCAP sc
 ``protobuf``), built here from ``FileDescriptorProto`` objects, so no ``protoc`` step exists and
 any protobuf-aware MCAP tool decodes the messages. The hot paths (writing and reading blocks,
 writing preview samples) encode the wire format directly with numpy — a packed double field is
-the little-endian float64 array itself — which is ~50× faster than filling message objects;
-``tests/test_logs.py`` checks the bytes against the generated message classes.
+the little-endian float64 array itself, a preview sample a fixed-size row of tags and doubles —
+which is ~50× faster than filling message objects; ``tests/test_logs.py`` and
+``tests/test_logs_mcap.py`` check the bytes against the generated message classes.
 """
 
 from __future__ import annotations
 
+import functools
 import re
 import struct
 from collections.abc import Sequence
@@ -40,8 +42,9 @@ BLOCK_SCHEMA_NAME = "labrunner.logs.SignalBlock"
 PREVIEW_SCHEMA_NAME = "labrunner.logs.RunSample"
 BLOCK_SAMPLES = 1000  # samples per block message
 PREVIEW_MAX_HZ = 1000.0  # highest rate of the per-sample preview channel [Hz]
-# Default preview rate [Hz]: each preview sample is one MCAP message (~6 µs in mcap's writer), so
-# 500 Hz keeps a 3 s, 32 kHz run within its 30 ms write budget; a run at f_s ≤ 500 Hz is not thinned.
+# Default preview rate [Hz]: the preview repeats the blocks' data, so it is kept to what a plot of a
+# run needs (a sample of ten signals is a 130-byte message, < 1 µs to encode and compress with
+# the bulk writer); a run at f_s ≤ 500 Hz, such as the motor's at 200 Hz, is not thinned at all.
 PREVIEW_HZ = 500.0
 
 _F = descriptor_pb2.FieldDescriptorProto
@@ -159,20 +162,33 @@ def signal_prefixes(names: Sequence[str]) -> list[bytes]:
     return [b"\x0a" + varint(len(b)) + b for b in (n.encode() for n in names)]
 
 
-def encode_block(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> bytes:
-    """Wire bytes of a ``SignalBlock``; ``columns`` are float64 arrays of equal length.
+def block_parts(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> list[bytes | np.ndarray]:
+    """Wire bytes of a ``SignalBlock`` as pieces to concatenate; ``columns`` are float64 arrays
+    of equal length (``prefixes`` from :func:`signal_prefixes`).
 
-    A packed double field is the little-endian float64 array itself: the arrays are joined into
-    the message by their buffers, without an intermediate copy.
+    A packed double field is the little-endian float64 array itself, so the arrays are pieces as
+    they are: the message is first assembled when its chunk is, without an intermediate copy.
     """
     parts: list[bytes | np.ndarray] = [
-        b"\x08", varint(first_index), b"\x11", _DOUBLE.pack(first_index / fs), b"\x19", _DOUBLE.pack(fs)
+        b"\x08" + varint(first_index) + b"\x11" + _DOUBLE.pack(first_index / fs) + b"\x19" + _DOUBLE.pack(fs)
     ]
     for prefix, column in zip(prefixes, columns, strict=True):
         values = np.ascontiguousarray(column, dtype="<f8")
-        values_len = varint(values.nbytes)
-        parts += [b"\x22" + varint(len(prefix) + 1 + len(values_len) + values.nbytes) + prefix + b"\x12" + values_len, values]
-    return b"".join(parts)
+        parts += [_signal_header(prefix, values.nbytes), values]
+    return parts
+
+
+@functools.lru_cache(maxsize=256)
+def _signal_header(prefix: bytes, nbytes: int) -> bytes:
+    """``SignalBlock.signals`` tag and length, the ``Signal.name`` field, the ``values`` tag and
+    length: what precedes ``nbytes`` of packed doubles (the same for every full block)."""
+    values_len = varint(nbytes)
+    return b"\x22" + varint(len(prefix) + 1 + len(values_len) + nbytes) + prefix + b"\x12" + values_len
+
+
+def encode_block(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> bytes:
+    """Wire bytes of a ``SignalBlock`` (:func:`block_parts` joined)."""
+    return b"".join(block_parts(first_index, fs, prefixes, columns))
 
 
 def _doubles(buf: bytes | memoryview, wire: int, start: int, stop: int) -> np.ndarray:
@@ -216,8 +232,10 @@ def decode_block(buf: bytes | memoryview) -> tuple[int, float, dict[str, np.ndar
     return first_index, fs, signals
 
 
-def encode_preview(t: np.ndarray, columns: Sequence[np.ndarray]) -> list[bytes]:
-    """Wire bytes of one ``RunSample`` per element of ``t`` (vectorised: fixed-size records)."""
+def encode_preview(t: np.ndarray, columns: Sequence[np.ndarray]) -> np.ndarray:
+    """Wire bytes of one ``RunSample`` per element of ``t``: a (len(t), 9 · (1 + len(columns)))
+    uint8 array, row k the message of sample k (vectorised: every field is a 1-byte tag and a
+    little-endian double, zeros included, so all records have one size)."""
     fields = [("t", t), *((f"s{j}", c) for j, c in enumerate(columns))]
     tags = [varint((number << 3) | 1) for number in range(1, len(fields) + 1)]
     dtype = np.dtype(
@@ -227,5 +245,4 @@ def encode_preview(t: np.ndarray, columns: Sequence[np.ndarray]) -> list[bytes]:
     for (key, values), tag in zip(fields, tags):
         records[f"k_{key}"] = np.frombuffer(tag, dtype="u1")
         records[key] = values
-    raw, size = records.tobytes(), dtype.itemsize
-    return [raw[i : i + size] for i in range(0, len(raw), size)]
+    return records.view(np.uint8).reshape(len(t), dtype.itemsize)

@@ -1,11 +1,12 @@
 """Writing one run to one MCAP file: streaming (:class:`RunLogWriter`) or at once (:func:`write_run`).
 
-File layout, in order (zstd chunks, full MCAP indexes and summary):
+File layout, in order (zstd chunks, full MCAP indexes and summary; written by
+:class:`labrunner.logs.mcap_writer.BulkWriter`, which takes a block's preview samples at once):
 
 1. metadata ``run`` (caller's record plus ``fs`` [Hz] and ``labrunner_version``), ``config``
    (the resolved point), any further caller records, then ``channels`` (per signal: ``role``,
-   ``unit``); attachments (e.g. the campaign file); **flushed**, so even a file killed before its
-   first sample names its run;
+   ``unit``); attachments (e.g. the campaign file); the two schemas and channels; **flushed**, so
+   even a file killed before its first sample names its run and its topics;
 2. chunks of ``/run/blocks`` and ``/run/preview`` messages (see :mod:`labrunner.logs.schema`),
    flushed every ``flush_interval_s`` of wall time, so a killed writer leaves a file whose
    complete chunks :func:`labrunner.logs.read_run` salvages;
@@ -30,11 +31,11 @@ from typing import Any
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from labrunner import __version__
 from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
+from labrunner.logs.mcap_writer import BulkWriter
 
 ROLES = ("input", "output", "controlled", "reference", "error", "estimate", "signal")
 STATUSES = ("completed", "aborted", "no-motion", "failed")  # engine.RunResult.outcome["status"]
@@ -47,10 +48,10 @@ def infer_role(name: str) -> str:
     """Role of a signal from the engine's naming (``ref_<y>``, ``e_<y>``, ``<estimate>_<y>``)."""
     if name.startswith("ref_"):
         return "reference"
+    if "_hat" in name:  # before e_: ``e_hat_<y>`` is the filtered error, an estimate
+        return "estimate"
     if name.startswith("e_"):
         return "error"
-    if "_hat" in name:
-        return "estimate"
     return "signal"
 
 
@@ -157,19 +158,19 @@ class RunLogWriter:
         self._sequence = 0
         self._finished = False
         self._file = open(path, "wb")  # noqa: SIM115 - closed in finish()
-        self._mcap = Writer(self._file, compression=CompressionType.ZSTD)
-        self._mcap.start(library=f"labrunner/{__version__}; {LIBRARY_IDENTIFIER}")
+        self._mcap = BulkWriter(self._file)
+        self._mcap.start(library=f"labrunner/{__version__}")
         for name, record in records.items():
             self._mcap.add_metadata(name, record)
         for name, data in attached.items():
             media = _MEDIA_TYPES.get(Path(name).suffix, "application/octet-stream")
-            self._mcap.add_attachment(create_time=0, log_time=0, name=name, media_type=media, data=data)
-        block_schema = self._mcap.register_schema(schema.BLOCK_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.BLOCK_SCHEMA)
-        self._block_channel = self._mcap.register_channel(schema.BLOCK_TOPIC, MessageEncoding.Protobuf, block_schema)
-        preview_schema = self._mcap.register_schema(
+            self._mcap.add_attachment(name, media, data)
+        block_schema = self._mcap.add_schema(schema.BLOCK_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.BLOCK_SCHEMA)
+        self._block_channel = self._mcap.add_channel(schema.BLOCK_TOPIC, MessageEncoding.Protobuf, block_schema)
+        preview_schema = self._mcap.add_schema(
             schema.PREVIEW_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.preview_schema(self.names)
         )
-        self._preview_channel = self._mcap.register_channel(
+        self._preview_channel = self._mcap.add_channel(
             schema.PREVIEW_TOPIC, MessageEncoding.Protobuf, preview_schema,
             {"decimation": str(self.decimation), "rate_hz": repr(self.fs / self.decimation)},
         )
@@ -209,23 +210,24 @@ class RunLogWriter:
             raise InvalidParameter("first_index", f"must be >= {self.n_samples} (samples already written), got {first_index}")
         for start in range(0, n, schema.BLOCK_SAMPLES):
             k = first_index + start
-            stop = start + schema.BLOCK_SAMPLES
-            data = schema.encode_block(k, self.fs, self._prefixes, [c[start:stop] for c in columns])
-            self._add(self._block_channel, k, data)
+            parts = schema.block_parts(k, self.fs, self._prefixes, [c[start : start + schema.BLOCK_SAMPLES] for c in columns])
+            self._mcap.add_message(self._block_channel, self._log_time(k), self._sequence, parts)
+            self._sequence += 1
         keep = np.arange((-first_index) % self.decimation, n, self.decimation)
         if keep.size:
-            t = (first_index + keep) / self.fs
-            for k, data in zip((first_index + keep).tolist(), schema.encode_preview(t, [c[keep] for c in columns])):
-                self._add(self._preview_channel, k, data)
+            k = first_index + keep
+            rows = schema.encode_preview(k / self.fs, [c[keep] for c in columns])
+            sequences = np.arange(self._sequence, self._sequence + k.size)
+            self._mcap.add_messages(self._preview_channel, self._log_time(k), sequences, rows)
+            self._sequence += k.size
         self.n_samples = max(self.n_samples, first_index + n)
         if time.monotonic() - self._last_flush >= self.flush_interval_s:
             self._mcap.flush()
             self._last_flush = time.monotonic()
 
-    def _add(self, channel: int, k: int, data: bytes) -> None:
-        log_time = round(k * 1e9 / self.fs)  # [ns] since the run's first sample
-        self._mcap.add_message(channel, log_time=log_time, data=data, publish_time=log_time, sequence=self._sequence)
-        self._sequence += 1
+    def _log_time(self, k: int | np.ndarray) -> int | np.ndarray:
+        """Log time [ns since the run's first sample] of sample(s) ``k``: round(k · 10⁹ / f_s)."""
+        return round(k * 1e9 / self.fs) if isinstance(k, int) else np.rint(k * 1e9 / self.fs).astype(np.uint64)
 
     def finish(self, outcome: Mapping[str, Any]) -> None:
         """Write the outcome as the final metadata record, the summary and the footer; close."""

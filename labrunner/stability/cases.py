@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from labrunner.errors import InvalidParameter, check_finite
+from labrunner.errors import InvalidParameter, check_finite, check_positive
 from labrunner.stability import closed_forms as cf
 from labrunner.stability.quasipoly import QuasiPolynomial
 from labrunner.stability.scan import projected_intervals, stable_intervals
@@ -71,16 +71,16 @@ def resolve(case: str, *, gamma: float, delay: float, rho: float | None = None, 
     """Validate the parameters of ``case`` and resolve them to a :class:`Loop`."""
     if case not in CASES:
         raise InvalidParameter("case", f"must be one of {', '.join(CASES)}, got {case!r}")
-    gamma, delay = _positive("gamma", gamma), _positive("delay", delay)
+    gamma, delay = check_positive("gamma", gamma), check_positive("delay", delay)
     order = 1 if case.startswith("mfc1") else 2
     if case.endswith("ultralocal"):
-        gain = rho if rho is not None else b
-        if gain is None:
+        if rho is None and b is None:
             raise InvalidParameter("rho", f"is required for case {case} (or give b)")
-        return Loop(case, order, 0.0, 0.0, _positive("rho", gain) / gamma, delay)
-    b_val = _positive("b", _required("b", b, case))
+        gain = check_positive("rho", rho) if rho is not None else check_positive("b", b)
+        return Loop(case, order, 0.0, 0.0, gain / gamma, delay)
+    b_val = check_positive("b", _required("b", b, case))
     if case == "mfc2-second-order":
-        a0_val = check_finite("a0", _required("a0", a0, case))
+        a0_val = check_finite("a0", _required("a0", a0, case), "a finite number >= 0")
         if a0_val < 0:
             raise InvalidParameter("a0", f"must be >= 0 (thesis A.6), got {a0_val}")
         return Loop(case, 2, a0_val, check_finite("a1", _required("a1", a1, case)), b_val / gamma, delay)
@@ -91,13 +91,6 @@ def _required(field: str, value: float | None, case: str) -> float:
     if value is None:
         raise InvalidParameter(field, f"is required for case {case}")
     return value
-
-
-def _positive(field: str, value: float) -> float:
-    v = check_finite(field, value)
-    if v <= 0:
-        raise InvalidParameter(field, f"must be > 0, got {value!r}")
-    return v
 
 
 def _check_k_d(loop: Loop, k_d: float | None) -> float | None:

@@ -3,7 +3,8 @@
 The thesis (Sec. 3.4.1, 3.5.1) judges a run by the RMS value of its tracking error e and by the
 input energy E(u) = Σ_j |u[j]|² (thesis 3.5.1, after Oppenheim and Schafer); paper 2 also uses
 the RMS of the delayed, filtered error ê. These functions are pure: they take the logged signals
-as arrays and the names of the channels that play each role.
+as arrays and the names of the channels that play each role. The engine computes them for the
+ledger's summary as each run ends, and the analysis recomputes them from the logs, with one code.
 
 The engine ends an aborted run's signals at its abort sample, so the metrics of an aborted run
 cover the run up to the abort.

@@ -1,0 +1,26 @@
+"""argparse types whose errors name the allowed range, like every other bad input.
+
+argparse reports a failed conversion as "invalid float value: 'x'"; :func:`numeric` says what the
+option accepts instead ("argument --alpha: must be a number > -1, got 'x'"). The range itself is
+checked by the library, which raises :class:`~labrunner.errors.InvalidParameter`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+_KIND_NAMES = {float: "a number", int: "an integer"}
+
+
+def numeric(kind: type, allowed: str) -> Callable[[str], float | int]:
+    """argparse ``type`` converting to ``kind`` (float or int); ``allowed`` (e.g. ``"> 0"``)
+    completes the error "must be a number ...", resp. "must be an integer ..."."""
+
+    def parse(text: str) -> float | int:
+        try:
+            return kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {_KIND_NAMES[kind]} {allowed}, got {text!r}") from None
+
+    return parse

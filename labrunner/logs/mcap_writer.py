@@ -1,0 +1,285 @@
+"""A chunked, zstd-compressed MCAP writer that takes messages in bulk.
+
+Why not ``mcap.writer.Writer``: it builds each message record through about fifteen Python calls
+(≈ 6 µs a message), 6 ms for a 1000-sample motor run with its per-sample preview — twice what
+the engine needs to simulate the run. Here a batch of equal-sized messages becomes one numpy
+structured array (MCAP message header + payload per row) and its message index one more, so the
+cost per message is a few bytes copied.
+
+The file has the layout ``mcap``'s writer produces (MCAP spec v0): header; data section with
+metadata, attachments and chunks, each chunk followed by the message index of every channel in
+it, chunks with the CRC of their uncompressed records; data end; summary with the schemas and
+channels repeated, statistics, chunk, attachment and metadata indexes, summary offsets; footer
+with the summary CRC. One difference: schemas and channels go in the data section when they are
+added rather than inside the next chunk, so a file torn before its first chunk still declares its
+topics. The small records are written by ``mcap.records``' own classes.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from typing import BinaryIO
+
+import numpy as np
+import zstandard
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+from mcap.writer import MCAP0_MAGIC
+
+CHUNK_SIZE = 1 << 20  # uncompressed bytes of records per chunk (mcap's default)
+# zstd level 1: level 3 (zstd's and mcap's default) makes a 3 s, 32 kHz plate run's file < 1 %
+# and a motor run's 3 % smaller at 1.7× the compression time; negative levels give up entropy
+# coding of the float64 mantissas (files ~10 % larger) for 5× faster compression.
+ZSTD_LEVEL = 1
+_ZSTD = b"zstd"  # the chunks' compression, as MCAP names it
+_OUTPUT_PIECE = 1 << 16  # bytes of compressed output per piece (see _close_chunk)
+_MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log and publish time
+_MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")  # opcode, record length, channel, index byte length
+_CHUNK_HEADER = struct.Struct("<BQQQQI")  # opcode, record length, start and end time, size, CRC
+_FOOTER_PREFIX = struct.Struct("<BQQQ")  # opcode, record length, summary start, summary offset start
+_INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
+
+
+def message_records(channel_id: int, log_times: np.ndarray, sequences: np.ndarray, payloads: np.ndarray) -> np.ndarray:
+    """MCAP message records, one row each, for ``payloads`` (n, size) uint8 of equal size.
+
+    Row layout: opcode 0x05, record length (u64), channel id (u16), sequence (u32), log time and
+    publish time (u64, ns; publish time = log time), payload.
+    """
+    n, size = payloads.shape
+    dtype = np.dtype(
+        {
+            "names": ["opcode", "length", "channel", "sequence", "log_time", "publish_time", "data"],
+            "formats": ["u1", "<u8", "<u2", "<u4", "<u8", "<u8", ("u1", (size,))],
+            "offsets": [0, 1, 9, 11, 15, 23, _MESSAGE_HEADER.size],
+            "itemsize": _MESSAGE_HEADER.size + size,
+        }
+    )
+    records = np.empty(n, dtype=dtype)
+    records["opcode"] = Opcode.MESSAGE
+    records["length"] = _MESSAGE_HEADER.size - 9 + size
+    records["channel"] = channel_id
+    records["sequence"] = sequences
+    records["log_time"] = log_times
+    records["publish_time"] = log_times
+    records["data"] = payloads
+    return records
+
+
+class BulkWriter:
+    """Write one MCAP file to ``stream`` (opened for binary writing; not closed here).
+
+    Call :meth:`start`, then in any order :meth:`add_schema`, :meth:`add_channel`,
+    :meth:`add_metadata`, :meth:`add_attachment`, :meth:`add_message`, :meth:`add_messages` and
+    :meth:`flush`, then :meth:`finish`; records land in the file in call order. A chunk is closed
+    when its records pass ``chunk_size`` bytes, before a metadata record or an attachment, and at
+    every flush.
+    """
+
+    def __init__(self, stream: BinaryIO, *, chunk_size: int = CHUNK_SIZE, level: int = ZSTD_LEVEL) -> None:
+        self._stream = stream
+        self._chunk_size = chunk_size
+        self._compressor = zstandard.ZstdCompressor(level=level)
+        self._offset = 0  # bytes written to the stream
+        self._schemas: list[Schema] = []
+        self._channels: list[Channel] = []
+        self._chunk_indexes: list[ChunkIndex] = []
+        self._attachment_indexes: list[AttachmentIndex] = []
+        self._metadata_indexes: list[MetadataIndex] = []
+        self._counts: dict[int, int] = defaultdict(int)  # messages per channel
+        self._first_time: int | None = None
+        self._last_time = 0
+        self._reset_chunk()
+
+    def _reset_chunk(self) -> None:
+        self._pieces: list[bytes | np.ndarray] = []
+        self._size = 0
+        self._index: dict[int, list[np.ndarray]] = {}
+        self._chunk_times: tuple[int, int] | None = None
+
+    def _write(self, data: bytes | memoryview) -> None:
+        self._stream.write(data)
+        self._offset += len(data)
+
+    def _write_record(self, record: McapRecord) -> int:
+        """Write one small record with ``mcap``'s own encoder; return its length in bytes."""
+        builder = RecordBuilder()
+        record.write(builder)
+        data = builder.end()
+        self._write(data)
+        return len(data)
+
+    def start(self, library: str, profile: str = "") -> None:
+        """Magic and header record (``library`` names the writer)."""
+        self._write(MCAP0_MAGIC)
+        self._write_record(Header(profile=profile, library=library))
+
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """Register a schema (ids from 1); return its id."""
+        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+        self._schemas.append(schema)
+        self._write_record(schema)
+        return schema.id
+
+    def add_channel(self, topic: str, message_encoding: str, schema_id: int, metadata: Mapping[str, str] | None = None) -> int:
+        """Register a channel (ids from 1); return its id."""
+        channel = Channel(
+            id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
+            schema_id=schema_id, metadata=dict(metadata or {}),
+        )
+        self._channels.append(channel)
+        self._write_record(channel)
+        return channel.id
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """A metadata record, after everything added so far (the open chunk is closed first)."""
+        self._close_chunk()
+        offset = self._offset
+        length = self._write_record(Metadata(name=name, metadata=dict(data)))
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
+
+    def add_attachment(self, name: str, media_type: str, data: bytes, *, log_time: int = 0, create_time: int = 0) -> None:
+        """An attachment record (times in ns), after everything added so far."""
+        self._close_chunk()
+        offset = self._offset
+        record = Attachment(create_time=create_time, log_time=log_time, name=name, media_type=media_type, data=data)
+        length = self._write_record(record)
+        self._attachment_indexes.append(
+            AttachmentIndex(
+                offset=offset, length=length, create_time=create_time, log_time=log_time,
+                data_size=len(data), name=name, media_type=media_type,
+            )
+        )
+
+    def add_message(self, channel_id: int, log_time: int, sequence: int, parts: Sequence[bytes | np.ndarray]) -> None:
+        """Append one message whose payload is ``parts`` concatenated (bytes-like pieces, joined
+        only when the chunk is written); ``log_time`` [ns]."""
+        length = _MESSAGE_HEADER.size - 9 + sum(memoryview(p).nbytes for p in parts)
+        header = _MESSAGE_HEADER.pack(Opcode.MESSAGE, length, channel_id, sequence, log_time, log_time)
+        self._append(channel_id, np.array([log_time], dtype=np.uint64), np.array([self._size], dtype=np.uint64), [header, *parts])
+
+    def add_messages(self, channel_id: int, log_times: np.ndarray, sequences: np.ndarray, payloads: np.ndarray) -> None:
+        """Append messages of one channel with equal-sized payloads, a (n, size) uint8 array
+        (vectorised: one structured array of records); ``log_times`` [ns]."""
+        log_times = np.asarray(log_times, dtype=np.uint64)
+        records = message_records(channel_id, log_times, np.asarray(sequences, dtype=np.uint32), payloads)
+        size = records.dtype.itemsize
+        start = 0
+        while start < len(records):  # split where the open chunk fills up
+            stop = min(len(records), start + max(1, -(-(self._chunk_size - self._size) // size)))
+            offsets = self._size + size * np.arange(stop - start, dtype=np.uint64)
+            self._append(channel_id, log_times[start:stop], offsets, [records[start:stop].view(np.uint8)])
+            start = stop
+
+    def _append(self, channel_id: int, log_times: np.ndarray, offsets: np.ndarray, pieces: list) -> None:
+        """Add records (``pieces``, in order) of one channel's messages at ``offsets`` in the open
+        chunk; close the chunk once full."""
+        entries = np.empty(len(offsets), dtype=_INDEX_ENTRY)
+        entries["log_time"], entries["offset"] = log_times, offsets
+        self._index.setdefault(channel_id, []).append(entries)
+        self._pieces += pieces
+        self._size += sum(memoryview(p).nbytes for p in pieces)
+        lo, hi = int(np.min(entries["log_time"])), int(np.max(entries["log_time"]))
+        self._chunk_times = (lo, hi) if self._chunk_times is None else (min(lo, self._chunk_times[0]), max(hi, self._chunk_times[1]))
+        self._counts[channel_id] += len(entries)
+        if self._size >= self._chunk_size:
+            self._close_chunk()
+
+    def _close_chunk(self) -> None:
+        """Write the open chunk (zstd) and its message indexes; no-op when it holds no message."""
+        if self._chunk_times is None:
+            return
+        # The pieces are compressed and check-summed as they are, never joined, and the output
+        # comes in small pieces: fresh memory costs a page fault per 4 KiB (≈ 2 µs measured), which for
+        # the joined records and one compressed buffer would be a fifth of the write time.
+        chunker = self._compressor.chunker(size=self._size, chunk_size=_OUTPUT_PIECE)
+        compressed, crc = [], 0
+        for piece in self._pieces:
+            crc = zlib.crc32(piece, crc)
+            compressed += chunker.compress(piece)
+        compressed += chunker.finish()
+        compressed_size = sum(len(c) for c in compressed)
+        start_time, end_time = self._chunk_times
+        tail = struct.pack("<I", len(_ZSTD)) + _ZSTD + struct.pack("<Q", compressed_size)  # compression, records length
+        length = _CHUNK_HEADER.size - 9 + len(tail) + compressed_size
+        chunk_start = self._offset
+        self._write(_CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, self._size, crc) + tail)
+        for piece in compressed:
+            self._write(piece)
+        chunk_length = self._offset - chunk_start
+        offsets = {}
+        for channel_id, parts in self._index.items():
+            entries = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            offsets[channel_id] = self._offset
+            self._write(_MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes, channel_id, entries.nbytes))
+            self._write(memoryview(entries).cast("B"))
+        self._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=start_time, message_end_time=end_time, chunk_start_offset=chunk_start,
+                chunk_length=chunk_length, message_index_offsets=offsets,
+                message_index_length=self._offset - chunk_start - chunk_length, compression="zstd",
+                compressed_size=compressed_size, uncompressed_size=self._size,
+            )
+        )
+        self._first_time = start_time if self._first_time is None else min(self._first_time, start_time)
+        self._last_time = max(self._last_time, end_time)
+        self._reset_chunk()
+
+    def flush(self) -> None:
+        """Close the open chunk and flush the stream (no fsync): what was added survives a kill."""
+        self._close_chunk()
+        self._stream.flush()
+
+    def finish(self) -> None:
+        """Close the open chunk; write data end, summary, footer and closing magic; flush."""
+        self._close_chunk()
+        self._write_record(DataEnd(data_section_crc=0))
+        summary_start = self._offset
+        builder = RecordBuilder()
+        offsets = []
+        statistics = Statistics(
+            message_count=sum(self._counts.values()), schema_count=len(self._schemas),
+            channel_count=len(self._channels), attachment_count=len(self._attachment_indexes),
+            metadata_count=len(self._metadata_indexes), chunk_count=len(self._chunk_indexes),
+            message_start_time=self._first_time or 0, message_end_time=self._last_time,
+            channel_message_counts=dict(self._counts),
+        )
+        groups = [
+            (Opcode.SCHEMA, self._schemas), (Opcode.CHANNEL, self._channels), (Opcode.STATISTICS, [statistics]),
+            (Opcode.CHUNK_INDEX, self._chunk_indexes), (Opcode.ATTACHMENT_INDEX, self._attachment_indexes),
+            (Opcode.METADATA_INDEX, self._metadata_indexes),
+        ]
+        for opcode, records in groups:
+            if records:
+                group_start = builder.count
+                for record in records:
+                    record.write(builder)
+                offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + group_start,
+                                             group_length=builder.count - group_start))
+        summary_offset_start = summary_start + builder.count
+        for offset in offsets:
+            offset.write(builder)
+        summary = builder.end()
+        crc = zlib.crc32(_FOOTER_PREFIX.pack(Opcode.FOOTER, 20, summary_start, summary_offset_start), zlib.crc32(summary))
+        self._write(summary)
+        self._write_record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
+        self._write(MCAP0_MAGIC)
+        self._stream.flush()
