@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from labrunner._ufunc import clip
 from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry
 from labrunner.rigs.base import RigInfo, Signal
@@ -226,9 +227,7 @@ class PlateTwin(SimRig):
         )
         if self._contact:
             pen = b["pen"]
-            np.maximum(gaps, self._top, out=pen)
-            np.minimum(pen, self._screw, out=pen)
-            np.subtract(gaps, pen, out=pen)
+            np.subtract(gaps, clip(gaps, self._top, self._screw, out=pen), out=pen)
             np.sign(pen, out=b["sign"])
             np.multiply(self._k_c, pen, out=b["kpen"])
         # gravity minus the mode's spring: gravity acts on z only, the spring on q only, so
