@@ -74,6 +74,7 @@ class MFCEstimator:
         self._m = np.array(np.broadcast_to(m[:, None], (B, C)), dtype=float)
         self._not_m = 1.0 - self._m
         self.gamma = np.array(np.broadcast_to(np.reshape(gamma, (B, -1)) if np.ndim(gamma) else gamma, (B, C)), dtype=float)
+        self._unit_gamma = bool(np.all(self.gamma == 1.0))
         # tap vectors per run: y (shifted by ε), e (one per filter), v
         taps = [
             [np.concatenate([[0.0], d.weights(order)]), *(d.weights(k) for k in range(order)), d.weights(0)]
@@ -87,6 +88,7 @@ class MFCEstimator:
         self.de_hat = self._out_e[1] if filtered and order == 2 else np.zeros((B, C))
         self.f_hat = np.zeros((B, C))
         self._tmp = np.zeros((B, C))
+        self._e_pairs = list(zip(range(order), self._out_e, (self.e_hat, self.de_hat)))  # (derivative, filtered, estimate)
         self._shared = B * C >= SHARED_MIN_ROWS and all(d == designs[0] for d in designs)
         if self._shared:
             self._init_shared(taps[0])
@@ -164,13 +166,15 @@ class MFCEstimator:
         else:
             taps, block, target = products[0]
             np.einsum("lb,lb->b", taps, block, out=target)
-        np.multiply(self.gamma, self._out_v, out=tmp)
-        np.subtract(self._out_y, tmp, out=self.f_hat)
-        if mode == "error":
-            return
-        for k, (o, est) in enumerate(zip(self._out_e, (self.e_hat, self.de_hat))):
-            if mode == "output":
+        if self._unit_gamma:  # 1·x is x: one ufunc fewer (paper 2's γ_v = 1)
+            np.subtract(self._out_y, self._out_v, out=self.f_hat)
+        else:
+            np.multiply(self.gamma, self._out_v, out=tmp)
+            np.subtract(self._out_y, tmp, out=self.f_hat)
+        if mode == "output":
+            for k, o, est in self._e_pairs:
                 np.subtract(o, r[:, :, k], out=est)
-            else:
+        elif mode == "mixed":
+            for k, o, est in self._e_pairs:
                 np.multiply(self._not_m, r[:, :, k], out=tmp)
                 np.subtract(o, tmp, out=est)

@@ -98,6 +98,7 @@ class PlateMFC(Controller):
         # per-tick buffers; gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
         full = lambda a: np.array(np.broadcast_to(a, (B, 3)))  # noqa: E731
         self._k_p3, self._k_d3, self._gamma3 = full(self.k_p), full(self.k_d), full(self.gamma)
+        self._unit_gamma = bool(np.all(self.gamma == 1.0))
         self._P_inv_B_T = self.geometry.P_inv_B.T
         self._V_T = self.geometry.V.T
         self._K_T = self.geometry.K.T
@@ -163,9 +164,8 @@ class PlateMFC(Controller):
         np.subtract(w, t, out=w)
         np.subtract(w, est.f_hat, out=w)
         self._measured(y)
-        if self.input == "v":  # (14), then (11) and (12)
-            np.divide(w, self._gamma3, out=t)
-            np.dot(t, self._V_T, out=u)
+        if self.input == "v":  # (14), then (11) and (12); x/1 is x (paper 2's γ_v = 1)
+            np.dot(w if self._unit_gamma else np.divide(w, self._gamma3, out=t), self._V_T, out=u)
             return current_at(u, self._lam_h, out=u)
         np.negative(w, out=w)
         # (21) with the sign of (17) and (19): i = (1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i); the printed
