@@ -121,40 +121,44 @@ def run_batch(
     monitor = SafetyMonitor(configs, rig.info, fs)
 
     n_in, n_meas, n_out = len(rig.info.inputs), len(rig.info.outputs), controller.n_outputs
-    u_log = np.full((K, B, n_in), np.nan)
-    y_log = np.full((K, B, n_meas), np.nan)
-    c_log = np.full((K, B, n_out), np.nan)
-    r_log = np.full((K, B, n_out), np.nan)
+    # Rows are read only up to each run's end, so they need no fill; a failure blanks the rest.
+    u_log = np.empty((K, B, n_in))
+    y_log = np.empty((K, B, n_meas))
+    c_log = np.empty((K, B, n_out))
+    r_log = np.empty((K, B, n_out))
     est_log: dict[str, np.ndarray] = {}
     end = np.full(B, K)  # samples recorded per run
     active = np.ones(B, dtype=bool)
     failure = ""
-    k = 0
+    k = logged = 0  # logged: ticks whose row is complete in every log
 
     try:
         y = rig.reset(B, seeds, fs, overrides)
         controller.reset(y)
         monitor.reset(rig.applied_input)
+        est_log = {name: np.empty((K,) + np.shape(value)) for name, value in controller.estimates.items()}
         r_chunk = np.empty(0)
+        finished = False  # every run has ended
         for k in range(K):
             if k % _CHUNK == 0:
                 r_chunk = reference.evaluate(np.arange(k, min(k + _CHUNK, K)) / fs)
+                r_log[k : k + len(r_chunk)] = r_chunk[..., 0]
             r = r_chunk[k % _CHUNK]
             u = controller.step(y, r)
             tripped = monitor.check(k, u, y, active)
-            if tripped.any():
+            if np.count_nonzero(tripped):
                 rig.safe_state(tripped)
                 end[tripped] = k + 1
                 active &= ~tripped
-            u_log[k], y_log[k], r_log[k, :, :] = u, y, r[:, :, 0]
+                finished = not np.count_nonzero(active)
+            u_log[k], y_log[k] = u, y
             c_log[k] = controller.controlled
             for name, value in controller.estimates.items():
-                if name not in est_log:
-                    est_log[name] = np.full((K,) + np.shape(value), np.nan)
                 est_log[name][k] = value
+            logged = k + 1
             if sink is not None and (k + 1) % _CHUNK == 0:
                 _stream(sink, k + 1 - _CHUNK, k + 1, rig, controller, u_log, y_log, c_log, r_log, est_log)
-            if not active.any():
+            if finished:
                 break
             y = rig.step(u)
     except LabrunnerError:
@@ -163,6 +167,8 @@ def run_batch(
     except Exception as exc:  # a crash of the controller, the rig or the twin: fail the open runs
         rig.safe_state()
         failure = f"{type(exc).__name__}: {exc}"
+        for log in (u_log, y_log, c_log, r_log, *est_log.values()):
+            log[logged:] = np.nan  # the failing tick's row may be partly written
         end = np.where(active, np.minimum(end, k + 1), end)
     else:
         rig.safe_state()

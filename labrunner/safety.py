@@ -151,6 +151,8 @@ class SafetyMonitor:
         self._rate_abs = np.zeros(self.B * self.n_inputs)
         self._rate_hit = np.zeros(self.B * self.n_inputs, dtype=bool)
         self._next_time_limit = float(self._max_t.min())  # the earliest run-time limit of a run not yet tripped
+        self._none = np.zeros(self.B, dtype=bool)  # what a tick without a trip returns (read-only)
+        self._none.flags.writeable = False
 
     @staticmethod
     def _bounds(configs: Sequence[SafetyConfig], signals: Sequence, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -177,23 +179,22 @@ class SafetyMonitor:
         runs that trip (which monitor, value, threshold).
         """
         t = k / self.fs
-        everyone = np.count_nonzero(active) == self.B  # count_nonzero: cheaper than all() per tick
         u_off = self._off(0, u)
-        u_odd = np.count_nonzero(u_off) > 0
-        u_flagged = u_odd and self._active_hit(u_off, active, everyone)
+        u_odd = np.count_nonzero(u_off) > 0  # count_nonzero: cheaper than any() per tick
+        u_flagged = u_odd and self._active_hit(u_off, active)
         rate = None
         if self._rate is not None:
             # the estimator sees non-finite inputs as 0 (a NaN would stay in its window for good)
             x = np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0) if u_odd else u
             rate = np.abs(self._rate.step(np.reshape(x, -1)), out=self._rate_abs)
             hit = np.greater_equal(rate, self._lim, out=self._rate_hit)
-            rate_flagged = np.count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active, everyone)
+            rate_flagged = np.count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active)
         else:
             rate_flagged = False
         if not (u_flagged or rate_flagged or t >= self._next_time_limit):
             y_off = self._off(1, y)
-            if not (np.count_nonzero(y_off) > 0 and self._active_hit(y_off, active, everyone)):
-                return np.zeros(self.B, dtype=bool)
+            if not (np.count_nonzero(y_off) > 0 and self._active_hit(y_off, active)):
+                return self._none
         tripped = self._verdicts(t, u, y, active, None if rate is None else rate.reshape(self.B, self.n_inputs))
         open_runs = [i for i, v in enumerate(self.verdicts) if v is None]
         self._next_time_limit = float(self._max_t[open_runs].min()) if open_runs else np.inf
@@ -204,10 +205,9 @@ class SafetyMonitor:
         lo, hi, clipped, off = self._screens[which]
         return np.not_equal(clip(x, lo, hi, out=clipped), x, out=off)  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
 
-    @staticmethod
-    def _active_hit(hit: np.ndarray, active: np.ndarray, everyone: bool) -> bool:
+    def _active_hit(self, hit: np.ndarray, active: np.ndarray) -> bool:
         """Whether ``hit`` (B, n), known to hold some True, holds one for an active run."""
-        return everyone or np.count_nonzero(hit & active[:, None]) > 0
+        return np.count_nonzero(active) == self.B or np.count_nonzero(hit & active[:, None]) > 0
 
     def _verdicts(self, t: float, u: np.ndarray, y: np.ndarray, active: np.ndarray, rate: np.ndarray | None) -> np.ndarray:
         """Every monitor by itself on a flagged tick: the active runs that trip now, with their verdicts."""
