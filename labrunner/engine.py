@@ -74,6 +74,11 @@ def _channel_names(rig: Rig, controller, estimates: Mapping[str, np.ndarray]) ->
     for o, unit in zip(outputs, controller.output_units):
         units[o] = unit or units.get(o, "")
         units[f"ref_{o}"] = units[f"e_{o}"] = units[o]
+    for name in est_names:
+        estimate, _, o = name.rpartition("_")
+        if o in outputs and estimate in ("e_hat", "de_hat", "f_hat") and controller.model_order:
+            per_s = {"e_hat": 0, "de_hat": 1, "f_hat": controller.model_order}[estimate]
+            units[name] = per_second(units[o], per_s)
     return {
         "outputs": measured,
         "controlled": [o for o in outputs if o not in measured],  # a measured one keeps role "output"
@@ -83,6 +88,21 @@ def _channel_names(rig: Rig, controller, estimates: Mapping[str, np.ndarray]) ->
         "estimates": est_names,
         "units": units,
     }
+
+
+_SUPERSCRIPT = {2: "²", 3: "³", 4: "⁴"}
+
+
+def per_second(unit: str, n: int) -> str:
+    """The unit of the n-th time derivative of a signal in ``unit``: ``per_second("rad/s", 1)`` is "rad/s²"."""
+    if n == 0 or not unit:
+        return unit
+    base, m = unit, 0
+    for power, suffix in ((1, "/s"), *((p, f"/s{sup}") for p, sup in _SUPERSCRIPT.items())):
+        if unit.endswith(suffix):
+            base, m = unit[: -len(suffix)], power
+    total = m + n
+    return f"{base}/s{_SUPERSCRIPT.get(total, '' if total == 1 else f'^{total}')}"
 
 
 def _motion(config: SafetyConfig, rig: Rig, y: np.ndarray) -> bool:

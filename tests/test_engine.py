@@ -87,6 +87,25 @@ def test_channels_have_log_roles_and_si_units(thesis_points):
     assert {"f_hat_omega", "e_hat_omega"} <= set(ch["estimates"])
     assert ch["units"]["theta"] == "rad" and ch["units"]["omega"] == "rad/s" and ch["units"]["u"] == "V"
     assert ch["units"]["e_omega"] == ch["units"]["ref_omega"] == "rad/s"
+    # first-order model Ω̇ = f + γu: f̂ is an angular acceleration, ê an angular velocity
+    assert ch["units"]["f_hat_omega"] == "rad/s²" and ch["units"]["e_hat_omega"] == "rad/s"
+
+
+@pytest.mark.parametrize(("unit", "n", "expected"), [
+    ("rad", 2, "rad/s²"), ("rad/s", 1, "rad/s²"), ("m/s²", 1, "m/s³"), ("m", 0, "m"), ("l/min", 1, "l/min/s"), ("", 2, ""),
+])
+def test_per_second_is_the_unit_of_a_time_derivative(unit, n, expected):
+    assert engine.per_second(unit, n) == expected
+
+
+def test_plate_estimates_carry_second_order_units():
+    campaign = spec.load(ROOT / "campaigns" / "plate-alpha-omegac.toml", root=ROOT)
+    points, _ = spec.plan(campaign)
+    p = campaign.resolve(points[0].parameters)
+    with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as r:
+        (result,) = engine.run_batch([p], r, fs=campaign.fs, duration=0.01, seeds=[0], rig_safety=campaign.rig_safety)
+    units = result.channels["units"]
+    assert units["y1"] == "m" and units["f_hat_y1"] == "m/s²" and units["de_hat_y1"] == "m/s" and units["e_hat_y1"] == "m"
 
 
 def test_sink_streams_run_zero_in_blocks(thesis_points):
@@ -115,6 +134,7 @@ def test_a_crash_mid_run_fails_the_open_runs_and_leaves_the_rig_safe(monkeypatch
     assert [r.outcome.status for r in results] == ["failed", "failed"]
     assert "RuntimeError: encoder lost" in results[0].outcome.message
     assert results[0].n_samples == 100
+    assert np.isfinite(results[0].signals["u"]).all()  # the crash came after tick 99 was logged
     assert safe and safe[-1] is None  # the whole batch sent to its safe state
     np.testing.assert_array_equal(rig.applied_input, 0.0)
 

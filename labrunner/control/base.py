@@ -29,6 +29,10 @@ class Controller(abc.ABC):
     the next tick, so copy them to keep them.
     """
 
+    #: order n of the ultra-local model y⁽ⁿ⁾ = f + γu behind :attr:`estimates` (f̂ is in the
+    #: output's unit per sⁿ); None for laws without one (open loop, feed-forward)
+    model_order: int | None = None
+
     def __init__(
         self,
         output_names: Sequence[str],

@@ -112,7 +112,7 @@ class MFC(Controller):
         if self.n_inputs != 1:
             raise InvalidParameter("controller.kind", "MFC here is single-input; use a plate kind for the plate")
         B = self.batch
-        self.order, self.output = order, output
+        self.model_order, self.output = order, output
         self.fs = designs[0].fs
         self.gamma = np.array(gamma, dtype=float).reshape(B, 1)
         self.k_p = np.array(k_p, dtype=float).reshape(B, 1)
@@ -152,7 +152,7 @@ class MFC(Controller):
         else:
             c[...] = y_out
         est.step(c, self.u_applied, r)
-        np.subtract(r[:, :, self.order], est.f_hat, out=u)  # (y_r⁽ⁿ⁾ − f̂ − k_p ê − k_d ê̇)/γ
+        np.subtract(r[:, :, self.model_order], est.f_hat, out=u)  # (y_r⁽ⁿ⁾ − f̂ − k_p ê − k_d ê̇)/γ
         np.multiply(u, self._inv_gamma, out=u)
         np.multiply(self._kp_gamma, est.e_hat, out=tmp)
         np.subtract(u, tmp, out=u)

@@ -61,6 +61,8 @@ class PlateMFC(Controller):
     (the paper's safety routine keeps the gaps above 0.8 mm).
     """
 
+    model_order = 2  # ÿ_k = f_k + γ u_k (eq. (14))
+
     def __init__(
         self,
         designs: Sequence[Differentiator],

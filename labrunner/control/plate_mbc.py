@@ -112,6 +112,8 @@ class PlateMBC(Controller):
     ``e_hat`` = ŷ − y_r, ``de_hat`` = ŷ̇ − ẏ_r.
     """
 
+    model_order = 2  # f̂ = η̂ + g is an acceleration, as the MFC's f̂_v
+
     def __init__(
         self,
         designs: Sequence[MBCDesign],
