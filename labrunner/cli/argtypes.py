@@ -24,3 +24,14 @@ def numeric(kind: type, allowed: str) -> Callable[[str], float | int]:
             raise argparse.ArgumentTypeError(f"must be {_KIND_NAMES[kind]} {allowed}, got {text!r}") from None
 
     return parse
+
+
+_integer_from_1 = numeric(int, ">= 1")
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (a count of workers or runs)."""
+    value = _integer_from_1(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value

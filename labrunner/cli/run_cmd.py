@@ -5,18 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from labrunner.cli.argtypes import positive_int
 from labrunner.errors import CampaignError
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return value
 
 
 def add_execution_options(parser: argparse.ArgumentParser) -> None:
