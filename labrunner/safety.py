@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from labrunner._ufunc import clip
+from labrunner._ufunc import clip, count_nonzero
 from labrunner.differentiators import StreamingFIR, design, pad_taps
 from labrunner.errors import InvalidParameter, check_finite
 from labrunner.rigs.base import RigInfo
@@ -140,19 +140,22 @@ class SafetyMonitor:
         self._in_names = [s.name for s in rig_info.inputs]
         self._max_t = np.array([np.inf if c.max_duration is None else c.max_duration for c in configs])
         self.verdicts: list[Verdict | None] = [None] * self.B
-        # the per-tick screen: one clip per signal array catches bounds and non-finite values at once
-        # (finite values inside [lo, hi] are exactly those a clip to the finite part leaves unchanged)
+        # the per-tick screen of u and y side by side: one clip catches bounds and non-finite values
+        # at once (finite values inside [lo, hi] are exactly those a clip to the finite part leaves
+        # unchanged)
         big = np.finfo(float).max
-        self._screens = [
-            (np.maximum(lo, -big), np.minimum(hi, big), np.zeros(lo.shape), np.zeros(lo.shape, dtype=bool))
-            for lo, hi in ((self._in_lo, self._in_hi), (self._out_lo, self._out_hi))
-        ]
+        self._screen_lo = np.maximum(np.hstack([self._in_lo, self._out_lo]), -big)
+        self._screen_hi = np.minimum(np.hstack([self._in_hi, self._out_hi]), big)
+        self._uy = np.zeros(self._screen_lo.shape)  # u and y side by side, for callers without them so
+        self._clipped = np.zeros(self._screen_lo.shape)
+        self._off = np.zeros(self._screen_lo.shape, dtype=bool)
         self._lim = np.repeat(self._max_du_dt, self.n_inputs)  # per rate-estimator row
         self._rate_abs = np.zeros(self.B * self.n_inputs)
         self._rate_hit = np.zeros(self.B * self.n_inputs, dtype=bool)
         self._next_time_limit = float(self._max_t.min())  # the earliest run-time limit of a run not yet tripped
-        self._none = np.zeros(self.B, dtype=bool)  # what a tick without a trip returns (read-only)
-        self._none.flags.writeable = False
+        #: what :meth:`check` returns on a tick without a trip (read-only; callers may test identity)
+        self.no_trip = np.zeros(self.B, dtype=bool)
+        self.no_trip.flags.writeable = False
 
     @staticmethod
     def _bounds(configs: Sequence[SafetyConfig], signals: Sequence, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -171,43 +174,39 @@ class SafetyMonitor:
         self.verdicts = [None] * self.B
         self._next_time_limit = float(self._max_t.min())
 
-    def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray) -> np.ndarray:
+    def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray, uy: np.ndarray | None = None) -> np.ndarray:
         """Check tick ``k`` (commanded ``u`` (B, n_in), measured ``y`` (B, n_out)); return newly tripped (B,).
 
-        A screen of a few array operations clears the usual tick in which nothing trips; only a
-        tick the screen flags runs every monitor by itself and builds the verdicts of the active
-        runs that trip (which monitor, value, threshold).
+        ``uy``: the same u and y side by side (B, n_in + n_out), if the caller keeps them so (the
+        engine's log row). A screen of a few array operations clears the usual tick in which
+        nothing trips; only a tick the screen flags runs every monitor by itself and builds the
+        verdicts of the active runs that trip (which monitor, value, threshold).
         """
         t = k / self.fs
-        u_off = self._off(0, u)
-        u_odd = np.count_nonzero(u_off) > 0  # count_nonzero: cheaper than any() per tick
-        u_flagged = u_odd and self._active_hit(u_off, active)
+        if uy is None:
+            uy = self._uy
+            uy[:, : self.n_inputs] = u
+            uy[:, self.n_inputs :] = y
+        off = np.not_equal(clip(uy, self._screen_lo, self._screen_hi, out=self._clipped), uy, out=self._off)
+        odd = count_nonzero(off) > 0  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
+        flagged = odd and self._active_hit(off, active)
         rate = None
         if self._rate is not None:
             # the estimator sees non-finite inputs as 0 (a NaN would stay in its window for good)
-            x = np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0) if u_odd else u
+            x = np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0) if odd else u
             rate = np.abs(self._rate.step(np.reshape(x, -1)), out=self._rate_abs)
             hit = np.greater_equal(rate, self._lim, out=self._rate_hit)
-            rate_flagged = np.count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active)
-        else:
-            rate_flagged = False
-        if not (u_flagged or rate_flagged or t >= self._next_time_limit):
-            y_off = self._off(1, y)
-            if not (np.count_nonzero(y_off) > 0 and self._active_hit(y_off, active)):
-                return self._none
+            flagged = flagged or (count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active))
+        if not (flagged or t >= self._next_time_limit):
+            return self.no_trip
         tripped = self._verdicts(t, u, y, active, None if rate is None else rate.reshape(self.B, self.n_inputs))
         open_runs = [i for i, v in enumerate(self.verdicts) if v is None]
         self._next_time_limit = float(self._max_t[open_runs].min()) if open_runs else np.inf
         return tripped
 
-    def _off(self, which: int, x: np.ndarray) -> np.ndarray:
-        """(B, n) where ``x`` is non-finite or out of bounds (``which``: 0 inputs, 1 outputs), in a buffer."""
-        lo, hi, clipped, off = self._screens[which]
-        return np.not_equal(clip(x, lo, hi, out=clipped), x, out=off)  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
-
     def _active_hit(self, hit: np.ndarray, active: np.ndarray) -> bool:
         """Whether ``hit`` (B, n), known to hold some True, holds one for an active run."""
-        return np.count_nonzero(active) == self.B or np.count_nonzero(hit & active[:, None]) > 0
+        return count_nonzero(active) == self.B or count_nonzero(hit & active[:, None]) > 0
 
     def _verdicts(self, t: float, u: np.ndarray, y: np.ndarray, active: np.ndarray, rate: np.ndarray | None) -> np.ndarray:
         """Every monitor by itself on a flagged tick: the active runs that trip now, with their verdicts."""

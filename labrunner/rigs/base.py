@@ -101,6 +101,8 @@ class Rig(abc.ABC):
         self.fs = info.fs_default
         self.k = 0  # samples stepped since reset
         self._safe = np.zeros(0, dtype=bool)
+        self._safe_mask: np.ndarray | None = None  # (B, 1) view of _safe once any run is safe
+        self._shape = (0, len(info.inputs))
         self.applied_input = np.zeros((0, len(info.inputs)))
         self._faulty = self.faults.any
 
@@ -122,6 +124,8 @@ class Rig(abc.ABC):
         self.batch = batch
         self.k = 0
         self._safe = np.zeros(batch, dtype=bool)
+        self._safe_mask = None
+        self._shape = (batch, len(self.info.inputs))
         self.applied_input = np.tile(np.asarray(self.info.safe_input, float), (batch, 1))
         self._faulty = self.faults.any  # decided once per batch, not every tick
         # per-tick constants at the batch's shape (ufuncs on equal shapes are cheapest)
@@ -133,9 +137,11 @@ class Rig(abc.ABC):
 
     def step(self, u: np.ndarray) -> np.ndarray:
         """Apply ``u`` (B, n_inputs) for one sample period; return the next measurement (B, n_outputs)."""
-        u = np.asarray(u, dtype=float).reshape(self.batch, len(self.info.inputs))
+        u = np.asarray(u, dtype=float)
+        if u.shape != self._shape:
+            u = u.reshape(self._shape)
         u = clip(u, self._lo, self._hi)  # a new array
-        safe = self._safe[:, None] if np.count_nonzero(self._safe) else None
+        safe = self._safe_mask
         if safe is not None:
             np.copyto(u, self._safe_input, where=safe)
         if self._faulty and self.k / self.fs >= self.faults.t_start:
@@ -152,6 +158,7 @@ class Rig(abc.ABC):
         """Send the runs in ``mask`` (all if None) to the safe state, at once and for good."""
         mask = np.ones(self.batch, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
         self._safe |= mask
+        self._safe_mask = self._safe[:, None] if self._safe.any() else None
         self.applied_input = np.where(self._safe[:, None], np.asarray(self.info.safe_input, float), self.applied_input)
         self._enter_safe_state(self._safe.copy())
 
