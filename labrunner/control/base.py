@@ -57,6 +57,9 @@ class Controller(abc.ABC):
         self.u_applied = self._u_init.copy()
         self.controlled = np.zeros((self.batch, self.n_outputs))
         self.estimates: dict[str, np.ndarray] = {}
+        #: the estimates' arrays stacked (n, ...) in the order of :attr:`estimates`, when the law
+        #: keeps them so (see :meth:`_set_estimates`): a log copies them in one go per tick
+        self.estimate_block: np.ndarray | None = None
 
     def reset(self, y0: np.ndarray) -> None:
         """Start from the stationary measurement ``y0`` (B, n_rig_outputs); histories are pre-filled."""
@@ -70,6 +73,13 @@ class Controller(abc.ABC):
         """One tick: the law on (y[k], r[k]), saturated to [u_min, u_max]; returns a copy of u[k]."""
         clip(self._law(y, r), self.u_min, self.u_max, out=self.u_applied)
         return self.u_applied.copy()
+
+    def _set_estimates(self, block: np.ndarray, names: Sequence[str]) -> None:
+        """Publish the estimates kept side by side in ``block`` (one name per leading index)."""
+        if len(names) != len(block):
+            raise ValueError(f"{len(names)} estimate names for {len(block)} rows")
+        self.estimate_block = block
+        self.estimates = dict(zip(names, block))
 
     @abc.abstractmethod
     def _reset(self, y0: np.ndarray) -> None:

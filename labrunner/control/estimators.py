@@ -22,7 +22,7 @@ shift ε = t_s. Two layouts, same numbers to rounding:
 - *shared*: a batch of at least ``SHARED_MIN_ROWS`` rows B·C sharing one design keeps the
   histories of y, e (none when only the measurement is filtered: then e = y) and v and takes one
   BLAS product per tap vector over its signal's block;
-- *bank*: otherwise (small batches, batches mixing designs) the row blocks [y; e; …; e; v] (the
+- *bank*: otherwise (small batches, batches mixing designs) the row blocks [e; …; e; y; v] (the
   error once per filter on it) carry per-row taps, zero-padded to a common length, and one einsum
   sums each row in order, so that padding changes nothing and a run gives the same numbers alone
   as in any such batch.
@@ -80,15 +80,16 @@ class MFCEstimator:
             [np.concatenate([[0.0], d.weights(order)]), *(d.weights(k) for k in range(order)), d.weights(0)]
             for d in designs
         ]
-        # products of the row blocks y, e_0 … e_{n−1}, v; e_k is ê^(k) itself when the error is filtered
-        self._out = np.zeros((order + 2, B, C))
-        self._out_y, self._out_e, self._out_v = self._out[0], list(self._out[1 : 1 + order]), self._out[-1]
-        filtered = self._mode == "error"
-        self.e_hat = self._out_e[0] if filtered else np.zeros((B, C))
-        self.de_hat = self._out_e[1] if filtered and order == 2 else np.zeros((B, C))
-        self.f_hat = np.zeros((B, C))
+        # one buffer: f̂, ê^(0..n−1), then the products of y and v. The filters on e write straight
+        # into ê^(k) (the filtered outputs when e = y: the reference terms come off in place), and
+        # the estimates sit side by side in :attr:`block` for the logs.
+        self._buf = np.zeros((order + 3, B, C))
+        self.block = self._buf[: 1 + order]
+        self.f_hat, self.e_hat = self._buf[0], self._buf[1]
+        self.de_hat = self._buf[2] if order == 2 else np.zeros((B, C))
+        self._e_block, self._out_y, self._out_v = self._buf[1 : 1 + order], self._buf[1 + order], self._buf[2 + order]
         self._tmp = np.zeros((B, C))
-        self._e_pairs = list(zip(range(order), self._out_e, (self.e_hat, self.de_hat)))  # (derivative, filtered, estimate)
+        self._tmp_e = np.zeros((order, B, C))
         self._shared = B * C >= SHARED_MIN_ROWS and all(d == designs[0] for d in designs)
         if self._shared:
             self._init_shared(taps[0])
@@ -103,7 +104,7 @@ class MFCEstimator:
         self._hist = History(L + 1, B * C, 3 - (e_signal == 0))
         self._fill_rows = [0, 2] if e_signal == 0 else [0, 1, 2]
         self._taps = taps
-        targets = [o.reshape(-1) for o in self._out]  # y, e_0 …, v
+        targets = [o.reshape(-1) for o in (self._out_y, *self._e_block, self._out_v)]  # in the taps' order
         # per window position: where y, e (None: e = y), copies of e and v go; (taps, block, target) products
         self._views = []
         for rows, blocks in zip(self._hist.rows, self._hist.blocks):
@@ -115,22 +116,22 @@ class MFCEstimator:
             self._views.append((ry, re, (), rv, products))
 
     def _init_bank(self, taps: list[list[np.ndarray]]) -> None:
-        """Row blocks [y; e; …; e; v] with per-row taps, zero-padded: one einsum summing in order."""
+        """Row blocks [e; …; e; y; v] with per-row taps, zero-padded: one einsum summing in order."""
         B, C, n = self.batch, self.channels, self.order
         L = max(t.size for row in taps for t in row)
         bank = np.zeros((n + 2, B, C, L))
-        for b, row in enumerate(taps):
-            for block, t in enumerate(row):
+        for b, (t_y, *t_e, t_v) in enumerate(taps):
+            for block, t in enumerate((*t_e, t_y, t_v)):  # the order of the products in the buffer
                 bank[block, b, :, : t.size] = t
         self._bank = np.ascontiguousarray(bank.reshape(-1, L).T)  # (L, rows), like the history block
         self._hist = History(L, bank.shape[0] * B * C)
-        self._fill_rows = [0] + [1] * n + [2]
-        target = self._out.reshape(-1)
+        self._fill_rows = [1] * n + [0, 2]
+        target = self._buf[1:].reshape(-1)
         self._views = []
-        output = self._mode == "output"  # e = y: y goes to its block and the error blocks in one copy
+        output = self._mode == "output"  # e = y: y goes to the error blocks and its own in one copy
         for rows, blocks in zip(self._hist.rows, self._hist.blocks):
             x = rows[0].reshape(n + 2, B, C)
-            y_to, e_to, copies = (x[: 1 + n], None, ()) if output else (x[0], x[1], tuple(x[2 : 1 + n]))
+            y_to, e_to, copies = (x[: 1 + n], None, ()) if output else (x[n], x[0], tuple(x[1:n]))
             self._views.append((y_to, e_to, copies, x[-1], [(self._bank, blocks[0], target)]))
 
     def reset(self, y0: np.ndarray, r0: np.ndarray | float = 0.0, v0: np.ndarray | float = 0.0) -> None:
@@ -171,10 +172,8 @@ class MFCEstimator:
         else:
             np.multiply(self.gamma, self._out_v, out=tmp)
             np.subtract(self._out_y, tmp, out=self.f_hat)
-        if mode == "output":
-            for k, o, est in self._e_pairs:
-                np.subtract(o, r[:, :, k], out=est)
-        elif mode == "mixed":
-            for k, o, est in self._e_pairs:
-                np.multiply(self._not_m, r[:, :, k], out=tmp)
-                np.subtract(o, tmp, out=est)
+        if mode != "error":  # (n, B, C) filtered outputs minus the reference's derivatives 0..n−1
+            r_k = r.transpose(2, 0, 1)[: self.order]
+            if mode == "mixed":
+                r_k = np.multiply(self._not_m, r_k, out=self._tmp_e)
+            np.subtract(self._e_block, r_k, out=self._e_block)

@@ -121,9 +121,7 @@ class MFC(Controller):
             raise InvalidParameter("controller.k_d", "is required for a second-order law")
         self.i_min = None if i_min is None else np.array(i_min, dtype=float).reshape(B, 1)
         self.estimator = MFCEstimator(designs, order, self.gamma, filter_error=filter_error)
-        self.estimates = {"f_hat": self.estimator.f_hat, "e_hat": self.estimator.e_hat}
-        if order == 2:
-            self.estimates["de_hat"] = self.estimator.de_hat
+        self._set_estimates(self.estimator.block, ("f_hat", "e_hat", "de_hat")[: 1 + order])
         self._col = slice(output.index, output.index + 1)
         self._difference = output.difference
         self._fs = np.array(self.fs)  # a 0-d array multiplies faster than a Python float

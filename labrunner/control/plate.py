@@ -96,14 +96,18 @@ class PlateMFC(Controller):
         # for the current the estimator's input is γ_i(y)·i with γ_s = −1 (see the module docstring)
         self._gamma_est = {"v": self.gamma, "force": -self.gamma, "u": -self.gamma, "current": -np.ones((B, 1))}[input]
         self.estimator = MFCEstimator(designs, 2, self._gamma_est, 3, filter_error=filter_error)
-        self.estimates = {"f_hat": self.estimator.f_hat, "e_hat": self.estimator.e_hat, "de_hat": self.estimator.de_hat}
+        self._set_estimates(self.estimator.block, ("f_hat", "e_hat", "de_hat"))
         # per-tick buffers; gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
         full = lambda a: np.array(np.broadcast_to(a, (B, 3)))  # noqa: E731
-        self._k_p3, self._k_d3, self._gamma3 = full(self.k_p), full(self.k_d), full(self.gamma)
+        self._gains = np.stack([full(self.k_p), full(self.k_d)])  # (2, B, 3) against (ê, ê̇)
+        self._gamma3 = full(self.gamma)
+        self._e_hats, self._ke = self.estimator.block[1:], np.zeros((2, B, 3))  # (ê, ê̇) and (k_p ê, k_d ê̇)
+        self._ke_rows = tuple(self._ke)
         self._unit_gamma = bool(np.all(self.gamma == 1.0))
         self._P_inv_B_T = self.geometry.P_inv_B.T
         self._V_T = self.geometry.V.T
         self._K_T = self.geometry.K.T
+        self._lam_K_T = self.lam_inv_sqrt * self._K_T  # d(h) = λ^(−1/2) K y in one product
         self._weights_col = self.weights[:, None]
         self._h = np.zeros((B, 4))  # the gaps of eq. (4) at the last tick
         self._lam_h = np.zeros((B, 4))  # d(h) = λ^(−1/2) h at those gaps
@@ -115,28 +119,29 @@ class PlateMFC(Controller):
             fs = designs[0].fs
             notch = tustin(tf_ss(*notch_tf(notch_omega, notch_q)), fs, notch_omega)
             self._notch = StreamingSS([notch] * B, channels=3)
-            self._notch_in, self._notch_out = self._notch.input[:, :, 0], self._notch.output[:, :, 0]
+            self.controlled = self._notch.input[:, :, 0]  # y_1..y_3 go straight into the notch's input
+            self._notch_out = self._notch.output[:, :, 0]
 
-    def _filtered(self, y3: np.ndarray) -> np.ndarray:
-        """The measurement after the notch filter (Fig. 10b), (B, 3)."""
+    def _filtered(self) -> np.ndarray:
+        """This tick's y_1..y_3 (:attr:`controlled`) after the notch filter (Fig. 10b), (B, 3)."""
         if self._notch is None:
-            return y3
-        self._notch_in[...] = y3
+            return self.controlled
         self._notch.advance()
         return self._notch_out
 
     def _reset(self, y0: np.ndarray) -> None:
         if self._notch is not None:
             self._notch.reset(y0[:, :3, None])
-        self._measured(y0)
+        self.controlled[...] = y0[:, :3]
+        self._measured()
         self.estimator.reset(self.controlled, self.controlled, self._model_input(self.u_applied))  # start at rest, e ≡ 0
 
-    def _measured(self, y: np.ndarray) -> None:
-        """Keep this tick's y_1..y_3, gaps h = K y (eq. (4)), d(h) and γ_i(y) for the law and the next tick."""
-        y3 = self.controlled
-        y3[...] = y[:, :3]
-        np.dot(y3, self._K_T, out=self._h)  # from the contiguous copy: half the cost of the strided view
-        np.multiply(self.lam_inv_sqrt, self._h, out=self._lam_h)
+    def _measured(self) -> None:
+        """From this tick's y_1..y_3: the gaps h = K y (eq. (4)), d(h) and γ_i(y) for the law and the next tick."""
+        y3 = self.controlled  # a contiguous copy: half the cost of the strided view in a product
+        np.dot(y3, self._lam_K_T, out=self._lam_h)
+        if self.input == "u":
+            np.dot(y3, self._K_T, out=self._h)
         if self.input == "current":
             self._gamma_i(y3, out=self._gamma_y)
 
@@ -157,15 +162,16 @@ class PlateMFC(Controller):
         return np.multiply(self._gamma_y, currents[:, :3], out=x)
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
-        est, w, t, u = self.estimator, self._w, self._t, self._u4
-        est.step(self._filtered(y[:, :3]), self._model_input(self.u_applied), r)
+        est, w, t, u, ke = self.estimator, self._w, self._t, self._u4, self._ke
+        kp_e, kd_de = self._ke_rows
+        self.controlled[...] = y[:, :3]
+        est.step(self._filtered(), self._model_input(self.u_applied), r)  # x_k of the last tick's gaps
         # w = ÿ_r − k_p ê − k_d ê̇ − f̂
-        np.multiply(self._k_p3, est.e_hat, out=t)
-        np.subtract(r[:, :, 2], t, out=w)
-        np.multiply(self._k_d3, est.de_hat, out=t)
-        np.subtract(w, t, out=w)
+        np.multiply(self._gains, self._e_hats, out=ke)
+        np.subtract(r[:, :, 2], kp_e, out=w)
+        np.subtract(w, kd_de, out=w)
         np.subtract(w, est.f_hat, out=w)
-        self._measured(y)
+        self._measured()
         if self.input == "v":  # (14), then (11) and (12); x/1 is x (paper 2's γ_v = 1)
             np.dot(w if self._unit_gamma else np.divide(w, self._gamma3, out=t), self._V_T, out=u)
             return current_at(u, self._lam_h, out=u)

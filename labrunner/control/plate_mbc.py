@@ -131,7 +131,7 @@ class PlateMBC(Controller):
         self.c_d = np.array([[d.c_d] for d in designs])
         chains = {d: estimation_chain(d)["chain"] for d in set(designs)}  # one design per distinct run
         self._chain = StreamingSS([chains[d] for d in designs], channels=3)
-        self.estimates = {"f_hat": np.zeros((B, 3)), "e_hat": np.zeros((B, 3)), "de_hat": np.zeros((B, 3))}
+        self._set_estimates(np.zeros((3, B, 3)), ("f_hat", "e_hat", "de_hat"))
         # per-tick buffers; gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
         self._c_p3, self._c_d3 = np.repeat(self.c_p, 3, axis=1), np.repeat(self.c_d, 3, axis=1)
         self._g = np.array(self.geometry.g)
