@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from labrunner._ufunc import count_nonzero
 from labrunner.control import factory
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import Roles, run_metrics
@@ -140,13 +141,8 @@ def run_batch(
     overrides = _overrides(points)
     monitor = SafetyMonitor(configs, rig.info, fs)
 
-    n_in, n_meas, n_out = len(rig.info.inputs), len(rig.info.outputs), controller.n_outputs
-    # Rows are read only up to each run's end, so they need no fill; a failure blanks the rest.
-    u_log = np.empty((K, B, n_in))
-    y_log = np.empty((K, B, n_meas))
-    c_log = np.empty((K, B, n_out))
-    r_log = np.empty((K, B, n_out))
-    est_log: dict[str, np.ndarray] = {}
+    log = _TickLog(K, B, rig, controller)
+    u_log, y_log, io_log, c_log, r_log, est_pairs = log.u, log.y, log.io, log.c, log.r, log.estimates
     end = np.full(B, K)  # samples recorded per run
     active = np.ones(B, dtype=bool)
     failure = ""
@@ -156,7 +152,7 @@ def run_batch(
         y = rig.reset(B, seeds, fs, overrides)
         controller.reset(y)
         monitor.reset(rig.applied_input)
-        est_log = {name: np.empty((K,) + np.shape(value)) for name, value in controller.estimates.items()}
+        no_trip = monitor.no_trip
         r_chunk = np.empty(0)
         finished = False  # every run has ended
         for k in range(K):
@@ -165,19 +161,19 @@ def run_batch(
                 r_log[k : k + len(r_chunk)] = r_chunk[..., 0]
             r = r_chunk[k % _CHUNK]
             u = controller.step(y, r)
-            tripped = monitor.check(k, u, y, active)
-            if np.count_nonzero(tripped):
+            u_log[k], y_log[k] = u, y
+            tripped = monitor.check(k, u, y, active, io_log[k])
+            if tripped is not no_trip and count_nonzero(tripped):
                 rig.safe_state(tripped)
                 end[tripped] = k + 1
                 active &= ~tripped
-                finished = not np.count_nonzero(active)
-            u_log[k], y_log[k] = u, y
+                finished = not count_nonzero(active)
             c_log[k] = controller.controlled
-            for name, value in controller.estimates.items():
-                est_log[name][k] = value
+            for est_log, value in est_pairs:
+                est_log[k] = value
             logged = k + 1
             if sink is not None and (k + 1) % _CHUNK == 0:
-                _stream(sink, k + 1 - _CHUNK, k + 1, rig, controller, u_log, y_log, c_log, r_log, est_log)
+                sink(k + 1 - _CHUNK, log.signals(log.rows(0, k + 1 - _CHUNK, k + 1)))
             if finished:
                 break
             y = rig.step(u)
@@ -187,29 +183,29 @@ def run_batch(
     except Exception as exc:  # a crash of the controller, the rig or the twin: fail the open runs
         rig.safe_state()
         failure = f"{type(exc).__name__}: {exc}"
-        for log in (u_log, y_log, c_log, r_log, *est_log.values()):
-            log[logged:] = np.nan  # the failing tick's row may be partly written
+        log.blank(logged)
         end = np.where(active, np.minimum(end, k + 1), end)
     else:
         rig.safe_state()
     if sink is not None and K % _CHUNK:
         last = K - K % _CHUNK
-        _stream(sink, last, int(end[0]), rig, controller, u_log, y_log, c_log, r_log, est_log)
+        sink(last, log.signals(log.rows(0, last, int(end[0]))))
 
-    channels = _channel_names(rig, controller, controller.estimates)
+    channels = log.channels
     roles = Roles(errors=tuple(channels["errors"]), inputs=tuple(channels["inputs"]),
                   error_hats=tuple(n for n in channels["estimates"] if n.startswith("e_hat_")),
                   currents=tuple(n for n, unit in channels["units"].items() if unit == "A"))
     results = []
+    by_run = log.run_major(int(end.max()) if B else 0)
     for i in range(B):
         n = int(end[i])
-        signals = _signals_of(i, 0, n, rig, controller.output_names, u_log, y_log, c_log, r_log, est_log, channels)
+        signals = log.signals([part[i, :, :n] for part in by_run])
         if failure and active[i]:
             outcome = Outcome("failed", message=failure)
         elif monitor.verdicts[i] is not None:
             v = monitor.verdicts[i]
             outcome = Outcome("aborted", v.monitor, v.time, v.value, v.threshold)
-        elif not _motion(configs[i], rig, y_log[:n, i]):
+        elif not _motion(configs[i], rig, by_run[0][i, log.y_columns, :n].T):
             outcome = Outcome("no-motion", message="the load never moved beyond the sensor resolution")
         else:
             outcome = Outcome("completed")
@@ -223,27 +219,64 @@ def _overrides(points: Sequence[Mapping[str, object]]) -> dict[str, np.ndarray]:
     return {k: np.array([float(dict(p.get("rig_parameters", {}) or {}).get(k, np.nan)) for p in points]) for k in keys}
 
 
-def _signals_of(i, lo, hi, rig, outputs, u_log, y_log, c_log, r_log, est_log, channels) -> dict[str, np.ndarray]:
-    """The named traces of run ``i``, samples lo..hi-1 (see docs/architecture.md for the naming)."""
-    sig: dict[str, np.ndarray] = {}
-    for j, s in enumerate(rig.info.outputs):
-        sig[s.name] = y_log[lo:hi, i, j].copy()
-    for j, s in enumerate(rig.info.inputs):
-        sig[s.name] = u_log[lo:hi, i, j].copy()
-    for j, o in enumerate(outputs):
-        sig[o] = c_log[lo:hi, i, j].copy()
-        sig[f"ref_{o}"] = r_log[lo:hi, i, j].copy()
-        sig[f"e_{o}"] = sig[o] - sig[f"ref_{o}"]
-    est_names = iter(channels["estimates"])
-    for log in est_log.values():
-        if log.ndim == 3:
-            for j in range(log.shape[2]):
-                sig[next(est_names)] = log[lo:hi, i, j].copy()
-        else:
-            sig[next(est_names)] = log[lo:hi, i].copy()
-    return sig
+class _TickLog:
+    """Every logged signal of a batch, one row per tick and log part, each part as its producer
+    hands it over: u and y side by side (``io``, as the safety screen takes them), the controlled
+    outputs ``c``, the references ``r`` and the estimates (``estimates``: pairs of a log and the
+    controller's live array; one block when the controller keeps them so). Rows are read only up
+    to each run's end, so they need no fill. Columns of a run, in order: inputs, measured
+    outputs, controlled outputs, references, estimates.
+    """
 
+    def __init__(self, K: int, B: int, rig: Rig, controller) -> None:
+        n_in, n_meas, n_out = len(rig.info.inputs), len(rig.info.outputs), controller.n_outputs
+        self.channels = _channel_names(rig, controller, controller.estimates)
+        self._outputs = controller.output_names
+        self._measured = [s.name for s in rig.info.outputs]
+        self.io = np.empty((K, B, n_in + n_meas))
+        self.u, self.y = self.io[:, :, :n_in], self.io[:, :, n_in:]
+        self.y_columns = slice(n_in, n_in + n_meas)
+        self.c, self.r = np.empty((K, B, n_out)), np.empty((K, B, n_out))
+        block = controller.estimate_block
+        live = [block] if block is not None else list(controller.estimates.values())
+        self.estimates = [(np.empty((K,) + np.shape(v)), v) for v in live]
+        # (log, axes to (run, columns..., tick)); a block (n, B, C) has its runs on axis 2 of the log
+        run_first = {2: (1, 0), 3: (1, 2, 0), 4: (2, 1, 3, 0)}
+        self._parts = [(self.io, (1, 2, 0)), (self.c, (1, 2, 0)), (self.r, (1, 2, 0))]
+        self._parts += [(e, (2, 1, 0) if block is not None and e.ndim == 3 else run_first[e.ndim]) for e, _ in self.estimates]
 
-def _stream(sink: Sink, lo: int, hi: int, rig, controller, u_log, y_log, c_log, r_log, est_log) -> None:
-    channels = _channel_names(rig, controller, controller.estimates)
-    sink(lo, _signals_of(0, lo, hi, rig, controller.output_names, u_log, y_log, c_log, r_log, est_log, channels))
+    def blank(self, start: int) -> None:
+        """NaN from tick ``start`` on (a failure: that tick's row may be partly written)."""
+        for part, _ in self._parts:
+            part[start:] = np.nan
+
+    def rows(self, run: int, lo: int, hi: int) -> list[np.ndarray]:
+        """Run ``run``'s samples lo..hi−1 per part, (columns, hi − lo) views."""
+        return [part[lo:hi].transpose(axes)[run].reshape(-1, hi - lo) for part, axes in self._parts]
+
+    def run_major(self, n: int, tile: int = 256) -> list[np.ndarray]:
+        """Per part, a (B, columns, n) copy of the first n ticks with each run's signals contiguous:
+        transposed tile by tile, so that a tile's reads and writes stay in the cache (twice as
+        fast as one transposing copy, three times as fast as a gather per signal)."""
+        out = []
+        for part, axes in self._parts:
+            t = np.empty(tuple(part.shape[a] for a in axes[:-1]) + (n,))
+            for k in range(0, n, tile):
+                t[..., k : k + tile] = part[k : min(k + tile, n)].transpose(axes)
+            out.append(t.reshape(len(t), -1, n))
+        return out
+
+    def signals(self, parts: list[np.ndarray]) -> dict[str, np.ndarray]:
+        """The named traces of one run from its rows per part (see docs/architecture.md for the
+        naming): views of the rows, plus the errors e = y − y_r."""
+        rows = [row for part in parts for row in part]
+        inputs, estimates = self.channels["inputs"], self.channels["estimates"]
+        n_in, n_meas, n_out = len(inputs), len(self._measured), len(self._outputs)
+        sig = dict(zip(self._measured, rows[n_in : n_in + n_meas]))
+        sig.update(zip(inputs, rows[:n_in]))
+        c0 = n_in + n_meas
+        for j, o in enumerate(self._outputs):
+            sig[o], sig[f"ref_{o}"] = rows[c0 + j], rows[c0 + n_out + j]
+            sig[f"e_{o}"] = sig[o] - sig[f"ref_{o}"]
+        sig.update(zip(estimates, rows[c0 + 2 * n_out :]))
+        return sig

@@ -43,8 +43,17 @@ def _stack(signals: Mapping[str, np.ndarray], names: Sequence[str], k: int) -> n
     return np.vstack([np.asarray(signals[name], dtype=float)[:k] for name in names])
 
 
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+def _rms_rows(x: np.ndarray) -> tuple[float, np.ndarray]:
+    """RMS over all of ``x`` (n, k) and per row, from one array of squares."""
+    if not x.size:
+        return float("nan"), np.full(len(x), np.nan)
+    row_means = np.square(x).mean(axis=1)
+    return float(np.sqrt(row_means.mean())), np.sqrt(row_means)
+
+
+def _max_abs(x: np.ndarray) -> float:
+    """max |x| without an array of absolute values (NaN if empty)."""
+    return float(max(x.max(), -x.min())) if x.size else float("nan")
 
 
 def run_metrics(
@@ -65,21 +74,15 @@ def run_metrics(
     lengths = {len(signals[name]) for name in (*roles.errors, *roles.inputs, *roles.error_hats, *roles.currents)}
     k = min(lengths) if lengths else 0
     out: dict[str, float] = {"n_samples": float(k)}
-    e = _stack(signals, roles.errors, k)
-    out["rms_error"] = _rms(e)
-    for name, row in zip(roles.errors, e):
-        out[f"rms_{name}"] = _rms(row)
-    e_hat = _stack(signals, roles.error_hats, k)
-    out["rms_error_hat"] = _rms(e_hat)
-    for name, row in zip(roles.error_hats, e_hat):
-        out[f"rms_{name}"] = _rms(row)
+    for key, names in (("rms_error", roles.errors), ("rms_error_hat", roles.error_hats)):
+        out[key], per_row = _rms_rows(_stack(signals, names, k))
+        out.update({f"rms_{name}": float(v) for name, v in zip(names, per_row)})
     u = _stack(signals, roles.inputs, k)
     energy = np.sum(np.square(u), axis=1)
     out["input_energy"] = float(energy.sum()) if u.shape[0] else float("nan")
     if len(roles.inputs) > 1:
         for name, value in zip(roles.inputs, energy):
             out[f"energy_{name}"] = float(value)
-    out["max_abs_input"] = float(np.max(np.abs(u))) if u.size else float("nan")
-    i = _stack(signals, roles.currents, k)
-    out["max_current"] = float(np.max(np.abs(i))) if i.size else float("nan")
+    out["max_abs_input"] = _max_abs(u)
+    out["max_current"] = _max_abs(u if roles.currents == roles.inputs else _stack(signals, roles.currents, k))
     return out
