@@ -20,6 +20,7 @@ import numpy as np
 
 from labrunner._ufunc import count_nonzero
 from labrunner.control import factory
+from labrunner.control.base import Controller
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import Roles, run_metrics
 from labrunner.rigs.base import Rig
@@ -219,6 +220,11 @@ def _overrides(points: Sequence[Mapping[str, object]]) -> dict[str, np.ndarray]:
     return {k: np.array([float(dict(p.get("rig_parameters", {}) or {}).get(k, np.nan)) for p in points]) for k in keys}
 
 
+def _run_first(ndim: int, run_axis: int) -> tuple[int, ...]:
+    """Axes of a (tick, ...) log in the order run, the other axes, tick."""
+    return (run_axis, *(a for a in range(1, ndim) if a != run_axis), 0)
+
+
 class _TickLog:
     """Every logged signal of a batch, one row per tick and log part, each part as its producer
     hands it over: u and y side by side (``io``, as the safety screen takes them), the controlled
@@ -228,7 +234,7 @@ class _TickLog:
     outputs, controlled outputs, references, estimates.
     """
 
-    def __init__(self, K: int, B: int, rig: Rig, controller) -> None:
+    def __init__(self, K: int, B: int, rig: Rig, controller: Controller) -> None:
         n_in, n_meas, n_out = len(rig.info.inputs), len(rig.info.outputs), controller.n_outputs
         self.channels = _channel_names(rig, controller, controller.estimates)
         self._outputs = controller.output_names
@@ -240,10 +246,10 @@ class _TickLog:
         block = controller.estimate_block
         live = [block] if block is not None else list(controller.estimates.values())
         self.estimates = [(np.empty((K,) + np.shape(v)), v) for v in live]
-        # (log, axes to (run, columns..., tick)); a block (n, B, C) has its runs on axis 2 of the log
-        run_first = {2: (1, 0), 3: (1, 2, 0), 4: (2, 1, 3, 0)}
-        self._parts = [(self.io, (1, 2, 0)), (self.c, (1, 2, 0)), (self.r, (1, 2, 0))]
-        self._parts += [(e, (2, 1, 0) if block is not None and e.ndim == 3 else run_first[e.ndim]) for e, _ in self.estimates]
+        # (log, its axes ordered run, columns..., tick); a block's log (K, n, B, ...) has the runs on axis 2
+        run_axis = 2 if block is not None else 1
+        self._parts = [(part, _run_first(part.ndim, 1)) for part in (self.io, self.c, self.r)]
+        self._parts += [(e, _run_first(e.ndim, run_axis)) for e, _ in self.estimates]
 
     def blank(self, start: int) -> None:
         """NaN from tick ``start`` on (a failure: that tick's row may be partly written)."""
