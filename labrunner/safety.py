@@ -41,7 +41,9 @@ class SafetyConfig:
 
     ``max_du_dt`` [input unit / s] (``None`` disables the rate monitor) is estimated with an
     algebraic differentiator of parameters ``du_dt_*``. ``output_bounds`` / ``input_bounds`` map a
-    signal name to its allowed closed interval. ``max_duration`` [s] aborts longer runs.
+    signal name to its allowed closed interval; an output bound may also name a signal the rig
+    derives from its outputs (``RigInfo.derived``: the plate's air gaps h1..h4, paper 2 eq. (4)).
+    ``max_duration`` [s] aborts longer runs.
     ``motion_*`` define "the load moved": the output ``motion_output`` changed by more than
     ``motion_min_change`` from its first value, or rose above ``motion_min_level``.
     """
@@ -84,7 +86,8 @@ class SafetyConfig:
                 if v <= 0.0:
                     raise InvalidParameter(f"{prefix}.{key}", f"must be > 0, got {v}")
                 kw[key] = v
-        names = {"output_bounds": [s.name for s in rig_info.outputs], "input_bounds": [s.name for s in rig_info.inputs]}
+        outputs = [s.name for s in rig_info.outputs]
+        names = {"output_bounds": outputs + [d.name for d in rig_info.derived], "input_bounds": [s.name for s in rig_info.inputs]}
         for key in _BOUNDS_KEYS:
             bounds = {}
             for name, pair in dict(merged.get(key, {})).items():
@@ -100,8 +103,8 @@ class SafetyConfig:
             kw[key] = bounds
         if merged.get("motion_output") is not None:
             out = str(merged["motion_output"])
-            if out not in names["output_bounds"]:
-                raise InvalidParameter(f"{prefix}.motion_output", f"must be one of {names['output_bounds']}, got {out!r}")
+            if out not in outputs:
+                raise InvalidParameter(f"{prefix}.motion_output", f"must be one of {outputs}, got {out!r}")
             kw["motion_output"] = out
         return cls(**kw)
 
@@ -137,13 +140,22 @@ class SafetyMonitor:
         self._has_output_bounds = bool(np.isfinite(self._out_lo).any() or np.isfinite(self._out_hi).any())
         self._has_input_bounds = bool(np.isfinite(self._in_lo).any() or np.isfinite(self._in_hi).any())
         self._out_names = [s.name for s in rig_info.outputs]
+        big = np.finfo(float).max  # the screens clip to the finite part of the bounds
+        # signals derived from the outputs (the plate's air gaps), screened only where bounded
+        self._der_lo, self._der_hi = self._bounds(configs, rig_info.derived, "output_bounds")
+        self._der_names = [d.name for d in rig_info.derived]
+        self._derived = None
+        if np.isfinite(self._der_lo).any() or np.isfinite(self._der_hi).any():
+            weights_T = np.ascontiguousarray(np.array([d.weights for d in rig_info.derived], dtype=float).T)  # (n_out, n_derived)
+            shape = self._der_lo.shape
+            self._derived = (weights_T, np.zeros(shape), np.maximum(self._der_lo, -big), np.minimum(self._der_hi, big),
+                             np.zeros(shape), np.zeros(shape, dtype=bool))
         self._in_names = [s.name for s in rig_info.inputs]
         self._max_t = np.array([np.inf if c.max_duration is None else c.max_duration for c in configs])
         self.verdicts: list[Verdict | None] = [None] * self.B
         # the per-tick screen of u and y side by side: one clip catches bounds and non-finite values
         # at once (finite values inside [lo, hi] are exactly those a clip to the finite part leaves
         # unchanged)
-        big = np.finfo(float).max
         self._screen_lo = np.maximum(np.hstack([self._in_lo, self._out_lo]), -big)
         self._screen_hi = np.minimum(np.hstack([self._in_hi, self._out_hi]), big)
         self._uy = np.zeros(self._screen_lo.shape)  # u and y side by side, for callers without them so
@@ -190,6 +202,11 @@ class SafetyMonitor:
         off = np.not_equal(clip(uy, self._screen_lo, self._screen_hi, out=self._clipped), uy, out=self._off)
         odd = count_nonzero(off) > 0  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
         flagged = odd and self._active_hit(off, active)
+        if self._derived is not None:
+            weights_T, d, lo, hi, clipped, d_off = self._derived
+            np.dot(y, weights_T, out=d)
+            np.not_equal(clip(d, lo, hi, out=clipped), d, out=d_off)
+            flagged = flagged or (count_nonzero(d_off) > 0 and self._active_hit(d_off, active))
         rate = None
         if self._rate is not None:
             # the estimator sees non-finite inputs as 0 (a NaN would stay in its window for good)
@@ -220,6 +237,10 @@ class SafetyMonitor:
         if self._has_output_bounds:
             checks += [("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
                        ("output_high", y > self._out_hi, y, self._out_hi, self._out_names)]
+        if self._derived is not None:
+            d = np.dot(y, self._derived[0])
+            checks += [("output_low", d < self._der_lo, d, self._der_lo, self._der_names),
+                       ("output_high", d > self._der_hi, d, self._der_hi, self._der_names)]
         if self._has_input_bounds:
             checks += [("input_low", u < self._in_lo, u, self._in_lo, self._in_names),
                        ("input_high", u > self._in_hi, u, self._in_hi, self._in_names)]

@@ -6,6 +6,7 @@ import pytest
 
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo, Signal
+from labrunner.rigs.registry import load_rig
 from labrunner.safety import SafetyConfig, SafetyMonitor
 
 FS = 200.0
@@ -211,3 +212,36 @@ def test_bad_sections_name_the_key(section, field):
     with pytest.raises(InvalidParameter) as err:
         SafetyConfig.from_sections(INFO, section)
     assert err.value.field == field
+
+
+def test_plate_air_gaps_are_bounded_at_the_magnets_not_at_the_sensors():
+    """Paper 2 Sec. 4 limits the magnets' air gaps to 0.8–5.5 mm. Tilted about y, the plate's
+    magnets (l_fx = 0.1825 m out) come closer than its sensors (l_dx = 0.135 m): at 0.70 mm gaps
+    the sensors still read 0.91 mm, and the rig file's bounds trip on h1, valued as the twin's
+    own magnet gap (its rigid pose, not eq. (4))."""
+    plate = load_rig("plate-sim")
+    twin = load_rig({"rig": {"kind": "plate"}, "noise": {"sensor_std": 0.0, "current_std": 0.0}})
+    twin.reset(1, [0], 32_000.0)
+    x = np.array([[1.5e-3, 0.0, 4.4e-3, 0.0]])  # (z, φ_x, φ_y, mode)
+    twin.set_state(x, np.zeros((1, 4)))
+    gaps, y = twin.magnet_gaps(), twin._sensors(np.zeros((1, 4)))
+    assert gaps[0, 0] < 0.8e-3 and (y > 0.8e-3).all()
+    configs = [SafetyConfig.from_sections(plate.info, plate.config.safety)]
+    m = SafetyMonitor(configs, plate.info, 32_000.0)
+    m.reset(np.zeros((1, 4)))
+    tripped = m.check(10, np.full((1, 4), 2.0), y, np.ones(1, dtype=bool))
+    v = m.verdicts[0]
+    assert tripped[0] and (v.monitor, v.threshold) == ("output_low:h1", 0.8e-3)
+    assert v.value == pytest.approx(gaps[0, 0], rel=1e-12)
+    x[0, 2] = 2e-3  # a milder tilt: every gap inside the bounds, nothing trips
+    twin.set_state(x)
+    assert not m.check(11, np.full((1, 4), 2.0), twin._sensors(np.zeros((1, 4))), np.ones(1, dtype=bool)).any()
+
+
+def test_output_bounds_may_name_the_rigs_derived_signals_only():
+    plate = load_rig("plate-sim")
+    assert SafetyConfig.from_sections(plate.info, {"output_bounds": {"h3": [1e-3, 5e-3]}}).output_bounds == {"h3": (1e-3, 5e-3)}
+    with pytest.raises(InvalidParameter, match=r"safety\.output_bounds\.h5: unknown signal; rig 'plate-sim' has .*'h4'"):
+        SafetyConfig.from_sections(plate.info, {"output_bounds": {"h5": [1e-3, 5e-3]}})
+    with pytest.raises(InvalidParameter, match=r"safety\.motion_output"):  # motion is measured, not derived
+        SafetyConfig.from_sections(plate.info, {"motion_output": "h1"})

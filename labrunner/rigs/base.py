@@ -33,6 +33,16 @@ class Signal:
 
 
 @dataclass(frozen=True)
+class Derived:
+    """A signal computed from the rig's outputs, Σ_j weights[j]·y_j, that safety bounds may name
+    like an output (the plate's magnet air gaps from its sensors, paper 2 eq. (4))."""
+
+    name: str
+    unit: str
+    weights: tuple[float, ...]  # one per output
+
+
+@dataclass(frozen=True)
 class Faults:
     """Faults of paper 2 Sec. 4.4, active from ``t_start`` [s] on.
 
@@ -70,6 +80,7 @@ class RigInfo:
     constants: Mapping[str, float] = field(default_factory=dict)
     simulated: bool = True
     description: str = ""
+    derived: tuple[Derived, ...] = ()
 
     @property
     def input_lo(self) -> np.ndarray:

@@ -37,7 +37,7 @@ import numpy as np
 from labrunner._ufunc import clip, count_nonzero
 from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry
-from labrunner.rigs.base import RigInfo, Signal
+from labrunner.rigs.base import Derived, RigInfo, Signal
 from labrunner.rigs.config import Param
 from labrunner.rigs.sim import SimRig
 from labrunner.rigs.sim._integrate import substeps
@@ -92,6 +92,7 @@ class PlateTwin(SimRig):
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
         p = {**{k: v.default for k, v in cls.PARAMETERS.items()}, **parameters}
         constants = {k: float(p[k]) for k in ("m", "g", "J_x", "J_y", "l_dx", "l_dy", "l_fx", "l_fy", "lambda_inv_sqrt")}
+        K = PlateGeometry(**{k: float(p[k]) for k in ("l_dx", "l_dy", "l_fx", "l_fy")}).K  # h = K y_1..3, eq. (4)
         return RigInfo(
             name=name,
             kind=cls.KIND,
@@ -103,6 +104,7 @@ class PlateTwin(SimRig):
             constants={**constants, "rest_gap": float(p["screw_gap"])},
             simulated=True,
             description=description or "simulated magnetically supported plate (paper 2): 3-DOF body, four magnets, 942 rad/s mode",
+            derived=tuple(Derived(f"h{j + 1}", "m", (*map(float, K[j]), 0.0)) for j in range(4)),
         )
 
     # -- Rig hooks -------------------------------------------------------------------------------
