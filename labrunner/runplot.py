@@ -65,6 +65,7 @@ def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
 
 
 def _title(log: RunLog) -> str:
+    """Which run (its id and grid values) over how it ended: two lines, so that both fit the width."""
     run = log.metadata.get("run", {})
     head = str(run.get("point_id") or run.get("name") or "run")
     params = log.metadata.get("parameters") or {}
@@ -74,16 +75,16 @@ def _title(log: RunLog) -> str:
         head = f"{head} ({shown})"
     out: dict[str, Any] | None = log.outcome
     if out is None:
-        return f"{head}: torn log, no outcome ({log.n_samples} samples salvaged)"
+        return f"{head}\ntorn log, no outcome ({log.n_samples} samples salvaged)"
     status = str(out.get("status", "?"))
     if status == "aborted":
         value, threshold = out.get("value"), out.get("threshold")
         detail = f" ({value:.4g} vs. limit {threshold:.4g})" if _number(value) and _number(threshold) else ""
         when = f" at t = {out['time']:.3f} s" if _number(out.get("time")) else ""
-        return f"{head}: aborted by {out.get('monitor', '?')}{when}{detail}"
+        return f"{head}\naborted by {out.get('monitor', '?')}{when}{detail}"
     if status == "failed" and out.get("message"):
-        return f"{head}: failed: {out['message']}"
-    return f"{head}: {status}"
+        return f"{head}\nfailed: {out['message']}"
+    return f"{head}\n{status}"
 
 
 def _number(value: Any) -> bool:
