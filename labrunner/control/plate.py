@@ -109,7 +109,7 @@ class PlateMFC(Controller):
         self._K_T = self.geometry.K.T
         self._lam_K_T = self.lam_inv_sqrt * self._K_T  # d(h) = λ^(−1/2) K y in one product
         self._weights_col = self.weights[:, None]
-        self._h = np.zeros((B, 4))  # the gaps of eq. (4) at the last tick
+        self._h = np.zeros((B, 4))  # the gaps of eq. (4) at the last tick (kept for the input u only)
         self._lam_h = np.zeros((B, 4))  # d(h) = λ^(−1/2) h at those gaps
         self._gamma_y = np.zeros((B, 3))  # γ_i(y) at the last tick (input current)
         self._w, self._t, self._x = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 3))
