@@ -108,15 +108,13 @@ def _metadata(task: BatchTask, run: RunTask, host: str, rig: Mapping[str, Any]) 
 def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | None = None) -> BatchResult:
     """Run ``task`` and publish its logs; never raises for a run's own failure.
 
-    ``run_batch`` defaults to :func:`labrunner.engine.run_batch` (tests inject fakes). A rig that
+    ``run_batch`` defaults to :func:`labrunner.engine.run_batch`, or to the rig's
+    ``run_on_device`` when its loop runs on the device (tests inject fakes). A rig that
     cannot be opened asks the parent to stop and leaves the points claimed (nothing ran; ``resume``
     reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
     asks the parent to stop (architecture: "stop-campaign"); any other exception marks the batch's
     points failed with the message (they have no log) and the campaign goes on.
     """
-    from labrunner import engine
-
-    run_batch = run_batch or engine.run_batch
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
     t0 = time.perf_counter()
@@ -128,7 +126,7 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     try:
         with rig:
             results = list(
-                run_batch(
+                (run_batch or _batch_runner(rig))(
                     [r.config for r in task.runs], rig, fs=task.fs, duration=task.duration,
                     seeds=[r.seed for r in task.runs], rig_safety=task.rig_safety,
                 )
@@ -145,6 +143,15 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     except Exception as exc:  # re-raised as a plain, picklable error: the parent stops the campaign
         raise CampaignError(f"publishing the logs of batch {task.runs[0].point_id}… failed: {type(exc).__name__}: {exc}") from None
     return out
+
+
+def _batch_runner(rig: Any) -> Callable[..., Sequence[Any]]:
+    """How a batch runs on ``rig``: the engine's loop, or the rig's own for a loop on the device."""
+    from labrunner import engine
+
+    if getattr(rig, "loop", "host") == "device":
+        return lambda points, rig, **kw: rig.run_on_device(points, **kw)
+    return engine.run_batch
 
 
 def _publish_all(
@@ -164,6 +171,8 @@ def _publish_all(
             tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{secrets.token_hex(4)}.mcap"
             metadata = _metadata(task, run, host, rig)
             metadata["metrics"] = dict(result.metrics)
+            if getattr(result, "diagnostics", None):
+                metadata["device"] = dict(result.diagnostics)  # a device loop's timing and transfer
             outcome = result.outcome.as_dict()
             write_run(tmp, metadata=metadata, fs=task.fs, signals=result.signals, outcome=outcome,
                       attachments=attachments, channels=result.channels)
