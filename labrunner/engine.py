@@ -49,7 +49,7 @@ class Outcome:
 class RunResult:
     """One run: outcome, signals (name → (K,) float64; sample k at k/fs), channel roles, metrics,
     and ``diagnostics`` a rig reports about the run (a device loop's timing and transfer), logged
-    as the MCAP's ``device`` metadata."""
+    as the MCAP's ``diagnostics`` metadata."""
 
     outcome: Outcome
     signals: dict[str, np.ndarray]

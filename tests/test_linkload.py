@@ -19,8 +19,8 @@ def test_classic_can_worst_case_frame_lengths():
 
 
 def test_serial_frame_is_ten_bits_per_byte():
-    link = ll.LinkSpec("serial", 115_200, max_payload=8)
-    assert link.frame_s(8) == pytest.approx(120 / 115_200)  # 12 bytes, 8N1
+    link = ll.LinkSpec("serial", 115_200, max_payload=64)
+    assert link.frame_s(8) == pytest.approx(150 / 115_200)  # 8 + 7 framing bytes, 8N1
 
 
 def test_canfd_lengths_round_up_and_the_data_phase_runs_faster():
@@ -34,25 +34,34 @@ def test_canfd_lengths_round_up_and_the_data_phase_runs_faster():
         ll.fd_length(65)
 
 
-def test_host_loop_loads_of_the_issue():
-    # one 8-byte frame per channel and tick: the valve at 4 kHz needs 108 % of 1 Mbit/s worst case
-    # (4000 × 2 × 135 bits), the plate (4 currents in, 3 gaps out) at 32 kHz over 30 buses
-    assert ll.host_loop_load(CAN_1M, 4000, 1, 1) == pytest.approx(1.08)
-    assert ll.host_loop_load(CAN_1M, 32000, 4, 3) == pytest.approx(32000 * 7 * 135 / 1e6)
-    assert ll.host_loop_load(CAN_1M, 200, 1, 1) == pytest.approx(0.054)
-    assert ll.max_host_fs(CAN_1M, 1, 1) == pytest.approx(0.8e6 / 270)
+def test_host_loop_loads_of_protocol_v1():
+    # one 8-byte frame per input host → device, per output and the tick trailer device → host:
+    # the valve (i → q) at 4 kHz needs 162 % of 1 Mbit/s worst case (4000 × 3 × 135 bits), the
+    # plate (4 currents in, 3 gaps + trailer out) at 32 kHz over 34 buses
+    assert ll.host_loop_load(CAN_1M, 4000, 1, 1) == pytest.approx(1.62)
+    assert ll.host_loop_load(CAN_1M, 32000, 4, 3) == pytest.approx(32000 * 8 * 135 / 1e6)
+    assert ll.host_loop_load(CAN_1M, 200, 1, 1) == pytest.approx(200 * 3 * 135 / 1e6)
+    assert ll.max_host_fs(CAN_1M, 1, 1) == pytest.approx(0.8e6 / 405)
 
 
-def test_serial_is_full_duplex_and_packs_channels():
+def test_serial_is_full_duplex():
     link = ll.LinkSpec("serial", 1_000_000, max_payload=64)
-    # 4 inputs in one frame of 4 + 16 bytes and 4 framing bytes: 240 bits per tick one way
-    assert ll.host_loop_load(link, 1000, 4, 3) == pytest.approx(1000 * 240 / 1e6)
+    # the busier way: 3 measurements + trailer of 8 + 7 framing bytes, 150 bits each
+    assert ll.host_loop_load(link, 1000, 1, 3) == pytest.approx(1000 * 4 * 150 / 1e6)
 
 
 def test_refusal_names_the_load_and_the_alternative():
     msg = ll.check_host_loop(CAN_1M, 32000, 4, 3)
-    assert "3024%" in msg and 'loop = "device"' in msg and "classic CAN at 1 Mbit/s" in msg and "847 Hz" in msg  # 0.8 Mbit/s / (7 × 135 bits)
+    assert "3456%" in msg and 'loop = "device"' in msg and "classic CAN at 1 Mbit/s" in msg
+    assert "741 Hz" in msg  # 0.8 Mbit/s / (8 × 135 bits)
     assert ll.check_host_loop(CAN_1M, 200, 1, 1) == ""
+
+
+def test_rig_parameters_name_the_link():
+    assert ll.from_rig("can", {"bitrate": 500_000, "fd": False}) == ll.LinkSpec("can", 500_000)
+    fd = ll.from_rig("can", {"bitrate": 1_000_000, "fd": True, "data_bitrate": 5_000_000})
+    assert fd.medium == "canfd" and fd.max_payload == 64
+    assert ll.from_rig("serial", {"baudrate": 921_600}).bitrate == 921_600
 
 
 def test_device_loop_streams_only_what_fits():

@@ -172,7 +172,7 @@ def _publish_all(
             metadata = _metadata(task, run, host, rig)
             metadata["metrics"] = dict(result.metrics)
             if getattr(result, "diagnostics", None):
-                metadata["device"] = dict(result.diagnostics)  # a device loop's timing and transfer
+                metadata["diagnostics"] = dict(result.diagnostics)  # the rig's record of the run (a device loop's timing)
             outcome = result.outcome.as_dict()
             write_run(tmp, metadata=metadata, fs=task.fs, signals=result.signals, outcome=outcome,
                       attachments=attachments, channels=result.channels)

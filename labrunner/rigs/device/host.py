@@ -4,7 +4,7 @@
 sends them one after the other over a bulk link and turns each device answer into the
 :class:`~labrunner.engine.RunResult` the twin engine would have returned — same signal names and
 roles, metrics computed by the same code from the float32 samples — with the device's timing
-and the transfer's figures in ``RunResult.diagnostics`` (the MCAP's ``device`` metadata).
+and the transfer's figures in ``RunResult.diagnostics`` (the MCAP's ``diagnostics`` metadata).
 """
 
 from __future__ import annotations

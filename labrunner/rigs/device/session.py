@@ -25,6 +25,7 @@ from labrunner.rigs.transports import bulk
 
 TO_DEVICE, TO_HOST, ACK = "to_device", "to_host", "ack"
 STOP = "stop"  #: what a device's link adapter hands over for the host's SAFE / STOP message
+HEARTBEAT = "heartbeat"  #: the host's keep-alive while it has nothing else to send (payload ignored)
 PROGRESS_S = 0.25  #: longest device silence while it runs [s]
 Send = Callable[[str, bytes], None]
 Recv = Callable[[float], "tuple[str | None, bytes] | None"]
@@ -54,15 +55,22 @@ def _slices(data: bytes, size: int) -> list[bytes]:
 
 
 def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, n_ticks: int, n_columns: int,
-                  *, silence_s: float = 5.0) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
-    """Host side of one run: send ``description``, collect the samples and the verdict.
+                  *, silence_s: float = 5.0, heartbeat_s: float = 0.25) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
+    """Host side of one run: send ``description``, collect the samples and the verdict; a
+    HEARTBEAT goes out whenever the host sent nothing for ``heartbeat_s`` (the device's watchdog).
 
     Returns the verdict, the (n_samples, n_columns) float32 rows and the transfer's figures.
     Raises RigError when the device refuses the description, falls silent for ``silence_s`` or
     sends samples that do not fit the run.
     """
-    tx = bulk.Sender(lambda p: send(TO_DEVICE, p), max_payload, bulk.TO_DEVICE)
-    rx = bulk.Receiver(lambda p: send(ACK, p), bulk.TO_HOST)
+    last_tx = [time.monotonic()]
+
+    def sent(kind: str, payload: bytes) -> None:
+        send(kind, payload)
+        last_tx[0] = time.monotonic()
+
+    tx = bulk.Sender(lambda p: sent(TO_DEVICE, p), max_payload, bulk.TO_DEVICE)
+    rx = bulk.Receiver(lambda p: sent(ACK, p), bulk.TO_HOST)
     parts = _slices(description, tx.body_limit)
     for i, part in enumerate(parts):
         tx.queue(blocks.DESCRIPTION, part, bulk.FLAG_LAST if i == len(parts) - 1 else 0)
@@ -75,6 +83,8 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
     while verdict is None:
         now = time.monotonic()
         tx.pump(now)
+        if now - last_tx[0] >= heartbeat_s:
+            sent(HEARTBEAT, b"")
         msg = recv(0.01)
         now = time.monotonic()
         if msg is None:
@@ -131,6 +141,7 @@ class DeviceSession:
         self.upload_silence_s = upload_silence_s
         self.runs = 0
         self.stopped = False
+        self.last_rx = time.monotonic()  # the host's last message (the watchdog's reference)
         self._new()
 
     def _new(self) -> None:
@@ -141,6 +152,7 @@ class DeviceSession:
     def on_message(self, kind: str, payload: bytes) -> None:
         """One bulk message from the host; a complete description runs here and now (the device
         is busy until its results are acknowledged)."""
+        self.last_rx = time.monotonic()
         if kind == ACK:
             self.tx.on_ack(payload)
             return
@@ -160,10 +172,11 @@ class DeviceSession:
                 return
 
     def _run(self, data: bytes) -> None:
-        state = {"streamed": 0, "stream": False, "fs": 1.0, "cols": 0, "per_block": 1, "last": time.monotonic()}
+        state = {"streamed": 0, "stream": False, "fs": 1.0, "cols": 0, "per_block": 1, "last": time.monotonic(),
+                 "watchdog": float("inf")}
 
         def on_accept(description) -> None:
-            state.update(stream=description.stream, fs=description.fs, cols=description.n_columns,
+            state.update(stream=description.stream, fs=description.fs, cols=description.n_columns, watchdog=description.watchdog_s,
                          per_block=blocks.samples_per_block(self.tx.body_limit, description.n_columns))
             self.tx.queue(blocks.ACCEPT, blocks.ACCEPT_BODY.pack(description.ticks, description.n_columns))
             self._service()
@@ -179,6 +192,8 @@ class DeviceSession:
             self._service()
             if self.tx.cancelled or self.stopped:
                 raise HostStop("stopped by the host")
+            if now - self.last_rx > state["watchdog"]:
+                raise HostStop(f"watchdog: no message from the host for {now - self.last_rx:.3g} s")
 
         self.stopped = False
         try:
@@ -204,6 +219,7 @@ class DeviceSession:
         self.tx.pump(time.monotonic())
         while (msg := self.recv(timeout)) is not None:
             kind, payload = msg
+            self.last_rx = time.monotonic()
             if kind == ACK:
                 self.tx.on_ack(payload)
             elif kind == STOP:

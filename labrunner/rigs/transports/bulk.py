@@ -31,6 +31,8 @@ BLOCK = struct.Struct("<IBBH")  # seq, kind, flags, body length
 ACK = struct.Struct("<BBHI")  # code, direction, window, seq
 CRC = struct.Struct("<I")
 MAX_FRAMES = 256
+BLOCK_BYTES = 4096  #: largest block a sender makes (a lost frame costs one block: keep them small)
+WINDOW_BYTES = 32768  #: unacknowledged bytes a sender keeps in flight (a receiver's buffers hold them)
 FLAG_LAST = 0x01  # the last block of a transfer (description) or of a run's results (verdict)
 
 ACK_OK, NACK, CANCEL = 1, 2, 3
@@ -123,7 +125,7 @@ class Receiver:
     ``send_ack(payload)`` sends a BULK_ACK; ``direction`` names the stream in it.
     """
 
-    def __init__(self, send_ack: Callable[[bytes], None], direction: int, *, window: int = 64, nack_s: float = 0.05) -> None:
+    def __init__(self, send_ack: Callable[[bytes], None], direction: int, *, window: int = 64, nack_s: float = 0.2) -> None:
         self.send_ack, self.direction, self.window, self.nack_s = send_ack, direction, window, nack_s
         self.counters = Counters()
         self._assembler = Assembler(self.counters)
@@ -179,17 +181,20 @@ class _Pending:
     block: Block
     frames: list[bytes]
     sent_at: float = -1e9  # never sent
+    resent_at: float = -1e9  # never resent
 
 
 @dataclass
 class Sender:
-    """One stream's sending end: numbers blocks, sends within the receiver's window, resends what
-    is NACKed or stays unacknowledged for ``retry_s``. ``send_frame(payload)`` sends one frame."""
+    """One stream's sending end: numbers blocks, sends within the window (``window`` blocks, by
+    default :data:`WINDOW_BYTES` worth, at most what the receiver advertises), resends what is
+    NACKed (a block not again within ``retry_s``/4 of its last resend) or stays unacknowledged for ``retry_s``.
+    ``send_frame(payload)`` sends one frame."""
 
     send_frame: Callable[[bytes], None]
     max_payload: int
     direction: int
-    window: int = 64
+    window: int = 0
     retry_s: float = 0.5
     next_seq: int = 0
     acked: int = 0  # every block below this one has arrived
@@ -198,10 +203,16 @@ class Sender:
     bytes_sent: int = 0
     _pending: dict[int, _Pending] = field(default_factory=dict)
     _nacked: list[int] = field(default_factory=list)
+    _advertised: int = 1 << 16
+
+    def __post_init__(self) -> None:
+        if self.window <= 0:
+            self.window = max(2, WINDOW_BYTES // (self.body_limit + BLOCK.size + CRC.size))
 
     @property
     def body_limit(self) -> int:
-        return max_body(self.max_payload)
+        """Largest body :meth:`queue` takes."""
+        return min(max_body(self.max_payload), BLOCK_BYTES - BLOCK.size - CRC.size)
 
     @property
     def done(self) -> bool:
@@ -228,7 +239,7 @@ class Sender:
             for s in range(self.acked, min(seq, self.next_seq)):
                 self._pending.pop(s, None)
             self.acked = min(seq, self.next_seq)
-            self.window = max(1, window)
+            self._advertised = max(1, window)
         elif code == NACK and seq in self._pending and seq not in self._nacked:
             self._nacked.append(seq)
 
@@ -237,12 +248,13 @@ class Sender:
         blocks. Returns how many blocks went out."""
         sent = 0
         while self._nacked and sent < budget:
-            seq = self._nacked.pop(0)
-            if seq in self._pending:
-                self._send(self._pending[seq], now)
+            p = self._pending.get(self._nacked.pop(0))
+            if p is not None and now - p.resent_at >= self.retry_s / 4:
+                p.resent_at = now
+                self._send(p, now)
                 self.resent += 1
                 sent += 1
-        for seq in range(self.acked, min(self.next_seq, self.acked + self.window)):
+        for seq in range(self.acked, min(self.next_seq, self.acked + min(self.window, self._advertised))):
             if sent >= budget:
                 break
             p = self._pending.get(seq)

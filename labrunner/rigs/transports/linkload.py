@@ -11,14 +11,15 @@ Frame lengths (worst case, so a feasible plan stays feasible whatever the payloa
   the nominal rate; ESI, DLC, data, stuff count and CRC (17 bits up to 16 bytes, else 21, each
   with its fixed stuff bits every 4) plus dynamic stuff bits of ESI..data at the data rate. The
   data length is rounded up to the next legal DLC size.
-* serial (8N1): 10 bits per byte; a frame is ``serial_overhead`` framing bytes plus the payload.
+* serial (8N1): 10 bits per byte; a frame is ``serial_overhead`` framing bytes (delimiters, COBS
+  byte, node, code, CRC-16) plus the payload.
 
 Loads (fraction of the link's capacity, the busier direction of a full-duplex serial line, the
 sum of both directions on a CAN bus, which is half-duplex):
 
-* host loop: per tick, the inputs host → device and the measurements device → host, one frame per
-  channel on classic CAN (4-byte value in an 8-byte frame), the channels of one tick packed into
-  one frame each way where the payload allows (CAN FD, serial);
+* host loop (protocol v1, docs/protocol.md): per tick, one 8-byte INPUT frame per input host →
+  device, one 8-byte MEASUREMENT frame per output and the tick's trailer device → host, on every
+  medium (CAN FD sends them as 8-byte FD frames at the data rate);
 * device loop: the sample stream of ``n_columns`` float32 per tick device → host in bulk frames
   (:mod:`~labrunner.rigs.transports.bulk`). It never makes the device loop infeasible: a stream
   that does not fit the budget is sent after the run, which then takes :func:`upload_s`.
@@ -34,8 +35,9 @@ from dataclasses import dataclass
 
 MAX_LOAD = 0.8  #: highest load a plan may put on a link
 FD_SIZES = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)  #: legal CAN FD data lengths
-VALUE_BYTES = 4  #: one float32 channel value
-HOST_FRAME_HEADER = 4  #: bytes of a packed host-loop frame before its values (sequence, flags)
+VALUE_BYTES = 4  #: one float32 sample value
+FIXED_BYTES = 8  #: payload of every host-loop frame
+TRAILER_FRAMES = 1  #: the tick trailer (device timestamp, LATE/OVERRUN flags) after the measurements
 BULK_FRAME_HEADER = 1  #: bytes of a bulk frame before its data (the frame index)
 SAMPLE_BLOCK_OVERHEAD = 32  #: block header, sample-block header and CRC32 per sample block
 
@@ -49,7 +51,7 @@ class LinkSpec:
     bitrate: float
     data_bitrate: float = 0.0
     max_payload: int = 8
-    serial_overhead: int = 4  # SYNC, node, type, CRC-8 of today's serial frame
+    serial_overhead: int = 7  # 0x00, COBS byte, node, code, CRC-16, 0x00 (framing.py)
 
     def __post_init__(self) -> None:
         if self.medium not in ("can", "canfd", "serial"):
@@ -100,20 +102,10 @@ def canfd_frame_bits(n: int) -> tuple[int, int]:
 
 
 def host_loop_load(link: LinkSpec, fs: float, n_inputs: int, n_outputs: int) -> float:
-    """Load of the host loop at ``fs``: the inputs one way and the measurements the other, per tick."""
-    per_tick = [_tick_s(link, n_inputs), _tick_s(link, n_outputs)]
+    """Load of the host loop at ``fs``: the inputs one way, the measurements and trailer the other."""
+    per_tick = [n_inputs * link.frame_s(FIXED_BYTES), (n_outputs + TRAILER_FRAMES) * link.frame_s(FIXED_BYTES)]
     busy = max(per_tick) if link.duplex else sum(per_tick)
     return fs * busy
-
-
-def _tick_s(link: LinkSpec, channels: int) -> float:
-    """Wire time of one tick's worth of ``channels`` values in one direction."""
-    if link.medium == "can":
-        return channels * link.frame_s(8)
-    per_frame = (link.max_payload - HOST_FRAME_HEADER) // VALUE_BYTES
-    full, rest = divmod(channels, per_frame)
-    t = full * link.frame_s(HOST_FRAME_HEADER + per_frame * VALUE_BYTES)
-    return t + (link.frame_s(HOST_FRAME_HEADER + rest * VALUE_BYTES) if rest else 0.0)
 
 
 def bulk_bytes_s(link: LinkSpec, n_bytes: int) -> float:
@@ -174,6 +166,15 @@ def report(link: LinkSpec, fs: float, n_inputs: int, n_outputs: int, n_columns: 
 def max_host_fs(link: LinkSpec, n_inputs: int, n_outputs: int) -> float:
     """The highest f_s [Hz] at which the host loop stays within :data:`MAX_LOAD`."""
     return MAX_LOAD / host_loop_load(link, 1.0, n_inputs, n_outputs)
+
+
+def from_rig(kind: str, parameters: dict) -> LinkSpec:
+    """The link a validated ``can`` or ``serial`` rig file's ``[parameters]`` name."""
+    if kind == "serial":
+        return LinkSpec("serial", float(parameters["baudrate"]), max_payload=64)
+    if parameters.get("fd"):
+        return LinkSpec("canfd", float(parameters["bitrate"]), float(parameters["data_bitrate"]), 64)
+    return LinkSpec("can", float(parameters["bitrate"]))
 
 
 def describe(link: LinkSpec) -> str:
