@@ -37,7 +37,7 @@ def test_canfd_lengths_round_up_and_the_data_phase_runs_faster():
 def test_host_loop_loads_of_protocol_v1():
     # one 8-byte frame per input host → device, per output and the tick trailer device → host:
     # the valve (i → q) at 4 kHz needs 162 % of 1 Mbit/s worst case (4000 × 3 × 135 bits), the
-    # plate (4 currents in, 3 gaps + trailer out) at 32 kHz over 34 buses
+    # plate (4 currents in, 3 gaps + trailer out) at 32 kHz over 34 buses (the twin has a fourth sensor)
     assert ll.host_loop_load(CAN_1M, 4000, 1, 1) == pytest.approx(1.62)
     assert ll.host_loop_load(CAN_1M, 32000, 4, 3) == pytest.approx(32000 * 8 * 135 / 1e6)
     assert ll.host_loop_load(CAN_1M, 200, 1, 1) == pytest.approx(200 * 3 * 135 / 1e6)

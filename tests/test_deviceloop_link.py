@@ -1,0 +1,112 @@
+"""Device loop across processes, over python-can ``udp_multicast`` and over a pty: the emulated
+device in its own process runs the point; the outcome equals the twin engine's and the signals
+and metrics agree within float32 effects; faults on the link are detected and healed."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from labrunner.rigs.config import config_from_dict
+from labrunner.rigs.registry import load_rig
+from tests.deviceloop_points import POINTS, twin_run
+
+ROOT = Path(__file__).resolve().parent.parent
+DEVICE = {"dcmotor-sim": "dcmotor", "valve-sim": "valve", "plate-sim": "plate"}
+
+
+def rig_file(name: str, medium: str, port: str = "") -> dict:
+    """A remote rig file for the device of point ``name`` on ``medium`` (can | canfd | serial)."""
+    _, rig_name, _, _, safety = POINTS[name]
+    parameters = {"device": DEVICE[rig_name], "node_id": 9, "loop": "device", "model": {}}
+    if medium == "serial":
+        parameters.update(port=port, baudrate=3_000_000)
+    else:
+        parameters.update(interface="udp_multicast", channel="239.74.163.2", port=random.randint(20000, 60000),
+                          bitrate=1_000_000, fd=medium == "canfd", data_bitrate=5_000_000)
+    return {"rig": {"kind": "serial" if medium == "serial" else "can", "name": f"{DEVICE[rig_name]}-{medium}"},
+            "parameters": parameters, "safety": dict(safety)}
+
+
+@contextlib.contextmanager
+def emulator_process(config: dict, faults: dict | None = None):
+    """The emulator of ``config`` in a child process; yields the host's rig file (a pty's name filled in)."""
+    args = [sys.executable, str(ROOT / "tests" / "deviceloop_emulate.py"), json.dumps(config)]
+    if faults:
+        args.append(json.dumps(faults))
+    proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        line = proc.stdout.readline().strip()
+        if config["rig"]["kind"] == "serial":
+            config = {**config, "parameters": {**config["parameters"], "port": line}}
+            line = proc.stdout.readline().strip()
+        assert line == "ready", f"emulator did not start: {line!r}"
+        yield config
+    finally:
+        proc.stdin.close()
+        proc.wait(timeout=10)
+
+
+def device_run(name: str, config: dict, seed: int = 11):
+    point, _, fs, duration, safety = POINTS[name]
+    rig = load_rig(config_from_dict(config))
+    with rig:
+        [result] = rig.run_on_device([point], fs=fs, duration=duration, seeds=[seed], rig_safety=safety)
+    return result
+
+
+def assert_same_as_twin(result, name: str, seed: int = 11) -> None:
+    twin = twin_run(name, seed)
+    assert result.outcome == twin.outcome and result.channels == twin.channels
+    assert result.n_samples == twin.n_samples
+    f32 = {k: np.float32(v).astype(float) for k, v in twin.signals.items()}  # each sample rounded once
+    for key, value in f32.items():  # the host computes e = y − y_r from the samples, as the engine does
+        o = key[2:] if key.startswith("e_") else None
+        expected = f32[o] - f32[f"ref_{o}"] if o in twin.signals and f"ref_{o}" in twin.signals else value
+        np.testing.assert_array_equal(result.signals[key], expected, err_msg=key)
+    for key, value in twin.metrics.items():
+        assert result.metrics[key] == pytest.approx(value, rel=1e-4, abs=1e-9, nan_ok=True), key
+
+
+CASES = [("motor-mfc2", "can"), ("valve-mfc1", "can"), ("plate-mfc", "canfd"),
+         ("motor-mfc1", "serial"), ("valve-mfc1", "serial"), ("plate-mbc", "serial")]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, medium", CASES)
+def test_device_loop_across_processes_gives_the_twin_result(name, medium):
+    with emulator_process(rig_file(name, medium)) as config:
+        result = device_run(name, config)
+    assert_same_as_twin(result, name)
+    d = result.diagnostics
+    assert d["loop"] == "device" and d["device_loop"]["ticks"] == result.n_samples and d["device_loop"]["overruns"] == 0
+    assert d["device_loop"]["device_run_s"] == pytest.approx(result.n_samples / result.fs)
+    assert d["device_loop"]["bytes_to_host"] >= result.n_samples * 4 * len(result.channels["inputs"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("medium, faults", [("can", {"drop": 0.004, "seed": 2}),
+                                            ("serial", {"drop": 0.003, "garbage": 0.01, "seed": 3})])
+def test_lost_and_corrupted_frames_are_detected_and_resent(medium, faults):
+    with emulator_process(rig_file("valve-mfc1", medium), faults) as config:
+        result = device_run("valve-mfc1", config)
+    assert_same_as_twin(result, "valve-mfc1")
+    received = result.diagnostics["device_loop"]["received"]
+    assert received["broken"] + received["crc_errors"] > 0 and received["nacks"] > 0
+
+
+@pytest.mark.slow
+def test_a_host_loop_rig_file_is_not_run_on_the_device():
+    config = rig_file("motor-mfc1", "can")
+    config["parameters"]["loop"] = "host"
+    with emulator_process(config) as config:
+        rig = load_rig(config_from_dict(config))
+        with rig:
+            assert rig.loop == "host"
