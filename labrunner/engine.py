@@ -7,7 +7,9 @@ at its abort sample; the batch goes on until every run has ended or the duration
 
 Outcomes: ``completed``; ``aborted`` (a safety monitor tripped: monitor, time, value,
 threshold); ``no-motion`` (completed, but the load never moved beyond the sensor resolution, or
-the flow never rose above its threshold); ``failed`` (an exception: its message). The same code
+the flow never rose above its threshold); ``failed`` (an exception: its message; a
+:class:`~labrunner.errors.RigError` is re-raised after the runs are built, with them in
+``exc.results``, so the worker keeps their logs up to the failure and stops the campaign). The same code
 drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``.
 """
 
@@ -21,7 +23,7 @@ import numpy as np
 from labrunner._ufunc import count_nonzero
 from labrunner.control import factory
 from labrunner.control.base import Controller
-from labrunner.errors import LabrunnerError
+from labrunner.errors import LabrunnerError, RigError
 from labrunner.metrics import Roles, run_metrics
 from labrunner.rigs.base import Rig, RigInfo
 from labrunner.safety import SafetyConfig, SafetyMonitor
@@ -150,6 +152,7 @@ def run_batch(
     end = np.full(B, K)  # samples recorded per run
     active = np.ones(B, dtype=bool)
     failure = ""
+    rig_error: RigError | None = None
     k = logged = 0  # logged: ticks whose row is complete in every log
 
     try:
@@ -181,6 +184,11 @@ def run_batch(
             if finished:
                 break
             y = rig.step(u)
+    except RigError as exc:  # the rig failed: fail the open runs, keep what was logged, re-raise below
+        rig.safe_state()
+        rig_error, failure = exc, f"RigError: {exc}"
+        log.blank(logged)
+        end = np.where(active, np.minimum(end, k + 1), end)
     except LabrunnerError:
         rig.safe_state()
         raise
@@ -212,6 +220,9 @@ def run_batch(
         else:
             outcome = Outcome("completed")
         results.append(RunResult(outcome, signals, float(fs), channels, run_metrics(signals, roles)))
+    if rig_error is not None:  # the worker publishes these logs of the failed runs, then stops the campaign
+        rig_error.results = results
+        raise rig_error
     return results
 
 

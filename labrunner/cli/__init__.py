@@ -32,6 +32,8 @@ COMMANDS = (
     "identify",
     "bounds",
     "differentiator",
+    "emulate",
+    "check_rig",
 )
 
 

@@ -40,7 +40,8 @@ def report(outcome, directory: str, command: str) -> int:
         f"{left} left ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)"
     )
     if outcome.stop_reason:
-        raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`")
+        retry = f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)" if c.get("failed", 0) else ""
+        raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`{retry}")
     if outcome.interrupted:
         print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
         return 130

@@ -22,7 +22,7 @@ from can.util import dlc2len, len2dlc
 from labrunner.errors import RigError
 from labrunner.rigs.config import Param
 from labrunner.rigs.transports.link import Link
-from labrunner.rigs.transports.protocol import End, Frame, can_id, split_can_id
+from labrunner.rigs.transports.protocol import End, Frame, Kind, can_id, split_can_id
 from labrunner.rigs.transports.remote import RemoteRig
 
 # interfaces whose bus rate python-can does not set (the OS or nothing owns it)
@@ -59,11 +59,11 @@ class CanLink(Link):
             raise RigError(f"cannot open CAN bus {kwargs}: {exc}") from exc
         return cls(bus, parameters["node_id"], end, parameters["fd"])
 
-    def _send(self, frame: Frame) -> None:
-        data = frame.payload
-        if self.fd and len(data) > 8:
-            data = data.ljust(dlc2len(len2dlc(len(data))), b"\x00")
-        msg = can.Message(arbitration_id=can_id(self.node_id, frame.kind, self.end), data=data,
+    def _wire_payload(self, payload: bytes) -> bytes:
+        return payload.ljust(dlc2len(len2dlc(len(payload))), b"\x00") if self.fd else payload
+
+    def _send(self, kind: Kind, payload: bytes) -> None:
+        msg = can.Message(arbitration_id=can_id(self.node_id, kind, self.end), data=payload,
                           is_extended_id=False, is_fd=self.fd, bitrate_switch=self.fd)
         try:
             self.bus.send(msg)

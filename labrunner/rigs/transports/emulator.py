@@ -78,6 +78,10 @@ class Emulator:
         self._thread.start()
         return self
 
+    def is_alive(self) -> bool:
+        """Whether the firmware loop still runs (it ends when its link fails or it dies)."""
+        return self._thread.is_alive()
+
     def stop(self, close_link: bool = True) -> None:
         """Stop serving (the device is gone); close its end of the link."""
         self._stop.set()

@@ -44,13 +44,13 @@ class LinkFaults:
             or self.die_after_s != float("inf")
 
 
-class FaultyLink(Link):
-    """``inner`` with :class:`LinkFaults` applied to what it sends (delayed frames go out in :meth:`pump`)."""
+class FaultyLink:
+    """``inner`` (a :class:`~.link.Link`) with :class:`LinkFaults` applied to what it sends;
+    delayed frames go out in :meth:`pump`. Everything else is the inner link's."""
 
     def __init__(self, inner: Link, faults: LinkFaults) -> None:
-        super().__init__(inner.node_id, inner.end)
         self.inner, self.faults = inner, faults
-        self.counters = inner.counters
+        self.node_id, self.end, self.counters = inner.node_id, inner.end, inner.counters
         self.injected: dict[str, int] = {k: 0 for k in ("drop", "garbage", "duplicate", "stale", "spoof", "error_frame")}
         self._rng = random.Random(faults.seed)
         self._delayed: list[tuple[float, int, Frame]] = []
@@ -61,7 +61,7 @@ class FaultyLink(Link):
     def max_payload(self) -> int:
         return self.inner.max_payload
 
-    def _send(self, frame: Frame) -> None:
+    def send(self, frame: Frame) -> None:
         f, rng = self.faults, self._rng
         self._history = (self._history + [frame])[-11:]
         if rng.random() < f.drop:

@@ -21,9 +21,13 @@ Contract (stable; later changes are additive):
 from __future__ import annotations
 
 import abc
+import collections
 from dataclasses import asdict, dataclass
 
 from labrunner.rigs.transports.protocol import BULK_KINDS, FIXED_PAYLOAD, End, Frame, Kind, senders
+
+
+_RECENT = 64  # frames remembered to tell this end's echoes from spoofed frames
 
 
 @dataclass
@@ -33,7 +37,8 @@ class LinkCounters:
     sent: int = 0  # frames sent
     received: int = 0  # frames returned by recv
     foreign: int = 0  # frames for other nodes or in other id formats (ignored, not an error)
-    spoofed: int = 0  # frames with this node's id of a kind only this end sends
+    echoes: int = 0  # this end's own recent frames coming back (multicast loopback; not an error)
+    spoofed: int = 0  # frames with this node's id of a kind only this end sends, not sent by it
     malformed: int = 0  # unassigned function codes, payloads of the wrong size, bad COBS
     crc_errors: int = 0  # serial frames with a bad CRC
     garbage_bytes: int = 0  # serial bytes dropped while resynchronising
@@ -49,6 +54,7 @@ class Link(abc.ABC):
     def __init__(self, node_id: int, end: End) -> None:
         self.node_id, self.end = int(node_id), End(end)
         self.counters = LinkCounters()
+        self._recent: collections.deque[tuple[Kind, bytes]] = collections.deque(maxlen=_RECENT)
 
     @property
     @abc.abstractmethod
@@ -62,11 +68,17 @@ class Link(abc.ABC):
         n = len(frame.payload)
         if not (1 <= n <= self.max_payload if frame.kind in BULK_KINDS else n == FIXED_PAYLOAD):
             raise ValueError(f"{frame.kind.name} payload of {n} bytes on a link of max_payload {self.max_payload}")
-        self._send(frame)
+        payload = self._wire_payload(frame.payload)
+        self._send(frame.kind, payload)
         self.counters.sent += 1
+        self._recent.append((frame.kind, payload))
+
+    def _wire_payload(self, payload: bytes) -> bytes:
+        """The payload as the transport carries it (CAN FD pads it to a valid length)."""
+        return payload
 
     @abc.abstractmethod
-    def _send(self, frame: Frame) -> None:
+    def _send(self, kind: Kind, payload: bytes) -> None:
         """Put one checked frame on the transport (RigError on failure)."""
 
     @abc.abstractmethod
@@ -84,7 +96,10 @@ class Link(abc.ABC):
             self.counters.foreign += 1
             return None
         if sender != self.end.peer:
-            self.counters.spoofed += 1
+            if (kind, payload) in self._recent:
+                self.counters.echoes += 1
+            else:
+                self.counters.spoofed += 1
             return None
         if kind in BULK_KINDS:
             ok = 1 <= len(payload) <= self.max_payload

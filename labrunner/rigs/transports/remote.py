@@ -135,6 +135,20 @@ class RemoteRig(Rig):
         return diagnostics_record({k: now[k] - then[k] for k in now}, self.host, self.device, loop=self.loop,
                                   firmware_id=self.identity.firmware_id if self.identity else None)
 
+    def ping(self) -> float:
+        """Round trip [s] of one HEARTBEAT to the device's STATUS answer (RigError after ``timeout_s``)."""
+        self._heartbeat += 1
+        t0 = time.perf_counter()
+        self._send(m.pack(m.Heartbeat(self._heartbeat)))
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            frame = self._recv_until(deadline, f"no STATUS answer to HEARTBEAT within {self.timeout_s:g} s")
+            if frame.kind == Kind.STATUS:
+                self._status(m.unpack(frame))
+                return time.perf_counter() - t0
+            if frame.kind == Kind.ERROR:
+                self._device_error(m.unpack(frame))
+
     def keepalive(self) -> None:
         """Send a HEARTBEAT if the host sent nothing for half a watchdog period (call while idle)."""
         if time.monotonic() - self._last_send > 0.5 * self._watchdog_s():

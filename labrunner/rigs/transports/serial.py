@@ -18,7 +18,7 @@ from labrunner.errors import RigError
 from labrunner.rigs.config import Param
 from labrunner.rigs.transports.framing import SERIAL_MAX_PAYLOAD, SerialDecoder, encode_frame
 from labrunner.rigs.transports.link import Link
-from labrunner.rigs.transports.protocol import End, Frame, function_code, split_function_code
+from labrunner.rigs.transports.protocol import End, Frame, Kind, function_code, split_function_code
 from labrunner.rigs.transports.remote import RemoteRig
 
 
@@ -55,9 +55,9 @@ class SerialLink(Link):
             raise RigError(f"cannot open serial port {parameters['port']!r}: {exc}") from exc
         return cls(port, parameters["node_id"], end)
 
-    def _send(self, frame: Frame) -> None:
+    def _send(self, kind: Kind, payload: bytes) -> None:
         try:
-            self.port.write(encode_frame(self.node_id, function_code(frame.kind, self.end), frame.payload))
+            self.port.write(encode_frame(self.node_id, function_code(kind, self.end), payload))
         except (serial.SerialException, OSError) as exc:
             raise RigError(f"serial write failed: {exc}") from exc
 
