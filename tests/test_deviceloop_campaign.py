@@ -5,7 +5,6 @@ cannot carry."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -16,7 +15,7 @@ import pytest
 from labrunner import engine
 from labrunner.logs import read_run
 from labrunner.rigs.registry import load_rig
-from tests.test_deviceloop_link import ROOT, emulator_process, rig_file
+from tests.test_deviceloop_link import ROOT, emulator_process, rig_file, rig_toml
 
 CAMPAIGN = """
 [campaign]
@@ -51,18 +50,6 @@ hold = 0.02
 """
 
 
-def _toml(config: dict) -> str:
-    lines = [f'[rig]\nkind = "{config["rig"]["kind"]}"\nname = "{config["rig"]["name"]}"\n[parameters]']
-    lines += [f"{k} = {json.dumps(v)}" for k, v in config["parameters"].items() if k != "model"]
-    lines.append("[safety]")
-    for key, value in config["safety"].items():
-        if isinstance(value, dict):
-            lines.append(f"{key} = {{ " + ", ".join(f"{s} = {json.dumps(v)}" for s, v in value.items()) + " }")
-        else:
-            lines.append(f"{key} = {json.dumps(value)}")
-    return "\n".join(lines) + "\n"  # JSON scalars are TOML scalars
-
-
 def _labrunner(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "labrunner", *args], capture_output=True, text=True, cwd=ROOT, timeout=600)
 
@@ -70,7 +57,7 @@ def _labrunner(*args: str) -> subprocess.CompletedProcess:
 @pytest.mark.slow
 def test_plate_campaign_runs_on_the_device(tmp_path: Path):
     with emulator_process(rig_file("plate-mfc", "canfd")) as config:
-        (tmp_path / "plate-fd.toml").write_text(_toml(config))
+        (tmp_path / "plate-fd.toml").write_text(rig_toml(config))
         (tmp_path / "campaign.toml").write_text(CAMPAIGN)
         done = _labrunner("run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out"))
     assert done.returncode == 0, done.stderr
@@ -92,7 +79,7 @@ def test_plate_campaign_runs_on_the_device(tmp_path: Path):
 def test_plan_refuses_the_plate_host_loop_on_a_1_mbit_bus(tmp_path: Path):
     config = rig_file("plate-mfc", "can")
     config["parameters"]["loop"] = "host"
-    (tmp_path / "plate-fd.toml").write_text(_toml(config))
+    (tmp_path / "plate-fd.toml").write_text(rig_toml(config))
     (tmp_path / "campaign.toml").write_text(CAMPAIGN)
     for extra in (["--dry-run"], []):
         done = _labrunner("run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out"), *extra)
@@ -104,7 +91,7 @@ def test_plan_refuses_the_plate_host_loop_on_a_1_mbit_bus(tmp_path: Path):
 
 
 def test_plan_refuses_what_the_device_cannot_run(tmp_path: Path):
-    (tmp_path / "plate-fd.toml").write_text(_toml(rig_file("plate-mfc", "canfd")))
+    (tmp_path / "plate-fd.toml").write_text(rig_toml(rig_file("plate-mfc", "canfd")))
     (tmp_path / "campaign.toml").write_text(CAMPAIGN + '\n[rig_parameters]\nm = 5.0\n')
     done = _labrunner("run", str(tmp_path / "campaign.toml"), "--dry-run")
     assert done.returncode != 0 and "rig_parameters" in done.stderr

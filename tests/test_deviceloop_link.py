@@ -1,5 +1,5 @@
 """Device loop across processes, over python-can ``udp_multicast`` and over a pty: the emulated
-device in its own process runs the point; the outcome equals the twin engine's and the signals
+device (``labrunner emulate``) in its own process runs the point; the outcome equals the twin engine's and the signals
 and metrics agree within float32 effects; faults on the link are detected and healed."""
 
 from __future__ import annotations
@@ -7,8 +7,10 @@ from __future__ import annotations
 import contextlib
 import json
 import random
+import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -35,23 +37,38 @@ def rig_file(name: str, medium: str, port: str = "") -> dict:
             "parameters": parameters, "safety": dict(safety)}
 
 
+def rig_toml(config: dict) -> str:
+    """``config`` (a rig file as a dict: rig, parameters, safety) as TOML."""
+    lines = [f'[rig]\nkind = "{config["rig"]["kind"]}"\nname = "{config["rig"]["name"]}"\n[parameters]']
+    lines += [f"{k} = {json.dumps(v)}" for k, v in config["parameters"].items() if k != "model"]
+    lines.append("[safety]")
+    for key, value in config["safety"].items():
+        if isinstance(value, dict):
+            lines.append(f"{key} = {{ " + ", ".join(f"{s} = {json.dumps(v)}" for s, v in value.items()) + " }")
+        else:
+            lines.append(f"{key} = {json.dumps(value)}")
+    return "\n".join(lines) + "\n"  # JSON scalars are TOML scalars
+
+
 @contextlib.contextmanager
-def emulator_process(config: dict, faults: dict | None = None):
-    """The emulator of ``config`` in a child process; yields the host's rig file (a pty's name filled in)."""
-    args = [sys.executable, str(ROOT / "tests" / "deviceloop_emulate.py"), json.dumps(config)]
-    if faults:
-        args.append(json.dumps(faults))
-    proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    try:
-        line = proc.stdout.readline().strip()
-        if config["rig"]["kind"] == "serial":
-            config = {**config, "parameters": {**config["parameters"], "port": line}}
+def emulator_process(config: dict, faults: tuple[str, ...] = ()):
+    """``labrunner emulate --free-run`` of ``config`` in a child process (``faults``: its fault
+    options); yields the host's rig file (a pty's name filled in)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"{config['rig']['name']}.toml"
+        path.write_text(rig_toml(config))
+        proc = subprocess.Popen([sys.executable, "-m", "labrunner", "emulate", str(path), "--free-run", *faults],
+                                stdout=subprocess.PIPE, text=True, cwd=ROOT)
+        try:
             line = proc.stdout.readline().strip()
-        assert line == "ready", f"emulator did not start: {line!r}"
-        yield config
-    finally:
-        proc.stdin.close()
-        proc.wait(timeout=10)
+            if line.startswith("port "):
+                config = {**config, "parameters": {**config["parameters"], "port": line.removeprefix("port ")}}
+                line = proc.stdout.readline().strip()
+            assert line.startswith("serving"), f"emulator did not start: {line!r}"
+            yield config
+        finally:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=10)
 
 
 def device_run(name: str, config: dict, seed: int = 11):
@@ -92,8 +109,8 @@ def test_device_loop_across_processes_gives_the_twin_result(name, medium):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("medium, faults", [("can", {"drop": 0.004, "seed": 2}),
-                                            ("serial", {"drop": 0.003, "garbage": 0.01, "seed": 3})])
+@pytest.mark.parametrize("medium, faults", [("can", ("--drop", "0.004", "--seed", "2")),
+                                            ("serial", ("--drop", "0.003", "--garbage", "0.01", "--seed", "3"))])
 def test_lost_and_corrupted_frames_are_detected_and_resent(medium, faults):
     with emulator_process(rig_file("valve-mfc1", medium), faults) as config:
         result = device_run("valve-mfc1", config)

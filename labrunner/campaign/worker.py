@@ -165,7 +165,8 @@ def _publish_all(
 ) -> None:
     """Write every log under a temporary name, fsync them concurrently (one journal flush for many
     files instead of one each), rename them into place, fsync the directory once. A real rig's
-    ``diagnostics`` record (docs/protocol.md § Diagnostics) goes into the metadata and the outcome."""
+    ``diagnostics`` record (docs/protocol.md § Diagnostics), or a device-loop run's own
+    (``RunResult.diagnostics``, docs/device-loop.md), goes into the metadata and the outcome."""
     from labrunner.logs import write_run
 
     runs_dir = Path(task.directory) / RUNS_DIR
@@ -178,11 +179,10 @@ def _publish_all(
             tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{secrets.token_hex(4)}.mcap"
             metadata = _metadata(task, run, host, rig)
             metadata["metrics"] = dict(result.metrics)
-            if getattr(result, "diagnostics", None):
-                metadata["diagnostics"] = dict(result.diagnostics)  # the rig's record of the run (a device loop's timing)
             outcome = result.outcome.as_dict()
-            if diagnostics is not None:
-                metadata["diagnostics"] = outcome["diagnostics"] = dict(diagnostics)
+            record = getattr(result, "diagnostics", None) or diagnostics  # a device loop's record is per run
+            if record is not None:
+                metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
             write_run(tmp, metadata=metadata, fs=task.fs, signals=result.signals, outcome=outcome,
                       attachments=attachments, channels=result.channels)
             written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1, syncer.submit(_fsync, tmp)))
