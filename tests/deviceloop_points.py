@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
+import pytest
+
 from labrunner import engine
 from labrunner.rigs.registry import load_rig
 
@@ -35,8 +38,24 @@ POINTS = {
 }
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def twin_run(name: str, seed: int) -> engine.RunResult:
     """The twin engine's run of a point (B = 1)."""
     point, rig, fs, duration, safety = POINTS[name]
     return engine.run_batch([point], load_rig(rig), fs=fs, duration=duration, seeds=[seed], rig_safety=safety)[0]
+
+
+def assert_same_as_twin(result: engine.RunResult, name: str, seed: int) -> None:
+    """A device run of point ``name`` is the twin's: same outcome, channels and length; every
+    sample the twin's rounded once to float32, the errors e = y − y_r of those samples; the
+    metrics within what that rounding moves them."""
+    twin = twin_run(name, seed)
+    assert result.outcome == twin.outcome and result.channels == twin.channels
+    assert result.n_samples == twin.n_samples
+    f32 = {k: np.float32(v).astype(float) for k, v in twin.signals.items()}
+    for key, value in f32.items():
+        o = key[2:] if key.startswith("e_") else None
+        expected = f32[o] - f32[f"ref_{o}"] if o in twin.signals and f"ref_{o}" in twin.signals else value
+        np.testing.assert_array_equal(result.signals[key], expected, err_msg=key)
+    for key, value in twin.metrics.items():
+        assert result.metrics[key] == pytest.approx(value, rel=1e-4, abs=1e-9, nan_ok=True), key

@@ -34,7 +34,8 @@ def test_assembler_drops_corrupt_and_broken_blocks_and_ignores_fd_padding():
     padded = frames[:-1] + [frames[-1] + b"\0" * 5]  # CAN FD rounds the last frame up
     out = [b for f in padded if (b := asm.feed(f))]
     assert out == [good]
-    flipped = bytearray(frames[2]); flipped[3] ^= 0x10
+    flipped = bytearray(frames[2])
+    flipped[3] ^= 0x10
     assert [asm.feed(f) for f in frames[:2] + [bytes(flipped)] + frames[3:]][-1] is None
     assert counters.crc_errors == 1
     assert all(asm.feed(f) is None for f in frames[:1] + frames[2:])  # frame 1 lost
@@ -58,7 +59,9 @@ def _transfer(bodies, max_payload, drop, seed, window=8):
             if rng.random() < drop:
                 continue
             if rng.random() < drop:
-                b = bytearray(frame); b[rng.randrange(len(b))] ^= 1 << rng.randrange(8); frame = bytes(b)
+                b = bytearray(frame)
+                b[rng.randrange(len(b))] ^= 1 << rng.randrange(8)
+                frame = bytes(b)
             got += rx.feed(frame, now)
         to_rx.clear()
         rx.poll(now)

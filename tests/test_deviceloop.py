@@ -6,19 +6,19 @@ from __future__ import annotations
 import queue
 import random
 import threading
+import time
 import zlib
 
 import numpy as np
 import pytest
 
-from labrunner import engine
 from labrunner.errors import InvalidParameter, RigError
 from labrunner.rigs.device import blocks, description, executor, host, session
 from labrunner.rigs.device.columns import to_columns
 from labrunner.rigs.device.description import DescriptionError
 from labrunner.rigs.registry import load_rig
-from labrunner.rigs.transports import linkload
-from tests.deviceloop_points import POINTS, twin_run
+from labrunner.rigs.transports import bulk, linkload
+from tests.deviceloop_points import POINTS, assert_same_as_twin, twin_run
 
 
 @pytest.mark.parametrize("name", sorted(POINTS))
@@ -104,7 +104,9 @@ class _Channel:
             if kind == session.TO_HOST and self.rng.random() < self.fault:
                 if self.rng.random() < 0.5:
                     return
-                b = bytearray(payload); b[-1] ^= 0x21; payload = bytes(b)
+                b = bytearray(payload)
+                b[-1] ^= 0x21
+                payload = bytes(b)
             self.q[other].put((kind, payload))
 
         def recv(timeout):
@@ -138,13 +140,8 @@ def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     finally:
         stop.set()
         device.join()
+    assert_same_as_twin(result, name, 11)
     twin = twin_run(name, seed=11)
-    assert result.outcome == twin.outcome
-    assert result.signals.keys() == twin.signals.keys() and result.channels == twin.channels
-    for key, value in twin.signals.items():
-        np.testing.assert_allclose(result.signals[key], value, rtol=1e-6, atol=1e-6 * np.abs(value).max())
-    for key, value in twin.metrics.items():
-        assert result.metrics[key] == pytest.approx(value, rel=1e-4, abs=1e-9, nan_ok=True), key
     d = result.diagnostics
     assert d["streamed"] is stream and d["ticks"] == twin.n_samples and d["overruns"] == 0
     assert d["received"]["crc_errors"] + d["received"]["broken"] > 0 and d["received"]["nacks"] > 0  # faults were healed
@@ -173,3 +170,79 @@ def test_a_silent_device_raises():
 def test_verdict_round_trip():
     v = blocks.Verdict("aborted", 10, 10, 2, "du_dt", 0.05, 130.0, 120.0, "", 50_000, 123)
     assert blocks.Verdict.decode(v.encode()) == v
+
+
+def _device_thread(rig):
+    """A device session on a fresh channel in a thread; returns (channel, session holder, stop event, thread)."""
+    channel, stop, held = _Channel(fault=0.0, seed=0), threading.Event(), {}
+
+    def serve():
+        send, recv = channel.end("device", "host")
+        held["session"] = dev = session.DeviceSession(send, recv, 8, lambda data, **kw: executor.execute(data, rig, **kw))
+        held["runs"] = runs = []
+        original = dev.execute
+
+        def recording(data, **kw):
+            run = original(data, **kw)
+            runs.append(run)
+            return run
+
+        dev.execute = recording
+        while not stop.is_set():
+            if (msg := recv(0.01)) is not None:
+                dev.on_message(*msg)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    return channel, held, stop, thread
+
+
+def _send_description(send, data: bytes) -> None:
+    """The description's blocks, sent once and never acknowledged or resent."""
+    sender = bulk.Sender(lambda p: send(session.TO_DEVICE, p), 8, bulk.TO_DEVICE)
+    parts = session._slices(data, sender.body_limit)
+    for i, part in enumerate(parts):
+        sender.queue(blocks.DESCRIPTION, part, bulk.FLAG_LAST if i == len(parts) - 1 else 0)
+    sender.pump(0.0)
+
+
+def test_stop_from_the_host_ends_the_run_failed_and_safe():
+    point, rig_name, fs, _, safety = POINTS["valve-mfc1"]
+    rig = load_rig(rig_name)
+    channel, held, stop, thread = _device_thread(rig)
+    try:
+        send, recv = channel.end("host", "device")
+        _send_description(send, description.build(point, rig.info, fs=fs, duration=20.0, seed=0, rig_safety=safety))
+        assert _wait(lambda: (msg := recv(0.05)) is not None and msg[0] == session.TO_HOST)  # the run began
+        send(session.STOP, b"")  # what the emulator's adapter hands over for SAFE or STOP
+        assert _wait(lambda: held.get("runs"))
+    finally:
+        stop.set()
+        thread.join()
+    run = held["runs"][0]
+    assert run.verdict.status == "failed" and "stopped by the host" in run.verdict.message
+    assert run.verdict.n_samples < 20.0 * fs and rig.is_safe.all()
+
+
+def test_a_silent_host_trips_the_device_watchdog():
+    point, rig_name, fs, _, safety = POINTS["valve-mfc1"]
+    rig = load_rig(rig_name)
+    channel, held, stop, thread = _device_thread(rig)
+    try:
+        send, _ = channel.end("host", "device")
+        data = description.build(point, rig.info, fs=fs, duration=20.0, seed=0, rig_safety=safety, watchdog_s=0.3)
+        _send_description(send, data)  # then silence: no ACKs, no heartbeats
+        assert _wait(lambda: held.get("runs"), 30.0)
+    finally:
+        stop.set()
+        thread.join()
+    run = held["runs"][0]
+    assert run.verdict.status == "failed" and "watchdog" in run.verdict.message and rig.is_safe.all()
+    assert run.verdict.n_samples < 20.0 * fs
+
+
+def _wait(predicate, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return predicate()

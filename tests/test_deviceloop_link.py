@@ -13,12 +13,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
-from tests.deviceloop_points import POINTS, twin_run
+from tests.deviceloop_points import POINTS, assert_same_as_twin
 
 ROOT = Path(__file__).resolve().parent.parent
 DEVICE = {"dcmotor-sim": "dcmotor", "valve-sim": "valve", "plate-sim": "plate"}
@@ -79,19 +78,6 @@ def device_run(name: str, config: dict, seed: int = 11):
     return result
 
 
-def assert_same_as_twin(result, name: str, seed: int = 11) -> None:
-    twin = twin_run(name, seed)
-    assert result.outcome == twin.outcome and result.channels == twin.channels
-    assert result.n_samples == twin.n_samples
-    f32 = {k: np.float32(v).astype(float) for k, v in twin.signals.items()}  # each sample rounded once
-    for key, value in f32.items():  # the host computes e = y − y_r from the samples, as the engine does
-        o = key[2:] if key.startswith("e_") else None
-        expected = f32[o] - f32[f"ref_{o}"] if o in twin.signals and f"ref_{o}" in twin.signals else value
-        np.testing.assert_array_equal(result.signals[key], expected, err_msg=key)
-    for key, value in twin.metrics.items():
-        assert result.metrics[key] == pytest.approx(value, rel=1e-4, abs=1e-9, nan_ok=True), key
-
-
 CASES = [("motor-mfc2", "can"), ("valve-mfc1", "can"), ("plate-mfc", "canfd"),
          ("motor-mfc1", "serial"), ("valve-mfc1", "serial"), ("plate-mbc", "serial")]
 
@@ -101,7 +87,7 @@ CASES = [("motor-mfc2", "can"), ("valve-mfc1", "can"), ("plate-mfc", "canfd"),
 def test_device_loop_across_processes_gives_the_twin_result(name, medium):
     with emulator_process(rig_file(name, medium)) as config:
         result = device_run(name, config)
-    assert_same_as_twin(result, name)
+    assert_same_as_twin(result, name, 11)
     d = result.diagnostics
     assert d["loop"] == "device" and d["device_loop"]["ticks"] == result.n_samples and d["device_loop"]["overruns"] == 0
     assert d["device_loop"]["device_run_s"] == pytest.approx(result.n_samples / result.fs)
@@ -114,7 +100,7 @@ def test_device_loop_across_processes_gives_the_twin_result(name, medium):
 def test_lost_and_corrupted_frames_are_detected_and_resent(medium, faults):
     with emulator_process(rig_file("valve-mfc1", medium), faults) as config:
         result = device_run("valve-mfc1", config)
-    assert_same_as_twin(result, "valve-mfc1")
+    assert_same_as_twin(result, "valve-mfc1", 11)
     received = result.diagnostics["device_loop"]["received"]
     assert received["broken"] + received["crc_errors"] > 0 and received["nacks"] > 0
 
