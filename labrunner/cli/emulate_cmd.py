@@ -33,8 +33,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--stale", type=_probability, default=0.0, metavar="P", help="repeat an old frame with probability P")
     p.add_argument("--spoof", type=_probability, default=0.0, metavar="P", help="a frame with the host's id with probability P")
     p.add_argument("--error-frames", type=_probability, default=0.0, metavar="P", help="a CAN error frame with probability P")
-    p.add_argument("--die-after", type=_non_negative, default=math.inf, metavar="S", help="fall silent for good after S seconds")
+    p.add_argument("--die-after", type=_non_negative, default=math.inf, metavar="S", help="fall silent for good S seconds into the first run")
     p.add_argument("--seed", type=numeric(int, ">= 0"), default=0, help="seed of the fault injection")
+    p.add_argument("--realtime", action="store_true",
+                   help="run the device's loop at SCHED_FIFO priority (root or CAP_SYS_NICE), like firmware on a timer")
     p.set_defaults(func=main)
 
 
@@ -65,10 +67,10 @@ def main(args: argparse.Namespace) -> int:
         print(f"port {port}", flush=True)
     else:
         link = device_link(config)
-    emulator = Emulator(twin_for(config), link, paced=not args.free_run, faults=faults).start()
+    emulator = Emulator(twin_for(config), link, paced=not args.free_run, faults=faults, realtime=args.realtime).start()
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    pacing = "free-running" if args.free_run else "paced"
+    pacing = ("free-running" if args.free_run else "paced") + (", real-time" if emulator.realtime else "")
     print(f"serving the {config.parameters['device']} twin of {config.source} ({pacing}); Ctrl-C stops", flush=True)
     try:
         while not done.wait(0.2) and emulator.is_alive():

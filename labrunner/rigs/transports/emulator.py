@@ -16,6 +16,7 @@ host commits an input, for fast tests. :class:`~.faults.LinkFaults` injects faul
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import select
@@ -31,6 +32,7 @@ from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.faults import FaultyLink, LinkFaults
 from labrunner.rigs.transports.link import Link
 from labrunner.rigs.transports.protocol import PROTOCOL_VERSION, End, Frame, Kind
+from labrunner.rigs.transports.realtime import realtime
 
 Handler = Callable[[Frame], None]
 Task = Callable[[float], "float | None"]
@@ -44,11 +46,12 @@ class Emulator:
     """Serve ``rig`` behind ``link`` until :meth:`stop`; ``errors`` collects exceptions of the twin."""
 
     def __init__(self, rig: Rig, link: Link, *, paced: bool = True, faults: LinkFaults | None = None,
-                 extensions: list[str] | None = None) -> None:
+                 extensions: list[str] | None = None, realtime: bool = False) -> None:
         from labrunner.rigs.transports.hostloop_device import install
 
         faults = faults or LinkFaults()
         self.rig, self.paced, self.faults = rig, paced, faults
+        self.realtime = realtime  # ask for SCHED_FIFO in the firmware thread; False after start if not granted
         self.link: Link = FaultyLink(link, faults) if faults.any else link
         self.state = m.DeviceState.IDLE
         self.last_error = m.ErrorCode.NONE
@@ -56,6 +59,7 @@ class Emulator:
         self.watchdog_s = float("inf")
         self.rejected = 0  # protocol-level rejects since the run's set-up (the link's drops come on top)
         self.late = 0
+        self.safe_at: float | None = None  # monotonic time the device last went safe
         self.errors: list[BaseException] = []
         self.capabilities = m.Capability.HOST_LOOP | (m.Capability.CAN_FD if link.max_payload > 8 else 0)
         self.handlers: dict[Kind, Handler] = {
@@ -69,13 +73,16 @@ class Emulator:
         self._thread = threading.Thread(target=self._serve, name="labrunner-emulator", daemon=True)
         self._t0 = time.monotonic()
         self._last_rx = self._last_status = self._t0
+        self._die_at = float("inf")  # set by the first run's set-up
         install(self)
         for target in EXTENSIONS if extensions is None else extensions:
             module, _, function = target.partition(":")
             getattr(importlib.import_module(module), function)(self)
 
     def start(self) -> Emulator:
+        self._started = threading.Event()
         self._thread.start()
+        self._started.wait(2.0)
         return self
 
     def is_alive(self) -> bool:
@@ -106,11 +113,13 @@ class Emulator:
         self.watchdog_s, self.rejected, self.late = float(watchdog_s), 0, 0
         self._link_rejects_at_setup = self._link_rejects()
         self._last_rx = self._last_status = time.monotonic()
+        if self._die_at == float("inf"):
+            self._die_at = self._last_rx + self.faults.die_after_s
 
     def go_safe(self) -> None:
         if self.state == m.DeviceState.RUNNING:
             self.rig.safe_state()
-            self.state = m.DeviceState.SAFE
+            self.state, self.safe_at = m.DeviceState.SAFE, time.monotonic()
 
     def error(self, code: m.ErrorCode, detail: float = 0.0, go_safe: bool = True) -> None:
         if go_safe:
@@ -131,11 +140,16 @@ class Emulator:
 
     # -- firmware loop ---------------------------------------------------------------------------
     def _serve(self) -> None:
-        die_at = self._t0 + self.faults.die_after_s
+        with realtime() if self.realtime else contextlib.nullcontext(False) as granted:
+            self.realtime = granted
+            self._started.set()
+            self._loop()
+
+    def _loop(self) -> None:
         faulty = self.link if isinstance(self.link, FaultyLink) else None
         while not self._stop.is_set():
             now = time.monotonic()
-            if now >= die_at:
+            if now >= self._die_at:
                 return  # the board lost power: silent from now on
             wake = now + 0.01
             try:

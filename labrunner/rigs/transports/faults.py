@@ -3,8 +3,8 @@
 :class:`FaultyLink` wraps the device's link: each frame the device sends may be dropped,
 delayed, duplicated, followed by garbage (random bytes on a serial line; a malformed frame on
 CAN), by a stale repeat of an earlier frame, by a spoofed frame (this node's id on a kind only
-the host sends), or by a CAN error frame. ``die_after_s`` silences the device for good (the
-emulator stops answering, like a board that lost power).
+the host sends), or by a CAN error frame. ``die_after_s`` after the first run's set-up silences the device
+for good (the emulator stops answering, like a board that lost power).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ class LinkFaults:
     stale: float = 0.0  # repeat a frame sent 10 frames earlier
     spoof: float = 0.0
     error_frame: float = 0.0  # CAN only
-    die_after_s: float = float("inf")
+    die_after_s: float = float("inf")  # counted from the first run's set-up
     seed: int = 0
 
     @property

@@ -5,7 +5,8 @@ samples y_0 at t_0 and sends it. Tick k+1 comes at t_{k+1} = t_0 + (k+1)/f_s on 
 clock: if every channel of u_k arrived and was committed before it, u_k is applied over
 [t_k, t_{k+1}] (the twin's zero-order hold); otherwise the device holds the input it applied last,
 flags tick k+1 LATE and drops u_k when it comes. A device that runs a tick more than one period
-after its time flags it OVERRUN. Unpaced (``Emulator.paced = False``), tick k+1 follows the
+after its time flags it OVERRUN and slips its clock (the next tick one period after this one)
+rather than running the missed ticks back to back, which no host could answer in time. Unpaced (``Emulator.paced = False``), tick k+1 follows the
 commit of u_k at once and is never late.
 """
 
@@ -96,9 +97,10 @@ class HostLoopDevice:
         """The tick task of a paced device: run every tick that is due."""
         if not self.emu.paced or self.emu.state != m.DeviceState.RUNNING:
             return None
-        while now >= self.next_tick and self.emu.state == m.DeviceState.RUNNING:
+        if now >= self.next_tick:
             self._tick(now)
-            self.next_tick += self.period
+            # a tick more than a period late slips the clock instead of running ticks back to back
+            self.next_tick = now + self.period if now - self.next_tick > self.period else self.next_tick + self.period
         return self.next_tick
 
     def _tick(self, now: float) -> None:

@@ -18,6 +18,7 @@ limits and nominal constants the rig has (``[parameters.model]`` holds that kind
 from __future__ import annotations
 
 import abc
+import contextlib
 import time
 from collections.abc import Mapping
 from dataclasses import replace
@@ -32,6 +33,7 @@ from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.diagnostics import DeviceReport, HostCounters, diagnostics_record
 from labrunner.rigs.transports.link import Link, LinkCounters
 from labrunner.rigs.transports.protocol import NODE_MAX, NODE_MIN, PROTOCOL_VERSION, Kind
+from labrunner.rigs.transports.realtime import realtime
 
 DEFAULT_LOOP = {"dcmotor": "host", "valve": "device", "plate": "device"}
 
@@ -42,7 +44,9 @@ COMMON = {
                   "empty: host for dcmotor, device for valve and plate", choices=("", "host", "device")),
     "timeout_s": Param(0.1, "s", "longest wait for a measurement beyond one sample period", lo=0.0, lo_open=True, hi=60.0),
     "watchdog_periods": Param(10.0, "1", "device watchdog in sample periods, sent in SETUP", lo=2.0, hi=1e6),
-    "max_late_ticks": Param(3, "", "late ticks in a row that fail a host-loop run", lo=1, hi=1_000_000),
+    "max_late_ticks": Param(10, "", "late ticks in a row that fail a host-loop run", lo=1, hi=1_000_000),
+    "realtime": Param(False, "", "run the host loop's thread at SCHED_FIFO priority (root or CAP_SYS_NICE; "
+                      "ignored where not granted)"),
     "handshake_timeout_s": Param(0.5, "s", "longest wait for the device's IDENTITY", lo=0.0, lo_open=True, hi=60.0),
 }
 
@@ -68,6 +72,7 @@ class RemoteRig(Rig):
         self._late_run = 0
         self._last_send = time.monotonic()
         self._heartbeat = 0
+        self._realtime: contextlib.ExitStack | None = None  # SCHED_FIFO held from the first reset to close
 
     # -- the registry contract -----------------------------------------------------------------
     @classmethod
@@ -105,19 +110,25 @@ class RemoteRig(Rig):
         """Open the transport named by validated ``parameters`` (raises RigError)."""
 
     # -- handshake and diagnostics -------------------------------------------------------------
-    def handshake(self) -> m.Identity:
-        """HELLO → IDENTITY; checks version, device kind, channel counts (RigError on a mismatch)."""
+    def handshake(self, attempts: int = 3) -> m.Identity:
+        """HELLO → IDENTITY (HELLO again, up to ``attempts`` times, while a record is missing);
+        checks version, device kind and channel counts (RigError on a mismatch or no answer)."""
         self._drain()
-        self._send(m.hello())
         records: dict[int, bytes] = {}
-        deadline = time.monotonic() + float(self.parameters["handshake_timeout_s"])
-        while len(records) < m.IDENTITY_RECORDS:
-            frame = self._recv_until(deadline, "no IDENTITY answer to HELLO")
-            if frame.kind == Kind.IDENTITY:
-                record = m.unpack(frame)
-                records[record.index] = record.value
-            elif frame.kind == Kind.ERROR:
-                self._device_error(m.unpack(frame))
+        wait = float(self.parameters["handshake_timeout_s"]) / attempts
+        for _ in range(attempts):
+            self._send(m.hello())
+            deadline = time.monotonic() + wait
+            while len(records) < m.IDENTITY_RECORDS and (frame := self._recv(deadline)) is not None:
+                if frame.kind == Kind.IDENTITY:
+                    record = m.unpack(frame)
+                    records[record.index] = record.value
+                elif frame.kind == Kind.ERROR:
+                    self._device_error(m.unpack(frame))
+            if len(records) == m.IDENTITY_RECORDS:
+                break
+        else:
+            self._fail(f"no complete IDENTITY answer to {attempts} HELLOs within {wait * attempts:.3g} s")
         ident = m.identity_from(records)
         kind = m.DeviceKind[self.info.kind.upper()]
         wrong = [f"{what} {got} (expected {want})" for what, got, want in (
@@ -171,6 +182,9 @@ class RemoteRig(Rig):
             raise InvalidParameter(f"overrides.{next(iter(overrides))}", "a real rig has no per-run parameters")
         if self.loop != "host":
             raise RigError(f"rig {self.info.name!r}: loop = {self.loop!r} is not served by the host loop")
+        if self.parameters["realtime"] and self._realtime is None:
+            self._realtime = contextlib.ExitStack()
+            self._realtime.enter_context(realtime())
         if self.identity is None:
             self.handshake()
         if self.identity is not None and not self.identity.capabilities & m.Capability.HOST_LOOP:
@@ -203,6 +217,8 @@ class RemoteRig(Rig):
         except RigError:
             pass
         self.link.close()
+        if self._realtime is not None:
+            self._realtime.close()
 
     # -- helpers -------------------------------------------------------------------------------
     def _watchdog_s(self) -> float:
@@ -223,11 +239,9 @@ class RemoteRig(Rig):
         except RigError as exc:
             self._fail(str(exc))
 
-    def _recv_until(self, deadline: float, what: str) -> m.Frame:
-        while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0.0:
-                self._fail(what)
+    def _recv(self, deadline: float) -> m.Frame | None:
+        """The next frame before ``deadline`` (monotonic), else None; a HEARTBEAT goes out while waiting."""
+        while (remaining := deadline - time.monotonic()) > 0.0:
             try:
                 frame = self.link.recv(min(remaining, 0.5 * self._watchdog_s()))
             except RigError as exc:
@@ -235,6 +249,14 @@ class RemoteRig(Rig):
             if frame is not None:
                 return frame
             self.keepalive()
+        return None
+
+    def _recv_until(self, deadline: float, what: str) -> m.Frame:
+        """The next frame before ``deadline``; the rig fails with ``what`` when none comes."""
+        frame = self._recv(deadline)
+        if frame is None:
+            self._fail(what)
+        return frame
 
     def _collect(self, seq: int, tick: int) -> np.ndarray:
         """Every output channel and the trailer of tick ``seq`` (the run's tick ``tick``); see the
