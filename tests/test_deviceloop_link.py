@@ -17,6 +17,7 @@ import pytest
 
 from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
+from labrunner.rigs.transports import linkload
 from tests.deviceloop_points import POINTS, assert_same_as_twin
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -92,6 +93,9 @@ def test_device_loop_across_processes_gives_the_twin_result(name, medium):
     assert d["loop"] == "device" and d["device_loop"]["ticks"] == result.n_samples and d["device_loop"]["overruns"] == 0
     assert d["device_loop"]["device_run_s"] == pytest.approx(result.n_samples / result.fs)
     assert d["device_loop"]["bytes_to_host"] >= result.n_samples * 4 * len(result.channels["inputs"])
+    link = linkload.from_rig(config["rig"]["kind"], config["parameters"])
+    fits = linkload.device_loop_load(link, result.fs, d["device_loop"]["columns"]) <= linkload.MAX_LOAD
+    assert d["device_loop"]["streamed"] == fits and fits == (name.startswith("motor") or name == "valve-mfc1" and medium == "serial")
 
 
 @pytest.mark.slow

@@ -67,7 +67,7 @@ def run(send: session.Send, recv: session.Recv, max_payload: int, points: Sequen
         d = description.decode(data)
         verdict, rows, transfer = session.run_on_device(send, recv, max_payload, data, d.ticks, d.n_columns, silence_s=silence_s)
         diagnostics = {
-            "loop": "device", "description_bytes": len(data), "streamed": d.stream, "ticks": verdict.ticks,
+            "loop": "device", "description_bytes": len(data), "columns": d.n_columns, "streamed": d.stream, "ticks": verdict.ticks,
             "overruns": verdict.overruns, "device_run_s": verdict.device_us / 1e6, "device_compute_s": verdict.compute_ns / 1e9,
             **transfer.as_dict(),
         }
