@@ -75,6 +75,11 @@ def test_executor_refuses_records_that_disagree_with_the_point():
         executor.check(description.Description(**{**d.__dict__, "trajectories": d.trajectories[:0]}), rig)
     with pytest.raises(DescriptionError, match="outputs"):
         executor.check(d, _plate())
+    point, _, fs, duration, safety = POINTS["plate-mfc"]
+    plate = description.decode(description.build(point, _plate().info, fs=fs, duration=duration, seed=0, rig_safety=safety))
+    notch = {"_notch": plate.filters["_notch"] * 1.001}
+    with pytest.raises(DescriptionError, match="filter matrices"):
+        executor.check(description.Description(**{**plate.__dict__, "filters": notch}), _plate())
 
 
 def _plate():
@@ -246,3 +251,24 @@ def _wait(predicate, timeout=20.0):
     while not predicate() and time.monotonic() < deadline:
         time.sleep(0.01)
     return predicate()
+
+
+def test_filter_records_step_like_the_controllers_filters():
+    """The plate MBC's FILTER record, run as firmware would ([out, x⁺] = [x, w] · M), gives the
+    controller's own filter outputs for a random input sequence."""
+    from labrunner.control import factory
+
+    point, rig_name, fs, duration, safety = POINTS["plate-mbc"]
+    info = load_rig(rig_name).info
+    d = description.decode(description.build(point, info, fs=fs, duration=duration, seed=0, rig_safety=safety))
+    controller, _ = factory.build([point], info, fs)
+    chain = controller._chain
+    M = d.filters["_chain"]
+    n, m = chain.n, chain.m
+    rng = np.random.default_rng(0)
+    w = rng.normal(size=(50, 3, m))
+    chain.reset(np.zeros((1, 3, m)))
+    x = np.zeros((3, n))
+    for k in range(50):
+        out, x = np.split(np.hstack([x, w[k]]) @ M, [chain.p], axis=1)
+        np.testing.assert_allclose(chain.step(w[k][None])[0], out, rtol=1e-12, atol=1e-12)
