@@ -35,6 +35,7 @@ from labrunner.rigs.transports.link import Link, LinkCounters
 from labrunner.rigs.transports.protocol import NODE_MAX, NODE_MIN, PROTOCOL_VERSION, Kind
 from labrunner.rigs.transports.realtime import realtime
 
+SETUP_ANSWER_S = 0.5  # longest wait for y_0 after SETUP (a device may reset its hardware first)
 DEFAULT_LOOP = {"dcmotor": "host", "valve": "device", "plate": "device"}
 
 COMMON = {
@@ -257,7 +258,7 @@ class RemoteRig(Rig):
         n = len(self.info.outputs)
         y = np.zeros((1, n))
         missing = set(range(n))
-        limit = self.timeout_s + 1.0 / self.fs
+        limit = (self.timeout_s if tick else max(self.timeout_s, SETUP_ANSWER_S)) + 1.0 / self.fs
         deadline = time.monotonic() + limit
         while True:
             frame = self._recv_until(deadline, f"no complete measurement of tick {seq} within {limit:.3g} s "
