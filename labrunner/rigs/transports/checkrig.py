@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from labrunner.rigs.config import RigConfig
+from labrunner.rigs.base import RigConfig
 from labrunner.rigs.transports import messages as m
 
 RTT_MARGIN = 0.5  # share of a period a host-loop round trip may take
