@@ -303,6 +303,9 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
         config["campaign"]["duration"] = duration
         points.append(PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split)))
     gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
+    from labrunner.rigs.device.plan import check_placement
+
+    check_placement(campaign, points)  # a loop the rig's link or device cannot carry
     digest = hashlib.sha256(canonical_json({"name": campaign.name, "rig": campaign.rig}).encode())
     for *_, d in checked:
         digest.update(d.encode())

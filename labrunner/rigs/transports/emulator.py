@@ -40,7 +40,7 @@ Task = Callable[[float], "float | None"]
 
 STATUS_PERIOD_S = 0.1
 FIRMWARE_ID = 0x4C520001  # "LR", emulator build 1
-EXTENSIONS: list[str] = []  # "module:function" installers of further handlers (the device loop)
+EXTENSIONS: list[str] = ["labrunner.rigs.device.emulated:install"]  # "module:function" installers of further handlers
 
 
 class Emulator:

@@ -164,6 +164,13 @@ class RemoteRig(Rig):
             self.host.heartbeats_sent += 1
             self._send(m.pack(m.Heartbeat(self._heartbeat)))
 
+    def run_on_device(self, points, *, fs: float, duration: float, seeds, rig_safety=None) -> list:
+        """Run ``points`` with the loop on the device (``loop = "device"``): one run description
+        each, their results as RunResults (:mod:`labrunner.rigs.device.remote`)."""
+        from labrunner.rigs.device.remote import run_on_device
+
+        return run_on_device(self, points, fs=fs, duration=duration, seeds=seeds, rig_safety=rig_safety)
+
     # -- Rig hooks -----------------------------------------------------------------------------
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
         if batch != 1:
