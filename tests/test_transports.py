@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from labrunner.errors import InvalidParameter, RigError
-from labrunner.rigs.config import RigConfig, config_from_dict
+from labrunner.rigs.base import RigConfig
+from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.emulator import Emulator, device_link, serve_on_pty, twin_for
 from labrunner.rigs.transports.framing import SerialDecoder, crc16, encode_frame
 from labrunner.rigs.transports.messages import DeviceState, ErrorCode
-from labrunner.rigs.transports.protocol import End, Frame, Kind, can_id, senders, split_can_id
+from labrunner.rigs.transports.protocol import End, Kind, can_id, senders, split_can_id
 
 MODEL = {"static_friction": 0.0, "coulomb_friction": 0.0, "backlash": 0.0, "electrical_tau": 0.0}
 U = 6.0 * np.sin(np.arange(60) / 8.0)

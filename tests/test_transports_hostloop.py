@@ -25,7 +25,7 @@ from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports.emulator import Emulator, device_link, twin_for
 from labrunner.rigs.transports.messages import DeviceState, ErrorCode
 from labrunner.rigs.transports.realtime import realtime
-from test_campaign_support import campaign_text, ledger_rows, project, write  # noqa: F401 - fixture
+from test_campaign_support import campaign_text, ledger_rows, write
 
 ROOT = Path(__file__).resolve().parents[1]
 

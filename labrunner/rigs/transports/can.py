@@ -20,7 +20,7 @@ import can
 from can.util import dlc2len, len2dlc
 
 from labrunner.errors import RigError
-from labrunner.rigs.config import Param
+from labrunner.rigs.schema import Param
 from labrunner.rigs.transports.link import Link
 from labrunner.rigs.transports.protocol import End, Frame, Kind, can_id, split_can_id
 from labrunner.rigs.transports.remote import RemoteRig

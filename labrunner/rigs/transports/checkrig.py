@@ -2,7 +2,7 @@
 
 Handshake (the device's identity), round trips of N HEARTBEAT → STATUS pings, the link's and
 the device's error counters, the link load of both loop placements at the rig's f_s (from the
-load model, :mod:`~labrunner.rigs.transports.linkload`, when it is installed) and the highest f_s
+load model, :mod:`~labrunner.rigs.transports.linkload`) and the highest f_s
 the host loop sustains with margin: a host-loop tick needs one round trip (the measurement to
 the host, the input back), so with half a period of margin for the host's own work
 ``f_max = 0.5 / p99(round trip)``, and no more than the load model allows.
@@ -10,7 +10,6 @@ the host, the input back), so with half a period of margin for the host's own wo
 
 from __future__ import annotations
 
-import importlib
 import json
 import shutil
 import subprocess
@@ -18,7 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from labrunner.rigs.config import RigConfig
+from labrunner.rigs.base import RigConfig
+from labrunner.rigs.config import rig_info
+from labrunner.rigs.transports import linkload
 from labrunner.rigs.transports import messages as m
 
 RTT_MARGIN = 0.5  # share of a period a host-loop round trip may take
@@ -36,22 +37,11 @@ def socketcan_bitrate(channel: str) -> int | None:
         return None
 
 
-def _link_load(config: RigConfig, n_in: int, n_out: int, bitrate: float) -> dict[str, Any] | None:
-    """Both placements' loads at the rig's default f_s from the load model, or None without it."""
-    try:
-        linkload = importlib.import_module("labrunner.rigs.transports.linkload")
-    except ImportError:
-        return None
-    p = config.parameters
-    if config.kind == "serial":
-        spec = linkload.LinkSpec("serial", p["baudrate"], max_payload=64)
-    elif p["fd"]:
-        spec = linkload.LinkSpec("canfd", bitrate, p["data_bitrate"], max_payload=64)
-    else:
-        spec = linkload.LinkSpec("can", bitrate)
-    fs = float(config.limits.get("fs_default", 0.0)) or None
-    return {"link": linkload.describe(spec), "fs": fs,
-            **linkload.report(spec, fs, n_in, n_out, n_in + n_out).as_dict(),
+def _link_load(config: RigConfig, fs: float, n_in: int, n_out: int, bitrate: float) -> dict[str, Any]:
+    """Both placements' loads at ``fs`` from the load model (the device loop streaming u and y only:
+    a controller's estimates add columns), on the link the rig file names at ``bitrate``."""
+    spec = linkload.from_rig(config.kind, {**config.parameters, "bitrate": bitrate})
+    return {"link": linkload.describe(spec), **linkload.report(spec, fs, n_in, n_out, n_in + n_out).as_dict(),
             "max_host_fs_by_load": linkload.max_host_fs(spec, n_in, n_out)}
 
 
@@ -90,12 +80,9 @@ def check_rig(config: RigConfig, pings: int = 200) -> dict[str, Any]:
             bitrate = actual or bitrate
     else:
         report["baudrate"] = p["baudrate"]
-    max_fs = RTT_MARGIN / float(np.percentile(rtt, 99))
-    load = _link_load(config, ident.n_inputs, ident.n_outputs, float(bitrate))
-    if load is not None:
-        report["link_load"] = load
-        max_fs = min(max_fs, load["max_host_fs_by_load"])
-    report["max_host_fs"] = min(max_fs, ident.max_fs)
+    load = _link_load(config, rig_info(config).fs_default, ident.n_inputs, ident.n_outputs, float(bitrate))
+    report["link_load"] = load
+    report["max_host_fs"] = min(RTT_MARGIN / float(np.percentile(rtt, 99)), load["max_host_fs_by_load"], ident.max_fs)
     return report
 
 
@@ -115,9 +102,9 @@ def describe(report: dict[str, Any]) -> list[str]:
     bad = {k: v for k, v in report["link_counters"].items() if v and k not in ("sent", "received", "echoes")}
     lines.append(f"  link counters: {', '.join(f'{k} {v}' for k, v in bad.items()) or 'no errors'}; "
                  f"device rejected {report['device']['rejected']}, last error {report['device']['last_error']}")
-    if "link_load" in report:
-        ld = report["link_load"]
-        lines.append(f"  link load at {ld['fs']:g} Hz on {ld['link']}: host loop {ld['host_load']:.0%}, "
-                     f"device-loop stream {ld['device_stream_load']:.0%}")
+    ld = report["link_load"]
+    lines.append(f"  link load at {ld['fs']:g} Hz on {ld['link']}: host loop {ld['host_load']:.0%}"
+                 f"{'' if ld['host_feasible'] else ' (too much)'}, device-loop stream of u and y "
+                 f"{ld['device_stream_load']:.0%}{'' if ld['device_streams'] else ' (sent after the run)'}")
     lines.append(f"  the host loop sustains up to {report['max_host_fs']:.0f} Hz with margin")
     return lines

@@ -26,8 +26,9 @@ import tty
 from collections.abc import Callable
 
 from labrunner.errors import LabrunnerError
-from labrunner.rigs.base import Rig
-from labrunner.rigs.config import RigConfig, config_from_dict
+from labrunner.rigs.base import Rig, RigConfig
+from labrunner.rigs.config import config_from_dict
+from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.faults import FaultyLink, LinkFaults
 from labrunner.rigs.transports.link import Link
@@ -135,7 +136,8 @@ class Emulator:
 
     def identity(self) -> m.Identity:
         info = self.rig.info
-        return m.Identity(PROTOCOL_VERSION, int(m.DeviceKind[info.kind.upper()]), len(info.inputs), len(info.outputs),
+        kind = m.DeviceKind.__members__.get(info.kind.upper(), m.DeviceKind.OTHER)
+        return m.Identity(PROTOCOL_VERSION, int(kind), len(info.inputs), len(info.outputs),
                           int(self.capabilities), float(info.fs_range[1]), FIRMWARE_ID)
 
     # -- firmware loop ---------------------------------------------------------------------------
@@ -226,8 +228,6 @@ class Emulator:
 
 def twin_for(config: RigConfig) -> Rig:
     """The sim twin a remote rig file describes: its ``device`` kind with ``[parameters.model]``."""
-    from labrunner.rigs.registry import load_rig
-
     p = config.parameters
     return load_rig(config_from_dict({"rig": {"kind": p["device"], "name": config.name}, "parameters": dict(p["model"])}))
 

@@ -39,8 +39,10 @@ class DeviceState(IntEnum):
 
 
 class DeviceKind(IntEnum):
-    """Device kinds in IDENTITY (the signals and units are those of the rig kind of that name)."""
+    """Device kinds in IDENTITY (the signals and units are those of the rig kind of that name;
+    OTHER: a kind registered by another package, known by its channel counts)."""
 
+    OTHER = 0
     DCMOTOR = 1
     VALVE = 2
     PLATE = 3

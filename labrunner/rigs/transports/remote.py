@@ -27,18 +27,21 @@ from typing import Any, ClassVar
 import numpy as np
 
 from labrunner.errors import InvalidParameter, RigError
-from labrunner.rigs.base import Faults, Rig, RigInfo
-from labrunner.rigs.config import Param, RigConfig, rig_info, validate_section
+from labrunner.rigs.base import Faults, Rig, RigConfig, RigInfo
+from labrunner.rigs.config import rig_info
+from labrunner.rigs.kinds import rig_class, rig_kinds
+from labrunner.rigs.schema import Param, validate_section
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.diagnostics import DeviceReport, HostCounters, diagnostics_record
 from labrunner.rigs.transports.link import Link, LinkCounters
 from labrunner.rigs.transports.protocol import NODE_MAX, NODE_MIN, PROTOCOL_VERSION, Kind
 from labrunner.rigs.transports.realtime import realtime
 
+SETUP_ANSWER_S = 0.5  # longest wait for y_0 after SETUP (a device may reset its hardware first)
 DEFAULT_LOOP = {"dcmotor": "host", "valve": "device", "plate": "device"}
 
 COMMON = {
-    "device": Param("dcmotor", "", "the kind of rig behind the link (its signals and constants)", choices=("dcmotor", "valve", "plate")),
+    "device": Param("dcmotor", "", "the kind of rig behind the link (any registered kind that is not itself remote)"),
     "node_id": Param(1, "", "the device's node id (0 is CANopen NMT; ids stay below 0x7F0)", lo=NODE_MIN, hi=NODE_MAX),
     "loop": Param("", "", "where the closed loop runs: host (B = 1 over the link) or device; "
                   "empty: host for dcmotor, device for valve and plate", choices=("", "host", "device")),
@@ -56,7 +59,6 @@ class RemoteRig(Rig):
 
     KIND: ClassVar[str]
     TRANSPORT: ClassVar[Mapping[str, Param]]
-    NOISE: ClassVar[Mapping[str, Param]] = {}
 
     def __init__(self, info: RigInfo, link: Link, parameters: Mapping[str, Any], faults: Faults | None = None) -> None:
         super().__init__(info, faults)
@@ -74,28 +76,23 @@ class RemoteRig(Rig):
         self._heartbeat = 0
         self._realtime: contextlib.ExitStack | None = None  # SCHED_FIFO held from the first reset to close
 
-    # -- the registry contract -----------------------------------------------------------------
+    # -- the Rig contract (no noise, no per-run parameters: the base class's defaults) ------------
     @classmethod
     def validate_parameters(cls, raw: Mapping[str, Any], path: str = "parameters") -> dict[str, Any]:
-        from labrunner.rigs.registry import rig_class
-
+        """The link's keys, and ``[parameters.model]`` validated by the ``device`` kind's own schema."""
         raw = dict(raw)
         model = raw.pop("model", {})
         p = validate_section({**COMMON, **cls.TRANSPORT}, raw, path)
+        if p["device"] not in rig_kinds() or issubclass(rig_class(p["device"]), RemoteRig):
+            raise InvalidParameter(f"{path}.device", f"must be one of {device_kinds()}, got {p['device']!r}")
         if not isinstance(model, Mapping):
             raise InvalidParameter(f"{path}.model", f"must be a table, got {model!r}")
         p["model"] = rig_class(p["device"]).validate_parameters(model, f"{path}.model")
-        p["loop"] = p["loop"] or DEFAULT_LOOP[p["device"]]
+        p["loop"] = p["loop"] or DEFAULT_LOOP.get(p["device"], "host")
         return p
 
     @classmethod
-    def validate_noise(cls, raw: Mapping[str, Any], path: str = "noise") -> dict[str, Any]:
-        return validate_section(cls.NOISE, raw, path)
-
-    @classmethod
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
-        from labrunner.rigs.registry import rig_class
-
         info = rig_class(parameters["device"]).nominal_info(name, description, parameters["model"])
         return replace(info, simulated=False, description=description or f"{info.kind} over {cls.KIND}")
 
@@ -130,9 +127,9 @@ class RemoteRig(Rig):
         else:
             self._fail(f"no complete IDENTITY answer to {attempts} HELLOs within {wait * attempts:.3g} s")
         ident = m.identity_from(records)
-        kind = m.DeviceKind[self.info.kind.upper()]
+        kind = int(m.DeviceKind.__members__.get(self.info.kind.upper(), m.DeviceKind.OTHER))
         wrong = [f"{what} {got} (expected {want})" for what, got, want in (
-            ("protocol version", ident.version, PROTOCOL_VERSION), ("device kind", ident.device_kind, int(kind)),
+            ("protocol version", ident.version, PROTOCOL_VERSION), ("device kind", ident.device_kind, kind),
             ("inputs", ident.n_inputs, len(self.info.inputs)), ("outputs", ident.n_outputs, len(self.info.outputs)))
             if got != want]
         if wrong:
@@ -178,8 +175,6 @@ class RemoteRig(Rig):
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
         if batch != 1:
             raise InvalidParameter("batch", f"must be 1 for a real rig, got {batch}")
-        if overrides:
-            raise InvalidParameter(f"overrides.{next(iter(overrides))}", "a real rig has no per-run parameters")
         if self.loop != "host":
             raise RigError(f"rig {self.info.name!r}: loop = {self.loop!r} is not served by the host loop")
         if self.parameters["realtime"] and self._realtime is None:
@@ -264,7 +259,7 @@ class RemoteRig(Rig):
         n = len(self.info.outputs)
         y = np.zeros((1, n))
         missing = set(range(n))
-        limit = self.timeout_s + 1.0 / self.fs
+        limit = (self.timeout_s if tick else max(self.timeout_s, SETUP_ANSWER_S)) + 1.0 / self.fs
         deadline = time.monotonic() + limit
         while True:
             frame = self._recv_until(deadline, f"no complete measurement of tick {seq} within {limit:.3g} s "
@@ -319,3 +314,16 @@ class RemoteRig(Rig):
     def _fail(self, message: str) -> None:
         self.safe_state()
         raise RigError(f"rig {self.info.name!r}: {message}")
+
+
+def device_kinds() -> list[str]:
+    """The kinds a remote rig's ``device`` may name: every registered kind that is not remote itself."""
+    kinds = []
+    for kind in rig_kinds():
+        try:
+            remote = issubclass(rig_class(kind), RemoteRig)
+        except InvalidParameter:  # a kind whose module cannot be imported here cannot be a device
+            continue
+        if not remote:
+            kinds.append(kind)
+    return sorted(kinds)

@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import serial
 
 from labrunner.errors import RigError
-from labrunner.rigs.config import Param
+from labrunner.rigs.schema import Param
 from labrunner.rigs.transports.framing import SERIAL_MAX_PAYLOAD, SerialDecoder, encode_frame
 from labrunner.rigs.transports.link import Link
 from labrunner.rigs.transports.protocol import End, Frame, Kind, function_code, split_function_code
