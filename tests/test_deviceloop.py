@@ -131,7 +131,7 @@ def _serve(channel: _Channel, rig, stop: threading.Event):
             dev.on_message(*msg)
 
 
-@pytest.mark.parametrize("name, stream", [("motor-mfc2", False), ("motor-mfc2", True), ("valve-mfc1", False)])
+@pytest.mark.parametrize("name, stream", [("motor-mfc2", False), ("motor-mfc2", True), ("motor-aborted", True), ("valve-mfc1", False)])
 def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     point, rig_name, fs, duration, safety = POINTS[name]
     channel, stop = _Channel(fault=0.003, seed=5), threading.Event()
