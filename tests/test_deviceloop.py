@@ -272,3 +272,11 @@ def test_filter_records_step_like_the_controllers_filters():
     for k in range(50):
         out, x = np.split(np.hstack([x, w[k]]) @ M, [chain.p], axis=1)
         np.testing.assert_allclose(chain.step(w[k][None])[0], out, rtol=1e-12, atol=1e-12)
+
+
+def test_the_stream_flag_keeps_the_description_valid():
+    point, rig_name, fs, duration, safety = POINTS["motor-mfc1"]
+    data = description.build(point, load_rig(rig_name).info, fs=fs, duration=duration, seed=0, rig_safety=safety)
+    assert not description.decode(data).stream
+    streamed = description.with_stream(data, True)
+    assert description.decode(streamed).stream and description.with_stream(streamed, False) == data

@@ -23,8 +23,10 @@ import numpy as np
 
 from labrunner.control import factory
 from labrunner.control.trajectories import Setpoints, Sine, Steps
+from labrunner.differentiators import design as design_rate
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo
+from labrunner.rigs.device.columns import column_count
 from labrunner.safety import SafetyConfig
 
 MAGIC = b"LRDL"
@@ -123,11 +125,10 @@ def build(
     seed: int,
     rig_safety: Mapping[str, object] | None = None,
     watchdog_s: float = 0.5,
-    stream: bool = False,
 ) -> bytes:
     """The encoded description of one resolved ``point``; raises InvalidParameter for what the
     device loop cannot run (unknown kind, per-run rig parameters, values without an encoding).
-    ``stream``: the device sends its samples during the run (the link has room for them)."""
+    The STREAM flag is clear: :func:`with_stream` sets it where the link has room for the samples."""
     kind = str(dict(point.get("controller") or {}).get("kind"))
     if kind not in DEVICE_KINDS:
         raise InvalidParameter("controller.kind", f"{kind!r} cannot run on a device-loop rig (device kinds: {', '.join(DEVICE_KINDS)})")
@@ -135,8 +136,6 @@ def build(
         raise InvalidParameter("rig_parameters", "a device-loop rig has no per-run rig parameters; remove the section")
     controller, reference = factory.build([point], rig_info, fs)  # every check the engine runs
     config = SafetyConfig.from_sections(rig_info, rig_safety or {}, dict(point.get("safety") or {}))
-    from labrunner.rigs.device.columns import column_count
-
     ticks = int(round(duration * fs))
     if not 0 < ticks < 2**32:
         raise InvalidParameter("campaign.duration", f"needs 1..2³²−1 ticks at {fs:g} Hz, got {duration!r} s")
@@ -169,8 +168,6 @@ def build(
         weights = np.array([d.weights for d in rig_info.derived], dtype=float)
         records.append(_record(R_DERIVED, struct.pack("<BB", *weights.shape) + _f64(weights)))
     if config.max_du_dt is not None:
-        from labrunner.differentiators import design as design_rate
-
         records.append(_record(R_RATE, _f64([config.max_du_dt, config.du_dt_alpha, config.du_dt_beta, config.du_dt_omega_c])))
         w = design_rate(alpha=config.du_dt_alpha, beta=config.du_dt_beta, omega_c=config.du_dt_omega_c, fs=fs).weights(1)
         records.append(_record(R_FIR, struct.pack("<BBI", FIR_RATE, 1, w.size) + _f64(w)))
@@ -186,8 +183,16 @@ def build(
         raw = name.encode("ascii")
         records.append(_record(R_FILTER, struct.pack("<BHBB", len(raw), f.n, f.m, f.p) + raw + _f64(f._M[0])))
     body = b"".join(records)
-    head = HEADER.pack(MAGIC, VERSION, HEADER.size, len(body), FLAG_STREAM if stream else 0, len(records))
+    head = HEADER.pack(MAGIC, VERSION, HEADER.size, len(body), 0, len(records))
     return head + body + struct.pack("<I", zlib.crc32(head + body))
+
+
+def with_stream(data: bytes, stream: bool) -> bytes:
+    """The same description with its STREAM flag set or cleared (and its CRC-32 renewed)."""
+    head = bytearray(data[:-4])
+    flags = int.from_bytes(head[12:14], "little")
+    head[12:14] = ((flags | FLAG_STREAM) if stream else (flags & ~FLAG_STREAM)).to_bytes(2, "little")
+    return bytes(head) + struct.pack("<I", zlib.crc32(head))
 
 
 def _param(section: str, key: str, value: object) -> bytes:

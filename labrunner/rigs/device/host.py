@@ -30,11 +30,8 @@ def plan(points: Sequence[Mapping[str, object]], rig_info: RigInfo, *, fs: float
     out = []
     for point, seed in zip(points, seeds):
         data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, watchdog_s=watchdog_s)
-        if link is not None:
-            n_columns = description.decode(data).n_columns
-            if linkload.device_loop_load(link, fs, n_columns) <= linkload.MAX_LOAD:
-                data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety,
-                                         watchdog_s=watchdog_s, stream=True)
+        if link is not None and linkload.device_loop_load(link, fs, description.decode(data).n_columns) <= linkload.MAX_LOAD:
+            data = description.with_stream(data, True)
         out.append(data)
     return out
 

@@ -172,11 +172,10 @@ class DeviceSession:
                 return
 
     def _run(self, data: bytes) -> None:
-        state = {"streamed": 0, "stream": False, "fs": 1.0, "cols": 0, "per_block": 1, "last": time.monotonic(),
-                 "watchdog": float("inf")}
+        state = {"streamed": 0, "stream": False, "fs": 1.0, "per_block": 1, "last": time.monotonic(), "watchdog": float("inf")}
 
         def on_accept(description) -> None:
-            state.update(stream=description.stream, fs=description.fs, cols=description.n_columns, watchdog=description.watchdog_s,
+            state.update(stream=description.stream, fs=description.fs, watchdog=description.watchdog_s,
                          per_block=blocks.samples_per_block(self.tx.body_limit, description.n_columns))
             self.tx.queue(blocks.ACCEPT, blocks.ACCEPT_BODY.pack(description.ticks, description.n_columns))
             self._service()
