@@ -98,15 +98,16 @@ def test_executor_equals_the_twin_engine(name):
 
 
 class _Channel:
-    """Two queues between host and device; bulk frames the device sends are dropped or corrupted."""
+    """Two queues between host and device; bulk frames the device sends (of ``kinds``) are dropped
+    or corrupted with probability ``fault``."""
 
-    def __init__(self, fault: float, seed: int) -> None:
+    def __init__(self, fault: float, seed: int, kinds: tuple[str, ...] = (session.TO_HOST,)) -> None:
         self.q = {"host": queue.Queue(), "device": queue.Queue()}
-        self.rng, self.fault = random.Random(seed), fault
+        self.rng, self.fault, self.kinds = random.Random(seed), fault, kinds
 
     def end(self, me: str, other: str):
         def send(kind, payload):
-            if kind == session.TO_HOST and self.rng.random() < self.fault:
+            if me == "device" and kind in self.kinds and self.rng.random() < self.fault:
                 if self.rng.random() < 0.5:
                     return
                 b = bytearray(payload)
@@ -150,6 +151,34 @@ def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     d = result.diagnostics
     assert d["streamed"] is stream and d["ticks"] == twin.n_samples and d["overruns"] == 0
     assert d["received"]["crc_errors"] + d["received"]["broken"] > 0 and d["received"]["nacks"] > 0  # faults were healed
+
+
+def test_lost_device_acks_never_run_a_description_twice():
+    """The device's ACKs of the description are lost: the host resends it while the device runs,
+    and again later; the device runs it once (its transfer is done) and the host gets its result."""
+    point, rig_name, fs, duration, safety = POINTS["motor-mfc1"]
+    rig = load_rig(rig_name)
+    channel, stop = _Channel(fault=1.0, seed=0, kinds=(session.ACK,)), threading.Event()
+    runs = []
+
+    def serve():
+        send, recv = channel.end("device", "host")
+        dev = session.DeviceSession(send, recv, 8, lambda data, **kw: runs.append(1) or executor.execute(data, rig, **kw))
+        while not stop.is_set():
+            if (msg := recv(0.01)) is not None:
+                dev.on_message(*msg)
+
+    device = threading.Thread(target=serve, daemon=True)
+    device.start()
+    try:
+        send, recv = channel.end("host", "device")
+        [result] = host.run(send, recv, 8, [point], rig.info, fs=fs, duration=duration, seeds=[11], rig_safety=safety)
+        time.sleep(1.2)  # past the host's resend timer: nothing may start another run
+    finally:
+        stop.set()
+        device.join()
+    assert runs == [1]
+    assert_same_as_twin(result, "motor-mfc1", 11)
 
 
 def test_a_refused_description_raises_on_the_host():
