@@ -197,7 +197,7 @@ def test_a_refused_description_raises_on_the_host():
 
 
 def test_a_silent_device_raises():
-    with pytest.raises(RigError, match="silent"):
+    with pytest.raises(RigError, match="no new block"):
         session.run_on_device(lambda k, p: None, lambda t: None, 8, b"x" * 20, 10, 6, silence_s=0.05)
 
 

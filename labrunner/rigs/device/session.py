@@ -62,8 +62,8 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
     HEARTBEAT goes out whenever the host sent nothing for ``heartbeat_s`` (the device's watchdog).
 
     Returns the verdict, the (n_samples, n_columns) float32 rows and the transfer's figures.
-    Raises RigError when the device refuses the description, falls silent for ``silence_s`` or
-    sends samples that do not fit the run.
+    Raises RigError when the device refuses the description, delivers no new block (and
+    acknowledges none) for ``silence_s``, or sends samples that do not fit the run.
     """
     last_tx = [time.monotonic()]
 
@@ -90,14 +90,14 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
             sent(HEARTBEAT, b"")
         msg = recv(0.01)
         now = time.monotonic()
+        if now - last_rx > silence_s:  # nothing new arrived: a dead device or a link that delivers nothing
+            rx.cancel()
+            raise RigError(f"device-loop run: no new block from the device for {silence_s:g} s")
         if msg is None:
             rx.poll(now)
-            if now - last_rx > silence_s:
-                rx.cancel()
-                raise RigError(f"device-loop run: the device was silent for {silence_s:g} s")
             continue
         kind, payload = msg
-        last_rx = now
+        before = (tx.acked, rx.expected)
         if kind == ACK:
             tx.on_ack(payload)
         elif kind == TO_HOST:
@@ -122,6 +122,8 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
                     covered += len(chunk)
                 elif block.kind == blocks.VERDICT:
                     verdict = blocks.Verdict.decode(block.body)
+        if (tx.acked, rx.expected) != before:
+            last_rx = now
     if verdict.n_samples != covered:
         raise RigError(f"the device logged {verdict.n_samples} ticks but sent {covered}")
     end = time.monotonic()
