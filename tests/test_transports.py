@@ -5,13 +5,14 @@ from __future__ import annotations
 import random
 import time
 import uuid
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from labrunner.errors import InvalidParameter, RigError
 from labrunner.rigs.base import RigConfig
-from labrunner.rigs.config import config_from_dict
+from labrunner.rigs.config import config_from_dict, load_rig_config
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.emulator import Emulator, device_link, serve_on_pty, twin_for
@@ -237,3 +238,20 @@ def test_a_host_loop_runs_over_can_fd():
         np.testing.assert_allclose(host_run(rig, U, 3), direct_run(U, 3), rtol=1e-6, atol=1e-6)
         assert emulator.identity().capabilities & m.Capability.CAN_FD
         rig.close()
+
+
+def test_rig_files_name_legal_node_ids_and_a_loop_placement():
+    base = {"rig": {"kind": "can"}, "parameters": {"device": "dcmotor", "interface": "virtual", "channel": "x"}}
+    for node in (0, 128):
+        with pytest.raises(InvalidParameter) as err:
+            config_from_dict({**base, "parameters": {**base["parameters"], "node_id": node}})
+        assert err.value.field.endswith("parameters.node_id") and "[1, 127]" in str(err.value)
+    with pytest.raises(InvalidParameter, match="parameters.loop"):
+        config_from_dict({**base, "parameters": {**base["parameters"], "loop": "both"}})
+    defaults = {d: config_from_dict({**base, "parameters": {**base["parameters"], "device": d}}).parameters["loop"]
+                for d in ("dcmotor", "valve", "plate")}
+    assert defaults == {"dcmotor": "host", "valve": "device", "plate": "device"}
+    rigs = Path(__file__).resolve().parents[1] / "rigs"
+    shipped = {p.name: load_rig_config(p).parameters["loop"] for p in [*rigs.glob("*-can.toml"), *rigs.glob("*-serial.toml")]}
+    assert shipped == {f"{d}-{t}.toml": "host" if d == "dcmotor" else "device"
+                       for d in ("dcmotor", "valve", "plate") for t in ("can", "serial")}
