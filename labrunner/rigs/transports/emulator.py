@@ -31,6 +31,7 @@ from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.faults import FaultyLink, LinkFaults
+from labrunner.rigs.transports.hostloop_device import install
 from labrunner.rigs.transports.link import Link
 from labrunner.rigs.transports.protocol import PROTOCOL_VERSION, End, Frame, Kind
 from labrunner.rigs.transports.realtime import realtime
@@ -48,8 +49,6 @@ class Emulator:
 
     def __init__(self, rig: Rig, link: Link, *, paced: bool = True, faults: LinkFaults | None = None,
                  extensions: list[str] | None = None, realtime: bool = False) -> None:
-        from labrunner.rigs.transports.hostloop_device import install
-
         faults = faults or LinkFaults()
         self.rig, self.paced, self.faults = rig, paced, faults
         self.realtime = realtime  # ask for SCHED_FIFO in the firmware thread; False after start if not granted
