@@ -24,7 +24,7 @@ from typing import Any
 from labrunner.campaign import expressions, grid as gridmod
 from labrunner.campaign.checks import StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
-from labrunner.errors import InvalidParameter, check_positive
+from labrunner.errors import InvalidParameter, check_number, check_positive
 from labrunner.rigs import config as rigconfig
 from labrunner.rigs.base import RigConfig, RigInfo
 from labrunner.rigs.kinds import rig_class
@@ -228,6 +228,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
 
     for key in base["rig_parameters"]:
         check_key(f"rig_parameters.{key}", f"rig_parameters.{key}")
+    fixed = {k: check_number(f"rig_parameters.{k}", v) for k, v in base["rig_parameters"].items()}
+    rig_class(rig_config.kind).check_overrides(rig_config, fixed, 1, "rig_parameters")  # grid values: in plan()
     grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
     derived: list[tuple[str, expressions.Expression]] = []
     known = set(settable) | set(grid.keys) | set(info.constants)
