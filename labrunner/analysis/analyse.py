@@ -167,6 +167,7 @@ def counts(frame: pd.DataFrame) -> dict[str, int]:
         "done": int(state.get("done", 0)),
         "completed": int(status.get("completed", 0)),
         "no_motion": int(status.get("no-motion", 0)),
+        "oscillating": int((agreement_mod.observed_status(frame) == "oscillating").sum()),  # completed, flagged by the detector
         "aborted": int(state.get("aborted", 0)),
         "failed": int(state.get("failed", 0)),
         "planned": int(state.get("planned", 0)),

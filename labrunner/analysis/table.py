@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from labrunner.metrics import BASE_METRICS, Roles, run_metrics
+from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 from labrunner.errors import LabrunnerError
 
 #: Columns that identify a point and its run, in this order at the left of the table.
@@ -32,7 +32,7 @@ ID_COLUMNS = ("seq", "id", "state", "status", "monitor", "abort_time", "abort_va
 #: Columns that tell whether a cached row still matches its log file.
 CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
-METRICS_VERSION = 1
+METRICS_VERSION = 2  # 2: windowed metrics and the oscillation detector
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
 
@@ -70,7 +70,8 @@ def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, 
         log = read_run(path)
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
-        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units))
+        windows = parse_windows((log.metadata.get("config") or {}).get("metrics"))
+        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units), fs=float(log.fs), windows=windows)
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     outcome = log.outcome or {}
