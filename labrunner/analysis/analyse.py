@@ -148,7 +148,9 @@ def analyse(
     campaign, note = load_campaign(meta, directory)
     rig_units = ({s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
                  if campaign is not None else {})
-    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units)
+    rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
+    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units,
+                                  limits=rig_limits)
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     csv, parquet = table_mod.write_table(frame, out)
