@@ -278,3 +278,21 @@ kind = "lift"
     points, _ = spec.plan(load(text))
     keys = {p.batch_key: {q.parameters["controller.notch_omega"] for q in points if q.batch_key == p.batch_key} for p in points}
     assert len(keys) == 2 and all(len(v) == 1 for v in keys.values())  # the plate MFC needs one notch per batch
+
+
+# -- [metrics] windows ----------------------------------------------------------------------------
+def test_metrics_windows_reach_every_point_and_leave_other_campaigns_unchanged():
+    with_windows = load(campaign_text(extra='[metrics]\nhold = [0.5, 1.0]\nfault = [1.0, 2.0]\n'), "w.toml")
+    configs = [config for _, config in with_windows.points()]
+    assert all(c["metrics"] == {"hold": [0.5, 1.0], "fault": [1.0, 2.0]} for c in configs)
+    plain = load(campaign_text(), "p.toml")
+    assert all("metrics" not in c for _, c in plain.points())  # plan checksums of older campaigns stay
+
+
+@pytest.mark.parametrize("body, field", [
+    ("fault = [2.0, 1.0]", "metrics.fault"), ("fault = 1.0", "metrics.fault"), ("'a b' = [0.0, 1.0]", "metrics.a b"),
+])
+def test_bad_metrics_windows_name_the_key(body, field):
+    with pytest.raises(InvalidParameter) as exc:
+        load(campaign_text(extra=f"[metrics]\n{body}\n"), "bad.toml")
+    assert exc.value.field == field
