@@ -9,6 +9,7 @@ from scipy.integrate import solve_ivp
 from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.sim.valve import ValveTwin, static_flow
+from naive_reference import naive
 
 A, B_GAIN = 39.44, 108.55
 DTHETA = 2 * np.pi / 2048
@@ -116,46 +117,14 @@ def test_noise_reproducible_per_seed_and_batch_equals_single_runs():
 
 
 def _motor_reference(rig, u: np.ndarray, seeds, overrides) -> np.ndarray:
-    """The motor twin's integrator written plainly, one run and one scalar at a time: the
-    reference of the fused, batched sub-step (same ZOH matrices, same event rules)."""
-    from labrunner.rigs.sim._noise import NoiseStreams
-
-    y0 = rig.reset(len(seeds), seeds, 200.0, overrides)
-    p, M, n_sub = rig.p, rig._M, rig.n_sub
-    noise = NoiseStreams(seeds, 1, stream=1)
-    draws = np.array([noise.next()[:, 0].copy() for _ in range(u.shape[0])])
+    """The motor of benchmarks/naive_reference.py (the integrator written plainly, one run and one
+    scalar at a time, its own ZOH matrices) with each run's parameters: the reference of the
+    fused, batched sub-step."""
+    rig.reset(len(seeds), seeds, 200.0, overrides)
     out = np.empty((u.shape[0] + 1, len(seeds)))
-    out[0] = y0[:, 0]
-    lo, hi = rig.info.inputs[0].lo, rig.info.inputs[0].hi
-    for i in range(len(seeds)):
-        z = [0.0] * 5
-        theta = 0.0
-        lag = p["electrical_tau"][i] > 0.0
-        us, uc, half = p["static_friction"][i], p["coulomb_friction"][i], 0.5 * p["backlash"][i]
-        d = 2.0 * np.pi / p["encoder_counts"][i]
-        for k in range(u.shape[0]):
-            v = min(max(u[k, i], lo), hi)  # the rig's input limits (Rig.step), then the noise
-            v = v + p["input_v"][i] * draws[k, i] if p["input_v"][i] > 0.0 else v
-            z[3] = min(max(v, -p["u_max"][i]), p["u_max"][i])
-            for _ in range(n_sub):
-                stuck = z[1] == 0.0
-                drive = M[2, 2, i] * z[2] + M[2, 3, i] * z[3] if lag else z[3]
-                s = float(np.sign(z[1] + drive)) if stuck else float(np.sign(z[1]))
-                hold = stuck and us > 0.0 and abs(drive) <= us
-                z[4] = uc * s
-                xn = []
-                for r in range(3):
-                    acc = M[r, 0, i] * z[0]
-                    for j in range(1, 5):
-                        acc = acc + M[r, j, i] * z[j]
-                    xn.append(acc)
-                if hold:
-                    xn[0] = z[0]
-                if hold or (xn[1] * s < 0.0 and uc > 0.0):
-                    xn[1] = 0.0
-                z[:3] = xn
-                theta = min(max(theta, z[0] - half), z[0] + half)
-            out[k + 1, i] = round(theta / d) * d
+    for i, seed in enumerate(seeds):
+        motor = naive.Motor({k: float(v[i]) for k, v in rig.p.items()}, 200.0, seed)
+        out[:, i] = [motor.measure()] + [motor.step(float(uk)) for uk in u[:, i]]
     return out
 
 
