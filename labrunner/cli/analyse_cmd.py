@@ -54,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     agree = summary["agreement"]
     print(f"{summary['runs']} runs of {summary['points']} points: {summary['completed']} completed, "
-          f"{summary['no_motion']} no motion, {summary['aborted']} aborted, {summary['failed']} failed")
+          f"{summary['no_motion']} no motion, {summary['aborted']} aborted, {summary['failed']} failed"
+          + (f" ({summary['oscillating']} of the completed oscillating)" if summary.get("oscillating") else ""))
     best = summary["best"]
     if best:
         params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in best["params"].items())

@@ -25,7 +25,7 @@ def _clock(seconds: float | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from labrunner.campaign.runner import status
+    from labrunner.campaign.status import status
 
     st = status(args.directory)
     if args.json:
