@@ -22,7 +22,7 @@ from labrunner._ufunc import count_nonzero
 from labrunner.control import factory
 from labrunner.control.base import Controller
 from labrunner.errors import LabrunnerError
-from labrunner.metrics import Roles, run_metrics
+from labrunner.metrics import Roles, parse_windows, run_metrics
 from labrunner.rigs.base import Rig
 from labrunner.safety import SafetyConfig, SafetyMonitor
 
@@ -194,7 +194,8 @@ def run_batch(
     channels = log.channels
     roles = Roles(errors=tuple(channels["errors"]), inputs=tuple(channels["inputs"]),
                   error_hats=tuple(n for n in channels["estimates"] if n.startswith("e_hat_")),
-                  currents=tuple(n for n, unit in channels["units"].items() if unit == "A"))
+                  currents=tuple(n for n, unit in channels["units"].items() if unit == "A"),
+                  input_limits=tuple((s.lo, s.hi) for s in rig.info.inputs))
     results = []
     by_run = log.run_major(int(end.max()) if B else 0)
     for i in range(B):
@@ -209,7 +210,8 @@ def run_batch(
             outcome = Outcome("no-motion", message="the load never moved beyond the sensor resolution")
         else:
             outcome = Outcome("completed")
-        results.append(RunResult(outcome, signals, float(fs), channels, run_metrics(signals, roles)))
+        metrics = run_metrics(signals, roles, fs=float(fs), windows=parse_windows(points[i].get("metrics")))
+        results.append(RunResult(outcome, signals, float(fs), channels, metrics))
     return results
 
 

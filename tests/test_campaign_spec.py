@@ -281,6 +281,24 @@ kind = "lift"
     assert len(keys) == 2 and all(len(v) == 1 for v in keys.values())  # the plate MFC needs one notch per batch
 
 
+# -- [metrics] windows ----------------------------------------------------------------------------
+def test_metrics_windows_reach_every_point_and_leave_other_campaigns_unchanged():
+    with_windows = load(campaign_text(extra='[metrics]\nhold = [0.5, 1.0]\nfault = [1.0, 2.0]\n'), "w.toml")
+    configs = [config for _, config in with_windows.points()]
+    assert all(c["metrics"] == {"hold": [0.5, 1.0], "fault": [1.0, 2.0]} for c in configs)
+    plain = load(campaign_text(), "p.toml")
+    assert all("metrics" not in c for _, c in plain.points())  # plan checksums of older campaigns stay
+
+
+@pytest.mark.parametrize("body, field", [
+    ("fault = [2.0, 1.0]", "metrics.fault"), ("fault = 1.0", "metrics.fault"), ("'a b' = [0.0, 1.0]", "metrics.a b"),
+])
+def test_bad_metrics_windows_name_the_key(body, field):
+    with pytest.raises(InvalidParameter) as exc:
+        load(campaign_text(extra=f"[metrics]\n{body}\n"), "bad.toml")
+    assert exc.value.field == field
+
+
 @settings(max_examples=200, deadline=None)
 @given(n=st.integers(1, 30_000), slots=st.integers(1, 32), samples=st.integers(1, 200_000))
 def test_batches_are_as_large_as_cost_and_memory_allow_and_keep_every_worker_busy(n, slots, samples):

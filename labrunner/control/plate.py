@@ -226,7 +226,7 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
         try:
             rows = [over_actuation_weights(row) for row in ctl.values("weights", weights)]
         except InvalidParameter as exc:
-            raise InvalidParameter("controller.weights", str(exc).split(": ", 1)[1]) from None
+            raise InvalidParameter("controller.weights", exc.message) from None
         if any(not np.array_equal(row, rows[0]) for row in rows):
             raise InvalidParameter("controller.weights", "must be the same for every run of a batch")
         weights = tuple(rows[0])
