@@ -63,11 +63,12 @@ class SafetyMonitor:
         self._max_du_dt = np.array([np.inf if c.max_du_dt is None else c.max_du_dt for c in configs])
         self._rate: StreamingFIR | None = None
         if np.isfinite(self._max_du_dt).any():
-            taps = []
+            by_design: dict[tuple[float, float, float], np.ndarray] = {}  # one design per distinct (α, β, ω_c)
             for c in configs:
-                d = design(alpha=c.du_dt_alpha, beta=c.du_dt_beta, omega_c=c.du_dt_omega_c, fs=self.fs)
-                taps.append(d.weights(1))
-            per_run = pad_taps(taps)  # (B, L)
+                key = (c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)
+                if key not in by_design:
+                    by_design[key] = design(alpha=key[0], beta=key[1], omega_c=key[2], fs=self.fs).weights(1)
+            per_run = pad_taps([by_design[(c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)] for c in configs])  # (B, L)
             self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
         self._out_lo, self._out_hi = self._bounds(configs, rig_info.outputs, "output_bounds")
         self._in_lo, self._in_hi = self._bounds(configs, rig_info.inputs, "input_bounds")

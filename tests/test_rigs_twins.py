@@ -114,6 +114,12 @@ def test_noise_reproducible_per_seed_and_batch_equals_single_runs():
     np.testing.assert_array_equal(batch, again)
     other = run(rig, u, seeds=(14,), overrides={"a": 30.0, "input_v": 0.5})
     assert not np.array_equal(other[:, 0], batch[:, 0])
+    # runs with equal seeds (they share a generator), each at its own noise level
+    levels = np.array([0.5, 0.2, 0.5])
+    shared = run(rig, np.tile(u[:, None], (1, 3)), seeds=(11, 11, 12), overrides={"input_v": levels})
+    for i, s in enumerate((11, 11, 12)):
+        single = run(rig, u, seeds=(s,), overrides={"input_v": levels[i]})
+        np.testing.assert_array_equal(shared[:, i], single[:, 0])
 
 
 def _motor_reference(rig, u: np.ndarray, seeds, overrides) -> np.ndarray:
