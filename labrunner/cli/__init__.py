@@ -32,6 +32,7 @@ COMMANDS = (
     "identify",
     "bounds",
     "differentiator",
+    "reproduce",
 )
 
 
