@@ -5,19 +5,20 @@ from __future__ import annotations
 import random
 import time
 import uuid
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from labrunner.errors import InvalidParameter, RigError
 from labrunner.rigs.base import RigConfig
-from labrunner.rigs.config import config_from_dict
+from labrunner.rigs.config import config_from_dict, load_rig_config
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.emulator import Emulator, device_link, serve_on_pty, twin_for
 from labrunner.rigs.transports.framing import SerialDecoder, crc16, encode_frame
 from labrunner.rigs.transports.messages import DeviceState, ErrorCode
-from labrunner.rigs.transports.protocol import End, Kind, can_id, senders, split_can_id
+from labrunner.rigs.transports.protocol import End, Frame, Kind, can_id, senders, split_can_id
 
 MODEL = {"static_friction": 0.0, "coulomb_friction": 0.0, "backlash": 0.0, "electrical_tau": 0.0}
 U = 6.0 * np.sin(np.arange(60) / 8.0)
@@ -203,3 +204,54 @@ def test_remote_rig_files_reject_noise_and_bad_model_keys():
     with pytest.raises(InvalidParameter) as err:
         config_from_dict({"rig": {"kind": "serial"}, "noise": {"input_v": 0.1}})
     assert err.value.field == "<dict>: noise.input_v"
+
+
+# -- Link v1: raw payloads ------------------------------------------------------------------------
+@pytest.mark.parametrize("interface", ["udp_multicast", "virtual"])
+def test_can_fd_links_carry_bulk_payloads_padded_to_a_valid_length(interface):
+    from labrunner.rigs.transports.can import CanLink
+
+    p = can_config(interface, fd=True).parameters
+    host, device = CanLink.open(p, End.HOST), CanLink.open(p, End.DEVICE)
+    try:
+        assert host.max_payload == 64
+        host.send(Frame(Kind.BULK_TO_DEVICE, bytes(range(1, 14))))
+        got = device.recv(1.0)
+        assert got.kind == Kind.BULK_TO_DEVICE and got.payload == bytes(range(1, 14)) + bytes(3)  # DLC 16
+        device.send(Frame(Kind.BULK_ACK, b"\x07"))
+        assert host.recv(1.0) == Frame(Kind.BULK_ACK, b"\x07")  # the device's own BULK_ACK code
+        with pytest.raises(ValueError, match="max_payload 64"):
+            host.send(Frame(Kind.BULK_TO_DEVICE, bytes(65)))
+        with pytest.raises(ValueError, match="does not send BULK_TO_HOST"):
+            host.send(Frame(Kind.BULK_TO_HOST, bytes(8)))
+        with pytest.raises(ValueError):
+            host.send(Frame(Kind.INPUT, bytes(7)))  # fixed messages are 8 bytes on every link
+    finally:
+        host.close()
+        device.close()
+
+
+def test_a_host_loop_runs_over_can_fd():
+    config = can_config("udp_multicast", fd=True)
+    with Emulator(twin_for(config), device_link(config), paced=False) as emulator:
+        rig = load_rig(config)
+        np.testing.assert_allclose(host_run(rig, U, 3), direct_run(U, 3), rtol=1e-6, atol=1e-6)
+        assert emulator.identity().capabilities & m.Capability.CAN_FD
+        rig.close()
+
+
+def test_rig_files_name_legal_node_ids_and_a_loop_placement():
+    base = {"rig": {"kind": "can"}, "parameters": {"device": "dcmotor", "interface": "virtual", "channel": "x"}}
+    for node in (0, 128):
+        with pytest.raises(InvalidParameter) as err:
+            config_from_dict({**base, "parameters": {**base["parameters"], "node_id": node}})
+        assert err.value.field.endswith("parameters.node_id") and "[1, 127]" in str(err.value)
+    with pytest.raises(InvalidParameter, match="parameters.loop"):
+        config_from_dict({**base, "parameters": {**base["parameters"], "loop": "both"}})
+    defaults = {d: config_from_dict({**base, "parameters": {**base["parameters"], "device": d}}).parameters["loop"]
+                for d in ("dcmotor", "valve", "plate")}
+    assert defaults == {"dcmotor": "host", "valve": "device", "plate": "device"}
+    rigs = Path(__file__).resolve().parents[1] / "rigs"
+    shipped = {p.name: load_rig_config(p).parameters["loop"] for p in [*rigs.glob("*-can.toml"), *rigs.glob("*-serial.toml")]}
+    assert shipped == {f"{d}-{t}.toml": "host" if d == "dcmotor" else "device"
+                       for d in ("dcmotor", "valve", "plate") for t in ("can", "serial")}

@@ -105,7 +105,7 @@ class LoseOneChannel:
 
 def test_a_tick_with_a_lost_channel_is_never_committed():
     """The plate has four outputs: channel 0 of tick 5 is lost, channels 1..3 and the trailer arrive."""
-    config = can_config("virtual", device="plate")
+    config = can_config("virtual", device="plate", watchdog_periods=32000)  # 1 s: the test is not paced
     emulator = Emulator(twin_for(config), LoseOneChannel(device_link(config), 5), paced=False).start()
     rig = load_rig(config)
     try:

@@ -154,3 +154,57 @@ def test_a_dying_device_stops_the_campaign_keeps_the_log_and_resume_retries(proj
     finally:
         stop(device)
     assert [r["state"] for r in ledger_rows(project / "data" / "can")] == ["done"] * 3
+
+
+def test_check_rig_reports_the_handshake_round_trips_and_link_load(tmp_path):
+    path = can_rig_file(tmp_path / "motor.toml")
+    device = emulate(path)
+    try:
+        out = subprocess.run([sys.executable, "-m", "labrunner", "check-rig", str(path), "--json", "--pings", "50"],
+                             capture_output=True, text=True, cwd=ROOT, timeout=60)
+    finally:
+        stop(device)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["identity"] == {"protocol_version": 1, "device_kind": "dcmotor", "inputs": 1, "outputs": 1,
+                                  "max_fs": 10000.0, "capabilities": ["HOST_LOOP", "DEVICE_LOOP"],
+                                  "firmware_id": "0x4c520001"}
+    rtt = report["rtt_ms"]
+    assert rtt["pings"] == 50 and 0 < rtt["p50"] <= rtt["p99"] <= rtt["max"]
+    # at 200 Hz: 3 frames of 8 bytes per tick, 135 bit times each (worst-case stuffing) on 500 kbit/s
+    assert report["link_load"]["host_load"] == pytest.approx(3 * 135 * 200 / 500_000)
+    assert report["max_host_fs"] <= 0.5 / (rtt["p99"] * 1e-3) + 1e-9
+    assert report["link_counters"]["malformed"] == 0 and report["device"]["state"] == "idle"
+
+
+def test_emulate_serves_a_serial_rig_on_a_pty_it_names(tmp_path):
+    rig = (ROOT / "rigs" / "dcmotor-serial.toml").read_text()
+    proc = subprocess.Popen([sys.executable, "-m", "labrunner", "emulate", str(ROOT / "rigs" / "dcmotor-serial.toml")],
+                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        port = proc.stdout.readline().split()
+        assert port[0] == "port" and port[1].startswith("/dev/")
+        assert proc.stdout.readline().startswith("serving")
+        path = write(tmp_path / "motor-serial.toml", rig.replace('port = "/dev/ttyACM0"', f'port = "{port[1]}"'))
+        out = subprocess.run([sys.executable, "-m", "labrunner", "check-rig", str(path), "--pings", "20"],
+                             capture_output=True, text=True, cwd=ROOT, timeout=60)
+    finally:
+        stop(proc)
+    assert out.returncode == 0, out.stderr
+    assert "dcmotor protocol v1, 1 in / 1 out" in out.stdout and "on serial at 921.6 kbit/s" in out.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--drop", "1.5"], "--drop: must be in [0, 1], got 1.5"),
+    (["--delay", "x"], "argument --delay: must be a number >= 0, got 'x'"),
+])
+def test_emulate_refuses_bad_options_in_one_line(args, message):
+    out = subprocess.run([sys.executable, "-m", "labrunner", "emulate", str(ROOT / "rigs" / "dcmotor-can.toml"), *args],
+                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert out.returncode == 2 and message in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_check_rig_refuses_a_simulated_rig_file():
+    out = subprocess.run([sys.executable, "-m", "labrunner", "check-rig", str(ROOT / "rigs" / "dcmotor-sim.toml")],
+                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert out.returncode == 2 and "rig.kind: check-rig checks can or serial rig files, got 'dcmotor'" in out.stderr

@@ -4,7 +4,9 @@
 handler registered for their kind in :attr:`Emulator.handlers`, and between frames it runs the
 periodic :attr:`Emulator.tasks` (each returns the monotonic time it next wants to run). The core
 here serves what every device does (``docs/protocol.md``): HELLO → IDENTITY, HEARTBEAT → STATUS,
-SAFE (latched until the next run), STOP (idle), the watchdog armed by a run's set-up, a STATUS
+SAFE (the safe input latched until the next run; a host-loop clock keeps ticking so the host
+can log the rig coming to rest, until STOP or the watchdog), STOP (idle), the watchdog armed by a
+run's set-up, a STATUS
 heartbeat every :data:`STATUS_PERIOD_S` while running. The loop placements install their own
 handlers: :mod:`.hostloop_device` (SETUP, INPUT and the tick clock) always, and the modules named
 in :data:`EXTENSIONS` (``"module:function"``, each called with the emulator) add theirs, e.g. the
@@ -31,6 +33,7 @@ from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.faults import FaultyLink, LinkFaults
+from labrunner.rigs.transports.hostloop_device import install
 from labrunner.rigs.transports.link import Link
 from labrunner.rigs.transports.protocol import PROTOCOL_VERSION, End, Frame, Kind
 from labrunner.rigs.transports.realtime import realtime
@@ -48,13 +51,12 @@ class Emulator:
 
     def __init__(self, rig: Rig, link: Link, *, paced: bool = True, faults: LinkFaults | None = None,
                  extensions: list[str] | None = None, realtime: bool = False) -> None:
-        from labrunner.rigs.transports.hostloop_device import install
-
         faults = faults or LinkFaults()
         self.rig, self.paced, self.faults = rig, paced, faults
         self.realtime = realtime  # ask for SCHED_FIFO in the firmware thread; False after start if not granted
         self.link: Link = FaultyLink(link, faults) if faults.any else link
         self.state = m.DeviceState.IDLE
+        self.ticking = False  # a host-loop run's clock runs (in RUNNING and, holding the safe input, in SAFE)
         self.last_error = m.ErrorCode.NONE
         self.seq = 0  # the current tick, for STATUS and ERROR
         self.watchdog_s = float("inf")
@@ -110,7 +112,7 @@ class Emulator:
     # -- services for the handlers -------------------------------------------------------------
     def begin_run(self, watchdog_s: float) -> None:
         """A run was set up: arm the watchdog, clear the run's counters, state RUNNING."""
-        self.state, self.last_error, self.seq = m.DeviceState.RUNNING, m.ErrorCode.NONE, 0
+        self.state, self.last_error, self.seq, self.ticking = m.DeviceState.RUNNING, m.ErrorCode.NONE, 0, True
         self.watchdog_s, self.rejected, self.late = float(watchdog_s), 0, 0
         self._link_rejects_at_setup = self._link_rejects()
         self._last_rx = self._last_status = time.monotonic()
@@ -208,9 +210,12 @@ class Emulator:
         if self.state != m.DeviceState.IDLE:
             self.rig.safe_state()
             self.state = m.DeviceState.IDLE
+        self.ticking = False
         self.send_status()
 
     def _watchdog(self, now: float) -> float | None:
+        if self.state == m.DeviceState.SAFE and self.ticking and now - self._last_rx > self.watchdog_s:
+            self.ticking = False  # safe, and nobody listens: stop sending measurements
         if self.state != m.DeviceState.RUNNING:
             return None
         if now - self._last_rx > self.watchdog_s:

@@ -6,7 +6,8 @@ clock: if every channel of u_k arrived and was committed before it, u_k is appli
 [t_k, t_{k+1}] (the twin's zero-order hold); otherwise the device holds the input it applied last,
 flags tick k+1 LATE and drops u_k when it comes. A device that runs a tick more than one period
 after its time flags it OVERRUN and slips its clock (the next tick one period after this one)
-rather than running the missed ticks back to back, which no host could answer in time. Unpaced (``Emulator.paced = False``), tick k+1 follows the
+rather than running the missed ticks back to back, which no host could answer in time. In SAFE
+the clock goes on with the safe input held (the twin's own safe state), until STOP or the watchdog. Unpaced (``Emulator.paced = False``), tick k+1 follows the
 commit of u_k at once and is never late.
 """
 
@@ -67,7 +68,7 @@ class HostLoopDevice:
 
     def on_input(self, frame: Frame) -> None:
         emu = self.emu
-        if emu.state != m.DeviceState.RUNNING:
+        if not emu.ticking:
             emu.rejected += 1
             if emu.state == m.DeviceState.IDLE:
                 emu.error(m.ErrorCode.NOT_RUNNING, go_safe=False)
@@ -95,7 +96,7 @@ class HostLoopDevice:
 
     def clock(self, now: float) -> float | None:
         """The tick task of a paced device: run every tick that is due."""
-        if not self.emu.paced or self.emu.state != m.DeviceState.RUNNING:
+        if not self.emu.paced or not self.emu.ticking:
             return None
         if now >= self.next_tick:
             self._tick(now)

@@ -83,11 +83,15 @@ class RemoteRig(Rig):
         raw = dict(raw)
         model = raw.pop("model", {})
         p = validate_section({**COMMON, **cls.TRANSPORT}, raw, path)
-        if p["device"] not in rig_kinds() or issubclass(rig_class(p["device"]), RemoteRig):
+        try:
+            device = rig_class(p["device"]) if p["device"] in rig_kinds() else None
+        except InvalidParameter as exc:  # registered, but its module does not import here
+            raise InvalidParameter(f"{path}.device", exc.message) from None
+        if device is None or issubclass(device, RemoteRig):
             raise InvalidParameter(f"{path}.device", f"must be one of {device_kinds()}, got {p['device']!r}")
         if not isinstance(model, Mapping):
             raise InvalidParameter(f"{path}.model", f"must be a table, got {model!r}")
-        p["model"] = rig_class(p["device"]).validate_parameters(model, f"{path}.model")
+        p["model"] = device.validate_parameters(model, f"{path}.model")
         p["loop"] = p["loop"] or DEFAULT_LOOP.get(p["device"], "host")
         return p
 
@@ -143,8 +147,11 @@ class RemoteRig(Rig):
         return diagnostics_record({k: now[k] - then[k] for k in now}, self.host, self.device, loop=self.loop,
                                   firmware_id=self.identity.firmware_id if self.identity else None)
 
-    def ping(self) -> float:
-        """Round trip [s] of one HEARTBEAT to the device's STATUS answer (RigError after ``timeout_s``)."""
+    def ping(self, stale_errors: bool = False) -> float:
+        """Round trip [s] of one HEARTBEAT to the device's STATUS answer (RigError after ``timeout_s``).
+
+        Frames from one sender arrive in order, so everything before the answer is older than the
+        HEARTBEAT; with ``stale_errors`` an ERROR among them (of an earlier run) is counted stale."""
         self._heartbeat += 1
         t0 = time.perf_counter()
         self._send(m.pack(m.Heartbeat(self._heartbeat)))
@@ -155,7 +162,9 @@ class RemoteRig(Rig):
                 self._status(m.unpack(frame))
                 return time.perf_counter() - t0
             if frame.kind == Kind.ERROR:
-                self._device_error(m.unpack(frame))
+                if not stale_errors:
+                    self._device_error(m.unpack(frame))
+                self.host.stale += 1
 
     def keepalive(self) -> None:
         """Send a HEARTBEAT if the host sent nothing for half a watchdog period (call while idle)."""
@@ -186,6 +195,7 @@ class RemoteRig(Rig):
             self._fail("the device does not serve the host loop (capabilities lack HOST_LOOP)")
         self._drain()
         self.host, self.device = HostCounters(), DeviceReport()
+        self.ping(stale_errors=True)  # in step: what the device sent before this run is behind us
         self._link_at_setup = replace(self.link.counters)
         self._seq, self._late_run = 0, 0
         for frame in m.setup_frames(self.fs, self._watchdog_s(), int(seeds[0])):
