@@ -92,7 +92,10 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
         now = time.monotonic()
         if now - last_rx > silence_s:  # nothing new arrived: a dead device or a link that delivers nothing
             rx.cancel()
-            raise RigError(f"device-loop run: no new block from the device for {silence_s:g} s")
+            phase = "description" if t_accept is None else f"results ({covered} of {n_ticks} ticks in)"
+            raise RigError(f"device-loop run: no new block from the device for {silence_s:g} s during the {phase}; "
+                           f"host sent {tx.acked}/{tx.next_seq} description blocks acknowledged, received {rx.expected} "
+                           f"blocks ({rx.counters.as_dict()})")
         if msg is None:
             rx.poll(now)
             continue

@@ -35,6 +35,7 @@ ACK = struct.Struct("<BBHI")  # code | direction << 7, window, transfer, seq
 CRC = struct.Struct("<I")
 MAX_FRAMES = 256
 BLOCK_BYTES = 4096  #: largest block a sender makes (a lost frame costs one block: keep them small)
+BLOCK_FRAMES = 64  #: and at most this many frames (one lost frame in 256 breaks 2 in 3 such blocks)
 WINDOW_BYTES = 32768  #: unacknowledged bytes a sender keeps in flight (a receiver's buffers hold them)
 FLAG_LAST = 0x01  # the last block of a transfer (description) or of a run's results (verdict)
 
@@ -203,10 +204,15 @@ class _Pending:
 
 @dataclass
 class Sender:
-    """One stream's sending end: numbers blocks, sends within the window (``window`` blocks, by
-    default :data:`WINDOW_BYTES` worth, at most what the receiver advertises), resends what is
-    NACKed (a block not again within ``retry_s``/4 of its last resend) or stays unacknowledged for ``retry_s``.
-    ``send_frame(payload)`` sends one frame."""
+    """One stream's sending end: numbers blocks, sends within the window, resends what is NACKed
+    (a block not again within ``retry_s``/4 of its last resend) and, when nothing is acknowledged
+    for ``retry_s``, the oldest unacknowledged block. ``send_frame(payload)`` sends one frame.
+
+    The window is at most ``window`` blocks (by default :data:`WINDOW_BYTES` worth) and what the
+    receiver advertises; like TCP's congestion window it halves on a NACK, drops to one block on
+    a timeout and grows by one block per acknowledged block, so a link that loses frames because
+    it is flooded (a receiver's socket buffer, a busy bus) is not flooded harder by the resends.
+    """
 
     send_frame: Callable[[bytes], None]
     max_payload: int
@@ -222,15 +228,19 @@ class Sender:
     _pending: dict[int, _Pending] = field(default_factory=dict)
     _nacked: list[int] = field(default_factory=list)
     _advertised: int = 1 << 16
+    _cwnd: float = 0.0
+    _progress_at: float | None = None  # when the oldest pending block was last acknowledged or resent
 
     def __post_init__(self) -> None:
         if self.window <= 0:
             self.window = max(2, WINDOW_BYTES // (self.body_limit + BLOCK.size + CRC.size))
+        self._cwnd = float(self.window)
 
     @property
     def body_limit(self) -> int:
         """Largest body :meth:`queue` takes."""
-        return min(max_body(self.max_payload), BLOCK_BYTES - BLOCK.size - CRC.size)
+        per_frame = self.max_payload - 1
+        return min(BLOCK_FRAMES * per_frame, BLOCK_BYTES) - BLOCK.size - CRC.size
 
     @property
     def done(self) -> bool:
@@ -255,12 +265,16 @@ class Sender:
         if code == CANCEL:
             self.cancelled = True
         elif code == ACK_OK and seq > self.acked:
-            for s in range(self.acked, min(seq, self.next_seq)):
+            new = min(seq, self.next_seq) - self.acked
+            for s in range(self.acked, self.acked + new):
                 self._pending.pop(s, None)
-            self.acked = min(seq, self.next_seq)
+            self.acked += new
             self._advertised = max(1, window)
+            self._cwnd = min(float(self.window), self._cwnd + new)
+            self._progress_at = None
         elif code == NACK and seq in self._pending and seq not in self._nacked:
             self._nacked.append(seq)
+            self._cwnd = max(1.0, self._cwnd / 2)
 
     def finish(self) -> None:
         """Stop sending: the peer has shown it has every block (it answered the last one)."""
@@ -279,12 +293,20 @@ class Sender:
                 self._send(p, now)
                 self.resent += 1
                 sent += 1
-        for seq in range(self.acked, min(self.next_seq, self.acked + min(self.window, self._advertised))):
+        oldest = self._pending.get(self.acked)
+        if oldest is not None and oldest.sent_at > -1e9:
+            if self._progress_at is None:
+                self._progress_at = now
+            elif now - self._progress_at >= self.retry_s and sent < budget:  # a timeout: the oldest again, slowly
+                self._send(oldest, now)
+                self.resent += 1
+                sent += 1
+                self._progress_at, self._cwnd = now, 1.0
+        for seq in range(self.acked, min(self.next_seq, self.acked + min(int(self._cwnd), self._advertised))):
             if sent >= budget:
                 break
             p = self._pending.get(seq)
-            if p is not None and now - p.sent_at >= self.retry_s:
-                self.resent += p.sent_at > -1e9
+            if p is not None and p.sent_at == -1e9:
                 self._send(p, now)
                 sent += 1
         return sent
