@@ -32,6 +32,7 @@ def run_until_failure(rig, u: np.ndarray, seed: int = 3) -> tuple[np.ndarray, Ri
 
 
 def serve(faults: LinkFaults, interface: str = "virtual", paced: bool = False, **parameters):
+    parameters.setdefault("watchdog_periods", 200)  # 1 s at 200 Hz: these tests are about the link, not the watchdog
     config = can_config(interface, **parameters)
     emulator = Emulator(twin_for(config), device_link(config), paced=paced, faults=faults).start()
     return load_rig(config), emulator
