@@ -22,8 +22,9 @@ from test_transports import U, can_config, direct_run, serial_config
 
 def run_until_failure(rig, u: np.ndarray, seed: int = 3) -> tuple[np.ndarray, RigError | None]:
     """The measurements the host got, and the RigError that ended the run early (or None)."""
-    ys = [rig.reset(1, [seed], 200.0)[0, 0]]
+    ys = []
     try:
+        ys.append(rig.reset(1, [seed], 200.0)[0, 0])
         for v in u:
             ys.append(rig.step(np.array([[v]]))[0, 0])
     except RigError as exc:
