@@ -141,7 +141,13 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
     if dry:
-        text = dry_run(campaign, points, opts)
+        if campaign.guided is not None:
+            from labrunner.campaign import guided_run
+
+            slots = opts.workers or len(os.sched_getaffinity(0)) if campaign.rig_info.simulated else 1
+            text = guided_run.dry_run(campaign, points, slots)
+        else:
+            text = dry_run(campaign, points, opts)
         try:
             _check_new_directory(directory, campaign.name, checksum)
         except CampaignError as exc:
@@ -160,6 +166,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             "rig": campaign.rig,
             "created_at": repr(time.time()),
             "created_by": f"labrunner {__version__} on {socket.gethostname()}",
+            **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
         }
         ledger = Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points))
         del points
@@ -219,8 +226,9 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
 def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts: Options, command: str) -> Outcome:
     ledger.start_session(command)
     c = ledger.counts()
+    total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
     progress = Progress(
-        campaign.name, sum(c.values()), c["done"], c["aborted"], c["failed"],
+        campaign.name, total, c["done"], c["aborted"], c["failed"],
         stream=opts.stream, interval_s=opts.progress_interval_s,
     )
     real = not campaign.rig_info.simulated
@@ -231,7 +239,12 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
             scheduler = Scheduler(
                 campaign, ledger, executor=ex, slots=slots, batch_size=1 if real else opts.batch_size, progress=progress
             )
-            out = scheduler.run()
+            if campaign.guided is None:
+                out = scheduler.run()
+            else:  # rounds: the procedure proposes, the scheduler runs
+                from labrunner.campaign import guided_run
+
+                out = guided_run.execute(campaign, ledger, scheduler.run)
             if out.abandoned:
                 kill_pool_workers()
         reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
@@ -252,6 +265,7 @@ def status(directory: str | Path) -> dict[str, Any]:
         sessions = ledger.sessions()
         quarantined = len(ledger.quarantined())
         finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
+        guided = _guided_status(meta, ledger) if "guided" in meta else None
     running = holder(directory)
     now = time.time()
     elapsed = 0.0
@@ -274,4 +288,16 @@ def status(directory: str | Path) -> dict[str, Any]:
         "estimate_s": round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None),
         "running": None if running is None else {"host": running.host, "pid": running.pid},
         "sessions": len(sessions),
+        **({"guided": guided} if guided is not None else {}),
     }
+
+
+def _guided_status(meta: dict[str, str], ledger: Ledger) -> dict[str, Any]:
+    """A guided campaign's decisions so far, replayed from the ledger (or why they cannot be)."""
+    from labrunner.analysis.analyse import load_campaign
+    from labrunner.campaign import guided_run
+
+    campaign, note = load_campaign(meta, ledger.directory)
+    if campaign is None or campaign.guided is None:
+        return {"procedure": meta["guided"], "note": note or "the stored campaign is not guided"}
+    return guided_run.summary(campaign, [dict(r) for r in ledger.rows()])

@@ -13,6 +13,7 @@ the first hundred runs.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import re
 import tomllib
@@ -29,7 +30,7 @@ from labrunner.rigs.base import RigInfo
 SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_parameters")
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
-TOP_LEVEL = ("campaign", *SECTIONS, "grid", "derived")
+TOP_LEVEL = ("campaign", *SECTIONS, "grid", "guided", "derived")
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
 
@@ -63,6 +64,7 @@ class Campaign:
     project_root: Path
     rig_info: RigInfo = field(repr=False)
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
+    guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
 
     @property
     def rig_ref(self) -> str:
@@ -87,15 +89,19 @@ class Campaign:
             _set(config, key, value)
         return config
 
+    def expand(self, params: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+        """(parameters with the derived values added, resolved config) of one point."""
+        config = self.resolve(params)
+        for key, expr in self.derived:
+            value = expr.evaluate(_NameView(config, self.rig_info.constants))
+            _set(config, key, value)
+            params[key] = value
+        return params, config
+
     def points(self) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
         """(parameters, config) of every point in grid order, derived values evaluated."""
         for params in self.grid.points():
-            config = self.resolve(params)
-            for key, expr in self.derived:
-                value = expr.evaluate(_NameView(config, self.rig_info.constants))
-                _set(config, key, value)
-                params[key] = value
-            yield params, config
+            yield self.expand(params)
 
 
 class _NameView(Mapping[str, Any]):
@@ -231,6 +237,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
 
     for key in base["rig_parameters"]:
         check_key(f"rig_parameters.{key}", f"rig_parameters.{key}")
+    if "grid" in doc and "guided" in doc:
+        raise InvalidParameter("guided", "a campaign has either [grid] (a fixed grid) or [guided] (a tuning procedure), not both")
     grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
     derived: list[tuple[str, expressions.Expression]] = []
     known = set(settable) | set(grid.keys) | set(info.constants)
@@ -240,11 +248,17 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
             raise InvalidParameter(f'derived."{key}"', "is also a grid axis; a key is either swept or derived")
         derived.append((key, expressions.parse(f'derived."{key}"', source, known)))
         known.add(key)
-    return Campaign(
+    campaign = Campaign(
         name=name, description=description, rig=rig, rig_path=rig_path, fs=fs, duration=duration, seed=seed,
         base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
         rig_info=info, rig_safety=rig_safety,
     )
+    if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
+        from labrunner.campaign import guided
+
+        procedure = guided.parse(doc["guided"], campaign)
+        campaign = dataclasses.replace(campaign, guided=procedure, grid=Grid(procedure.axes()))
+    return campaign
 
 
 def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -288,6 +302,10 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     """
     from labrunner.campaign.checks import StaticChecker, batch_key
 
+    if campaign.guided is not None:
+        from labrunner.campaign import guided_run
+
+        return guided_run.plan(campaign)
     checker = StaticChecker(campaign)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
