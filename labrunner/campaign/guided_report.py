@@ -139,27 +139,43 @@ def compare_guideline2_polack(out: str | Path, *, workers: int | None = None, st
     folder = Path(campaigns) if campaigns else Path(__file__).resolve().parents[2] / "campaigns" / "guided"
     out = Path(out)
     opts = runner.Options(workers=workers, stream=stream or io.StringIO())
-    found = {}
+    states = []
     for key, name in (("guideline2", "guideline2-case1"), ("polack", "polack")):
         directory = out / key
         if (directory / LEDGER_NAME).exists():
             runner.resume(directory, opts)
         else:
             runner.start(folder / f"{name}.toml", directory, opts)
-        found[key] = guided_run.directory_state(directory)
-    g2, pol = found["guideline2"][2], found["polack"][2]
-    target = (pol.get("chosen") or {}).get("rms_error")
-    walk = found["guideline2"][1].walk
-    match = next((n for n, s in enumerate(walk, 1) if target is not None and s.observation.completed
+        states.append(guided_run.directory_state(directory)[1])
+    return step_counts(*states)
+
+
+def _choice(state: Advance) -> dict[str, Any] | None:
+    chosen = state.result.chosen if state.result is not None else None
+    if chosen is None:
+        return None
+    step = next(n for n, s in enumerate(state.walk, 1) if s.observation.id == chosen.id)
+    return {"id": chosen.id, "params": dict(chosen.params), "rms_error": chosen.rms_error, "step": step}
+
+
+def _reason(state: Advance) -> str | None:
+    return state.result.reason if state.result is not None else None
+
+
+def step_counts(guideline2: Advance, polack: Advance) -> dict[str, Any]:
+    """The comparison of thesis Sec. 3.5.3 from two finished walks (see :func:`compare_guideline2_polack`)."""
+    g_choice, p_choice = _choice(guideline2), _choice(polack)
+    target = p_choice["rms_error"] if p_choice else None
+    match = next((n for n, s in enumerate(guideline2.walk, 1) if target is not None and s.observation.completed
                   and s.observation.rms_error <= target), None)
-    stages = list(pol["stages"].values())
+    stages = list(polack.stage_counts().values())
     return {
-        "guideline2": {"runs": g2["runs"], "reason": g2.get("reason"), "chosen": g2.get("chosen"),
+        "guideline2": {"runs": guideline2.runs, "reason": _reason(guideline2), "chosen": g_choice,
                        "steps_to_polack_rms": match},
-        "polack": {"runs": pol["runs"], "feed_forward": stages[0]["runs"] if stages else 0,
-                   "feedback": stages[1]["runs"] if len(stages) > 1 else 0, "reason": pol.get("reason"),
-                   "chosen": pol.get("chosen")},
-        "ratio": pol["runs"] / match if match else math.nan,
-        "ratio_runs": pol["runs"] / g2["runs"] if g2["runs"] else math.nan,
+        "polack": {"runs": polack.runs, "feed_forward": stages[0]["runs"] if stages else 0,
+                   "feedback": stages[1]["runs"] if len(stages) > 1 else 0, "reason": _reason(polack),
+                   "chosen": p_choice},
+        "ratio": polack.runs / match if match else math.nan,
+        "ratio_runs": polack.runs / guideline2.runs if guideline2.runs else math.nan,
         "thesis": dict(THESIS_STEPS),
     }
