@@ -288,12 +288,12 @@ def engine_oracle(campaign: Any, batch: int = 64) -> Oracle:
     """Outcomes of points of ``campaign`` simulated in this process by :func:`labrunner.engine.run_batch`
     (same configuration, seed and safety routine as the campaign's runs; no logs written)."""
     from labrunner import engine
-    from labrunner.campaign import checks
+    from labrunner.campaign.guided_run import static_checker
     from labrunner.rigs import registry
 
     def oracle(points: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
         configs = [campaign.expand(dict(p))[1] for p in points]
-        checker = checks.StaticChecker(campaign)
+        checker = static_checker(campaign)
         durations = {seq: d for (seq, _, _), d in (*(x for i, c in enumerate(configs)
                      for x in checker.add(i, dict(points[i]), c)), *checker.flush())}
         groups: dict[float, list[int]] = {}  # runs of one lockstep batch share their length

@@ -27,9 +27,9 @@ from labrunner.campaign.spec import Campaign, PlannedPoint
 def check_points(campaign: Campaign, points: Sequence[Mapping[str, Any]], first_seq: int = 0) -> list[PlannedPoint]:
     """Statically check points as :func:`labrunner.campaign.spec.plan` checks a grid; their ids are
     those of the points as proposed, their parameters include ``[derived]`` values."""
-    from labrunner.campaign.checks import StaticChecker, batch_key
+    from labrunner.campaign.checks import batch_key
 
-    checker = StaticChecker(campaign)
+    checker = static_checker(campaign)
     checked: dict[int, tuple[dict[str, Any], dict[str, Any], float]] = {}
     for n, point in enumerate(points):
         params, config = campaign.expand(dict(point))
@@ -44,6 +44,14 @@ def check_points(campaign: Campaign, points: Sequence[Mapping[str, Any]], first_
         out.append(PlannedPoint(first_seq + n, point_id(campaign.name, point), params,
                                 batch_key(campaign.rig, config, checker.split)))
     return out
+
+
+def static_checker(campaign: Campaign):
+    """The grid campaigns' :class:`~labrunner.campaign.checks.StaticChecker` for ``campaign``'s rig file."""
+    from labrunner.campaign.checks import StaticChecker
+    from labrunner.campaign.spec import load_rig_file
+
+    return StaticChecker(campaign.rig_config or load_rig_file(campaign.rig_ref, campaign.project_root))
 
 
 def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
