@@ -103,6 +103,9 @@ def sections(ctx: Any, directory: Path, out: Path) -> tuple[list[Any], dict[str,
         "lists the points in the order the procedure asked for them. A point asked for again is not run again "
         "(new = false). Step counts compare with the thesis's: Guideline 2 took 54 steps, Polack et al. 66 + 41 "
         "= 107 (Sec. 3.5.3)."]
+    if "boundary_cells" in detail:
+        paragraphs.append("The refined points lie on the fine lattice and show on the ordinary maps; lattice cells "
+                          "the refinement did not need are not run and stay grey there.")
     images = []
     if len(table) and "boundary_cells" not in detail:
         fig = walk_figure(table, f"{campaign.name}: the walk")
