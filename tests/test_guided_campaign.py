@@ -42,11 +42,16 @@ def test_rows_are_the_walk_and_status_reports_the_decision(tmp_path):
     assert g["finished"] and g["runs"] == len(rows) == status["total"] and g["max_runs"] == 9 + 9
     assert [v["runs"] for v in g["stages"].values()] == [len(ff), len(rows) - len(ff)]
     assert g["chosen"]["id"] in {r["id"] for r in rows if r["outcome"] == "completed"}
+    text = cli("status", directory, cwd=tmp_path).stdout
+    assert f"{len(rows)} of at most 18 runs (feed-forward (k_p = 0): {len(ff)} runs" in text
+    assert f"finished (tripped): chose step {g['chosen']['step']}" in text
     again, _ = runner.resume(directory, quiet())  # finished: nothing more to run
     assert again.committed == 0 and len(ledger_rows(Path(directory))) == len(rows)
 
 
-def test_a_killed_guided_campaign_resumes_with_the_same_decisions(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_a_killed_guided_campaign_resumes_with_the_same_decisions(tmp_path, sig):
+    # SIGKILL: the runner dies mid-round; SIGINT (Ctrl-C): it finishes the running batch, exit 130
     path = write_campaign(tmp_path, POLACK, name="pol")
     reference, _ = runner.start(path, tmp_path / "ref", quiet())
     expected = comparable(ledger_rows(tmp_path / "ref"))
@@ -54,8 +59,9 @@ def test_a_killed_guided_campaign_resumes_with_the_same_decisions(tmp_path):
     try:
         assert wait_for(lambda: sum(r["state"] in ("done", "aborted") for r in ledger_rows(tmp_path / "cut")) >= 4, 90)
     finally:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(10)
+        os.killpg(proc.pid, sig)
+        code = proc.wait(30)
+    assert code == (-signal.SIGKILL if sig == signal.SIGKILL else 130)
     cut = ledger_rows(tmp_path / "cut")
     assert 4 <= len(cut) < len(expected)
     # the decision state comes from the ledger alone: the replay asks for the reference's next point

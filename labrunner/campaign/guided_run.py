@@ -83,9 +83,19 @@ def replay(campaign: Campaign, rows: Sequence[Mapping[str, Any]]) -> Advance:
 def execute(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome]) -> Outcome:
     """Replay, append the next round's new points, run the planned rows; until the plan ends, Ctrl-C,
     or a stop (rig failure). ``run_round`` is the scheduler's ``run``."""
+    from labrunner.campaign.scheduler import _Signals
+
     total = Outcome()
     t0 = time.monotonic()
-    while True:
+    with _Signals() as signals:  # Ctrl-C between rounds: stop before the next (the scheduler handles one during a round)
+        _rounds(campaign, ledger, run_round, total, signals)
+    total.elapsed_s = time.monotonic() - t0
+    total.counts = ledger.counts()
+    return total
+
+
+def _rounds(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome], total: Outcome, signals: Any) -> None:
+    while not signals.count:
         rows = ledger.rows()
         state = replay(campaign, rows)
         if state.result is not None:
@@ -99,14 +109,13 @@ def execute(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome]
         total.interrupted |= out.interrupted
         total.abandoned |= out.abandoned
         total.stop_reason = total.stop_reason or out.stop_reason
-        if out.interrupted or out.abandoned or out.stop_reason:
+        total.interrupted |= bool(out.signals)  # a Ctrl-C while the round's last batch ran
+        if total.interrupted or out.abandoned or out.stop_reason:
             break
         if out.committed == 0:  # the plan waits on points the scheduler will not run (claimed elsewhere?)
             total.stop_reason = f"round of {len(state.next)} point(s) ran nothing; resume to settle them"
             break
-    total.elapsed_s = time.monotonic() - t0
-    total.counts = ledger.counts()
-    return total
+    total.interrupted |= bool(signals.count)
 
 
 def summary(campaign: Campaign, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -124,6 +133,25 @@ def summary(campaign: Campaign, rows: Sequence[Mapping[str, Any]]) -> dict[str, 
             "id": chosen.id, "params": dict(chosen.params), "status": chosen.status, "rms_error": chosen.rms_error,
             "step": next(n for n, s in enumerate(state.walk) if s.observation.id == chosen.id) + 1})
     return out
+
+
+def status_lines(summary: dict[str, Any]) -> list[str]:
+    """The plain-text ``status`` lines of a guided campaign's summary."""
+    if "note" in summary:
+        return [f"  guided ({summary['procedure']}): {summary['note']}"]
+    stages = "; ".join(f"{k}: {v['runs']} runs" for k, v in summary["stages"].items()) or "no run yet"
+    lines = [f"  guided: {summary['description']}", f"  {summary['runs']} of at most {summary['max_runs']} runs ({stages})"]
+    if summary["finished"]:
+        chosen = summary.get("chosen")
+        if not chosen:
+            lines.append(f"  finished: {summary['reason']}")
+        else:
+            values = ", ".join(f"{k.split('.')[-1]} = {v:.5g}" for k, v in chosen["params"].items() if isinstance(v, float))
+            rms = f", RMS(e) = {chosen['rms_error']:.4g}" if chosen["rms_error"] is not None else ""
+            lines.append(f"  finished ({summary['reason']}): chose step {chosen['step']}: {values}{rms}")
+    else:
+        lines.append(f"  open stage {summary['stage']!r}: waits on {summary['waiting_on']} point(s)")
+    return lines
 
 
 def directory_state(directory: str | Path) -> tuple[Campaign, Advance, dict[str, Any]]:
