@@ -208,4 +208,8 @@ def test_guided_section_errors_name_the_key(tmp_path):
     with pytest.raises(InvalidParameter, match=r"guided: a campaign has either \[grid\]"):
         spec.load(write_campaign(tmp_path, guided={"procedure": "guideline2"},
                                  grid={"controller.k_p": {"values": [1.0]}}))
+    path = write_campaign(tmp_path, guided={"procedure": "polack", "gamma_start": 1e3, "gamma_stop": 1.0, "kp_stop": 10.0})
+    path.write_text(path.read_text() + '\n[derived]\n"controller.k_p" = "0.1 * controller.gamma"\n')
+    with pytest.raises(InvalidParameter, match=r'derived\."controller\.k_p": is set by the polack procedure'):
+        spec.load(path)
     assert isinstance(load(gamma_start=1000.0, gamma_stop=1.0).guided, guided.Procedure)

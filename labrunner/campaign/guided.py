@@ -264,6 +264,10 @@ def parse(table: Any, campaign: Any) -> Procedure:
     reader = Table(table, dict(campaign.rig_info.constants))
     procedure = factory(reader, campaign)
     reader.done()
+    tuned = {key for point in procedure.corners() for key in point}
+    for key, _ in campaign.derived:
+        if key in tuned:
+            raise InvalidParameter(f'derived."{key}"', f"is set by the {name} procedure; a key is either tuned or derived")
     return procedure
 
 

@@ -81,7 +81,8 @@ class Campaign:
 
     @property
     def size(self) -> int:
-        return self.grid.size
+        """Points of the grid; of a guided campaign, the most runs its procedure can ask for."""
+        return self.grid.size if self.guided is None else self.guided.max_runs()
 
     def resolve(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
         """The full run configuration of one point: base sections with its parameters set."""
