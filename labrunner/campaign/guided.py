@@ -181,7 +181,8 @@ class Ladder:
 
     Thesis Sec. 3.5.3 samples 16 per decade: Guideline 2 goes from γ̃ = 10⁶ to 421.69 = 10^2.625 in
     54 steps, Polack's feedback stage from k_p = 0.1 to 31.62 = 10^1.5 in 40. Value i is
-    10^(log10 start ± i/per_decade), computed the same way every time (stable point ids)."""
+    10^(log10 start ± i/per_decade) rounded to 12 significant digits, so that a last-bit difference
+    of another machine's ``pow`` does not change a point's id (a resume elsewhere replays the same points)."""
 
     start: float
     stop: float
@@ -191,7 +192,7 @@ class Ladder:
         e0, e1 = math.log10(self.start), math.log10(self.stop)
         h = math.copysign(1.0 / self.per_decade, e1 - e0)
         n = math.floor(abs(e1 - e0) * self.per_decade + 1e-9) + 1
-        return tuple(10.0 ** (e0 + i * h) for i in range(n))
+        return tuple(float(f"{10.0 ** (e0 + i * h):.12g}") for i in range(n))
 
 
 REQUIRED = _REQUIRED = object()  # a default meaning "the key must be given"
