@@ -159,9 +159,9 @@ def test_guideline3_start_is_the_top_of_the_ultralocal_set():
 
 def test_guideline3_raises_k_d_backs_off_then_raises_k_p():
     # k_d,i = 10·10^(i/4) trips for k_d > 40 (i = 3): 4 runs; back off one: k_d = 10^1.5.
-    # step 4 starts at (k̃_p, k_d,2), run in step 3 already; k_p,j = 100·10^(j/4) trips for
+    # step 4 starts at (k̃_p, k_d,2), run in step 3 already; k_p,j = 40π·10^(j/4) trips for
     # k_p > 800 (j = 4): 5 steps, 4 new runs; RMS 1/(k_p k_d) → chosen j = 3. 8 runs.
-    proc = Guideline3(rho=5.0, kp_start=100.0, kd_start=10.0, kd_stop=1e4, kp_stop=1e5, per_decade=4,
+    proc = Guideline3(rho=5.0, kp_start=40.0 * math.pi, kd_start=10.0, kd_stop=1e4, kp_stop=1e5, per_decade=4,
                       kd_back_off=1, rms_target=None)
 
     def plant(points):
@@ -171,7 +171,7 @@ def test_guideline3_raises_k_d_backs_off_then_raises_k_p():
     end = drive(proc, "t", plant)
     assert list(end.stage_counts().values()) == [{"steps": 4, "runs": 4}, {"steps": 5, "runs": 4}]
     assert end.runs == 8 and end.result.detail["k_d"] == pytest.approx(10**1.5)
-    assert end.result.chosen.params[KP] == pytest.approx(100.0 * 10**0.75)
+    assert end.result.chosen.params[KP] == pytest.approx(40.0 * math.pi * 10**0.75)
     assert all(s.observation.params[GAMMA] == 5.0 for s in end.walk)
 
 

@@ -35,7 +35,8 @@ def walk_table(state: Advance) -> pd.DataFrame:
         rows.append({"step": n, "stage": step.stage, "id": o.id, **{k: v for k, v in o.params.items()},
                      "status": o.status, "rms_error": o.rms_error, "input_energy": o.input_energy,
                      "new": step.new, "chosen": o.id == chosen})
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=None if rows else ["step", "stage", "id", "status", "rms_error", "input_energy",
+                                                         "new", "chosen"])
 
 
 def walk_figure(table: pd.DataFrame, title: str):

@@ -286,8 +286,9 @@ class Guideline3(Procedure):
 
     def plan(self) -> Plan:
         kds = Ladder(self.kd_start, self.kd_stop, self.per_decade).values()
+        kps = Ladder(self.kp_start, self.kp_stop, self.per_decade).values()  # kps[0]: k̃_p as both stages write it
         base = {GAMMA: self.rho}
-        s3 = yield from walk("step 3: raise k_d", [{**base, KP: self.kp_start, KD: kd} for kd in kds])
+        s3 = yield from walk("step 3: raise k_d", [{**base, KP: kps[0], KD: kd} for kd in kds])
         if s3.reason != "tripped":
             kd = s3.seen[-1].params[KD] if s3.reason == "end of range" else None
         else:
@@ -295,7 +296,6 @@ class Guideline3(Procedure):
             kd = kds[i] if i >= 0 else None
         if kd is None:
             return Result(s3.chosen, f"step 3: {s3.reason}", _stages(s3))
-        kps = Ladder(self.kp_start, self.kp_stop, self.per_decade).values()
         s4 = yield from walk(f"step 4: raise k_p (k_d = {kd:.5g})", [{**base, KP: kp, KD: kd} for kp in kps],
                              target=self.rms_target)
         return Result(s4.chosen, s4.reason, {**_stages(s3, s4), "k_d": kd})
