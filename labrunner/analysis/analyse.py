@@ -103,6 +103,7 @@ def counts(frame: pd.DataFrame) -> dict[str, int]:
         "done": int(state.get("done", 0)),
         "completed": int(status.get("completed", 0)),
         "no_motion": int(status.get("no-motion", 0)),
+        "oscillating": int((agreement_mod.observed_status(frame) == "oscillating").sum()),  # completed, flagged by the detector
         "aborted": int(state.get("aborted", 0)),
         "failed": int(state.get("failed", 0)),
         "planned": int(state.get("planned", 0)),
@@ -147,7 +148,9 @@ def analyse(
     campaign, note = load_campaign(meta, directory)
     rig_units = ({s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
                  if campaign is not None else {})
-    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units)
+    rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
+    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units,
+                                  limits=rig_limits)
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     csv, parquet = table_mod.write_table(frame, out)

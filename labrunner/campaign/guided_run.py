@@ -49,9 +49,8 @@ def check_points(campaign: Campaign, points: Sequence[Mapping[str, Any]], first_
 def static_checker(campaign: Campaign):
     """The grid campaigns' :class:`~labrunner.campaign.checks.StaticChecker` for ``campaign``'s rig file."""
     from labrunner.campaign.checks import StaticChecker
-    from labrunner.campaign.spec import load_rig_file
 
-    return StaticChecker(campaign.rig_config or load_rig_file(campaign.rig_ref, campaign.project_root))
+    return StaticChecker(campaign.rig_config)
 
 
 def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:

@@ -25,7 +25,7 @@ from typing import Any
 from labrunner.campaign import expressions, grid as gridmod
 from labrunner.campaign.checks import StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
-from labrunner.errors import InvalidParameter, check_positive
+from labrunner.errors import InvalidParameter, check_number, check_positive
 from labrunner.rigs import config as rigconfig
 from labrunner.rigs.base import RigConfig, RigInfo
 from labrunner.rigs.kinds import rig_class
@@ -33,7 +33,8 @@ from labrunner.rigs.kinds import rig_class
 SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_parameters")
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
-TOP_LEVEL = ("campaign", *SECTIONS, "grid", "guided", "derived")
+OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
+TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived")
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
 
@@ -66,8 +67,8 @@ class Campaign:
     source_path: Path | None
     project_root: Path
     rig_info: RigInfo = field(repr=False)
+    rig_config: RigConfig = field(repr=False, compare=False)  # the validated rig file
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
-    rig_config: RigConfig | None = field(default=None, repr=False, compare=False)  # the validated rig file
     guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
 
     @property
@@ -87,6 +88,7 @@ class Campaign:
     def resolve(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
         """The full run configuration of one point: base sections with its parameters set."""
         config: dict[str, Any] = {s: copy.deepcopy(dict(self.base.get(s, {}))) for s in SECTIONS}
+        config.update({s: copy.deepcopy(dict(self.base[s])) for s in OPTIONAL_SECTIONS if self.base.get(s)})
         config["campaign"] = {"name": self.name, "rig": self.rig, "fs": self.fs, "duration": self.duration, "seed": self.seed}
         for key, value in parameters.items():
             _set(config, key, value)
@@ -220,6 +222,11 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     if seed < 0:
         raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
     base = {s: doc.get(s, {}) for s in SECTIONS}
+    if "metrics" in doc:  # named windows [t0, t1] of the metrics (labrunner.metrics)
+        from labrunner.metrics import parse_windows
+
+        parse_windows(_require("metrics", doc["metrics"], dict, "a table"))
+        base["metrics"] = doc["metrics"]
     settable = {f"campaign.{k}" for k in GRID_CAMPAIGN_KEYS} | {k for s in SECTIONS for k in _keys(base[s], s)}
 
     def check_key(field_name: str, key: str) -> None:
@@ -235,6 +242,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
 
     for key in base["rig_parameters"]:
         check_key(f"rig_parameters.{key}", f"rig_parameters.{key}")
+    fixed = {k: check_number(f"rig_parameters.{k}", v) for k, v in base["rig_parameters"].items()}
+    rig_class(rig_config.kind).check_overrides(rig_config, fixed, 1, "rig_parameters")  # grid values: in plan()
     if "grid" in doc and "guided" in doc:
         raise InvalidParameter("guided", "a campaign has either [grid] (a fixed grid) or [guided] (a tuning procedure), not both")
     grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
@@ -304,7 +313,7 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
         from labrunner.campaign import guided_run
 
         return guided_run.plan(campaign)
-    checker = StaticChecker(campaign.rig_config or load_rig_file(campaign.rig_ref, campaign.project_root))
+    checker = StaticChecker(campaign.rig_config)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
     def accept(items) -> None:
