@@ -62,6 +62,7 @@ class Outcome:
     stop_reason: str = ""
     elapsed_s: float = 0.0
     counts: dict[str, int] = field(default_factory=dict)
+    signals: int = 0  # Ctrl-C/SIGTERM received, also one after the last batch began (a guided campaign stops on it)
 
 
 def batch_size(group_points: int, slots: int, samples: int, requested: int | None = None) -> int:
@@ -297,6 +298,7 @@ class Scheduler:
                 for future in self.inflight:
                     future.cancel()
                 self.inflight.clear()
+            out.signals = signals.count
         out.elapsed_s = time.monotonic() - t0
         out.counts = self.ledger.counts()
         return out

@@ -22,7 +22,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run",
         help="run a campaign file",
-        description="Validate every point of a campaign file, create its directory (ledger, runs/) and run it.",
+        description=(
+            "Validate every point of a campaign file, create its directory (ledger, runs/) and run it. A guided "
+            "campaign ([guided]) runs its tuning procedure in rounds, each next point chosen from the outcomes so far."
+        ),
     )
     p.add_argument("file", metavar="FILE", help="campaign file (TOML), e.g. campaigns/quickstart.toml")
     p.add_argument("--out", metavar="DIR", help="campaign directory (default: data/<name>/)")

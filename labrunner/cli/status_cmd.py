@@ -41,4 +41,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  outcomes: {outcomes}; quarantined files: {st['quarantined']}")
     rate = f"{st['rate_per_s']:.2f} runs/s" if st["rate_per_s"] else "no rate yet"
     print(f"  elapsed {_clock(st['elapsed_s'])} over {st['sessions']} session(s), {rate}, estimated {_clock(st['estimate_s'])} left")
+    if "guided" in st:  # what the procedure decided so far
+        from labrunner.campaign.guided_run import status_lines
+
+        print("\n".join(status_lines(st["guided"])))
     return 0
