@@ -33,6 +33,9 @@ motion_output = "theta"
 """
 
 
+GRID = '"controller.gamma" = { log10 = [1.5, 3.0], num = 3 }\n"controller.k_p" = { log10 = [0.0, 2.0], num = 3 }'
+
+
 def campaign_text(
     name: str = "tiny",
     *,
@@ -40,7 +43,7 @@ def campaign_text(
     duration: float | None = 2.0,
     seed: int = 3,
     hold: float = 0.25,
-    grid: str = '"controller.gamma" = { log10 = [1.5, 3.0], num = 3 }\n"controller.k_p" = { log10 = [0.0, 2.0], num = 3 }',
+    grid: str = GRID,
     extra: str = "",
 ) -> str:
     """A first-order MFC velocity campaign (thesis Sec. 3.5.1 settings, shortened reference: 0.5 s

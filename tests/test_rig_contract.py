@@ -24,6 +24,7 @@ from labrunner.cli import main
 from labrunner.errors import InvalidParameter
 from labrunner.rigs import kinds
 from labrunner.rigs.base import Rig, RigInfo, Signal
+from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig, register_rig, rig_class
 from labrunner.rigs.transports.emulator import Emulator, device_link, serve_on_pty, twin_for
 
@@ -95,7 +96,7 @@ def over_can(extra: dict, monkeypatch):
     config = {"rig": {"kind": "can", "name": "motor-can"}, **extra,
               "parameters": {"device": "dcmotor", "interface": "virtual", "channel": f"contract-{uuid.uuid4().hex}",
                              "bitrate": 0, "node_id": 3, "timeout_s": 0.5, "model": MOTOR_MODEL}}
-    emulator = Emulator(twin_for(load_config(config)), device_link(load_config(config)), watchdog_s=2.0).start()
+    emulator = Emulator(twin_for(config_from_dict(config)), device_link(config_from_dict(config)), watchdog_s=2.0).start()
     rig = load_rig(config)
     return rig, lambda: (rig.close(), emulator.stop())
 
@@ -104,7 +105,7 @@ def over_serial(device: str, model: dict) -> Callable:
     def build(extra: dict, monkeypatch):
         config = {"rig": {"kind": "serial", "name": f"{device}-serial"}, **extra,
                   "parameters": {"device": device, "timeout_s": 0.5, "model": model}}
-        port, emulator = serve_on_pty(twin_for(load_config(config)), watchdog_s=2.0)
+        port, emulator = serve_on_pty(twin_for(config_from_dict(config)), watchdog_s=2.0)
         config["parameters"]["port"] = port
         rig = load_rig(config)
         return rig, lambda: (rig.close(), emulator.stop())
@@ -117,12 +118,6 @@ def line_heater(extra: dict, monkeypatch):
     monkeypatch.setattr(serial, "serial_for_url", lambda url, **kw: LineController(device))
     rig = load_rig({"rig": {"kind": "line-heater"}, "parameters": {"port": "fake://"}, **extra})
     return rig, rig.close
-
-
-def load_config(config: dict):
-    from labrunner.rigs.config import config_from_dict
-
-    return config_from_dict(config)
 
 
 CASES = [
@@ -326,9 +321,9 @@ def test_a_direct_subclass_runs_on_the_defaults(monkeypatch):
 
 def test_a_remote_device_is_any_registered_kind_that_is_not_remote(doc):
     with pytest.raises(InvalidParameter, match=r"must be one of \[.*'dcmotor'.*'heater'.*\], got 'serial'") as err:
-        load_config({"rig": {"kind": "can"}, "parameters": {"device": "serial"}})
+        config_from_dict({"rig": {"kind": "can"}, "parameters": {"device": "serial"}})
     assert err.value.field == "<dict>: parameters.device"
-    assert load_config({"rig": {"kind": "can"}, "parameters": {"device": "heater"}}).info.kind == "heater"
+    assert config_from_dict({"rig": {"kind": "can"}, "parameters": {"device": "heater"}}).info.kind == "heater"
 
 
 def test_the_docs_heater_follows_the_analytic_step_response(doc):

@@ -219,9 +219,14 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], map
     return write_report(ctx.out / "index.html", f"Campaign {name}", subtitle, sections)
 
 
+def _value(v: object) -> str:
+    """A grid value for a caption: numbers to 4 digits, anything else (an input law's name) as is."""
+    return f"{float(v):.4g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
+
+
 def _run_caption(row: pd.Series, params: Sequence[str], error: str) -> str:
     """Point, parameters, outcome and metrics of a plotted run."""
-    values = ", ".join(f"{k.split('.')[-1]} = {float(row[k]):.4g}" for k in params if pd.notna(row.get(k)))
+    values = ", ".join(f"{k.split('.')[-1]} = {_value(row[k])}" for k in params if pd.notna(row.get(k)))
     text = f"Point {row['seq']} ({row['id']}): {values}; {row['status']}"
     if row["status"] == "aborted" and pd.notna(row.get("abort_time")):
         text += f" by {row.get('monitor')} at t = {float(row['abort_time']):.3f} s"

@@ -66,8 +66,8 @@ class Campaign:
     source_path: Path | None
     project_root: Path
     rig_info: RigInfo = field(repr=False)
+    rig_config: RigConfig = field(repr=False, compare=False)  # the validated rig file
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
-    rig_config: RigConfig | None = field(default=None, repr=False, compare=False)  # the validated rig file
 
     @property
     def rig_ref(self) -> str:
@@ -294,7 +294,7 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     The checksum covers the resolved configuration of every point (not the file's bytes), so a
     comment edit keeps a campaign resumable while any change of what would run does not.
     """
-    checker = StaticChecker(campaign.rig_config or load_rig_file(campaign.rig_ref, campaign.project_root))
+    checker = StaticChecker(campaign.rig_config)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
     def accept(items) -> None:

@@ -33,6 +33,7 @@ COMMANDS = (
     "identify",
     "bounds",
     "differentiator",
+    "reproduce",
 )
 
 
