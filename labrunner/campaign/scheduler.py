@@ -203,7 +203,7 @@ class Scheduler:
         return BatchTask(
             directory=str(self.ledger.directory.resolve()), campaign=c.name, campaign_source=c.source, rig=c.rig_ref,
             rig_search=c.rig_search, rig_safety=dict(c.rig_safety), fs=float(fs), duration=float(duration),
-            runs=tuple(runs),
+            runs=tuple(runs), samples_hz=c.logging.get("samples_hz"),
         )
 
     def _submit(self, key: str, rows: list[Any]) -> None:

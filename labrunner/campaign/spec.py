@@ -29,7 +29,8 @@ from labrunner.rigs.base import RigInfo
 SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_parameters")
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
-TOP_LEVEL = ("campaign", *SECTIONS, "grid", "derived")
+TOP_LEVEL = ("campaign", *SECTIONS, "grid", "derived", "logging")
+LOGGING_KEYS = ("samples_hz",)  # [logging]: how the run logs are written
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
 
@@ -63,6 +64,7 @@ class Campaign:
     project_root: Path
     rig_info: RigInfo = field(repr=False)
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
+    logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz] or nothing
 
     @property
     def rig_ref(self) -> str:
@@ -192,7 +194,7 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     unknown = sorted(set(doc) - set(TOP_LEVEL))
     if unknown:
         raise InvalidParameter(unknown[0], f"unknown section; allowed: {', '.join(TOP_LEVEL)}")
-    for section in (*SECTIONS, "campaign", "derived"):
+    for section in (*SECTIONS, "campaign", "derived", "logging"):
         if section in doc:
             _require(section, doc[section], dict, "a table")
     head = doc.get("campaign")
@@ -243,8 +245,17 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     return Campaign(
         name=name, description=description, rig=rig, rig_path=rig_path, fs=fs, duration=duration, seed=seed,
         base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
-        rig_info=info, rig_safety=rig_safety,
+        rig_info=info, rig_safety=rig_safety, logging=_logging(doc.get("logging", {})),
     )
+
+
+def _logging(table: Mapping[str, Any]) -> dict[str, Any]:
+    """``[logging]``: ``samples_hz`` > 0 thins the logs' per-sample channel /run/samples to about
+    that rate (at or above f_s: every sample); the lossless /run/blocks always keep every sample."""
+    bad = sorted(set(table) - set(LOGGING_KEYS))
+    if bad:
+        raise InvalidParameter(f"logging.{bad[0]}", f"unknown key; allowed: {', '.join(LOGGING_KEYS)}")
+    return {"samples_hz": _positive("logging.samples_hz", table["samples_hz"])} if "samples_hz" in table else {}
 
 
 def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
