@@ -18,7 +18,7 @@ def _table():
     status[-1, 0] = "aborted"
     status[-1, 1] = "failed"
     return g, kp, pd.DataFrame({"controller.gamma": G.ravel(), "controller.k_p": K.ravel(),
-                                 "status": status.ravel(), "rms_error": (G / K).ravel()})
+                                 "outcome": status.ravel(), "rms_error": (G / K).ravel()})
 
 
 def test_cell_edges_are_geometric_midpoints_on_log_axes():
@@ -84,7 +84,7 @@ def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
 
 
 def test_sweep_plot_draws_markers_per_status():
-    t = pd.DataFrame({"controller.gamma": np.logspace(0, 3, 4), "status": ["aborted", "completed", "completed", "no-motion"],
+    t = pd.DataFrame({"controller.gamma": np.logspace(0, 3, 4), "outcome": ["aborted", "completed", "completed", "no-motion"],
                       "rms_error": [5.0, 1.0, 2.0, 3.0], "input_energy": [1e4, 1e3, 5.0, 1.0]})
     x = Axis("controller.gamma", t["controller.gamma"].to_numpy(), True, "γ")
     fig = sweep_figure(t, x, [("rms_error", "RMS"), ("input_energy", "E(u)")], title="sweep",

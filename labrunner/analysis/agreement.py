@@ -44,11 +44,11 @@ def agreement(
     "observed_unstable"}`` (the last: compared runs that were aborted);
     ``share`` is None when nothing could be compared.
     """
-    observed = table["status"].isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)
-    rows = table[observed]
+    observed = table["outcome"].isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)
+    rows = table[observed].to_dict("records")
     case = None
     match = excluded = false_stable = false_unstable = observed_unstable = 0
-    for _, row in rows.iterrows():
+    for row in rows:
         theory = theory_of(row)
         if theory is None or not theory.cases():
             continue
@@ -60,7 +60,7 @@ def agreement(
         if distance <= margin:
             excluded += 1
             continue
-        ok = row["status"] in OBSERVED_STABLE
+        ok = row["outcome"] in OBSERVED_STABLE
         observed_unstable += not ok
         match += ok == stable
         false_stable += stable and not ok

@@ -22,7 +22,7 @@ from labrunner import __version__
 from labrunner.campaign import recovery, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
-from labrunner.campaign.progress import Progress
+from labrunner.campaign.progress import OUTCOMES, Progress
 from labrunner.campaign.scheduler import (
     Outcome,
     Scheduler,
@@ -74,7 +74,10 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
                 f"`labrunner resume {directory}`"
             )
         what = "this campaign" if other == name else f"campaign {other!r}"
-        raise CampaignError(f"{directory} already holds {what}; continue it with `labrunner resume {directory}`")
+        raise CampaignError(
+            f"{directory} already holds {what}; continue it with `labrunner resume {directory}`, or start over "
+            f"in another directory with --out DIR (or delete {directory} first)"
+        )
     if directory.exists() and (not directory.is_dir() or any(not _ours(p) for p in directory.iterdir())):
         raise CampaignError(f"{directory} exists and is not an empty campaign directory; choose another --out")
 
@@ -218,9 +221,8 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
 
 def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts: Options, command: str) -> Outcome:
     ledger.start_session(command)
-    c = ledger.counts()
     progress = Progress(
-        campaign.name, sum(c.values()), c["done"], c["aborted"], c["failed"],
+        campaign.name, sum(ledger.counts().values()), ledger.by_outcome(),
         stream=opts.stream, interval_s=opts.progress_interval_s,
     )
     real = not campaign.rig_info.simulated
@@ -247,8 +249,7 @@ def status(directory: str | Path) -> dict[str, Any]:
     directory = Path(directory)
     with Ledger.open_readonly(directory) as ledger:
         meta = ledger.meta()
-        counts = ledger.counts()
-        outcomes = ledger.outcome_counts()
+        outcomes = ledger.by_outcome()
         sessions = ledger.sessions()
         quarantined = len(ledger.quarantined())
         finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
@@ -259,15 +260,14 @@ def status(directory: str | Path) -> dict[str, Any]:
         live = running is not None and i == len(sessions) - 1 and s["ended_at"] is None
         end = now if live else (s["ended_at"] or s["last_at"])
         elapsed += max(0.0, end - s["started_at"])
-    total = sum(counts.values())
-    remaining = counts["planned"] + counts["claimed"]
+    total = sum(outcomes.values())
+    remaining = outcomes.get("planned", 0) + outcomes.get("claimed", 0)
     rate = finished / elapsed if elapsed > 0 and finished else None
     return {
         "campaign": meta.get("campaign"),
         "directory": str(directory),
         "total": total,
-        **counts,
-        "outcomes": outcomes,
+        "outcomes": {word: outcomes.get(word, 0) for word in OUTCOMES},
         "quarantined": quarantined,
         "elapsed_s": round(elapsed, 3),
         "rate_per_s": round(rate, 3) if rate else None,

@@ -224,6 +224,8 @@ class Scheduler:
                 self.ledger.unclaim(ids)
             raise
         self.inflight[future] = ids
+        if self.progress:
+            self.progress.started_runs(len(ids))
 
     def _collect(self, future: Future, out: Outcome) -> None:
         ids = self.inflight.pop(future)
@@ -239,7 +241,7 @@ class Scheduler:
             self.ledger.commit(record)
             out.committed += 1
             if self.progress:
-                self.progress.update({"completed": "done", "no-motion": "done"}.get(record.outcome, record.outcome))
+                self.progress.update(record.outcome)
         if result.stop:
             out.stop_reason = out.stop_reason or result.stop
 
@@ -278,7 +280,7 @@ class Scheduler:
                     future.cancel()
                 self.inflight.clear()
         out.elapsed_s = time.monotonic() - t0
-        out.counts = self.ledger.counts()
+        out.counts = self.ledger.by_outcome()
         return out
 
     def _say(self, message: str) -> None:
