@@ -24,7 +24,7 @@ from labrunner.analysis.overlays import OverlayLine
 #: Marker style per run outcome: (label, marker, face colour, edge colour).
 MARKERS = {
     "aborted": ("aborted by the safety routine", "^", "red", "darkred"),
-    "no-motion": ("no motion (input too small)", "o", "white", "black"),
+    "no-motion": ("no-motion (input too small)", "o", "white", "black"),
     "completed": ("completed", "x", "black", "black"),
     "failed": ("failed (error)", "s", "grey", "black"),
 }
