@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from labrunner.campaign import expressions, grid, spec
 from labrunner.cli import main
 from labrunner.errors import InvalidParameter
-from test_campaign_support import campaign_text, project, write  # noqa: F401 - fixture
+from test_campaign_support import campaign_text, write
 
 pytestmark = pytest.mark.usefixtures("project")
 

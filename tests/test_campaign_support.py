@@ -1,4 +1,7 @@
-"""Shared helpers of the campaign tests (no tests here): a small project, campaign text, CLI runs."""
+"""Shared helpers of the campaign tests (no tests here): campaign text, CLI runs, ledger rows.
+
+The ``project`` fixture (a small project folder with ``rigs/motor.toml``) is in ``conftest.py``.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +12,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-
-import pytest
 
 from labrunner.rigs.base import RigInfo
 from labrunner.rigs.sim.dcmotor import DCMotorTwin
@@ -75,16 +76,6 @@ max_du_dt = 120.0
 [grid]
 {grid}
 {extra}"""
-
-
-@pytest.fixture
-def project(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """A project folder (pyproject marker, rigs/motor.toml) as the working directory."""
-    (tmp_path / "pyproject.toml").write_text("[project]\nname = 'lab'\n")
-    (tmp_path / "rigs").mkdir()
-    (tmp_path / "rigs" / "motor.toml").write_text(MOTOR_RIG)
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
 
 
 def write(path: Path, text: str) -> Path:

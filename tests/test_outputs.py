@@ -140,7 +140,7 @@ def test_campaign_logs_decode_with_their_own_schemas(campaign):
     assert len(samples) == log.n_samples == 600  # 3 s at 200 Hz: every sample
     fields = [f.name for f in samples[0].DESCRIPTOR.fields]
     assert "omega__rad_per_s" in fields and "u__V" in fields and fields[0] == "t__s"
-    for name, info in log.channels.items():
+    for name in log.channels:
         field = next(f for f in fields if f == name or f.startswith(name + "__"))
         assert np.array_equal(np.array([getattr(m, field) for m in samples]), log.frame[name].to_numpy(), equal_nan=True)
     assert np.all(np.diff(times) > 0) and started - 5 < times[0] / 1e9 < time.time()

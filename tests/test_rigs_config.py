@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from labrunner.errors import InvalidParameter
-from labrunner.rigs import registry
+from labrunner.rigs import kinds, registry
 from labrunner.rigs.base import Faults, RigInfo, Signal
 from labrunner.rigs.config import Param, RigConfig, config_from_dict, load_rig_config
 from labrunner.rigs.registry import load_rig, register_rig, rig_class, rig_kinds
@@ -180,7 +180,7 @@ class ToyRig(SimRig):
 
 def test_entry_point_extends_registry(monkeypatch, tmp_path):
     ep = EntryPoint(name="toy", value=f"{__name__}:ToyRig", group=registry.ENTRY_POINT_GROUP)
-    monkeypatch.setattr(registry, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(kinds, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
     assert rig_kinds()["toy"] == f"{__name__}:ToyRig"
     path = write_rig(tmp_path, "toy", '[rig]\nkind = "toy"\n[parameters]\ngain = 5.0\n')
     rig = load_rig(path)
@@ -192,7 +192,7 @@ def test_entry_point_extends_registry(monkeypatch, tmp_path):
 
 
 def test_register_rig_at_run_time(monkeypatch):
-    monkeypatch.setattr(registry, "_registered", {})
+    monkeypatch.setattr(kinds, "_registered", {})
     register_rig("toy-rt", f"{__name__}:ToyRig")
     assert rig_class("toy-rt") is ToyRig
 

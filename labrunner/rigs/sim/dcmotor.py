@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 
 from labrunner.errors import InvalidParameter
-from labrunner.rigs.base import RigInfo, Signal
-from labrunner.rigs.config import Param
+from labrunner.rigs.base import RigConfig, RigInfo, Signal
+from labrunner.rigs.schema import Param
 from labrunner.rigs.sim import SimRig
 from labrunner.rigs.sim._integrate import substeps, zoh_discretise
 from labrunner.rigs.sim._noise import NoiseStreams
@@ -65,6 +65,14 @@ class DCMotorTwin(SimRig):
         return p
 
     @classmethod
+    def check_overrides(
+        cls, config: RigConfig, overrides: Mapping[str, Any], batch: int, path: str = "overrides"
+    ) -> dict[str, np.ndarray]:
+        p = super().check_overrides(config, overrides, batch, path)
+        _check_friction(p["static_friction"], p["coulomb_friction"], f"{path}.coulomb_friction")
+        return p
+
+    @classmethod
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
         p = {**{k: v.default for k, v in cls.PARAMETERS.items()}, **parameters}
         counts = int(p["encoder_counts"])
@@ -84,7 +92,6 @@ class DCMotorTwin(SimRig):
 
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
         p = self.per_run(batch, overrides)
-        _check_friction(p["static_friction"], p["coulomb_friction"], "overrides.coulomb_friction")
         self.p = p
         self.n_sub = substeps(self.fs, float(p["max_substep"].min()))
         h = 1.0 / (self.fs * self.n_sub)

@@ -37,8 +37,8 @@ import numpy as np
 from labrunner._ufunc import clip, count_nonzero
 from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry
-from labrunner.rigs.base import Derived, RigInfo, Signal
-from labrunner.rigs.config import Param
+from labrunner.rigs.base import Derived, RigConfig, RigInfo, Signal
+from labrunner.rigs.schema import Param
 from labrunner.rigs.sim import SimRig
 from labrunner.rigs.sim._integrate import substeps
 from labrunner.rigs.sim._noise import NoiseStreams
@@ -89,6 +89,19 @@ class PlateTwin(SimRig):
         return p
 
     @classmethod
+    def check_overrides(
+        cls, config: RigConfig, overrides: Mapping[str, Any], batch: int, path: str = "overrides"
+    ) -> dict[str, np.ndarray]:
+        fixed = sorted(set(overrides) & set(GEOMETRY))
+        if fixed:
+            raise InvalidParameter(f"{path}.{fixed[0]}", f"cannot vary per run; fixed: {', '.join(GEOMETRY)}")
+        p = super().check_overrides(config, overrides, batch, path)
+        bad = p["top_gap"] >= p["screw_gap"]
+        if bad.any():
+            raise InvalidParameter(f"{path}.top_gap", f"must be < screw_gap = {p['screw_gap'][bad][0]:g} m")
+        return p
+
+    @classmethod
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
         p = {**{k: v.default for k, v in cls.PARAMETERS.items()}, **parameters}
         constants = {k: float(p[k]) for k in ("m", "g", "J_x", "J_y", "l_dx", "l_dy", "l_fx", "l_fy", "lambda_inv_sqrt")}
@@ -109,13 +122,7 @@ class PlateTwin(SimRig):
 
     # -- Rig hooks -------------------------------------------------------------------------------
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
-        fixed = sorted(set(overrides) & set(GEOMETRY))
-        if fixed:
-            raise InvalidParameter(f"overrides.{fixed[0]}", f"cannot vary per run; fixed: {', '.join(GEOMETRY)}")
         p = self.per_run(batch, overrides)
-        bad = p["top_gap"] >= p["screw_gap"]
-        if bad.any():
-            raise InvalidParameter("overrides.top_gap", f"must be < screw_gap = {p['screw_gap'][bad][0]:g} m")
         self.p = p
         c = self.config.parameters
         self.geometry = PlateGeometry(m=float(c["m"]), g=float(c["g"]), J_x=float(c["J_x"]), J_y=float(c["J_y"]),
