@@ -96,10 +96,12 @@ def _units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> d
 
 
 def counts(frame: pd.DataFrame) -> dict[str, Any]:
-    """Points, finished runs, and points per outcome word (:data:`~labrunner.campaign.progress.OUTCOMES`)."""
+    """Points, finished runs, points per outcome word (:data:`~labrunner.campaign.progress.OUTCOMES`),
+    and ``oscillating``: completed runs the oscillation detector flags (observed unstable)."""
     found = frame["outcome"].value_counts()
     outcomes = {w: int(found.get(w, 0)) for w in OUTCOMES}
-    return {"points": int(len(frame)), "runs": sum(outcomes[w] for w in FINISHED), "outcomes": outcomes}
+    return {"points": int(len(frame)), "runs": sum(outcomes[w] for w in FINISHED), "outcomes": outcomes,
+            "oscillating": int((agreement_mod.observed_outcome(frame) == "oscillating").sum())}
 
 
 def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
@@ -177,10 +179,11 @@ def analyse(
     campaign, note = load_campaign(meta, directory)
     rig_units = ({s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
                  if campaign is not None else {})
+    rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
     advance()
     step("metrics table")
     built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units,
-                                  recompute=recompute, tick=advance)
+                                  limits=rig_limits, recompute=recompute, tick=advance)
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     csv, parquet = table_mod.write_table(frame, out, directory)

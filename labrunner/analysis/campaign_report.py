@@ -86,13 +86,16 @@ def _outcome_section(summary: Mapping[str, Any]) -> Section:
     if agree.get("share") is not None:
         paragraphs.append(
             f"Theory vs. runs ({agree['case']}): {agree['share']:.1%} of {agree['n_compared']} points agree "
-            f"(completed or no-motion ⇔ predicted stable, aborted ⇔ predicted unstable); "
+            f"(completed or no-motion ⇔ predicted stable, aborted or oscillating ⇔ predicted unstable); "
             f"{agree['n_excluded']} points within ±{agree['margin']:.0%} of a predicted bound are left out; "
             f"{agree['false_stable']} aborted although predicted stable, {agree['false_unstable']} completed "
             "although predicted unstable.")
     else:
         paragraphs.append("No stability case applies to this campaign (or no run finished), so no agreement is given.")
-    return Section("Outcomes", paragraphs=paragraphs, facts={w: n for w, n in summary["outcomes"].items()})
+    facts: dict[str, object] = dict(summary["outcomes"])
+    if summary.get("oscillating"):
+        facts["of the completed: oscillating (detector)"] = summary["oscillating"]
+    return Section("Outcomes", paragraphs=paragraphs, facts=facts)
 
 
 def _interval(bounds: Mapping[str, Any], key: str) -> str:
@@ -183,7 +186,8 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, Any], maps: 
     if maps:
         sections.append(Section("Maps", paragraphs=[
             "Markers: red triangle = aborted by the safety routine, white circle = no-motion (input too small to "
-            "move the load), black cross = completed, grey square = failed. Grey cells: no metric for the whole run. "
+            "move the load), black cross = completed, grey square = failed, orange diamond = completed but oscillating or "
+            "pinned at an input limit (detector). Grey cells: no metric for the whole run. "
             "Lines: stability bounds of the theory for the loop delay: the differentiator's δ_t plus the rig's sensor delay, if any."],
             images=[Image(title, path.read_bytes()) for path, title in maps]))
     images, links = [], []
@@ -218,9 +222,14 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, Any], maps: 
     return write_report(ctx.out / "index.html", f"Campaign {name}", subtitle, sections)
 
 
+def _value(v: object) -> str:
+    """A grid value for a caption: numbers to 4 digits, anything else (an input law's name) as is."""
+    return f"{float(v):.4g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
+
+
 def _run_caption(row: pd.Series, params: Sequence[str], error: str) -> str:
     """Point, parameters, outcome and metrics of a plotted run."""
-    values = ", ".join(f"{k.split('.')[-1]} = {float(row[k]):.4g}" for k in params if pd.notna(row.get(k)))
+    values = ", ".join(f"{k.split('.')[-1]} = {_value(row[k])}" for k in params if pd.notna(row.get(k)))
     text = f"Point {row['seq']} ({row['id']}): {values}; {row['outcome']}"
     suffix = ""
     if row["outcome"] == "aborted":

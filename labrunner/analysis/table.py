@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner.errors import LabrunnerError
-from labrunner.metrics import BASE_METRICS, Roles, run_metrics
+from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 
 #: Columns that identify a point and its run, in this order at the left of the table.
 ID_COLUMNS = ("seq", "id", "outcome", "monitor", "abort_time", "abort_value", "attempts", "log_path", "torn")
@@ -44,7 +44,7 @@ CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 #: Integer columns (nullable where a point has no run).
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
-METRICS_VERSION = 2
+METRICS_VERSION = 3  # 2: windowed metrics and the oscillation detector; 3: aborted runs' in _until_abort columns
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
 _LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)
@@ -59,23 +59,29 @@ class CampaignTable:
     n_read: int = 0  # logs read now (the rest came from the ledger or the cache)
 
 
-def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str] | None = None) -> Roles:
+def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str] | None = None,
+             limits: Mapping[str, tuple[float, float]] | None = None) -> Roles:
     """Metric roles from a log's ``channels`` record (signal → {"role", "unit"}); ``units`` (the
-    rig's signal units) stands in where the log records no unit."""
+    rig's signal units) stands in where the log records no unit; ``limits`` (the rig's input
+    limits) enable the oscillation detector."""
     by_role: dict[str, list[str]] = {}
     for name, info in channels.items():
         by_role.setdefault(str(info.get("role", "")), []).append(name)
     units = units or {}
     currents = tuple(n for n, info in channels.items() if (info.get("unit") or units.get(n)) == "A")
     error_hats = tuple(n for n in by_role.get("estimate", []) if n.startswith("e_hat_"))
-    return Roles(errors=tuple(by_role.get("error", [])), inputs=tuple(by_role.get("input", [])),
-                 error_hats=error_hats, currents=currents)
+    inputs = tuple(by_role.get("input", []))
+    input_limits = tuple(limits[n] for n in inputs) if limits and all(n in limits for n in inputs) else ()
+    return Roles(errors=tuple(by_role.get("error", [])), inputs=inputs,
+                 error_hats=error_hats, currents=currents, input_limits=input_limits)
 
 
-def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, Any]:
+def log_metrics(path: str, units: Mapping[str, str] | None = None,
+                limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
     """Metrics and torn flag of one MCAP; ``{"error": ...}`` if it cannot be read.
 
-    ``units``: the rig's signal units, for logs that record none (see :func:`roles_of`).
+    ``units``: the rig's signal units, for logs that record none; ``limits``: its input limits
+    (see :func:`roles_of`).
     """
     from labrunner.logs import read_run
 
@@ -83,7 +89,8 @@ def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, 
         log = read_run(path)
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
-        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units))
+        windows = parse_windows((log.metadata.get("config") or {}).get("metrics"))
+        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units, limits), fs=float(log.fs), windows=windows)
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     out["torn"] = bool(log.torn)
@@ -91,8 +98,9 @@ def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, 
 
 
 def _read_many(paths: Sequence[str], workers: int, units: Mapping[str, str] | None,
+               limits: Mapping[str, tuple[float, float]] | None = None,
                tick: Callable[[int], None] | None = None) -> list[dict[str, Any]]:
-    read = functools.partial(log_metrics, units=dict(units or {}))
+    read = functools.partial(log_metrics, units=dict(units or {}), limits=dict(limits or {}))
     out: list[dict[str, Any]] = []
     if workers <= 1 or len(paths) < _PARALLEL_MIN:
         for p in paths:
@@ -168,10 +176,15 @@ def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[
 
 
 def metric_columns(frame: pd.DataFrame) -> list[str]:
-    """The columns holding a run's metrics (other than its sample count)."""
+    """The columns holding a run's metrics, of the whole run or of a window (``<metric>@<name>``),
+    other than its sample counts."""
     prefixes = ("rms_", "energy_", "max_")
-    return [c for c in frame.columns if (c in BASE_METRICS or c.startswith(prefixes)) and c != "n_samples"
-            and not c.endswith(UNTIL_ABORT)]
+
+    def base(column: str) -> str:
+        return column.split("@", 1)[0]
+
+    return [c for c in frame.columns if (base(c) in BASE_METRICS or base(c).startswith(prefixes))
+            and base(c) != "n_samples" and not c.endswith(UNTIL_ABORT)]
 
 
 def split_aborted(frame: pd.DataFrame) -> pd.DataFrame:
@@ -212,12 +225,14 @@ def build_table(
     cache: pd.DataFrame | None = None,
     workers: int | None = None,
     units: Mapping[str, str] | None = None,
+    limits: Mapping[str, tuple[float, float]] | None = None,
     recompute: bool = False,
     tick: Callable[[int], None] | None = None,
 ) -> CampaignTable:
     """The table of ledger ``rows``: metrics from the ledger; from the logs (reusing ``cache`` rows
     that still match) where the ledger has none, or for every run with ``recompute``. ``units``
-    are the rig's signal units, for logs that record none; ``tick(n)`` is called as logs are read."""
+    are the rig's signal units, for logs that record none; ``limits`` its input limits (the
+    oscillation detector's columns); ``tick(n)`` is called as logs are read."""
     frame, missing_list = ledger_frame(rows)
     missing = set(missing_list)
     problems: list[dict[str, str]] = []
@@ -244,7 +259,7 @@ def build_table(
             metrics[i] = _unsplit(hit, frame.columns)
         else:
             read.append(i)
-    results = _read_many([str(directory / paths[i]) for i in read], workers or os.cpu_count() or 1, units, tick)
+    results = _read_many([str(directory / paths[i]) for i in read], workers or os.cpu_count() or 1, units, limits, tick)
     for i, result in zip(read, results):
         if "error" in result:
             problems.append({"path": paths[i], "kind": "unreadable", "detail": result["error"]})
@@ -261,7 +276,7 @@ def build_table(
             frame[col] = extra[col].combine_first(frame[col]) if col in frame.columns else extra[col]
     frame["torn"] = frame["torn"].fillna(False).astype(bool)
     frame = split_aborted(frame)
-    for col in INTEGER_COLUMNS:
+    for col in [*INTEGER_COLUMNS, *(c for c in frame.columns if c.startswith("n_samples@"))]:
         if col in frame.columns:
             frame[col] = pd.to_numeric(frame[col]).round().astype("Int64")
     frame["metrics_version"] = METRICS_VERSION

@@ -24,7 +24,7 @@ from typing import Any
 from labrunner.campaign import expressions, grid as gridmod
 from labrunner.campaign.checks import StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
-from labrunner.errors import InvalidParameter, check_positive
+from labrunner.errors import InvalidParameter, check_number, check_positive
 from labrunner.rigs import config as rigconfig
 from labrunner.rigs.base import RigConfig, RigInfo
 from labrunner.rigs.kinds import rig_class
@@ -32,7 +32,8 @@ from labrunner.rigs.kinds import rig_class
 SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_parameters")
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
-TOP_LEVEL = ("campaign", *SECTIONS, "grid", "derived", "logging")
+OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
+TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "derived", "logging")
 LOGGING_KEYS = ("samples_hz",)  # [logging]: how the run logs are written
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
@@ -66,8 +67,8 @@ class Campaign:
     source_path: Path | None
     project_root: Path
     rig_info: RigInfo = field(repr=False)
+    rig_config: RigConfig = field(repr=False, compare=False)  # the validated rig file
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
-    rig_config: RigConfig | None = field(default=None, repr=False, compare=False)  # the validated rig file
     logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz] or nothing
 
     @property
@@ -86,6 +87,7 @@ class Campaign:
     def resolve(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
         """The full run configuration of one point: base sections with its parameters set."""
         config: dict[str, Any] = {s: copy.deepcopy(dict(self.base.get(s, {}))) for s in SECTIONS}
+        config.update({s: copy.deepcopy(dict(self.base[s])) for s in OPTIONAL_SECTIONS if self.base.get(s)})
         config["campaign"] = {"name": self.name, "rig": self.rig, "fs": self.fs, "duration": self.duration, "seed": self.seed}
         for key, value in parameters.items():
             _set(config, key, value)
@@ -215,6 +217,11 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     if seed < 0:
         raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
     base = {s: doc.get(s, {}) for s in SECTIONS}
+    if "metrics" in doc:  # named windows [t0, t1] of the metrics (labrunner.metrics)
+        from labrunner.metrics import parse_windows
+
+        parse_windows(_require("metrics", doc["metrics"], dict, "a table"))
+        base["metrics"] = doc["metrics"]
     settable = {f"campaign.{k}" for k in GRID_CAMPAIGN_KEYS} | {k for s in SECTIONS for k in _keys(base[s], s)}
 
     def check_key(field_name: str, key: str) -> None:
@@ -230,6 +237,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
 
     for key in base["rig_parameters"]:
         check_key(f"rig_parameters.{key}", f"rig_parameters.{key}")
+    fixed = {k: check_number(f"rig_parameters.{k}", v) for k, v in base["rig_parameters"].items()}
+    rig_class(rig_config.kind).check_overrides(rig_config, fixed, 1, "rig_parameters")  # grid values: in plan()
     grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
     derived: list[tuple[str, expressions.Expression]] = []
     known = set(settable) | set(grid.keys) | set(info.constants)
@@ -297,7 +306,7 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     The checksum covers the resolved configuration of every point (not the file's bytes), so a
     comment edit keeps a campaign resumable while any change of what would run does not.
     """
-    checker = StaticChecker(campaign.rig_config or load_rig_file(campaign.rig_ref, campaign.project_root))
+    checker = StaticChecker(campaign.rig_config)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
     def accept(items) -> None:

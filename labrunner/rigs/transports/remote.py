@@ -54,11 +54,15 @@ class RemoteRig(Rig):
         raw = dict(raw)
         model = raw.pop("model", {})
         p = validate_section({**COMMON, **cls.TRANSPORT}, raw, path)
-        if p["device"] not in rig_kinds() or issubclass(rig_class(p["device"]), RemoteRig):
+        try:
+            device = rig_class(p["device"]) if p["device"] in rig_kinds() else None
+        except InvalidParameter as exc:  # registered, but its module does not import here
+            raise InvalidParameter(f"{path}.device", exc.message) from None
+        if device is None or issubclass(device, RemoteRig):
             raise InvalidParameter(f"{path}.device", f"must be one of {device_kinds()}, got {p['device']!r}")
         if not isinstance(model, Mapping):
             raise InvalidParameter(f"{path}.model", f"must be a table, got {model!r}")
-        p["model"] = rig_class(p["device"]).validate_parameters(model, f"{path}.model")
+        p["model"] = device.validate_parameters(model, f"{path}.model")
         return p
 
     @classmethod
