@@ -221,7 +221,7 @@ class LogPrefix:
         self.decimation = 1 if samples_hz is None else max(1, math.ceil(self.fs / samples_hz - 1e-9))
         self.samples_hz = self.fs / self.decimation
         shared = dict(shared or {})
-        if not isinstance(shared, Mapping) or not all(isinstance(r, Mapping) for r in shared.values()):
+        if not all(isinstance(r, Mapping) for r in shared.values()):
             raise InvalidParameter("metadata", "shared records must map record names to mappings")
         self.shared_names = tuple(shared)
         units = [str(info.get("unit") or "") for info in self.channels.values()]
