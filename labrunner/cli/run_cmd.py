@@ -40,7 +40,7 @@ def report(outcome, directory: str, command: str) -> int:
 
     print(f"{directory}: {format_counts(outcome.counts)} ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)")
     if outcome.stop_reason:
-        retry = f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)" if c.get("failed", 0) else ""
+        retry = f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)" if outcome.counts.get("failed", 0) else ""
         raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`{retry}")
     if outcome.interrupted:
         print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
