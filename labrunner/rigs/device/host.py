@@ -30,11 +30,8 @@ def plan(points: Sequence[Mapping[str, object]], rig_info: RigInfo, *, fs: float
     out = []
     for point, seed in zip(points, seeds):
         data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, watchdog_s=watchdog_s)
-        if link is not None:
-            n_columns = description.decode(data).n_columns
-            if linkload.device_loop_load(link, fs, n_columns) <= linkload.MAX_LOAD:
-                data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety,
-                                         watchdog_s=watchdog_s, stream=True)
+        if link is not None and linkload.device_loop_load(link, fs, description.decode(data).n_columns) <= linkload.MAX_LOAD:
+            data = description.with_stream(data, True)
         out.append(data)
     return out
 
@@ -53,8 +50,7 @@ def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict
 
     outcome = engine.Outcome(verdict.status, verdict.monitor or None, opt(verdict.time), opt(verdict.value),
                              opt(verdict.threshold), verdict.message)
-    metrics = run_metrics(signals, engine.roles_of(channels, rig_info), fs=float(fs),
-                          windows=parse_windows(point.get("metrics")))  # as engine.run_batch measures a twin run
+    metrics = run_metrics(signals, engine.roles_of(channels, rig_info), fs=float(fs), windows=parse_windows(point.get("metrics")))
     return engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
 
 
