@@ -171,7 +171,7 @@ def analyse(
     if campaign is not None and campaign.guided is not None:  # the walk and its step counts
         from labrunner.campaign import guided_report
 
-        extra, guided = guided_report.sections(ctx, directory, out)
+        extra, guided = guided_report.sections(campaign, rows, out)
     summary = {**counts(frame), "best": _best(frame), "maps": [str(p) for p, _ in maps],
                "run_plots": [str(p) for p in runs.values()], "agreement": agree,
                "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}
