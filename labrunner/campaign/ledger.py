@@ -6,6 +6,10 @@ transaction that moves its row from ``claimed`` to a terminal state; the update 
 ``state = 'claimed'``, so a run can never be committed twice. The database is created under a
 temporary name and renamed into place, so a crash while planning leaves no half-written ledger.
 The ``meta`` table keeps a copy of the campaign file and the checksum of the planned grid.
+``metrics_json`` holds every metric of the run (:data:`labrunner.metrics.BASE_METRICS` and the
+per-channel ones) as one JSON object, so that ``analyse`` tabulates without reading the logs; a
+ledger made before that column existed gains it when opened for writing (:func:`_migrate`), and
+readers treat a missing column as "no metrics here" (the analysis then reads the logs).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ CREATE TABLE points (
     rms_error REAL,
     input_energy REAL,
     max_abs_input REAL,
+    metrics_json TEXT,
     log_path TEXT,
     attempts INTEGER NOT NULL DEFAULT 0,
     host TEXT,
@@ -166,6 +171,7 @@ class Ledger:
         if version is None or version[0] != SCHEMA_VERSION:
             db.close()
             raise CampaignError(f"{path} has ledger schema {version and version[0]!r}, expected {SCHEMA_VERSION}")
+        _migrate(db)
         return cls(directory, db)
 
     @classmethod
@@ -198,6 +204,12 @@ class Ledger:
 
     def outcome_counts(self) -> dict[str, int]:
         rows = self.db.execute("SELECT outcome, COUNT(*) FROM points WHERE outcome IS NOT NULL GROUP BY outcome")
+        return {r[0]: r[1] for r in rows}
+
+    def by_outcome(self) -> dict[str, int]:
+        """Points per outcome word (completed, no-motion, aborted, failed; claimed and planned for
+        points without a finished run): what every command counts with."""
+        rows = self.db.execute("SELECT COALESCE(outcome, state), COUNT(*) FROM points GROUP BY COALESCE(outcome, state)")
         return {r[0]: r[1] for r in rows}
 
     def rows(self, states: Sequence[str] | None = None) -> list[sqlite3.Row]:
@@ -262,7 +274,8 @@ class Ledger:
         with self._txn():
             self.db.executemany(
                 "UPDATE points SET state = 'planned', outcome = NULL, outcome_json = NULL, rms_error = NULL,"
-                " input_energy = NULL, max_abs_input = NULL, log_path = NULL, finished_at = NULL WHERE id = ?",
+                " input_energy = NULL, max_abs_input = NULL, metrics_json = NULL, log_path = NULL, finished_at = NULL"
+                " WHERE id = ?",
                 ((i,) for i in ids),
             )
 
@@ -274,11 +287,12 @@ class Ledger:
         with self._txn():
             cur = self.db.execute(
                 "UPDATE points SET state = ?, outcome = ?, outcome_json = ?, rms_error = ?, input_energy = ?,"
-                " max_abs_input = ?, log_path = ?, host = ?, pid = ?, finished_at = ?, engine_s = ?, write_s = ?,"
-                f" publish_s = ? WHERE id = ? AND state IN ({marks})",
+                " max_abs_input = ?, metrics_json = ?, log_path = ?, host = ?, pid = ?, finished_at = ?, engine_s = ?,"
+                f" write_s = ?, publish_s = ? WHERE id = ? AND state IN ({marks})",
                 (
                     state, record.outcome, json.dumps(dict(record.outcome_record), sort_keys=True),
-                    m.get("rms_error"), m.get("input_energy"), m.get("max_abs_input"), record.log_path,
+                    m.get("rms_error"), m.get("input_energy"), m.get("max_abs_input"),
+                    json.dumps({k: _plain(v) for k, v in m.items()}) if m else None, record.log_path,
                     record.host, record.pid, record.finished_at, record.engine_s, record.write_s,
                     record.publish_s, record.point_id, *from_states,
                 ),
@@ -316,6 +330,18 @@ class _Transaction:
 
     def __exit__(self, exc_type, *rest) -> None:
         self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+
+
+def _plain(value: Any) -> Any:
+    """A metric as JSON can hold it (numpy scalars as Python numbers)."""
+    return value.item() if hasattr(value, "item") else value
+
+
+def _migrate(db: sqlite3.Connection) -> None:
+    """Add the columns later versions of this schema (still version 1: only additions) have."""
+    columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
+    if "metrics_json" not in columns:
+        db.execute("ALTER TABLE points ADD COLUMN metrics_json TEXT")
 
 
 def fsync_dir(directory: Path) -> None:

@@ -75,7 +75,10 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
                 f"`labrunner resume {directory}`"
             )
         what = "this campaign" if other == name else f"campaign {other!r}"
-        raise CampaignError(f"{directory} already holds {what}; continue it with `labrunner resume {directory}`")
+        raise CampaignError(
+            f"{directory} already holds {what}; continue it with `labrunner resume {directory}`, or start over "
+            f"in another directory with --out DIR (or delete {directory} first)"
+        )
     if directory.exists() and (not directory.is_dir() or any(not _ours(p) for p in directory.iterdir())):
         raise CampaignError(f"{directory} exists and is not an empty campaign directory; choose another --out")
 
@@ -229,7 +232,7 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
     c = ledger.counts()
     total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
     progress = Progress(
-        campaign.name, total, c["done"], c["aborted"], c["failed"],
+        campaign.name, total, ledger.by_outcome(),
         stream=opts.stream, interval_s=opts.progress_interval_s,
     )
     real = not campaign.rig_info.simulated

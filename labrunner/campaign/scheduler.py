@@ -224,7 +224,7 @@ class Scheduler:
         return BatchTask(
             directory=str(self.ledger.directory.resolve()), campaign=c.name, campaign_source=c.source, rig=c.rig_ref,
             rig_search=c.rig_search, rig_safety=dict(c.rig_safety), fs=float(fs), duration=float(duration),
-            runs=tuple(runs),
+            runs=tuple(runs), samples_hz=c.logging.get("samples_hz"),
         )
 
     def _submit(self, key: str, rows: list[Any]) -> None:
@@ -245,6 +245,8 @@ class Scheduler:
                 self.ledger.unclaim(ids)
             raise
         self.inflight[future] = ids
+        if self.progress:
+            self.progress.started_runs(len(ids))
 
     def _collect(self, future: Future, out: Outcome) -> None:
         ids = self.inflight.pop(future)
@@ -260,7 +262,7 @@ class Scheduler:
             self.ledger.commit(record)
             out.committed += 1
             if self.progress:
-                self.progress.update({"completed": "done", "no-motion": "done"}.get(record.outcome, record.outcome))
+                self.progress.update(record.outcome)
         if result.stop:
             out.stop_reason = out.stop_reason or result.stop
 
@@ -300,7 +302,7 @@ class Scheduler:
                 self.inflight.clear()
             out.signals = signals.count
         out.elapsed_s = time.monotonic() - t0
-        out.counts = self.ledger.counts()
+        out.counts = self.ledger.by_outcome()
         return out
 
     def _say(self, message: str) -> None:

@@ -34,7 +34,8 @@ SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_paramete
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
 OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
-TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived")
+TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived", "logging")
+LOGGING_KEYS = ("samples_hz",)  # [logging]: how the run logs are written
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
 
@@ -70,6 +71,7 @@ class Campaign:
     rig_config: RigConfig = field(repr=False, compare=False)  # the validated rig file
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
     guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
+    logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz] or nothing
 
     @property
     def rig_ref(self) -> str:
@@ -195,7 +197,7 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     unknown = sorted(set(doc) - set(TOP_LEVEL))
     if unknown:
         raise InvalidParameter(unknown[0], f"unknown section; allowed: {', '.join(TOP_LEVEL)}")
-    for section in (*SECTIONS, "campaign", "derived"):
+    for section in (*SECTIONS, "campaign", "derived", "logging"):
         if section in doc:
             _require(section, doc[section], dict, "a table")
     head = doc.get("campaign")
@@ -259,6 +261,7 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         name=name, description=description, rig=rig, rig_path=rig_path, fs=fs, duration=duration, seed=seed,
         base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
         rig_info=info, rig_safety=dict(rig_config.safety), rig_config=rig_config,
+        logging=_logging(doc.get("logging", {})),
     )
     if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
         from labrunner.campaign import guided
@@ -266,6 +269,15 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         procedure = guided.parse(doc["guided"], campaign)
         campaign = dataclasses.replace(campaign, guided=procedure, grid=Grid(procedure.axes()))
     return campaign
+
+
+def _logging(table: Mapping[str, Any]) -> dict[str, Any]:
+    """``[logging]``: ``samples_hz`` > 0 thins the logs' per-sample channel /run/samples to about
+    that rate (at or above f_s: every sample); the lossless /run/blocks always keep every sample."""
+    bad = sorted(set(table) - set(LOGGING_KEYS))
+    if bad:
+        raise InvalidParameter(f"logging.{bad[0]}", f"unknown key; allowed: {', '.join(LOGGING_KEYS)}")
+    return {"samples_hz": check_positive("logging.samples_hz", table["samples_hz"], strict=True)} if "samples_hz" in table else {}
 
 
 def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -331,6 +343,9 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
         config["campaign"]["duration"] = duration
         points.append(PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split)))
     gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
+    from labrunner.rigs.device.plan import check_placement
+
+    check_placement(campaign, points)  # a loop the rig's link or device cannot carry
     digest = hashlib.sha256(canonical_json({"name": campaign.name, "rig": campaign.rig}).encode())
     for *_, d in checked:
         digest.update(d.encode())

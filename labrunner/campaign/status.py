@@ -10,6 +10,7 @@ from typing import Any
 
 from labrunner.campaign.ledger import Ledger
 from labrunner.campaign.lock import holder
+from labrunner.campaign.progress import OUTCOMES
 
 
 def status(directory: str | Path) -> dict[str, Any]:
@@ -17,8 +18,7 @@ def status(directory: str | Path) -> dict[str, Any]:
     directory = Path(directory)
     with Ledger.open_readonly(directory) as ledger:
         meta = ledger.meta()
-        counts = ledger.counts()
-        outcomes = ledger.outcome_counts()
+        outcomes = ledger.by_outcome()
         sessions = ledger.sessions()
         quarantined = len(ledger.quarantined())
         finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
@@ -30,15 +30,14 @@ def status(directory: str | Path) -> dict[str, Any]:
         live = running is not None and i == len(sessions) - 1 and s["ended_at"] is None
         end = now if live else (s["ended_at"] or s["last_at"])
         elapsed += max(0.0, end - s["started_at"])
-    total = sum(counts.values())
-    remaining = counts["planned"] + counts["claimed"]
+    total = sum(outcomes.values())
+    remaining = outcomes.get("planned", 0) + outcomes.get("claimed", 0)
     rate = finished / elapsed if elapsed > 0 and finished else None
     return {
         "campaign": meta.get("campaign"),
         "directory": str(directory),
         "total": total,
-        **counts,
-        "outcomes": outcomes,
+        "outcomes": {word: outcomes.get(word, 0) for word in OUTCOMES},  # every command's words (progress.py)
         "quarantined": quarantined,
         "elapsed_s": round(elapsed, 3),
         "rate_per_s": round(rate, 3) if rate else None,
