@@ -22,8 +22,9 @@ from test_transports import U, can_config, direct_run, serial_config
 
 def run_until_failure(rig, u: np.ndarray, seed: int = 3) -> tuple[np.ndarray, RigError | None]:
     """The measurements the host got, and the RigError that ended the run early (or None)."""
-    ys = [rig.reset(1, [seed], 200.0)[0, 0]]
+    ys = []
     try:
+        ys.append(rig.reset(1, [seed], 200.0)[0, 0])
         for v in u:
             ys.append(rig.step(np.array([[v]]))[0, 0])
     except RigError as exc:
@@ -32,6 +33,7 @@ def run_until_failure(rig, u: np.ndarray, seed: int = 3) -> tuple[np.ndarray, Ri
 
 
 def serve(faults: LinkFaults, interface: str = "virtual", paced: bool = False, **parameters):
+    parameters.setdefault("watchdog_periods", 200)  # 1 s at 200 Hz: these tests are about the link, not the watchdog
     config = can_config(interface, **parameters)
     emulator = Emulator(twin_for(config), device_link(config), paced=paced, faults=faults).start()
     return load_rig(config), emulator
