@@ -132,6 +132,18 @@ def bound_agreement(results: Results) -> Verdict:
                    "where predicted unstable)", agree["share"] >= 0.85, table)
 
 
+def bound_conservative(results: Results) -> Verdict:
+    """The claim that the bound predicts instability where runs are stable (below k_d,min, Fig. 3.19)."""
+    verdict = bound_agreement(results)
+    agree = _one(results).summary["agreement"]
+    if agree["share"] is None:
+        return verdict
+    n = agree["n_compared"]
+    ok = agree["false_unstable"] > 0 and agree["false_stable"] <= 0.1 * n
+    return Verdict(f"{verdict.measured}: the bound is {'conservative' if ok else 'not conservative'} here",
+                   ok, verdict.table)
+
+
 def fine_kp_kd(results: Results) -> Verdict:
     verdict = bound_agreement(results)
     done = _done(_one(results).frame)
