@@ -32,7 +32,7 @@ ID_COLUMNS = ("seq", "id", "state", "status", "monitor", "abort_time", "abort_va
 #: Columns that tell whether a cached row still matches its log file.
 CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
-METRICS_VERSION = 2  # 2: windowed metrics and the oscillation detector
+METRICS_VERSION = 3  # 2: windowed metrics and the oscillation detector; 3: its thresholds
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
 
