@@ -36,6 +36,23 @@ class Verdict:
     threshold: float
 
 
+class _Screen:
+    """Flags values outside their closed bounds [lo, hi] (B, n) or non-finite, in one clip: finite
+    values inside are exactly those a clip to the bounds' finite part leaves unchanged (NaN ≠ NaN,
+    ±inf ≠ ±max, out of bounds ≠ its bound). The screen is the every-tick part of the monitors;
+    tests/test_safety.py checks it tick by tick against the plain monitors."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        big = np.finfo(float).max
+        self.lo, self.hi = np.maximum(lo, -big), np.minimum(hi, big)
+        self._clipped = np.zeros(lo.shape)
+        self._off = np.zeros(lo.shape, dtype=bool)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """(B, n) flags, valid until the next call."""
+        return np.not_equal(clip(x, self.lo, self.hi, out=self._clipped), x, out=self._off)
+
+
 class SafetyMonitor:
     """All monitors of a batch of B runs; ``check`` once per tick returns newly tripped runs."""
 
@@ -46,45 +63,36 @@ class SafetyMonitor:
         self._max_du_dt = np.array([np.inf if c.max_du_dt is None else c.max_du_dt for c in configs])
         self._rate: StreamingFIR | None = None
         if np.isfinite(self._max_du_dt).any():
-            taps = []
+            by_design: dict[tuple[float, float, float], np.ndarray] = {}  # one design per distinct (α, β, ω_c)
             for c in configs:
-                d = design(alpha=c.du_dt_alpha, beta=c.du_dt_beta, omega_c=c.du_dt_omega_c, fs=self.fs)
-                taps.append(d.weights(1))
-            per_run = pad_taps(taps)  # (B, L)
+                key = (c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)
+                if key not in by_design:
+                    by_design[key] = design(alpha=key[0], beta=key[1], omega_c=key[2], fs=self.fs).weights(1)
+            per_run = pad_taps([by_design[(c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)] for c in configs])  # (B, L)
             self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
         self._out_lo, self._out_hi = self._bounds(configs, rig_info.outputs, "output_bounds")
         self._in_lo, self._in_hi = self._bounds(configs, rig_info.inputs, "input_bounds")
         self._has_output_bounds = bool(np.isfinite(self._out_lo).any() or np.isfinite(self._out_hi).any())
         self._has_input_bounds = bool(np.isfinite(self._in_lo).any() or np.isfinite(self._in_hi).any())
         self._out_names = [s.name for s in rig_info.outputs]
-        big = np.finfo(float).max  # the screens clip to the finite part of the bounds
         # signals derived from the outputs (the plate's air gaps), screened only where bounded
         self._der_lo, self._der_hi = self._bounds(configs, rig_info.derived, "output_bounds")
         self._der_names = [d.name for d in rig_info.derived]
-        self._derived = None
+        self._der_weights_T: np.ndarray | None = None  # (n_out, n_derived): derived = y · weights_T
         if np.isfinite(self._der_lo).any() or np.isfinite(self._der_hi).any():
-            weights_T = np.ascontiguousarray(np.array([d.weights for d in rig_info.derived], dtype=float).T)  # (n_out, n_derived)
-            shape = self._der_lo.shape
-            self._derived = (weights_T, np.zeros(shape), np.maximum(self._der_lo, -big), np.minimum(self._der_hi, big),
-                             np.zeros(shape), np.zeros(shape, dtype=bool))
+            self._der_weights_T = np.ascontiguousarray(np.array([d.weights for d in rig_info.derived], dtype=float).T)
+            self._der_values = np.zeros(self._der_lo.shape)
+            self._der_screen = _Screen(self._der_lo, self._der_hi)
         self._in_names = [s.name for s in rig_info.inputs]
         self._max_t = np.array([np.inf if c.max_duration is None else c.max_duration for c in configs])
         self.verdicts: list[Verdict | None] = [None] * self.B
-        # the per-tick screen of u and y side by side: one clip catches bounds and non-finite values
-        # at once (finite values inside [lo, hi] are exactly those a clip to the finite part leaves
-        # unchanged)
-        self._screen_lo = np.maximum(np.hstack([self._in_lo, self._out_lo]), -big)
-        self._screen_hi = np.minimum(np.hstack([self._in_hi, self._out_hi]), big)
-        self._uy = np.zeros(self._screen_lo.shape)  # u and y side by side, for callers without them so
-        self._clipped = np.zeros(self._screen_lo.shape)
-        self._off = np.zeros(self._screen_lo.shape, dtype=bool)
+        # the every-tick screen of u and y side by side (B, n_in + n_out)
+        self._uy = np.zeros((self.B, self.n_inputs + len(rig_info.outputs)))
+        self._screen = _Screen(np.hstack([self._in_lo, self._out_lo]), np.hstack([self._in_hi, self._out_hi]))
         self._lim = np.repeat(self._max_du_dt, self.n_inputs)  # per rate-estimator row
         self._rate_abs = np.zeros(self.B * self.n_inputs)
         self._rate_hit = np.zeros(self.B * self.n_inputs, dtype=bool)
         self._next_time_limit = float(self._max_t.min())  # the earliest run-time limit of a run not yet tripped
-        #: what :meth:`check` returns on a tick without a trip (read-only; callers may test identity)
-        self.no_trip = np.zeros(self.B, dtype=bool)
-        self.no_trip.flags.writeable = False
 
     @staticmethod
     def _bounds(configs: Sequence[SafetyConfig], signals: Sequence, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -103,26 +111,22 @@ class SafetyMonitor:
         self.verdicts = [None] * self.B
         self._next_time_limit = float(self._max_t.min())
 
-    def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray, uy: np.ndarray | None = None) -> np.ndarray:
+    def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray) -> np.ndarray:
         """Check tick ``k`` (commanded ``u`` (B, n_in), measured ``y`` (B, n_out)); return newly tripped (B,).
 
-        ``uy``: the same u and y side by side (B, n_in + n_out), if the caller keeps them so (the
-        engine's log row). A screen of a few array operations clears the usual tick in which
-        nothing trips; only a tick the screen flags runs every monitor by itself and builds the
-        verdicts of the active runs that trip (which monitor, value, threshold).
+        A screen of a few array operations clears the usual tick in which nothing trips; only a
+        tick the screen flags runs every monitor by itself and builds the verdicts of the active
+        runs that trip (which monitor, value, threshold).
         """
         t = k / self.fs
-        if uy is None:
-            uy = self._uy
-            uy[:, : self.n_inputs] = u
-            uy[:, self.n_inputs :] = y
-        off = np.not_equal(clip(uy, self._screen_lo, self._screen_hi, out=self._clipped), uy, out=self._off)
-        odd = count_nonzero(off) > 0  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
+        uy = self._uy
+        uy[:, : self.n_inputs] = u
+        uy[:, self.n_inputs :] = y
+        off = self._screen(uy)
+        odd = count_nonzero(off) > 0
         flagged = odd and self._active_hit(off, active)
-        if self._derived is not None:
-            weights_T, d, lo, hi, clipped, d_off = self._derived
-            np.dot(y, weights_T, out=d)
-            np.not_equal(clip(d, lo, hi, out=clipped), d, out=d_off)
+        if self._der_weights_T is not None:
+            d_off = self._der_screen(np.dot(y, self._der_weights_T, out=self._der_values))
             flagged = flagged or (count_nonzero(d_off) > 0 and self._active_hit(d_off, active))
         rate = None
         if self._rate is not None:
@@ -132,7 +136,7 @@ class SafetyMonitor:
             hit = np.greater_equal(rate, self._lim, out=self._rate_hit)
             flagged = flagged or (count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active))
         if not (flagged or t >= self._next_time_limit):
-            return self.no_trip
+            return np.zeros(self.B, dtype=bool)
         tripped = self._verdicts(t, u, y, active, None if rate is None else rate.reshape(self.B, self.n_inputs))
         open_runs = [i for i, v in enumerate(self.verdicts) if v is None]
         self._next_time_limit = float(self._max_t[open_runs].min()) if open_runs else np.inf
@@ -154,8 +158,8 @@ class SafetyMonitor:
         if self._has_output_bounds:
             checks += [("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
                        ("output_high", y > self._out_hi, y, self._out_hi, self._out_names)]
-        if self._derived is not None:
-            d = np.dot(y, self._derived[0])
+        if self._der_weights_T is not None:
+            d = np.dot(y, self._der_weights_T)
             checks += [("output_low", d < self._der_lo, d, self._der_lo, self._der_names),
                        ("output_high", d > self._der_hi, d, self._der_hi, self._der_names)]
         if self._has_input_bounds:

@@ -33,23 +33,29 @@ motion_output = "theta"
 """
 
 
+GRID = '"controller.gamma" = { log10 = [1.5, 3.0], num = 3 }\n"controller.k_p" = { log10 = [0.0, 2.0], num = 3 }'
+
+
 def campaign_text(
     name: str = "tiny",
     *,
     rig: str = "rigs/motor.toml",
-    duration: float = 2.0,
-    grid: str = '"controller.gamma" = { log10 = [1.5, 3.0], num = 3 }\n"controller.k_p" = { log10 = [0.0, 2.0], num = 3 }',
+    duration: float | None = 2.0,
+    seed: int = 3,
+    hold: float = 0.25,
+    grid: str = GRID,
     extra: str = "",
 ) -> str:
-    """A first-order MFC velocity campaign (thesis Sec. 3.5.1 settings, shortened reference)."""
+    """A first-order MFC velocity campaign (thesis Sec. 3.5.1 settings, shortened reference: 0.5 s
+    transitions, ``hold`` s at each level); ``duration=None`` runs for the reference's length."""
+    length = "" if duration is None else f"duration = {duration}\n"
     return f"""\
 [campaign]
 name = "{name}"
 description = "test campaign"
 rig = "{rig}"
 fs = 200.0
-duration = {duration}
-seed = 3
+{length}seed = {seed}
 
 [controller]
 kind = "mfc1"
@@ -68,7 +74,7 @@ method = "midpoint"
 kind = "setpoints"
 levels = [0.0, 20.0, 0.0]
 transition = 0.5
-hold = 0.25
+hold = {hold}
 
 [safety]
 max_du_dt = 120.0

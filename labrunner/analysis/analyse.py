@@ -167,10 +167,17 @@ def analyse(
     chosen = chosen_runs(frame)
     runs = figures.draw_runs(chosen, ctx)
     agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
+    extra, guided = [], None
+    if campaign is not None and campaign.guided is not None:  # the walk and its step counts
+        from labrunner.campaign import guided_report
+
+        extra, guided = guided_report.sections(ctx, directory, out)
     summary = {**counts(frame), "best": _best(frame), "maps": [str(p) for p, _ in maps],
                "run_plots": [str(p) for p in runs.values()], "agreement": agree,
                "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}
-    summary["report"] = str(report.campaign_report(frame, ctx, summary, maps, chosen, runs))
+    if guided is not None:
+        summary["guided"] = guided
+    summary["report"] = str(report.campaign_report(frame, ctx, summary, maps, chosen, runs, extra=extra))
     return summary
 
 

@@ -171,16 +171,16 @@ def _run_table(frame: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
 
 
 def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], maps: Sequence[tuple[Path, str]],
-                    chosen: Mapping[str, pd.Series], runs: Mapping[str, Path]) -> Path:
+                    chosen: Mapping[str, pd.Series], runs: Mapping[str, Path], extra: Sequence[Section] = ()) -> Path:
     """Compose and write ``index.html`` of a campaign analysis into ``ctx.out``.
 
     ``ctx`` is the analysis context (campaign, directory, axes, units); ``maps`` (PNG, title)
     pairs; ``chosen`` the table rows of the plotted runs, ``runs`` their PNGs, both keyed by label
-    ("best", ...).
+    ("best", ...); ``extra`` sections follow the outcomes (a guided campaign's walk).
     """
     params = _param_columns(frame, ctx.axes)
     metrics = ["rms_error", "input_energy", "max_abs_input", "max_current"]
-    sections = [_campaign_section(ctx, frame), _outcome_section(summary)]
+    sections = [_campaign_section(ctx, frame), _outcome_section(summary), *extra]
     if maps:
         sections.append(Section("Maps", paragraphs=[
             "Markers: red triangle = aborted by the safety routine, white circle = no motion (input too small to "

@@ -288,6 +288,15 @@ class Ledger:
             if self.session is not None:
                 self.db.execute("UPDATE sessions SET last_at = ? WHERE n = ?", (time.time(), self.session))
 
+    def add_points(self, points: Iterable[tuple[str, Mapping[str, Any], str]]) -> int:
+        """Append ``planned`` rows (id, parameters, batch key) after the last ``seq``, in one
+        transaction: a guided campaign's next round. Returns the number of rows added."""
+        with self._txn():
+            last = self.db.execute("SELECT COALESCE(MAX(seq), -1) FROM points").fetchone()[0]
+            rows = [(last + 1 + n, i, json.dumps(dict(p), sort_keys=True), k) for n, (i, p, k) in enumerate(points)]
+            self.db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows)
+        return len(rows)
+
     def record_quarantine(self, point_id: str | None, original: str, moved_to: str, reason: str, size: int) -> None:
         with self._txn():
             self.db.execute(

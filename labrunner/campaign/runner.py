@@ -16,12 +16,12 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 from labrunner import __version__
 from labrunner.campaign import recovery, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, fsync_dir
-from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
+from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.scheduler import (
     Outcome,
@@ -31,6 +31,7 @@ from labrunner.campaign.scheduler import (
     make_batches,
     open_executor,
 )
+from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
 from labrunner.errors import CampaignError
 
@@ -141,7 +142,13 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
     if dry:
-        text = dry_run(campaign, points, opts)
+        if campaign.guided is not None:
+            from labrunner.campaign import guided_run
+
+            slots = opts.workers or len(os.sched_getaffinity(0)) if campaign.rig_info.simulated else 1
+            text = guided_run.dry_run(campaign, points, slots)
+        else:
+            text = dry_run(campaign, points, opts)
         try:
             _check_new_directory(directory, campaign.name, checksum)
         except CampaignError as exc:
@@ -160,6 +167,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             "rig": campaign.rig,
             "created_at": repr(time.time()),
             "created_by": f"labrunner {__version__} on {socket.gethostname()}",
+            **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
         }
         ledger = Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points))
         del points
@@ -219,8 +227,9 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
 def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts: Options, command: str) -> Outcome:
     ledger.start_session(command)
     c = ledger.counts()
+    total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
     progress = Progress(
-        campaign.name, sum(c.values()), c["done"], c["aborted"], c["failed"],
+        campaign.name, total, c["done"], c["aborted"], c["failed"],
         stream=opts.stream, interval_s=opts.progress_interval_s,
     )
     real = not campaign.rig_info.simulated
@@ -231,7 +240,12 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
             scheduler = Scheduler(
                 campaign, ledger, executor=ex, slots=slots, batch_size=1 if real else opts.batch_size, progress=progress
             )
-            out = scheduler.run()
+            if campaign.guided is None:
+                out = scheduler.run()
+            else:  # rounds: the procedure proposes, the scheduler runs
+                from labrunner.campaign import guided_run
+
+                out = guided_run.execute(campaign, ledger, scheduler.run)
             if out.abandoned:
                 kill_pool_workers()
         reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
@@ -240,38 +254,3 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
         ledger.end_session(reason)
         fsync_dir(ledger.directory)
     return out
-
-
-def status(directory: str | Path) -> dict[str, Any]:
-    """The ``labrunner status --json`` object (reads only)."""
-    directory = Path(directory)
-    with Ledger.open_readonly(directory) as ledger:
-        meta = ledger.meta()
-        counts = ledger.counts()
-        outcomes = ledger.outcome_counts()
-        sessions = ledger.sessions()
-        quarantined = len(ledger.quarantined())
-        finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
-    running = holder(directory)
-    now = time.time()
-    elapsed = 0.0
-    for i, s in enumerate(sessions):
-        live = running is not None and i == len(sessions) - 1 and s["ended_at"] is None
-        end = now if live else (s["ended_at"] or s["last_at"])
-        elapsed += max(0.0, end - s["started_at"])
-    total = sum(counts.values())
-    remaining = counts["planned"] + counts["claimed"]
-    rate = finished / elapsed if elapsed > 0 and finished else None
-    return {
-        "campaign": meta.get("campaign"),
-        "directory": str(directory),
-        "total": total,
-        **counts,
-        "outcomes": outcomes,
-        "quarantined": quarantined,
-        "elapsed_s": round(elapsed, 3),
-        "rate_per_s": round(rate, 3) if rate else None,
-        "estimate_s": round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None),
-        "running": None if running is None else {"host": running.host, "pid": running.pid},
-        "sessions": len(sessions),
-    }

@@ -39,9 +39,15 @@ from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
 from labrunner.errors import CampaignError, InvalidParameter
 
-MAX_BATCH = 64  # runs per lockstep batch
 BATCH_MEMORY_BYTES = 256 * 2**20  # a batch's signal buffers stay below this
 _BYTES_PER_SAMPLE = 8 * 32  # float64 × (generous) number of logged traces per run
+# The engine's per-tick cost model, cost(B) ≈ TICK_OVERHEAD_S + B · RUN_TICK_S (motor velocity MFC
+# at 200 Hz, one CPU of a loaded 2-core machine: ~130 µs per tick plus ~0.5 µs per run and tick;
+# benchmarks/bench_engine.py). A batch is large enough once the fixed part is at most
+# TICK_OVERHEAD_SHARE of a tick.
+TICK_OVERHEAD_S = 130e-6
+RUN_TICK_S = 0.5e-6
+TICK_OVERHEAD_SHARE = 0.1
 _PR_SET_PDEATHSIG = 1
 _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
@@ -56,16 +62,26 @@ class Outcome:
     stop_reason: str = ""
     elapsed_s: float = 0.0
     counts: dict[str, int] = field(default_factory=dict)
+    signals: int = 0  # Ctrl-C/SIGTERM received, also one after the last batch began (a guided campaign stops on it)
 
 
 def batch_size(group_points: int, slots: int, samples: int, requested: int | None = None) -> int:
-    """Runs per batch: ≥ 2 batches per parallel slot, ≤ :data:`MAX_BATCH`, within the memory budget.
+    """Runs per batch of a group of ``group_points`` compatible points of ``samples`` ticks each.
 
-    Lockstep cost is dominated by the per-tick overhead, so larger batches are cheaper per run."""
+    Lockstep cost per run is ``(TICK_OVERHEAD_S / B + RUN_TICK_S)`` per tick, so larger batches are
+    cheaper per run, up to the size where the fixed part is :data:`TICK_OVERHEAD_SHARE` of a tick,
+    and within :data:`BATCH_MEMORY_BYTES`. The group is cut into a multiple of ``slots`` batches
+    of equal size, so that every worker has work and none is left running one batch alone at the
+    end: 1000 points on 2 workers → 2 batches of 500; 10 000 → 10 of 1000 (the memory budget at
+    1000 samples)."""
     if requested is not None:
         return requested
+    slots = max(slots, 1)
     by_memory = max(1, BATCH_MEMORY_BYTES // max(samples * _BYTES_PER_SAMPLE, 1))
-    return max(1, min(MAX_BATCH, by_memory, math.ceil(group_points / (2 * max(slots, 1)))))
+    by_cost = math.ceil(TICK_OVERHEAD_S / RUN_TICK_S * (1.0 - TICK_OVERHEAD_SHARE) / TICK_OVERHEAD_SHARE)
+    largest = min(by_memory, by_cost)
+    batches = slots * math.ceil(group_points / (slots * largest))
+    return max(1, math.ceil(group_points / batches))
 
 
 def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> list[tuple[str, list[Any]]]:
@@ -77,7 +93,12 @@ def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> l
     for key, members in groups.items():
         _, fs, duration, *_ = json.loads(key)
         size = batch_size(len(members), slots, round(fs * duration), requested)
-        out += [(key, members[i : i + size]) for i in range(0, len(members), size)]
+        count = math.ceil(len(members) / size)
+        if requested is None:  # automatic: equal sizes (differing by one at most), none above size
+            cuts = [len(members) * j // count for j in range(count + 1)]
+        else:  # as asked, the last batch takes the rest
+            cuts = [*range(0, len(members), size), len(members)]
+        out += [(key, members[lo:hi]) for lo, hi in zip(cuts, cuts[1:])]
     return out
 
 
@@ -277,6 +298,7 @@ class Scheduler:
                 for future in self.inflight:
                     future.cancel()
                 self.inflight.clear()
+            out.signals = signals.count
         out.elapsed_s = time.monotonic() - t0
         out.counts = self.ledger.counts()
         return out

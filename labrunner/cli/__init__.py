@@ -1,10 +1,12 @@
 """The ``labrunner`` command: a thin argparse front end over the library.
 
-Each sub-command lives in its own module below ``labrunner.cli`` and exposes
+Each sub-command lives in its own module below ``labrunner.cli`` (``check-rig`` in
+``check_rig_cmd``) and exposes
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules import
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
-Errors: :class:`~labrunner.errors.InvalidParameter` → one line on stderr, exit 2;
+Errors: a usage error (argparse's own) or :class:`~labrunner.errors.InvalidParameter` → one line
+on stderr, exit 2 (``main`` returns it; only ``--help`` and ``--version`` exit through SystemExit);
 any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1. A reader that closes the
 pipe early (``labrunner analyse DIR --json | head``) ends the command quietly, as in other tools.
 """
@@ -33,14 +35,20 @@ COMMANDS = (
     "bounds",
     "differentiator",
     "reproduce",
+    "emulate",
+    "check-rig",
 )
+
+
+class _UsageError(Exception):
+    """A bad option or argument, as argparse words it (``main`` prints it and returns 2)."""
 
 
 class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose usage errors are one line and exit 2, like every bad input."""
 
     def error(self, message: str) -> None:  # noqa: D401 - argparse API
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        raise _UsageError(f"{self.prog}: error: {message}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,13 +62,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"labrunner {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
-        importlib.import_module(f"labrunner.cli.{name}_cmd").register(sub)
+        importlib.import_module(f"labrunner.cli.{name.replace('-', '_')}_cmd").register(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:  # returned like every other bad input, not raised as SystemExit
+        print(exc, file=sys.stderr)
+        return 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

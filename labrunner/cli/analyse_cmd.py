@@ -7,6 +7,8 @@ import json
 import math
 from typing import Any
 
+from labrunner.cli.argtypes import positive_int
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -21,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("directory", metavar="DIR", help="campaign directory (holds ledger.sqlite)")
     p.add_argument("--out", metavar="DIR", help="output directory (default: DIR/report)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    p.add_argument("--workers", type=int, metavar="N", help="processes reading logs (default: all cores)")
+    p.add_argument("--workers", type=positive_int, metavar="N", help="processes reading logs (default: all cores)")
     p.add_argument("--margin", type=float, default=0.1, metavar="F",
                    help="leave out points within this relative distance of a predicted bound (default 0.1)")
     p.add_argument("--error", choices=("e", "e_hat"), default="e",
@@ -44,8 +46,6 @@ def run(args: argparse.Namespace) -> int:
     from labrunner.analysis.analyse import analyse
     from labrunner.errors import InvalidParameter
 
-    if args.workers is not None and args.workers < 1:
-        raise InvalidParameter("--workers", f"must be >= 1, got {args.workers}")
     if not (0.0 <= args.margin < 1.0):
         raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
     summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin, error=args.error)

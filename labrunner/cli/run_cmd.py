@@ -22,13 +22,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run",
         help="run a campaign file",
-        description="Validate every point of a campaign file, create its directory (ledger, runs/) and run it.",
+        description=(
+            "Validate every point of a campaign file, create its directory (ledger, runs/) and run it. A guided "
+            "campaign ([guided]) runs its tuning procedure in rounds, each next point chosen from the outcomes so far."
+        ),
     )
     p.add_argument("file", metavar="FILE", help="campaign file (TOML), e.g. campaigns/quickstart.toml")
     p.add_argument("--out", metavar="DIR", help="campaign directory (default: data/<name>/)")
     add_execution_options(p)
     p.add_argument("--dry-run", action="store_true", help="print points, batches and an estimated time; create nothing")
-    p.set_defaults(func=main)
+    p.set_defaults(func=run)
 
 
 def report(outcome, directory: str, command: str) -> int:
@@ -40,14 +43,15 @@ def report(outcome, directory: str, command: str) -> int:
         f"{left} left ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)"
     )
     if outcome.stop_reason:
-        raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`")
+        retry = f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)" if c.get("failed", 0) else ""
+        raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`{retry}")
     if outcome.interrupted:
         print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
         return 130
     return 0
 
 
-def main(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from labrunner.campaign.runner import Options, start
 
     opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)

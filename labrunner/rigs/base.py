@@ -260,6 +260,8 @@ class Rig(abc.ABC):
         seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
         if seeds.size != batch:
             raise InvalidParameter("seeds", f"need one seed per run ({batch}), got {seeds.size}")
+        overrides = dict(overrides or {})
+        _reject_unknown(self.overridable(), overrides, "overrides")  # before any state changes
         self.fs = self.info.check_fs(float(fs))
         self.batch = batch
         self.k = 0
@@ -272,8 +274,6 @@ class Rig(abc.ABC):
         self._lo = np.tile(self.info.input_lo, (batch, 1))
         self._hi = np.tile(self.info.input_hi, (batch, 1))
         self._safe_input = self.applied_input.copy()
-        overrides = dict(overrides or {})
-        _reject_unknown(self.overridable(), overrides, "overrides")
         y = self._reset(batch, seeds, overrides)
         return self._measure(np.asarray(y, dtype=float))
 

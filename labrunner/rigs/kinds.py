@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+from collections.abc import Mapping
 from importlib.metadata import entry_points
 
 from labrunner.errors import InvalidParameter
@@ -82,5 +83,5 @@ def check_contract(kind: str, cls: object, target: str) -> None:
         if not inspect.ismethod(getattr(cls, hook)):  # a class method is bound to the class
             raise InvalidParameter("kind", f"{where}: {hook} must be a classmethod")
     for schema in ("PARAMETERS", "NOISE"):
-        if not isinstance(getattr(cls, schema), dict):
-            raise InvalidParameter("kind", f"{where}: {schema} must be a dict of Param")
+        if not isinstance(getattr(cls, schema), Mapping):
+            raise InvalidParameter("kind", f"{where}: {schema} must be a mapping of Param")

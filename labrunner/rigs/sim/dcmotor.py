@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from labrunner._ufunc import clip, count_nonzero
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigConfig, RigInfo, Signal
 from labrunner.rigs.schema import Param
@@ -131,44 +132,65 @@ class DCMotorTwin(SimRig):
         self._static = p["static_friction"] > 0.0
         counts = p["encoder_counts"]
         self._dtheta = np.where(counts > 0, 2.0 * np.pi / np.where(counts > 0, counts, 1.0), 0.0)
+        self._every_run_counts = bool(np.all(counts > 0))
         self._noise = NoiseStreams(seeds, 1, stream=1)
+        self._noisy = bool(np.any(p["input_v"] > 0.0))
+        # scratch of :meth:`_substep`: the direction s, M·z before its sum, x⁺, s·Ω⁺ and θ_m ± play/2,
+        # and the flags "stuck" and "reversed"
+        self._s, self._xn, self._ws = np.zeros(batch), np.zeros((3, batch)), np.zeros(batch)
+        self._work = np.zeros(self._M.shape)
+        self._u_lo = -p["u_max"]
+        self._stuck, self._reversed = np.zeros(batch, dtype=bool), np.zeros(batch, dtype=bool)
         return self._measure_theta()[:, None]
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         p = self.p
         v = u[:, 0]
-        if np.any(p["input_v"] > 0.0):
+        if self._noisy:
             v = v + p["input_v"] * self._noise.next()[:, 0]
-        v = np.clip(v, -p["u_max"], p["u_max"])
-        us, uc = p["static_friction"], p["coulomb_friction"]
-        z, M, theta, half = self._z, self._M, self._theta, self._half_play
-        z[3] = v
-        any_lag, any_coulomb = bool(self._lag.any()), bool(self._coulomb.any())
+        z = self._z
+        clip(v, self._u_lo, p["u_max"], out=z[3])
         for _ in range(self.n_sub):
-            # voltage on the motor at the end of the sub-step (the lag's row does not involve θ, Ω, F)
-            drive = np.where(self._lag, M[2, 2] * z[2] + M[2, 3] * v, v) if any_lag else v
-            stuck = z[1] == 0.0
-            hold = None
-            if stuck.any():
-                s = np.sign(z[1] + stuck * drive)  # direction of motion, or of breakaway when stuck
-                hold = stuck & self._static & (np.abs(drive) <= us)
-            else:
-                s = np.sign(z[1])
-            np.multiply(uc, s, out=z[4])
-            xn = (M * z[None]).sum(axis=1)
-            stop = (xn[1] * s < 0.0) & self._coulomb if any_coulomb else None
-            if hold is not None:
-                stop = hold if stop is None else stop | hold
-                xn[0] = np.where(hold, z[0], xn[0])
-            if stop is not None:
-                xn[1] *= ~stop
-            z[:3] = xn
-            theta = np.minimum(np.maximum(theta, z[0] - half), z[0] + half)  # play(theta, θ_m, backlash)
-        self._theta = theta
+            self._substep()
         return self._measure_theta()[:, None]
+
+    def _substep(self) -> None:
+        """One sub-step of ``z`` (θ_m, Ω, v, v_cmd, F) and the load angle, in place.
+
+        Fused: the usual sub-step (no run stuck, no velocity reversal) is fourteen array operations into
+        scratch arrays; the stick/breakaway and stop tests run only when some run needs them. Same numbers, operation
+        for operation, as the plain form (tests/test_rigs_twins.py checks it against a per-run loop).
+        """
+        z, M, us, uc = self._z, self._M, self.p["static_friction"], self.p["coulomb_friction"]
+        s, work, xn = self._s, self._work, self._xn
+        stuck = np.equal(z[1], 0.0, out=self._stuck)
+        hold = None
+        if count_nonzero(stuck):
+            # voltage on the motor at the end of the sub-step (the lag's row does not involve θ, Ω, F)
+            drive = np.where(self._lag, M[2, 2] * z[2] + M[2, 3] * z[3], z[3])
+            np.sign(z[1] + stuck * drive, out=s)  # direction of motion, or of breakaway when stuck
+            hold = stuck & self._static & (np.abs(drive) <= us)
+        else:
+            np.sign(z[1], out=s)
+        np.multiply(uc, s, out=z[4])  # F = u_c sign(Ω)
+        np.add.reduce(np.multiply(M, z[None], out=work), axis=1, out=xn)  # x⁺ = Φ x + Γ w, w = (v_cmd, F)
+        reversed_ = np.less(np.multiply(xn[1], s, out=self._ws), 0.0, out=self._reversed)
+        stop = reversed_ & self._coulomb if count_nonzero(reversed_) else None  # Coulomb friction stops a reversal
+        if hold is not None:
+            stop = hold if stop is None else stop | hold
+            xn[0] = np.where(hold, z[0], xn[0])
+        if stop is not None:
+            xn[1] *= ~stop
+        z[:3] = xn
+        # play(θ, θ_m, backlash): the load follows once the gap is taken up
+        theta = self._theta
+        np.maximum(theta, np.subtract(z[0], self._half_play, out=self._ws), out=theta)
+        np.minimum(theta, np.add(z[0], self._half_play, out=self._ws), out=theta)
 
     def _measure_theta(self) -> np.ndarray:
         d = self._dtheta
+        if self._every_run_counts:  # the usual case: one encoder for all, no masking
+            return np.round(self._theta / d) * d
         return np.where(d > 0.0, np.round(self._theta / np.where(d > 0.0, d, 1.0)) * d, self._theta)
 
     @property
