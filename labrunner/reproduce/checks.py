@@ -24,8 +24,12 @@ Results = Mapping[str, CampaignResult]
 @dataclass(frozen=True)
 class Verdict:
     measured: str
-    agrees: bool | None
+    agrees: bool | None  # a plain bool (numpy's comparisons are converted)
     table: pd.DataFrame | None = None
+
+    def __post_init__(self) -> None:
+        if self.agrees is not None:
+            object.__setattr__(self, "agrees", bool(self.agrees))
 
 
 def _one(results: Results, part: str = "") -> CampaignResult:
