@@ -16,7 +16,7 @@ import numpy as np
 
 from labrunner import engine
 from labrunner.control import factory
-from labrunner.metrics import run_metrics
+from labrunner.metrics import parse_windows, run_metrics
 from labrunner.rigs.base import RigInfo
 from labrunner.rigs.device import blocks, description, session
 from labrunner.rigs.device.columns import column_names, from_columns
@@ -53,7 +53,9 @@ def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict
 
     outcome = engine.Outcome(verdict.status, verdict.monitor or None, opt(verdict.time), opt(verdict.value),
                              opt(verdict.threshold), verdict.message)
-    return engine.RunResult(outcome, signals, float(fs), channels, run_metrics(signals, engine.roles_of(channels)), dict(diagnostics))
+    metrics = run_metrics(signals, engine.roles_of(channels, rig_info), fs=float(fs),
+                          windows=parse_windows(point.get("metrics")))  # as the engine measures a twin run
+    return engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
 
 
 def run(send: session.Send, recv: session.Recv, max_payload: int, points: Sequence[Mapping[str, object]], rig_info: RigInfo,
