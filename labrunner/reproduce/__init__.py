@@ -12,6 +12,14 @@ Guideline 2 vs Polack step counts of the guided campaigns where that module is p
 
 from __future__ import annotations
 
-from labrunner.reproduce.report import reproduce
+from typing import Any
+
+
+def reproduce(*args: Any, **kwargs: Any) -> dict[str, Any]:
+    """:func:`labrunner.reproduce.report.reproduce` (imported on use: the CLI reads the item list at start-up)."""
+    from labrunner.reproduce.report import reproduce as run
+
+    return run(*args, **kwargs)
+
 
 __all__ = ["reproduce"]
