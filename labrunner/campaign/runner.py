@@ -23,14 +23,8 @@ from labrunner.campaign import recovery, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
 from labrunner.campaign.progress import Progress
-from labrunner.campaign.scheduler import (
-    Outcome,
-    Scheduler,
-    check_executor_url,
-    kill_pool_workers,
-    make_batches,
-    open_executor,
-)
+from labrunner.campaign.executors import check_executor_url, open_executor
+from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals, make_batches
 from labrunner.campaign.worker import RUNS_DIR
 from labrunner.errors import CampaignError
 
@@ -136,7 +130,7 @@ def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slot
 
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
-    check_executor_url(opts.executor)
+    check_executor_url(opts.executor, reach=False)
     campaign = spec.load(file)
     points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
@@ -148,6 +142,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             text += f"\nnote: `labrunner run` would refuse: {exc}"
         return None, text
     _check_new_directory(directory, campaign.name, checksum)
+    check_executor_url(opts.executor)  # reached before the directory exists
     directory.mkdir(parents=True, exist_ok=True)
     with DirectoryLock(directory, "run") as lock:
         _check_new_directory(directory, campaign.name, checksum)  # again, now that nobody else can create it
@@ -227,13 +222,14 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
     out = Outcome()
     reason = "error"
     try:
-        with open_executor(real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd) as (ex, slots):
+        with StopSignals() as signals, open_executor(
+            real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd
+        ) as handle:
             scheduler = Scheduler(
-                campaign, ledger, executor=ex, slots=slots, batch_size=1 if real else opts.batch_size, progress=progress
+                campaign, ledger, executor=handle, batch_size=1 if real else opts.batch_size, progress=progress,
+                signals=signals,
             )
             out = scheduler.run()
-            if out.abandoned:
-                kill_pool_workers()
         reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
     finally:
         progress.close()
