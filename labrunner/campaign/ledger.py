@@ -10,6 +10,7 @@ The ``meta`` table keeps a copy of the campaign file and the checksum of the pla
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
@@ -139,9 +140,11 @@ class Ledger:
                 ((s, i, json.dumps(dict(p), sort_keys=True), k) for s, i, p, k in points),
             )
             db.execute("COMMIT")
-        except BaseException:  # Ctrl-C or an error while planning: leave nothing half-written
+        except BaseException as exc:  # Ctrl-C or an error while planning: leave nothing half-written
             db.close()
             tmp.unlink(missing_ok=True)
+            if isinstance(exc, sqlite3.Error):
+                raise LedgerWriteError(f"{final}: cannot write the ledger: {exc}") from None
             raise
         db.close()
         with open(tmp, "rb+") as fh:
@@ -215,7 +218,7 @@ class Ledger:
 
     # -- writes --------------------------------------------------------------------------------
     def _txn(self):
-        return _Transaction(self.db)
+        return _Transaction(self.db, self.directory / LEDGER_NAME)
 
     def start_session(self, command: str) -> int:
         now = time.time()
@@ -296,17 +299,38 @@ class Ledger:
             )
 
 
-class _Transaction:
-    """``BEGIN IMMEDIATE`` … ``COMMIT`` (``ROLLBACK`` on error): one writer, no lost updates."""
+class LedgerWriteError(CampaignError):
+    """SQLite could not write the ledger (a full disk, a file-size limit, an I/O error): the
+    transaction was rolled back, so the ledger is as it was before it."""
 
-    def __init__(self, db: sqlite3.Connection) -> None:
-        self.db = db
+
+class _Transaction:
+    """``BEGIN IMMEDIATE`` … ``COMMIT`` (``ROLLBACK`` on error): one writer, no lost updates.
+    An SQLite failure becomes a :class:`LedgerWriteError` naming the ledger file."""
+
+    def __init__(self, db: sqlite3.Connection, path: Path) -> None:
+        self.db, self.path = db, path
 
     def __enter__(self) -> None:
-        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            self.db.execute("BEGIN IMMEDIATE")
+        except sqlite3.Error as exc:
+            raise self._error(exc) from None
 
-    def __exit__(self, exc_type, *rest) -> None:
-        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+        except sqlite3.Error as failed:
+            if exc_type is None:
+                with contextlib.suppress(sqlite3.Error):
+                    self.db.execute("ROLLBACK")
+                exc = failed
+        if isinstance(exc, sqlite3.Error):
+            raise self._error(exc) from None
+
+    def _error(self, exc: sqlite3.Error) -> LedgerWriteError:
+        hint = " (disk full or file-size limit?)" if "disk" in str(exc) or "full" in str(exc) else ""
+        return LedgerWriteError(f"{self.path}: cannot write the ledger: {exc}{hint}")
 
 
 def fsync_dir(directory: Path) -> None:

@@ -9,6 +9,7 @@ refuses a campaign whose file changed what would run, settles what a crash left 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
@@ -20,7 +21,7 @@ from typing import Any, TextIO
 
 from labrunner import __version__
 from labrunner.campaign import recovery, spec
-from labrunner.campaign.ledger import LEDGER_NAME, Ledger, fsync_dir
+from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.executors import check_executor_url, open_executor
@@ -233,7 +234,8 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
         reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
     finally:
         progress.close()
-        ledger.end_session(reason)
+        with contextlib.suppress(LedgerWriteError):  # a full disk: the session's end is not recorded
+            ledger.end_session(reason)
         fsync_dir(ledger.directory)
     return out
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
-from labrunner.campaign.ledger import Ledger
+from labrunner.campaign.ledger import Ledger, LedgerWriteError
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
@@ -277,6 +277,9 @@ class Scheduler:
             except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
                 out.interrupted = out.abandoned = True
                 self.inflight.clear()
+            except LedgerWriteError as exc:  # a full disk: nothing more can be committed; resume accepts the logs
+                out.stop_reason = out.stop_reason or str(exc)
+                self._abandon(out)
         out.elapsed_s = time.monotonic() - t0
         out.counts = self.ledger.counts()
         return out

@@ -217,6 +217,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     if seed < 0:
         raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
     base = {s: doc.get(s, {}) for s in SECTIONS}
+    for section in SECTIONS:
+        _check_finite_leaves(section, base[section])
     settable = {f"campaign.{k}" for k in GRID_CAMPAIGN_KEYS} | {k for s in SECTIONS for k in _keys(base[s], s)}
 
     def check_key(field_name: str, key: str) -> None:
@@ -245,6 +247,18 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
         rig_info=info, rig_safety=rig_safety,
     )
+
+
+def _check_finite_leaves(path: str, node: Any) -> None:
+    """Refuse NaN and ±inf anywhere in a section (TOML allows them; no setting means them)."""
+    if isinstance(node, Mapping):
+        for key, value in node.items():
+            _check_finite_leaves(f"{path}.{key}", value)
+    elif isinstance(node, list):
+        for value in node:
+            _check_finite_leaves(path, value)
+    elif isinstance(node, float):
+        check_finite(path, node, "a finite number")
 
 
 def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
