@@ -80,6 +80,8 @@ def _verify(path: Path, point_id: str) -> tuple[dict | None, str]:
     run = log.metadata.get("run", {})
     if log.torn:
         return None, "torn (no footer)"
+    if log.damaged:
+        return None, f"damaged: {log.damaged}"
     if log.outcome is None:
         return None, "no outcome record"
     if run.get("point_id") != point_id:
