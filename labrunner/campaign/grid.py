@@ -104,8 +104,8 @@ def _count(field: str, spec: Mapping[str, Any]) -> int:
     num = spec.get("num")
     if num is None:
         raise InvalidParameter(f"{field}.num", "is required with linspace/log10 (number of values, >= 1)")
-    if isinstance(num, bool) or not isinstance(num, int) or num < 1:
-        raise InvalidParameter(f"{field}.num", f"must be an integer >= 1, got {num!r}")
+    if isinstance(num, bool) or not isinstance(num, int) or not 1 <= num <= MAX_POINTS:
+        raise InvalidParameter(f"{field}.num", f"must be an integer in 1..{MAX_POINTS:,} (the grid's point limit), got {num!r}")
     return num
 
 
