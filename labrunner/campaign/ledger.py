@@ -11,17 +11,19 @@ The ``meta`` table keeps a copy of the campaign file and the checksum of the pla
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import socket
 import sqlite3
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from labrunner.errors import CampaignError
+from labrunner.campaign import integrity
+from labrunner.errors import CampaignError, InvalidParameter
 
 LEDGER_NAME = "ledger.sqlite"
 SCHEMA_VERSION = "1"
@@ -93,6 +95,18 @@ class RunRecord:
     publish_s: float | None = None
 
 
+def ledger_path(directory: Path) -> Path:
+    """``DIR/ledger.sqlite``, or a one-line refusal (exit 2) when DIR is not a campaign directory."""
+    if not directory.is_dir():
+        raise InvalidParameter("DIR", f"{str(directory)!r} is not a directory" if directory.exists()
+                               else f"{str(directory)!r} does not exist")
+    path = directory / LEDGER_NAME
+    if not path.is_file():
+        raise InvalidParameter("DIR", f"{str(directory)!r} holds no campaign ledger ({LEDGER_NAME}); start one with "
+                               f"`labrunner run FILE`, or rebuild a lost one with `labrunner repair {directory}`")
+    return path
+
+
 def _connect(path: Path) -> sqlite3.Connection:
     db = sqlite3.connect(path, isolation_level=None, timeout=30.0, check_same_thread=False)
     db.row_factory = sqlite3.Row
@@ -135,10 +149,15 @@ class Ledger:
                 "INSERT INTO meta (key, value) VALUES (?, ?)",
                 [("schema_version", SCHEMA_VERSION), *sorted(meta.items())],
             )
-            db.executemany(
-                "INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)",
-                ((s, i, json.dumps(dict(p), sort_keys=True), k) for s, i, p, k in points),
-            )
+            ids = hashlib.sha256()
+
+            def rows() -> Iterator[tuple[int, str, str, str]]:
+                for s, i, p, k in points:
+                    ids.update(f"{i}\n".encode())
+                    yield s, i, json.dumps(dict(p), sort_keys=True), k
+
+            db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows())
+            db.execute("INSERT INTO meta (key, value) VALUES ('ids_checksum', ?)", (ids.hexdigest(),))
             db.execute("COMMIT")
         except BaseException as exc:  # Ctrl-C or an error while planning: leave nothing half-written
             db.close()
@@ -154,31 +173,35 @@ class Ledger:
         return cls.open(directory)
 
     @classmethod
-    def open(cls, directory: Path) -> Ledger:
-        path = directory / LEDGER_NAME
-        if not path.is_file():
-            raise CampaignError(f"{directory} holds no campaign ledger ({LEDGER_NAME}); start one with `labrunner run FILE`")
+    def open(cls, directory: Path, *, verify: bool = True) -> Ledger:
+        """Open for writing (``run``, ``resume``); ``verify`` first checks it (:mod:`.integrity`)."""
+        path = ledger_path(directory)
         db = _connect(path)
         try:
+            if verify:
+                integrity.verify(db, path)
             db.execute("PRAGMA journal_mode = WAL")
             db.execute("PRAGMA synchronous = NORMAL")
-            version = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
         except sqlite3.DatabaseError as exc:
             db.close()
-            raise CampaignError(f"{path} is not a readable ledger: {exc}") from None
-        if version is None or version[0] != SCHEMA_VERSION:
+            raise integrity.damaged(path, f"is not a readable ledger ({exc})") from None
+        except BaseException:
             db.close()
-            raise CampaignError(f"{path} has ledger schema {version and version[0]!r}, expected {SCHEMA_VERSION}")
+            raise
         return cls(directory, db)
 
     @classmethod
-    def open_readonly(cls, directory: Path) -> Ledger:
-        """Open for reading (``status``): no journal-mode change, nothing written."""
-        path = directory / LEDGER_NAME
-        if not path.is_file():
-            raise CampaignError(f"{directory} holds no campaign ledger ({LEDGER_NAME})")
+    def open_readonly(cls, directory: Path, *, verify: bool = True) -> Ledger:
+        """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written."""
+        path = ledger_path(directory)
         db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None, timeout=30.0)
         db.row_factory = sqlite3.Row
+        try:
+            if verify:
+                integrity.verify(db, path)
+        except BaseException:
+            db.close()
+            raise
         return cls(directory, db)
 
     def close(self) -> None:

@@ -13,6 +13,7 @@ import contextlib
 import json
 import os
 import socket
+import sqlite3
 import sys
 import time
 from dataclasses import dataclass
@@ -20,14 +21,14 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from labrunner import __version__
-from labrunner.campaign import recovery, spec
-from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
+from labrunner.campaign import integrity, recovery, spec
+from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir, ledger_path
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.executors import check_executor_url, open_executor
 from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals, make_batches
 from labrunner.campaign.worker import RUNS_DIR
-from labrunner.errors import CampaignError
+from labrunner.errors import CampaignError, LabrunnerError
 
 CAMPAIGN_COPY = "campaign.toml"
 
@@ -57,9 +58,9 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
     or other files."""
     if (directory / LEDGER_NAME).exists():
         try:
-            with Ledger.open_readonly(directory) as ledger:
+            with Ledger.open_readonly(directory, verify=False) as ledger:
                 meta = ledger.meta()
-        except CampaignError:
+        except (LabrunnerError, sqlite3.Error):
             meta = {}
         other = meta.get("campaign", "?")
         if other == name and meta.get("plan_checksum") != checksum:
@@ -170,7 +171,9 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     meta = ledger.meta()
     source_path = Path(meta["campaign_path"])
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
-    _, checksum = spec.plan(campaign)
+    points, checksum = spec.plan(campaign)
+    integrity.check_plan(ledger.directory / LEDGER_NAME, [r["id"] for r in ledger.rows()], [p.id for p in points])
+    del points
     if checksum != meta["plan_checksum"]:
         raise CampaignError(
             f"the campaign stored in {ledger.directory} no longer plans the same runs (rig file or labrunner "
@@ -194,9 +197,8 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
 def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) -> tuple[Outcome, str]:
     """``labrunner resume``: settle a crash, then run every point that is not terminal."""
     directory = Path(directory)
+    ledger_path(directory)  # a missing or foreign directory: exit 2 before the lock file is made
     check_executor_url(opts.executor)
-    if not (directory / LEDGER_NAME).is_file():
-        raise CampaignError(f"{directory} holds no campaign ledger; start a campaign with `labrunner run FILE`")
     stream = opts.stream or sys.stderr
     with DirectoryLock(directory, "resume") as lock, Ledger.open(directory) as ledger:
         if lock.took_over:
