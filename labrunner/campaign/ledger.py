@@ -170,7 +170,7 @@ class Ledger:
             os.fsync(fh.fileno())
         os.replace(tmp, final)
         fsync_dir(directory)
-        return cls.open(directory)
+        return cls.open(directory, verify=False)  # just written
 
     @classmethod
     def open(cls, directory: Path, *, verify: bool = True) -> Ledger:
