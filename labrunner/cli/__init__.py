@@ -33,6 +33,7 @@ COMMANDS = (
     "run",
     "resume",
     "status",
+    "repair",
     "analyse",
     "inspect",
     "plot",
