@@ -20,6 +20,7 @@ import errno
 import importlib
 import os
 import select
+import signal
 import sys
 import tempfile
 import traceback
@@ -65,7 +66,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupt_once(signum: int, frame: object) -> None:
+    """The program's SIGINT handler until a campaign installs its own: the first Ctrl-C stops the
+    command (KeyboardInterrupt), later ones are ignored while it winds down."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # the program itself
+        signal.signal(signal.SIGINT, _interrupt_once)
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
