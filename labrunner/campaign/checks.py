@@ -140,6 +140,11 @@ class StaticChecker:
                     raise InvalidParameter(
                         "campaign.duration", f"gives {samples} samples at {fs:g} Hz; allowed 1..{MAX_SAMPLES}"
                     )
+                if n_s > samples:
+                    raise InvalidParameter(
+                        "differentiator.omega_c", f"gives a window of {n_s} samples, longer than the run "
+                        f"({samples} samples at {fs:g} Hz): no estimate would ever see a full window"
+                    )
                 if n_s * samples > MAX_FIR_WORK:
                     raise InvalidParameter(
                         "differentiator.omega_c", f"gives a window of {n_s} samples; × {samples} samples per run "

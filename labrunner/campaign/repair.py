@@ -123,6 +123,9 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
         raise InvalidParameter("DIR", f"{str(directory)!r} does not exist" if not directory.exists()
                                       else f"{str(directory)!r} is not a directory")
     path = directory / LEDGER_NAME
+    if not (directory / COPY).is_file() and not path.is_file():
+        raise InvalidParameter("DIR", f"{str(directory)!r} has neither {COPY} nor a ledger keeping the campaign: "
+                                      "nothing to rebuild the grid from")
     with DirectoryLock(directory, "repair"):
         meta, failed, sessions, quarantine, problem = _old_ledger(path)
         campaign = _campaign(directory, meta, campaign_file)

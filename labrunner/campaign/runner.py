@@ -197,7 +197,9 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
 def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) -> tuple[Outcome, str]:
     """``labrunner resume``: settle a crash, then run every point that is not terminal."""
     directory = Path(directory)
-    ledger_path(directory)  # a missing or foreign directory: exit 2 before the lock file is made
+    check_executor_url(opts.executor, reach=False)
+    with Ledger.open_readonly(directory):  # a missing, foreign or damaged ledger: exit 2 before the lock file is made
+        pass
     check_executor_url(opts.executor)
     stream = opts.stream or sys.stderr
     with DirectoryLock(directory, "resume") as lock, Ledger.open(directory) as ledger:

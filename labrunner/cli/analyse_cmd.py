@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from typing import Any
 
 
@@ -46,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise InvalidParameter("--workers", f"must be >= 1, got {args.workers}")
+    if args.out is not None and os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise InvalidParameter("--out", f"{args.out!r} exists and is not a directory")
     if not (0.0 <= args.margin < 1.0):
         raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
     summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin, error=args.error)
