@@ -52,9 +52,37 @@ def check_finite(field: str, value: float, allowed: str | None = None) -> float:
     return v
 
 
-def check_positive(field: str, value: float) -> float:
-    """Return ``float(value)`` or raise :class:`InvalidParameter` unless it is finite and > 0."""
-    v = check_finite(field, value, "a finite number > 0")
+def check_number(field: str, value: object) -> float:
+    """Return a finite ``int``/``float`` as ``float``; reject booleans, strings and NaN/inf.
+
+    Stricter than :func:`check_finite` (which converts ``"3"``): for values read from TOML, where a
+    quoted number or ``true`` is a mistake to report, not to convert.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidParameter(field, f"must be a number, got {value!r}")
+    return check_finite(field, value)
+
+
+def check_positive(field: str, value: float, *, strict: bool = False) -> float:
+    """Return ``float(value)`` or raise :class:`InvalidParameter` unless it is finite and > 0.
+
+    ``strict``: the value must already be a number (see :func:`check_number`), as in a file.
+    """
+    v = check_number(field, value) if strict else check_finite(field, value, "a finite number > 0")
     if v <= 0.0:
         raise InvalidParameter(field, f"must be > 0, got {value!r}")
     return v
+
+
+def check_interval(field: str, value: object, *, what: str = "[lo, hi]", empty: bool = False) -> tuple[float, float]:
+    """Return ``(lo, hi)`` from a two-number list or tuple with finite ``lo < hi``.
+
+    ``what`` names the form in the message (``"[start, stop]"`` for a grid axis); ``empty``
+    allows ``lo == hi`` and ``lo > hi`` (a grid axis may run backwards).
+    """
+    if not isinstance(value, (list, tuple)) or len(value) != 2 or any(isinstance(v, (bool, str)) for v in value):
+        raise InvalidParameter(field, f"must be {what}, got {value!r}")
+    lo, hi = (check_finite(field, v) for v in value)
+    if not empty and lo >= hi:
+        raise InvalidParameter(field, f"needs lo < hi, got [{lo:g}, {hi:g}]")
+    return lo, hi

@@ -8,14 +8,24 @@ ledger's summary as each run ends, and the analysis recomputes them from the log
 
 The engine ends an aborted run's signals at its abort sample, so the metrics of an aborted run
 cover the run up to the abort.
+
+Named windows (a campaign's ``[metrics]`` section, e.g. ``fault = [2.0, 2.5]`` in seconds) give the
+same metrics over samples t0 ≤ k/fs < t1 as ``<metric>@<name>`` columns, so a fault's effect or
+the hover after a lift-off is measured without the transient around it (paper 2 Table 3). With the
+input limits and f_s, the run also gets the oscillation detector's columns
+(:mod:`labrunner.oscillation`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from labrunner.errors import InvalidParameter
+from labrunner.oscillation import Detector
 
 #: Metric columns every run gets (NaN where a run has no such channel).
 BASE_METRICS = ("rms_error", "rms_error_hat", "input_energy", "max_abs_input", "max_current", "n_samples")
@@ -27,13 +37,32 @@ class Roles:
 
     ``errors``: tracking errors e_<output> (y − y_r, in the output's unit);
     ``error_hats``: delayed, filtered errors ê_<output> (paper 2) where logged;
-    ``inputs``: rig inputs u (V, A, ...); ``currents``: channels measured in A.
+    ``inputs``: rig inputs u (V, A, ...); ``currents``: channels measured in A;
+    ``input_limits``: (lo, hi) per input, for the oscillation detector (none: no detector).
     """
 
     errors: tuple[str, ...]
     inputs: tuple[str, ...]
     error_hats: tuple[str, ...] = ()
     currents: tuple[str, ...] = ()
+    input_limits: tuple[tuple[float, float], ...] = ()
+
+
+def parse_windows(section: Mapping[str, object] | None, field: str = "metrics") -> dict[str, tuple[float, float]]:
+    """Named windows of a ``[metrics]`` section: each key a name, each value ``[t0, t1]`` [s], 0 ≤ t0 < t1."""
+    windows: dict[str, tuple[float, float]] = {}
+    for name, value in dict(section or {}).items():
+        where = f"{field}.{name}"
+        if not name.replace("_", "").replace("-", "").isalnum():
+            raise InvalidParameter(where, "a window name may hold letters, digits, '_' and '-' only")
+        if (not isinstance(value, (list, tuple)) or len(value) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            raise InvalidParameter(where, f"must be a window [t0, t1] in seconds, got {value!r}")
+        t0, t1 = float(value[0]), float(value[1])
+        if not (math.isfinite(t0) and math.isfinite(t1) and 0.0 <= t0 < t1):
+            raise InvalidParameter(where, f"needs 0 <= t0 < t1 (finite, in s), got [{t0:g}, {t1:g}]")
+        windows[name] = (t0, t1)
+    return windows
 
 
 def _stack(signals: Mapping[str, np.ndarray], names: Sequence[str], k: int) -> np.ndarray:
@@ -59,6 +88,36 @@ def _max_abs(x: np.ndarray) -> float:
 def run_metrics(
     signals: Mapping[str, np.ndarray],
     roles: Roles,
+    *,
+    fs: float | None = None,
+    windows: Mapping[str, tuple[float, float]] | None = None,
+    detector: Detector = Detector(),
+) -> dict[str, float]:
+    """:func:`base_metrics` of the whole run, then per named window (``<metric>@<name>``, needs
+    ``fs``; NaN for a window the run ended before), and the detector's columns where the roles
+    give input limits and ``fs`` is known."""
+    out = base_metrics(signals, roles)
+    if fs is None:
+        return out
+    k = int(out["n_samples"])
+    for name, (t0, t1) in (windows or {}).items():
+        lo, hi = math.ceil(t0 * fs - 1e-9), min(k, math.ceil(t1 * fs - 1e-9))
+        part = {n: np.asarray(signals[n], dtype=float)[lo:hi] for n in _names(roles)} if hi > lo else None
+        values = base_metrics(part, roles) if part is not None else dict.fromkeys(out, float("nan"))
+        out.update({f"{key}@{name}": v for key, v in values.items()})
+    if roles.input_limits and roles.inputs:
+        lo, hi = np.array(roles.input_limits, dtype=float).T
+        out.update(detector.detect(_stack(signals, roles.inputs, k), lo, hi, fs))
+    return out
+
+
+def _names(roles: Roles) -> tuple[str, ...]:
+    return (*roles.errors, *roles.inputs, *roles.error_hats, *roles.currents)
+
+
+def base_metrics(
+    signals: Mapping[str, np.ndarray],
+    roles: Roles,
 ) -> dict[str, float]:
     """Metrics of one run from its channels (each a (K,) array, one sample per tick).
 
@@ -71,7 +130,7 @@ def run_metrics(
 
     Channels of unequal length (a torn log) are cut to the shortest.
     """
-    lengths = {len(signals[name]) for name in (*roles.errors, *roles.inputs, *roles.error_hats, *roles.currents)}
+    lengths = {len(signals[name]) for name in _names(roles)}
     k = min(lengths) if lengths else 0
     out: dict[str, float] = {"n_samples": float(k)}
     for key, names in (("rms_error", roles.errors), ("rms_error_hat", roles.error_hats)):

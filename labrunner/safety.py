@@ -7,106 +7,23 @@ non-finite values, and a run-time limit. A tripped run is reported with the moni
 the offending value and the threshold; the engine sends it to the rig's safe state in the same
 tick.
 
-Limits come from the rig file's ``[safety]`` section, overridden by the campaign's ``[safety]``.
+Limits come from the rig file's ``[safety]`` section, overridden by the campaign's ``[safety]``;
+both are validated by :class:`labrunner.safety_config.SafetyConfig` (re-exported here).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from labrunner._ufunc import clip, count_nonzero
 from labrunner.differentiators import StreamingFIR, design, pad_taps
-from labrunner.errors import InvalidParameter, check_finite
 from labrunner.rigs.base import RigInfo
+from labrunner.safety_config import SafetyConfig
 
-_BOUNDS_KEYS = ("output_bounds", "input_bounds")
-_SCALAR_KEYS = (
-    "max_du_dt",
-    "du_dt_alpha",
-    "du_dt_beta",
-    "du_dt_omega_c",
-    "max_duration",
-    "motion_output",
-    "motion_min_change",
-    "motion_min_level",
-)
-
-
-@dataclass(frozen=True)
-class SafetyConfig:
-    """Validated safety limits of one run (SI units of the rig's signals).
-
-    ``max_du_dt`` [input unit / s] (``None`` disables the rate monitor) is estimated with an
-    algebraic differentiator of parameters ``du_dt_*``. ``output_bounds`` / ``input_bounds`` map a
-    signal name to its allowed closed interval; an output bound may also name a signal the rig
-    derives from its outputs (``RigInfo.derived``: the plate's air gaps h1..h4, paper 2 eq. (4)).
-    ``max_duration`` [s] aborts longer runs.
-    ``motion_*`` define "the load moved": the output ``motion_output`` changed by more than
-    ``motion_min_change`` from its first value, or rose above ``motion_min_level``.
-    """
-
-    max_du_dt: float | None = None
-    du_dt_alpha: float = 6.0
-    du_dt_beta: float = 6.0
-    du_dt_omega_c: float = 200.0
-    output_bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-    input_bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-    max_duration: float | None = None
-    motion_output: str | None = None
-    motion_min_change: float | None = None
-    motion_min_level: float | None = None
-
-    @classmethod
-    def from_sections(cls, rig_info: RigInfo, *sections: Mapping[str, object], prefix: str = "safety") -> SafetyConfig:
-        """Merge ``sections`` (rig file first, campaign last) and validate every key."""
-        merged: dict[str, object] = {}
-        for section in sections:
-            for key, value in (section or {}).items():
-                if key in _BOUNDS_KEYS and isinstance(value, Mapping):
-                    merged[key] = {**dict(merged.get(key, {})), **dict(value)}
-                else:
-                    merged[key] = value
-        unknown = sorted(set(merged) - set(_BOUNDS_KEYS) - set(_SCALAR_KEYS))
-        if unknown:
-            allowed = ", ".join(_SCALAR_KEYS + _BOUNDS_KEYS)
-            raise InvalidParameter(f"{prefix}.{unknown[0]}", f"unknown key; allowed: {allowed}")
-        kw: dict[str, object] = {}
-        for key in ("max_du_dt", "max_duration", "motion_min_change", "motion_min_level"):
-            if merged.get(key) is not None:
-                v = check_finite(f"{prefix}.{key}", merged[key])
-                if v <= 0 and key != "motion_min_level":
-                    raise InvalidParameter(f"{prefix}.{key}", f"must be > 0, got {v}")
-                kw[key] = v
-        for key in ("du_dt_alpha", "du_dt_beta", "du_dt_omega_c"):
-            if key in merged:
-                v = check_finite(f"{prefix}.{key}", merged[key])
-                if v <= 0.0:
-                    raise InvalidParameter(f"{prefix}.{key}", f"must be > 0, got {v}")
-                kw[key] = v
-        outputs = [s.name for s in rig_info.outputs]
-        names = {"output_bounds": outputs + [d.name for d in rig_info.derived], "input_bounds": [s.name for s in rig_info.inputs]}
-        for key in _BOUNDS_KEYS:
-            bounds = {}
-            for name, pair in dict(merged.get(key, {})).items():
-                path = f"{prefix}.{key}.{name}"
-                if name not in names[key]:
-                    raise InvalidParameter(path, f"unknown signal; rig {rig_info.name!r} has {names[key]}")
-                if not isinstance(pair, Sequence) or len(pair) != 2:
-                    raise InvalidParameter(path, f"must be [lo, hi], got {pair!r}")
-                lo, hi = (check_finite(path, v) for v in pair)
-                if lo >= hi:
-                    raise InvalidParameter(path, f"needs lo < hi, got [{lo}, {hi}]")
-                bounds[name] = (lo, hi)
-            kw[key] = bounds
-        if merged.get("motion_output") is not None:
-            out = str(merged["motion_output"])
-            if out not in outputs:
-                raise InvalidParameter(f"{prefix}.motion_output", f"must be one of {outputs}, got {out!r}")
-            kw["motion_output"] = out
-        return cls(**kw)
+__all__ = ["SafetyConfig", "SafetyMonitor", "Verdict"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +36,23 @@ class Verdict:
     threshold: float
 
 
+class _Screen:
+    """Flags values outside their closed bounds [lo, hi] (B, n) or non-finite, in one clip: finite
+    values inside are exactly those a clip to the bounds' finite part leaves unchanged (NaN ≠ NaN,
+    ±inf ≠ ±max, out of bounds ≠ its bound). The screen is the every-tick part of the monitors;
+    tests/test_safety.py checks it tick by tick against the plain monitors."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        big = np.finfo(float).max
+        self.lo, self.hi = np.maximum(lo, -big), np.minimum(hi, big)
+        self._clipped = np.zeros(lo.shape)
+        self._off = np.zeros(lo.shape, dtype=bool)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """(B, n) flags, valid until the next call."""
+        return np.not_equal(clip(x, self.lo, self.hi, out=self._clipped), x, out=self._off)
+
+
 class SafetyMonitor:
     """All monitors of a batch of B runs; ``check`` once per tick returns newly tripped runs."""
 
@@ -129,45 +63,36 @@ class SafetyMonitor:
         self._max_du_dt = np.array([np.inf if c.max_du_dt is None else c.max_du_dt for c in configs])
         self._rate: StreamingFIR | None = None
         if np.isfinite(self._max_du_dt).any():
-            taps = []
+            by_design: dict[tuple[float, float, float], np.ndarray] = {}  # one design per distinct (α, β, ω_c)
             for c in configs:
-                d = design(alpha=c.du_dt_alpha, beta=c.du_dt_beta, omega_c=c.du_dt_omega_c, fs=self.fs)
-                taps.append(d.weights(1))
-            per_run = pad_taps(taps)  # (B, L)
+                key = (c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)
+                if key not in by_design:
+                    by_design[key] = design(alpha=key[0], beta=key[1], omega_c=key[2], fs=self.fs).weights(1)
+            per_run = pad_taps([by_design[(c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)] for c in configs])  # (B, L)
             self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
         self._out_lo, self._out_hi = self._bounds(configs, rig_info.outputs, "output_bounds")
         self._in_lo, self._in_hi = self._bounds(configs, rig_info.inputs, "input_bounds")
         self._has_output_bounds = bool(np.isfinite(self._out_lo).any() or np.isfinite(self._out_hi).any())
         self._has_input_bounds = bool(np.isfinite(self._in_lo).any() or np.isfinite(self._in_hi).any())
         self._out_names = [s.name for s in rig_info.outputs]
-        big = np.finfo(float).max  # the screens clip to the finite part of the bounds
         # signals derived from the outputs (the plate's air gaps), screened only where bounded
         self._der_lo, self._der_hi = self._bounds(configs, rig_info.derived, "output_bounds")
         self._der_names = [d.name for d in rig_info.derived]
-        self._derived = None
+        self._der_weights_T: np.ndarray | None = None  # (n_out, n_derived): derived = y · weights_T
         if np.isfinite(self._der_lo).any() or np.isfinite(self._der_hi).any():
-            weights_T = np.ascontiguousarray(np.array([d.weights for d in rig_info.derived], dtype=float).T)  # (n_out, n_derived)
-            shape = self._der_lo.shape
-            self._derived = (weights_T, np.zeros(shape), np.maximum(self._der_lo, -big), np.minimum(self._der_hi, big),
-                             np.zeros(shape), np.zeros(shape, dtype=bool))
+            self._der_weights_T = np.ascontiguousarray(np.array([d.weights for d in rig_info.derived], dtype=float).T)
+            self._der_values = np.zeros(self._der_lo.shape)
+            self._der_screen = _Screen(self._der_lo, self._der_hi)
         self._in_names = [s.name for s in rig_info.inputs]
         self._max_t = np.array([np.inf if c.max_duration is None else c.max_duration for c in configs])
         self.verdicts: list[Verdict | None] = [None] * self.B
-        # the per-tick screen of u and y side by side: one clip catches bounds and non-finite values
-        # at once (finite values inside [lo, hi] are exactly those a clip to the finite part leaves
-        # unchanged)
-        self._screen_lo = np.maximum(np.hstack([self._in_lo, self._out_lo]), -big)
-        self._screen_hi = np.minimum(np.hstack([self._in_hi, self._out_hi]), big)
-        self._uy = np.zeros(self._screen_lo.shape)  # u and y side by side, for callers without them so
-        self._clipped = np.zeros(self._screen_lo.shape)
-        self._off = np.zeros(self._screen_lo.shape, dtype=bool)
+        # the every-tick screen of u and y side by side (B, n_in + n_out)
+        self._uy = np.zeros((self.B, self.n_inputs + len(rig_info.outputs)))
+        self._screen = _Screen(np.hstack([self._in_lo, self._out_lo]), np.hstack([self._in_hi, self._out_hi]))
         self._lim = np.repeat(self._max_du_dt, self.n_inputs)  # per rate-estimator row
         self._rate_abs = np.zeros(self.B * self.n_inputs)
         self._rate_hit = np.zeros(self.B * self.n_inputs, dtype=bool)
         self._next_time_limit = float(self._max_t.min())  # the earliest run-time limit of a run not yet tripped
-        #: what :meth:`check` returns on a tick without a trip (read-only; callers may test identity)
-        self.no_trip = np.zeros(self.B, dtype=bool)
-        self.no_trip.flags.writeable = False
 
     @staticmethod
     def _bounds(configs: Sequence[SafetyConfig], signals: Sequence, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -186,26 +111,22 @@ class SafetyMonitor:
         self.verdicts = [None] * self.B
         self._next_time_limit = float(self._max_t.min())
 
-    def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray, uy: np.ndarray | None = None) -> np.ndarray:
+    def check(self, k: int, u: np.ndarray, y: np.ndarray, active: np.ndarray) -> np.ndarray:
         """Check tick ``k`` (commanded ``u`` (B, n_in), measured ``y`` (B, n_out)); return newly tripped (B,).
 
-        ``uy``: the same u and y side by side (B, n_in + n_out), if the caller keeps them so (the
-        engine's log row). A screen of a few array operations clears the usual tick in which
-        nothing trips; only a tick the screen flags runs every monitor by itself and builds the
-        verdicts of the active runs that trip (which monitor, value, threshold).
+        A screen of a few array operations clears the usual tick in which nothing trips; only a
+        tick the screen flags runs every monitor by itself and builds the verdicts of the active
+        runs that trip (which monitor, value, threshold).
         """
         t = k / self.fs
-        if uy is None:
-            uy = self._uy
-            uy[:, : self.n_inputs] = u
-            uy[:, self.n_inputs :] = y
-        off = np.not_equal(clip(uy, self._screen_lo, self._screen_hi, out=self._clipped), uy, out=self._off)
-        odd = count_nonzero(off) > 0  # NaN ≠ NaN, ±inf ≠ ±max, out of bounds ≠ its bound
+        uy = self._uy
+        uy[:, : self.n_inputs] = u
+        uy[:, self.n_inputs :] = y
+        off = self._screen(uy)
+        odd = count_nonzero(off) > 0
         flagged = odd and self._active_hit(off, active)
-        if self._derived is not None:
-            weights_T, d, lo, hi, clipped, d_off = self._derived
-            np.dot(y, weights_T, out=d)
-            np.not_equal(clip(d, lo, hi, out=clipped), d, out=d_off)
+        if self._der_weights_T is not None:
+            d_off = self._der_screen(np.dot(y, self._der_weights_T, out=self._der_values))
             flagged = flagged or (count_nonzero(d_off) > 0 and self._active_hit(d_off, active))
         rate = None
         if self._rate is not None:
@@ -215,7 +136,7 @@ class SafetyMonitor:
             hit = np.greater_equal(rate, self._lim, out=self._rate_hit)
             flagged = flagged or (count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active))
         if not (flagged or t >= self._next_time_limit):
-            return self.no_trip
+            return np.zeros(self.B, dtype=bool)
         tripped = self._verdicts(t, u, y, active, None if rate is None else rate.reshape(self.B, self.n_inputs))
         open_runs = [i for i, v in enumerate(self.verdicts) if v is None]
         self._next_time_limit = float(self._max_t[open_runs].min()) if open_runs else np.inf
@@ -237,8 +158,8 @@ class SafetyMonitor:
         if self._has_output_bounds:
             checks += [("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
                        ("output_high", y > self._out_hi, y, self._out_hi, self._out_names)]
-        if self._derived is not None:
-            d = np.dot(y, self._derived[0])
+        if self._der_weights_T is not None:
+            d = np.dot(y, self._der_weights_T)
             checks += [("output_low", d < self._der_lo, d, self._der_lo, self._der_names),
                        ("output_high", d > self._der_hi, d, self._der_hi, self._der_names)]
         if self._has_input_bounds:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.image import imread
+from test_campaign_support import campaign_text
 
 from labrunner.analysis.analyse import Theories, load_campaign, varying_axes
 from labrunner.analysis.figures import axis_of, map_overlays
@@ -15,34 +16,10 @@ from labrunner.campaign.ledger import Ledger
 from labrunner.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
-CAMPAIGN = """
-[campaign]
-name = "analysis-twin"
-description = "γ–k_p sweep of first-order MFC on the simulated DC motor (analysis test)"
-rig = "dcmotor-sim"
-fs = 200.0
-
-[controller]
-kind = "mfc1"
-output = "velocity"
-gamma = 108.55
-k_p = 50.0
-
-[differentiator]
-alpha = 9
-beta = 9
-omega_c = 200.0
-
-[reference]
-kind = "setpoints"
-levels = [0.0, 20.0, 0.0]
-transition = 0.5
-hold = 0.5
-
-[grid]
-"controller.gamma" = { log10 = [1.0, 4.0], num = 4 }
-"controller.k_p" = { log10 = [-1.0, 3.0], num = 5 }
-"""
+CAMPAIGN = campaign_text(  # the rig file's safety routine; runs as long as the reference
+    "analysis-twin", rig="dcmotor-sim", duration=None, seed=0, hold=0.5,
+    grid='"controller.gamma" = { log10 = [1.0, 4.0], num = 4 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 5 }',
+)
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ from labrunner.campaign.lock import DirectoryLock, holder
 from labrunner.campaign.progress import Progress
 from labrunner.cli import main
 from labrunner.errors import CampaignError
-from test_campaign_support import campaign_text, ledger_rows, project, write  # noqa: F401 - fixture
+from test_campaign_support import campaign_text, ledger_rows, write
 
 
 def _ledger(tmp_path: Path, n: int = 3) -> Ledger:

@@ -16,7 +16,7 @@ import pytest
 from labrunner.campaign import spec
 from labrunner.cli import main
 from labrunner.logs import read_run
-from test_campaign_support import campaign_text, cli, ledger_rows, project, spawn, wait_for, write  # noqa: F401
+from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_for, write
 
 TERMINAL = ("done", "aborted", "failed")
 GRID = '"controller.gamma" = { log10 = [1.0, 3.0], num = 10 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 12 }'

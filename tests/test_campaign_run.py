@@ -14,13 +14,12 @@ from labrunner.cli import main
 from labrunner.logs import read_run
 from labrunner.rigs.registry import register_rig
 from labrunner.rigs.sim.dcmotor import DCMotorTwin
-from test_campaign_support import (  # noqa: F401 - fixture
+from test_campaign_support import (
     MOTOR_RIG,
     campaign_text,
     cli,
     comparable,
     ledger_rows,
-    project,
     spawn,
     wait_for,
     write,

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from labrunner.campaign import expressions, grid, spec
 from labrunner.cli import main
 from labrunner.errors import InvalidParameter
-from test_campaign_support import campaign_text, project, write  # noqa: F401 - fixture
+from test_campaign_support import campaign_text, write
 
 pytestmark = pytest.mark.usefixtures("project")
 
@@ -246,9 +246,10 @@ def test_dry_run_prints_points_batches_estimate_and_creates_nothing(project, cap
     path = write(project / "c.toml", GOOD)
     assert main(["run", str(path), "--dry-run", "--workers", "2"]) == 0
     out = capsys.readouterr().out
-    # 9 points on 2 workers: ≥ 2 batches per worker → batches of ⌈9/4⌉ = 3
-    assert out.startswith("campaign tiny: 9 points on rig 'rigs/motor.toml', 3 batches\n"), out
-    assert "9 points × 2 s at 200 Hz (mfc1): 3 batches of ≤ 3" in out
+    # 9 points on 2 workers, far below the cost model's and the memory budget's batch sizes:
+    # one batch per worker → batches of ⌈9/2⌉ = 5
+    assert out.startswith("campaign tiny: 9 points on rig 'rigs/motor.toml', 2 batches\n"), out
+    assert "9 points × 2 s at 200 Hz (mfc1): 2 batches of ≤ 5" in out
     estimate = re.search(r"estimated time ≈ (\d+) s on 2 worker\(s\) \(18 s of simulated time\)", out)
     assert estimate and 0 <= int(estimate[1]) < 60, out
     assert not (project / "data").exists()
@@ -278,3 +279,41 @@ kind = "lift"
     points, _ = spec.plan(load(text))
     keys = {p.batch_key: {q.parameters["controller.notch_omega"] for q in points if q.batch_key == p.batch_key} for p in points}
     assert len(keys) == 2 and all(len(v) == 1 for v in keys.values())  # the plate MFC needs one notch per batch
+
+
+# -- [metrics] windows ----------------------------------------------------------------------------
+def test_metrics_windows_reach_every_point_and_leave_other_campaigns_unchanged():
+    with_windows = load(campaign_text(extra='[metrics]\nhold = [0.5, 1.0]\nfault = [1.0, 2.0]\n'), "w.toml")
+    configs = [config for _, config in with_windows.points()]
+    assert all(c["metrics"] == {"hold": [0.5, 1.0], "fault": [1.0, 2.0]} for c in configs)
+    plain = load(campaign_text(), "p.toml")
+    assert all("metrics" not in c for _, c in plain.points())  # plan checksums of older campaigns stay
+
+
+@pytest.mark.parametrize("body, field", [
+    ("fault = [2.0, 1.0]", "metrics.fault"), ("fault = 1.0", "metrics.fault"), ("'a b' = [0.0, 1.0]", "metrics.a b"),
+])
+def test_bad_metrics_windows_name_the_key(body, field):
+    with pytest.raises(InvalidParameter) as exc:
+        load(campaign_text(extra=f"[metrics]\n{body}\n"), "bad.toml")
+    assert exc.value.field == field
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=st.integers(1, 30_000), slots=st.integers(1, 32), samples=st.integers(1, 200_000))
+def test_batches_are_as_large_as_cost_and_memory_allow_and_keep_every_worker_busy(n, slots, samples):
+    """Every point in exactly one batch, in grid order; sizes differ by one at most; none above
+    the memory budget; the largest batch is that of ⌈n / (slots·m)⌉·slots equal batches, m the
+    smallest of the cost model's and the memory budget's sizes (so no worker idles while another
+    runs a batch of its own at the end)."""
+    from labrunner.campaign import scheduler
+
+    rows = [{"batch_key": f'["rig", 200.0, {samples / 200.0}, [], 0]', "seq": i} for i in range(n)]
+    batches = scheduler.make_batches(rows, slots)
+    assert [r["seq"] for _, b in batches for r in b] == list(range(n))
+    sizes = [len(b) for _, b in batches]
+    by_memory = max(1, scheduler.BATCH_MEMORY_BYTES // (samples * scheduler._BYTES_PER_SAMPLE))
+    m = min(by_memory, math.ceil(9 * scheduler.TICK_OVERHEAD_S / scheduler.RUN_TICK_S))
+    assert max(sizes) - min(sizes) <= 1 and max(sizes) <= by_memory
+    assert max(sizes) == math.ceil(n / (slots * math.ceil(n / (slots * m))))
+    assert [len(b) for _, b in scheduler.make_batches(rows, slots, requested=7)][0] == min(7, n)

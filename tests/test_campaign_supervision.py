@@ -120,7 +120,7 @@ def _short_bound(stopping):
 
     def short(self, out, pending, why):
         for batch in self.inflight.values():
-            batch.duration = 0.0
+            batch.duration, batch.ticks = 0.0, 0
         return stopping(self, out, pending, why)
 
     return short

@@ -1,4 +1,7 @@
-"""Shared helpers of the campaign tests (no tests here): a small project, campaign text, CLI runs."""
+"""Shared helpers of the campaign tests (no tests here): campaign text, CLI runs, ledger rows.
+
+The ``project`` fixture (a small project folder with ``rigs/motor.toml``) is in ``conftest.py``.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +12,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-
-import pytest
 
 from labrunner.rigs.base import RigInfo
 from labrunner.rigs.sim.dcmotor import DCMotorTwin
@@ -32,23 +33,29 @@ motion_output = "theta"
 """
 
 
+GRID = '"controller.gamma" = { log10 = [1.5, 3.0], num = 3 }\n"controller.k_p" = { log10 = [0.0, 2.0], num = 3 }'
+
+
 def campaign_text(
     name: str = "tiny",
     *,
     rig: str = "rigs/motor.toml",
-    duration: float = 2.0,
-    grid: str = '"controller.gamma" = { log10 = [1.5, 3.0], num = 3 }\n"controller.k_p" = { log10 = [0.0, 2.0], num = 3 }',
+    duration: float | None = 2.0,
+    seed: int = 3,
+    hold: float = 0.25,
+    grid: str = GRID,
     extra: str = "",
 ) -> str:
-    """A first-order MFC velocity campaign (thesis Sec. 3.5.1 settings, shortened reference)."""
+    """A first-order MFC velocity campaign (thesis Sec. 3.5.1 settings, shortened reference: 0.5 s
+    transitions, ``hold`` s at each level); ``duration=None`` runs for the reference's length."""
+    length = "" if duration is None else f"duration = {duration}\n"
     return f"""\
 [campaign]
 name = "{name}"
 description = "test campaign"
 rig = "{rig}"
 fs = 200.0
-duration = {duration}
-seed = 3
+{length}seed = {seed}
 
 [controller]
 kind = "mfc1"
@@ -67,7 +74,7 @@ method = "midpoint"
 kind = "setpoints"
 levels = [0.0, 20.0, 0.0]
 transition = 0.5
-hold = 0.25
+hold = {hold}
 
 [safety]
 max_du_dt = 120.0
@@ -75,16 +82,6 @@ max_du_dt = 120.0
 [grid]
 {grid}
 {extra}"""
-
-
-@pytest.fixture
-def project(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """A project folder (pyproject marker, rigs/motor.toml) as the working directory."""
-    (tmp_path / "pyproject.toml").write_text("[project]\nname = 'lab'\n")
-    (tmp_path / "rigs").mkdir()
-    (tmp_path / "rigs" / "motor.toml").write_text(MOTOR_RIG)
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
 
 
 def write(path: Path, text: str) -> Path:

@@ -80,6 +80,25 @@ def test_batch_equals_single_runs(thesis_points):
             np.testing.assert_allclose(trace, batch[i].signals[name], rtol=0, atol=1e-12, err_msg=name)
 
 
+def test_runs_with_their_own_safety_and_reference_sections_keep_them_in_a_batch():
+    """Points share validated safety limits and trajectories only where their sections are equal:
+    a run with its own rate limit or levels gets them, the others the campaign's (as single runs)."""
+    own_limit, own_levels = point(gamma=B, k_p=20.0), point(gamma=B, k_p=20.0)
+    own_limit["safety"] = {"max_du_dt": 5.0}
+    own_levels["reference"] = dict(own_levels["reference"], levels=[0.0, 5.0, 0.0])
+    points = [point(gamma=B, k_p=20.0), own_limit, own_levels, point(gamma=B, k_p=20.0)]
+    batch = run(points, seeds=[0] * 4)
+    assert batch[1].outcome.status == "aborted" and batch[1].outcome.threshold == 5.0
+    assert batch[0].outcome.status == batch[3].outcome.status == "completed"
+    assert np.max(batch[2].signals["ref_omega"]) == pytest.approx(5.0) and np.max(batch[0].signals["ref_omega"]) == pytest.approx(20.0)
+    for p, result in zip(points, batch):
+        (single,) = run([p], seeds=[0])
+        assert (single.outcome.status, single.outcome.time, single.outcome.threshold) == (
+            result.outcome.status, result.outcome.time, result.outcome.threshold)
+        for name, trace in single.signals.items():
+            np.testing.assert_array_equal(trace, result.signals[name], err_msg=name)
+
+
 def test_channels_have_log_roles_and_si_units(thesis_points):
     ch = thesis_points[1][0].channels
     assert ch["outputs"] == ["theta"] and ch["controlled"] == ["omega"] and ch["inputs"] == ["u"]

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from labrunner.errors import InvalidParameter
-from labrunner.identification import identify_signals
+from labrunner.identification import identify_friction, identify_signals
 
 A, B, FS = 39.44, 108.55, 100.0
 
@@ -49,6 +49,22 @@ def test_coulomb_friction_biases_b_by_its_share_of_the_input():
         est = identify_signals(*simulate(level, friction=F), FS)
         assert est.b == pytest.approx(B - F / level, rel=0.01)
         assert est.a == pytest.approx(A, rel=0.01)
+
+
+def test_friction_fit_pooled_over_the_four_steps_recovers_a_b_and_the_coulomb_voltage():
+    """η = −F·sign(u) is b·u_c·sign(θ̇) with u_c = F/b: pooled over the thesis's four step heights
+    the fit returns a, b and u_c; from one step alone u_c is not identifiable (sign θ̇ ∝ u)."""
+    F = 60.0
+    runs = [simulate(level, friction=F) for level in (-12.0, -6.0, 6.0, 12.0)]
+    est = identify_friction(runs, FS)
+    assert est.a == pytest.approx(A, rel=0.01)
+    assert est.b == pytest.approx(B, rel=0.01)
+    assert est.coulomb == pytest.approx(F / B, rel=0.02)
+    assert est.n_samples == 4 * (200 - 19)
+    frictionless = identify_friction([simulate(level) for level in (-6.0, 12.0)], FS)
+    assert abs(frictionless.coulomb) < 0.01 and frictionless.b == pytest.approx(B, rel=0.01)
+    with pytest.raises(InvalidParameter, match="two heights"):
+        identify_friction([simulate(6.0, friction=F)], FS)
 
 
 def test_rejects_bad_input():

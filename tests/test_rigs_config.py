@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from labrunner.errors import InvalidParameter
-from labrunner.rigs import registry
+from labrunner.rigs import kinds, registry
 from labrunner.rigs.base import Faults, RigInfo, Signal
 from labrunner.rigs.config import Param, RigConfig, config_from_dict, load_rig_config
 from labrunner.rigs.registry import load_rig, register_rig, rig_class, rig_kinds
@@ -116,15 +116,15 @@ def test_overrides_are_validated_per_run():
     err = error_of(rig.reset, 1, [0], 200.0, {"coulomb_friction": 5.0})
     assert err.field == "overrides.coulomb_friction"
     rig.reset(3, [0, 1, 2], 200.0, {"a": np.array([np.nan, 20.0, np.nan])})  # NaN: the file's value
-    np.testing.assert_array_equal(rig.p["a"], [39.44, 20.0, 39.44])
+    np.testing.assert_array_equal(rig.p["a"], [40.8, 20.0, 40.8])  # the default (calibrated) a
 
 
 def test_faults_section_maps_onto_base_faults():
     """Paper 2 Sec. 4.4 faults from a rig file: additive actuator fault from t_start on."""
     config = config_from_dict({
         "rig": {"kind": "dcmotor"},
-        "parameters": {"static_friction": 0.0, "coulomb_friction": 0.0, "backlash": 0.0, "electrical_tau": 0.0,
-                       "encoder_counts": 0},
+        "parameters": {"a": 39.44, "b": 108.55, "static_friction": 0.0, "coulomb_friction": 0.0, "backlash": 0.0,
+                       "electrical_tau": 0.0, "encoder_counts": 0},
         "noise": {"input_v": 0.0},
         "faults": {"t_start": 0.5, "actuator_offset": 2.0, "sensor_step": [0.25]},
     })
@@ -180,7 +180,7 @@ class ToyRig(SimRig):
 
 def test_entry_point_extends_registry(monkeypatch, tmp_path):
     ep = EntryPoint(name="toy", value=f"{__name__}:ToyRig", group=registry.ENTRY_POINT_GROUP)
-    monkeypatch.setattr(registry, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(kinds, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
     assert rig_kinds()["toy"] == f"{__name__}:ToyRig"
     path = write_rig(tmp_path, "toy", '[rig]\nkind = "toy"\n[parameters]\ngain = 5.0\n')
     rig = load_rig(path)
@@ -192,7 +192,7 @@ def test_entry_point_extends_registry(monkeypatch, tmp_path):
 
 
 def test_register_rig_at_run_time(monkeypatch):
-    monkeypatch.setattr(registry, "_registered", {})
+    monkeypatch.setattr(kinds, "_registered", {})
     register_rig("toy-rt", f"{__name__}:ToyRig")
     assert rig_class("toy-rt") is ToyRig
 

@@ -9,6 +9,7 @@ from scipy.integrate import solve_ivp
 from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.sim.valve import ValveTwin, static_flow
+from naive_reference import naive
 
 A, B_GAIN = 39.44, 108.55
 DTHETA = 2 * np.pi / 2048
@@ -113,6 +114,42 @@ def test_noise_reproducible_per_seed_and_batch_equals_single_runs():
     np.testing.assert_array_equal(batch, again)
     other = run(rig, u, seeds=(14,), overrides={"a": 30.0, "input_v": 0.5})
     assert not np.array_equal(other[:, 0], batch[:, 0])
+    # runs with equal seeds (they share a generator), each at its own noise level
+    levels = np.array([0.5, 0.2, 0.5])
+    shared = run(rig, np.tile(u[:, None], (1, 3)), seeds=(11, 11, 12), overrides={"input_v": levels})
+    for i, s in enumerate((11, 11, 12)):
+        single = run(rig, u, seeds=(s,), overrides={"input_v": levels[i]})
+        np.testing.assert_array_equal(shared[:, i], single[:, 0])
+
+
+def _motor_reference(rig, u: np.ndarray, seeds, overrides) -> np.ndarray:
+    """The motor of benchmarks/naive_reference.py (the integrator written plainly, one run and one
+    scalar at a time, its own ZOH matrices) with each run's parameters: the reference of the
+    fused, batched sub-step."""
+    rig.reset(len(seeds), seeds, 200.0, overrides)
+    out = np.empty((u.shape[0] + 1, len(seeds)))
+    for i, seed in enumerate(seeds):
+        motor = naive.Motor({k: float(v[i]) for k, v in rig.p.items()}, 200.0, seed)
+        out[:, i] = [motor.measure()] + [motor.step(float(uk)) for uk in u[:, i]]
+    return out
+
+
+def test_fused_motor_substep_equals_the_plain_reference():
+    """Stick, breakaway, reversals, saturation, backlash, no lag / no friction in some runs, noise."""
+    rig = load_rig("dcmotor-sim")
+    t = np.arange(400) / 200.0
+    u = np.stack([0.5 + 0 * t, 3.0 * np.sin(4 * t), 20.0 * np.sign(np.sin(3 * t)), 1.2 * np.sin(9 * t),
+                  6.0 * np.sin(2 * t), np.where(t < 1.0, 8.0, 0.0)], axis=1)
+    seeds = (1, 2, 3, 4, 5, 6)
+    over = {"electrical_tau": np.array([5e-4, 0.0, 5e-4, 1e-3, 0.0, 5e-4]),
+            "coulomb_friction": np.array([0.6, 0.0, 0.3, 0.6, 0.6, 0.0]),
+            "static_friction": np.array([0.8, 0.0, 0.8, 1.0, 0.6, 0.8]),
+            "backlash": np.array([0.02, 0.0, 0.05, 0.02, 0.02, 0.0]),
+            "input_v": np.array([0.02, 0.0, 0.5, 0.02, 0.0, 0.1])}
+    fused = run(rig, u, seeds=seeds, overrides=over)
+    reference = _motor_reference(rig, u, seeds, over)
+    np.testing.assert_array_equal(fused, reference)
+    assert len(np.unique(fused[-1])) == 6 and np.any(fused[:, 0] == 0.0)
 
 
 def test_safe_state_brings_the_motor_to_rest():

@@ -2,6 +2,9 @@
 
 A run that completed (or did not move: its loop was stable, its input just too small) counts as
 observed stable, an aborted run as observed unstable; failed and unfinished runs are left out.
+A completed run that the oscillation detector flags (input pinned at a limit, a saturated or a
+growing oscillation: :mod:`labrunner.oscillation`) is observed unstable too: its status reads
+"oscillating" (:func:`observed_status`).
 The prediction is the model case of the campaign's controller (thesis (2.46) for the first-order
 MFC, the corrected (2.58)–(2.59) for the second-order one; the ultra-local case where the rig has
 no model). Points within ``margin`` (relative) of a predicted boundary are left out: there the
@@ -17,9 +20,18 @@ import pandas as pd
 from labrunner.analysis.overlays import Theory
 
 OBSERVED_STABLE = ("completed", "no-motion")
-OBSERVED_UNSTABLE = ("aborted",)
+OBSERVED_UNSTABLE = ("aborted", "oscillating")
 #: Table columns that hold the gains the stability cases need.
 GAIN_COLUMNS = {"gamma": "controller.gamma", "k_p": "controller.k_p", "k_d": "controller.k_d"}
+
+
+def observed_status(table: pd.DataFrame) -> pd.Series:
+    """Each row's status, "oscillating" for a completed run the detector flagged (column ``oscillating``)."""
+    status = table["status"]
+    if "oscillating" not in table.columns:
+        return status
+    flagged = (status == "completed") & (pd.to_numeric(table["oscillating"], errors="coerce") == 1.0)
+    return status.where(~flagged, "oscillating")
 
 
 def table_gains(row: Mapping[str, object]) -> dict[str, float]:
@@ -41,11 +53,13 @@ def agreement(
     (default: the grid columns; the analysis passes the resolved point, so fixed gains count
     too). Returns ``{"case", "share",
     "margin", "n_compared", "n_match", "n_excluded", "false_stable", "false_unstable",
-    "observed_unstable"}`` (the last: compared runs that were aborted);
-    ``share`` is None when nothing could be compared.
+    "observed_unstable", "oscillating"}`` (observed_unstable: compared runs that were aborted or
+    oscillating);
+    ``share`` is None when nothing could be compared; ``oscillating``: runs the detector turned
+    from completed into observed unstable.
     """
-    observed = table["status"].isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)
-    rows = table[observed]
+    status = observed_status(table)
+    rows = table.assign(status=status)[status.isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)]
     case = None
     match = excluded = false_stable = false_unstable = observed_unstable = 0
     for _, row in rows.iterrows():
@@ -76,4 +90,5 @@ def agreement(
         "false_stable": int(false_stable),
         "false_unstable": int(false_unstable),
         "observed_unstable": int(observed_unstable),
+        "oscillating": int((rows["status"] == "oscillating").sum()),
     }

@@ -10,9 +10,7 @@ the report. Returns the summary that ``--json`` prints.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,30 +19,18 @@ import pandas as pd
 
 from labrunner.analysis import agreement as agreement_mod
 from labrunner.analysis import figures, report, table as table_mod
+from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.maps import gain_units
-from labrunner.analysis.overlays import Theory
-from labrunner.control.mfc import GAMMA_UNITS, gamma_scale
+from labrunner.campaign import spec
+from labrunner.campaign.spec import Campaign
+from labrunner.control.mfc import GAMMA_UNITS
 from labrunner.errors import InvalidParameter, LabrunnerError
 
+__all__ = ["Context", "Theories", "analyse", "load_campaign", "varying_axes"]
 
 
-@dataclass
-class Context:
-    """What the analysis knows about the campaign beyond the table."""
-
-    directory: Path
-    out: Path
-    campaign: Any | None  # labrunner.campaign.spec.Campaign, when its file and rig could be loaded
-    note: str  # why the campaign could not be loaded ("" if it could)
-    axes: list[str]  # grid axis keys that vary, in grid order
-    units: dict[str, str]  # unit per dotted key and per metric column
-    error: str = "e"  # which error the RMS maps and the best run use: "e", or "ê" (paper 2's delayed error)
-
-
-def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Any | None, str]:
+def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Campaign | None, str]:
     """The :class:`~labrunner.campaign.spec.Campaign` kept in the ledger, or (None, why not)."""
-    from labrunner.campaign import spec
-
     text = meta.get("campaign_file")
     if not text:
         return None, "the ledger keeps no copy of the campaign file"
@@ -55,7 +41,7 @@ def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Any | None,
         return None, f"the campaign file could not be loaded again: {exc}"
 
 
-def varying_axes(frame: pd.DataFrame, campaign: Any | None) -> list[str]:
+def varying_axes(frame: pd.DataFrame, campaign: Campaign | None) -> list[str]:
     """Numeric grid axes with more than one value (the first axis of each zipped group)."""
     if campaign is not None:
         keys = [group[0].key for group in campaign.grid.groups]
@@ -68,57 +54,7 @@ def varying_axes(frame: pd.DataFrame, campaign: Any | None) -> list[str]:
     return out
 
 
-def _delay(config: Mapping[str, Any], fs: float) -> float | None:
-    """δ_t [s] of the point's differentiator (None if it has none or it is invalid)."""
-    from labrunner.control import factory
-
-    if not config.get("differentiator"):
-        return None
-    try:
-        return factory.differentiators([config], fs, 0)[0].delay_s
-    except InvalidParameter:
-        return None
-
-
-class Theories:
-    """Theory (kind, δ_t, rig constants with the point's ``rig_parameters`` overrides) per table
-    row; δ_t cached per differentiator setting."""
-
-    def __init__(self, campaign: Any | None) -> None:
-        self.campaign = campaign
-        self._delays: dict[str, float | None] = {}
-
-    def config(self, row: Mapping[str, Any]) -> dict[str, Any]:
-        params = {k: row[k] for k in row.keys() if "." in k and pd.notna(row[k])}
-        return self.campaign.resolve(params)
-
-    def gains(self, row: Mapping[str, Any]) -> dict[str, float]:
-        """γ, k_p, k_d of the row's resolved controller section (grid values and fixed ones)."""
-        controller = self.config(row).get("controller", {})
-        return {k: float(v) for k in ("gamma", "k_p", "k_d") if isinstance(v := controller.get(k), (int, float))}
-
-    def __call__(self, row: Mapping[str, Any]) -> Theory | None:
-        if self.campaign is None:
-            return None
-        config = self.config(row)
-        fs = float(config["campaign"]["fs"])
-        section = config.get("differentiator", {})
-        key = json.dumps([section, fs], sort_keys=True, default=str)
-        if key not in self._delays:
-            self._delays[key] = _delay(config, fs)
-        delay = self._delays[key]
-        kind = config.get("controller", {}).get("kind")
-        if delay is None or not isinstance(kind, str):
-            return None
-        overrides = {k: float(v) for k, v in (config.get("rig_parameters") or {}).items() if k in ("a", "b", "rho")}
-        constants = {**self.campaign.rig_info.constants, **overrides}
-        if "rho" in constants:  # ρ in the unit controller.gamma is given in (the valve's m³/(A s²))
-            constants["rho"] = float(constants["rho"]) / gamma_scale(config["controller"].get("output"))
-        dead_time = float(constants.get("sensor_delay", 0.0))  # a measurement delay adds to δ_t in the loop
-        return Theory(kind, delay + dead_time, constants, dead_time)
-
-
-def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Any | None) -> str:
+def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Campaign | None) -> str:
     """Unit of a logged signal: the log's own record, else the rig's signal of that name, else (a
     controlled output that is no rig output, i.e. the difference quotient (2.34) of one) the rig
     output's unit per second."""
@@ -132,7 +68,7 @@ def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign:
     return f"{outputs[0].unit}/s" if outputs and outputs[0].unit else ""
 
 
-def _units(frame: pd.DataFrame, directory: Path, campaign: Any | None) -> dict[str, str]:
+def _units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> dict[str, str]:
     """Units of the gains and metrics, from the first readable log's channel record."""
     from labrunner.logs import read_metadata
 
@@ -167,6 +103,7 @@ def counts(frame: pd.DataFrame) -> dict[str, int]:
         "done": int(state.get("done", 0)),
         "completed": int(status.get("completed", 0)),
         "no_motion": int(status.get("no-motion", 0)),
+        "oscillating": int((agreement_mod.observed_status(frame) == "oscillating").sum()),  # completed, flagged by the detector
         "aborted": int(state.get("aborted", 0)),
         "failed": int(state.get("failed", 0)),
         "planned": int(state.get("planned", 0)),
@@ -211,7 +148,9 @@ def analyse(
     campaign, note = load_campaign(meta, directory)
     rig_units = ({s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
                  if campaign is not None else {})
-    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units)
+    rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
+    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units,
+                                  limits=rig_limits)
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     csv, parquet = table_mod.write_table(frame, out)

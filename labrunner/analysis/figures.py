@@ -12,11 +12,11 @@ import itertools
 from dataclasses import replace
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
+from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.maps import Axis, axis_label, cell_edges, is_log_spaced, map_figure, sweep_figure
 from labrunner.analysis.overlays import (
     OverlayLine,
@@ -28,8 +28,6 @@ from labrunner.analysis.overlays import (
 )
 from labrunner.errors import LabrunnerError
 
-if TYPE_CHECKING:
-    from labrunner.analysis.analyse import Context, Theories
 
 def map_metrics(error: str) -> tuple[tuple[str, str, str], ...]:
     """Metric columns drawn as maps: (column, title, colour-bar text); ``error`` is "e" or "ê"."""

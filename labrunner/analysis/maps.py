@@ -3,8 +3,9 @@
 Markers as in the thesis (Figs. 3.10, 3.14): an aborted run is a red triangle, a run whose input
 was too small to move the load (no-motion) a white circle, a completed run a black cross (with a
 thin white halo, so that it stays visible on the dark end of the colour map). Failed
-runs (an exception, not the plant) get a grey square. Cells of aborted and failed runs are left
-uncoloured: their metric covers only part of the run and would mislead the colour scale.
+runs (an exception, not the plant) get a grey square, completed runs the oscillation detector
+flags an orange diamond. Cells of aborted, oscillating and failed runs are left uncoloured: their
+metric covers only part of the run, or a limit cycle, and would mislead the colour scale.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from matplotlib import colors, patheffects
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from labrunner.analysis.agreement import observed_status
 from labrunner.analysis.overlays import OverlayLine
 
 #: Marker style per run status: (label, marker, face colour, edge colour).
@@ -27,6 +29,7 @@ MARKERS = {
     "no-motion": ("no motion (input too small)", "o", "white", "black"),
     "completed": ("completed", "x", "black", "black"),
     "failed": ("failed (error)", "s", "grey", "black"),
+    "oscillating": ("oscillating / at an input limit (detector)", "D", "orange", "darkorange"),
 }
 
 #: A thin white halo keeps the black crosses visible on the dark end of the colour map.
@@ -109,7 +112,7 @@ def grid_index(values: np.ndarray, axis_values: np.ndarray) -> np.ndarray:
 def grid_image(table: pd.DataFrame, x: Axis, y: Axis, column: str) -> np.ndarray:
     """(len(y), len(x)) array of ``column`` on the grid; NaN where a cell must stay uncoloured."""
     z = np.full((len(y.values), len(x.values)), np.nan)
-    ok = table["status"].isin(COLOURED).to_numpy() & np.isfinite(table[column].to_numpy(dtype=float))
+    ok = observed_status(table).isin(COLOURED).to_numpy() & np.isfinite(table[column].to_numpy(dtype=float))
     sub = table[ok]
     ix = grid_index(sub[x.key].to_numpy(dtype=float), x.values)
     iy = grid_index(sub[y.key].to_numpy(dtype=float), y.values)
@@ -132,8 +135,9 @@ def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
 
 def draw_markers(ax: Axes, table: pd.DataFrame, x_key: str, y_key: str | None, y_column: str | None = None) -> None:
     """Scatter one marker per run, styled by status; each status is one labelled collection."""
+    observed = observed_status(table)
     for status, (label, marker, face, edge) in MARKERS.items():
-        sub = table[table["status"] == status]
+        sub = table[observed == status]
         if sub.empty:
             continue
         yv = sub[y_key] if y_key else sub[y_column]
@@ -209,7 +213,7 @@ def sweep_figure(
     axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
     ordered = table.sort_values(x.key)
     for ax, (column, label) in zip(axes, columns):
-        ok = ordered[ordered["status"].isin(COLOURED)]
+        ok = ordered[observed_status(ordered).isin(COLOURED)]
         ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2)
         draw_markers(ax, ordered[np.isfinite(ordered[column].to_numpy(dtype=float))], x.key, None, column)
         positive = ok[column].to_numpy(dtype=float)

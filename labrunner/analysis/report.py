@@ -148,14 +148,14 @@ def _section_text(campaign, section: str) -> str:
 
 
 def _outcome_section(summary: Mapping[str, object]) -> Section:
-    keys = ("points", "runs", "completed", "no_motion", "aborted", "failed", "planned", "claimed")
-    facts = {k.replace("_", "-"): summary[k] for k in keys}
+    keys = ("points", "runs", "completed", "no_motion", "oscillating", "aborted", "failed", "planned", "claimed")
+    facts = {k.replace("_", "-"): summary[k] for k in keys if k in summary}
     agree = summary.get("agreement") or {}
     paragraphs = []
     if agree.get("share") is not None:
         paragraphs.append(
             f"Theory vs. runs ({agree['case']}): {agree['share']:.1%} of {agree['n_compared']} points agree "
-            f"(completed or no motion ⇔ predicted stable, aborted ⇔ predicted unstable); "
+            f"(completed or no motion ⇔ predicted stable, aborted or oscillating ⇔ predicted unstable); "
             f"{agree['n_excluded']} points within ±{agree['margin']:.0%} of a predicted bound are left out; "
             f"{agree['false_stable']} aborted although predicted stable, {agree['false_unstable']} completed "
             "although predicted unstable.")
@@ -184,7 +184,8 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], map
     if maps:
         sections.append(Section("Maps", paragraphs=[
             "Markers: red triangle = aborted by the safety routine, white circle = no motion (input too small to "
-            "move the load), black cross = completed, grey square = failed. Grey cells: no metric for the whole run. "
+            "move the load), black cross = completed, grey square = failed, orange diamond = completed but oscillating or "
+            "pinned at an input limit (detector). Grey cells: no metric for the whole run. "
             "Lines: stability bounds of the theory for the loop delay: the differentiator's δ_t plus the rig's sensor delay, if any."],
             images=[Image(title, _png(path)) for path, title in maps]))
     if runs:
@@ -218,9 +219,14 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, object], map
     return write_report(ctx.out / "index.html", f"Campaign {name}", subtitle, sections)
 
 
+def _value(v: object) -> str:
+    """A grid value for a caption: numbers to 4 digits, anything else (an input law's name) as is."""
+    return f"{float(v):.4g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
+
+
 def _run_caption(row: pd.Series, params: Sequence[str], error: str) -> str:
     """Point, parameters, outcome and metrics of a plotted run."""
-    values = ", ".join(f"{k.split('.')[-1]} = {float(row[k]):.4g}" for k in params if pd.notna(row.get(k)))
+    values = ", ".join(f"{k.split('.')[-1]} = {_value(row[k])}" for k in params if pd.notna(row.get(k)))
     text = f"Point {row['seq']} ({row['id']}): {values}; {row['status']}"
     if row["status"] == "aborted" and pd.notna(row.get("abort_time")):
         text += f" by {row.get('monitor')} at t = {float(row['abort_time']):.3f} s"

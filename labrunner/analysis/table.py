@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from labrunner.metrics import BASE_METRICS, Roles, run_metrics
+from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 from labrunner.errors import LabrunnerError
 
 #: Columns that identify a point and its run, in this order at the left of the table.
@@ -32,7 +32,7 @@ ID_COLUMNS = ("seq", "id", "state", "status", "monitor", "abort_time", "abort_va
 #: Columns that tell whether a cached row still matches its log file.
 CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
-METRICS_VERSION = 1
+METRICS_VERSION = 2  # 2: windowed metrics and the oscillation detector
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
 
@@ -46,23 +46,29 @@ class CampaignTable:
     n_read: int = 0  # logs read now (the rest came from the cache)
 
 
-def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str] | None = None) -> Roles:
+def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str] | None = None,
+             limits: Mapping[str, tuple[float, float]] | None = None) -> Roles:
     """Metric roles from a log's ``channels`` record (signal → {"role", "unit"}); ``units`` (the
-    rig's signal units) stands in where the log records no unit."""
+    rig's signal units) stands in where the log records no unit; ``limits`` (the rig's input
+    limits) enable the oscillation detector."""
     by_role: dict[str, list[str]] = {}
     for name, info in channels.items():
         by_role.setdefault(str(info.get("role", "")), []).append(name)
     units = units or {}
     currents = tuple(n for n, info in channels.items() if (info.get("unit") or units.get(n)) == "A")
     error_hats = tuple(n for n in by_role.get("estimate", []) if n.startswith("e_hat_"))
-    return Roles(errors=tuple(by_role.get("error", [])), inputs=tuple(by_role.get("input", [])),
-                 error_hats=error_hats, currents=currents)
+    inputs = tuple(by_role.get("input", []))
+    input_limits = tuple(limits[n] for n in inputs) if limits and all(n in limits for n in inputs) else ()
+    return Roles(errors=tuple(by_role.get("error", [])), inputs=inputs,
+                 error_hats=error_hats, currents=currents, input_limits=input_limits)
 
 
-def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, Any]:
+def log_metrics(path: str, units: Mapping[str, str] | None = None,
+                limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
     """Metrics, outcome and torn flag of one MCAP; ``{"error": ...}`` if it cannot be read.
 
-    ``units``: the rig's signal units, for logs that record none (see :func:`roles_of`).
+    ``units``: the rig's signal units, for logs that record none; ``limits``: its input limits
+    (see :func:`roles_of`).
     """
     from labrunner.logs import read_run
 
@@ -70,7 +76,8 @@ def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, 
         log = read_run(path)
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
-        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units))
+        windows = parse_windows((log.metadata.get("config") or {}).get("metrics"))
+        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units, limits), fs=float(log.fs), windows=windows)
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     outcome = log.outcome or {}
@@ -79,8 +86,9 @@ def log_metrics(path: str, units: Mapping[str, str] | None = None) -> dict[str, 
     return out
 
 
-def _read_many(paths: Sequence[str], workers: int, units: Mapping[str, str] | None) -> list[dict[str, Any]]:
-    read = functools.partial(log_metrics, units=dict(units or {}))
+def _read_many(paths: Sequence[str], workers: int, units: Mapping[str, str] | None,
+               limits: Mapping[str, tuple[float, float]] | None = None) -> list[dict[str, Any]]:
+    read = functools.partial(log_metrics, units=dict(units or {}), limits=dict(limits or {}))
     if workers <= 1 or len(paths) < _PARALLEL_MIN:
         return [read(p) for p in paths]
     chunk = max(1, len(paths) // (workers * 8))
@@ -141,9 +149,11 @@ def build_table(
     cache: pd.DataFrame | None = None,
     workers: int | None = None,
     units: Mapping[str, str] | None = None,
+    limits: Mapping[str, tuple[float, float]] | None = None,
 ) -> CampaignTable:
     """Merge ledger ``rows`` with metrics from their logs (reusing ``cache`` rows that still match);
-    ``units`` are the rig's signal units, for logs that record none."""
+    ``units`` are the rig's signal units, for logs that record none; ``limits`` its input limits
+    (the oscillation detector's columns)."""
     frame = ledger_frame(rows)
     problems: list[dict[str, str]] = []
     cached = _cached(cache)
@@ -164,7 +174,7 @@ def build_table(
         else:
             todo.append(i)
     paths = [str(directory / frame.at[i, "log_path"]) for i in todo]
-    for i, result in zip(todo, _read_many(paths, workers or os.cpu_count() or 1, units)):
+    for i, result in zip(todo, _read_many(paths, workers or os.cpu_count() or 1, units, limits)):
         if "error" in result:
             problems.append({"path": frame.at[i, "log_path"], "kind": "unreadable", "detail": result["error"]})
             continue

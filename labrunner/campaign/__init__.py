@@ -11,7 +11,17 @@
 File format and guarantees: ``docs/campaigns.md``.
 """
 
-from labrunner.campaign.ledger import Ledger, RunRecord
-from labrunner.campaign.spec import Campaign, PlannedPoint, load, plan
+import importlib
+from typing import Any
 
-__all__ = ["Campaign", "Ledger", "PlannedPoint", "RunRecord", "load", "plan"]
+# loaded on first use, so that importing one submodule (``status`` reads only the ledger) does not
+# load campaign validation with its controllers and numerics
+_EXPORTS = {"Ledger": "ledger", "RunRecord": "ledger", "Campaign": "spec", "PlannedPoint": "spec", "load": "spec", "plan": "spec"}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"labrunner.campaign.{_EXPORTS[name]}"), name)

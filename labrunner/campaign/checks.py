@@ -18,13 +18,18 @@ split by its value.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
+
+import numpy as np
 
 from labrunner.campaign.grid import canonical_json
-from labrunner.errors import InvalidParameter, check_finite
-
-if TYPE_CHECKING:
-    from labrunner.campaign.spec import Campaign
+from labrunner.control import factory
+from labrunner.errors import InvalidParameter, check_number, check_positive
+from labrunner.rigs.base import RigConfig
+from labrunner.rigs.config import rig_info
+from labrunner.rigs.kinds import rig_class
+from labrunner.safety import SafetyMonitor
+from labrunner.safety_config import SafetyConfig
 
 MAX_SAMPLES = 10_000_000  # samples per run: beyond this a run's signals do not fit a worker's memory
 MAX_FIR_WORK = 2_000_000_000  # window taps × samples per run: beyond this one run's FIR alone takes minutes
@@ -67,10 +72,15 @@ def choices(config: dict[str, Any]) -> list[tuple[str, Any]]:
 
 
 class StaticChecker:
-    """Feed points with :meth:`add`; checked points come back with their run duration [s]."""
+    """Feed points with :meth:`add`; checked points come back with their run duration [s].
 
-    def __init__(self, campaign: Campaign) -> None:
-        self.campaign = campaign
+    ``rig`` is the campaign's validated rig file: its info (f_s range, signals, limits), its
+    ``[safety]`` section and the rig kind's schema of per-run parameters.
+    """
+
+    def __init__(self, rig: RigConfig) -> None:
+        self.rig = rig
+        self.rig_info = rig_info(rig)
         self._pending: dict[str, list[Item]] = {}
         self._safety: set[str] = set()
         self._fs: set[float] = set()
@@ -95,29 +105,45 @@ class StaticChecker:
     def _scalars(self, params: dict[str, Any], config: dict[str, Any]) -> None:
         head = config["campaign"]
         with _at(params):
-            fs = _number("campaign.fs", head["fs"])
+            fs = check_positive("campaign.fs", head["fs"], strict=True)
             if fs not in self._fs:
-                self.campaign.rig_info.check_fs(fs, "campaign.fs")
+                self.rig_info.check_fs(fs, "campaign.fs")
                 self._fs.add(fs)
             seed = head["seed"]
             if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
                 raise InvalidParameter("campaign.seed", f"must be an integer >= 0, got {seed!r}")
             if head["duration"] is not None:
-                _number("campaign.duration", head["duration"])
+                check_positive("campaign.duration", head["duration"], strict=True)
             for key, value in config.get("rig_parameters", {}).items():
-                _number(f"rig_parameters.{key}", value, positive=False)
+                check_number(f"rig_parameters.{key}", value)
             self._check_safety(config.get("safety", {}), fs)
 
-    def _check_chunk(self, chunk: list[Item]) -> Iterator[tuple[Item, float]]:
-        from labrunner.control import factory
+    def _check_rig_parameters(self, chunk: list[Item]) -> None:
+        """Every point's ``[rig_parameters]`` through the rig kind's own schema and rules, batched
+        as the engine passes them (NaN: the point keeps the rig file's value)."""
+        sections = [c.get("rig_parameters", {}) for _, _, c in chunk]
+        keys = sorted({k for s in sections for k in s})
+        if not keys:
+            return
+        overrides = {k: np.array([float(s.get(k, np.nan)) for s in sections]) for k in keys}
+        kind = rig_class(self.rig.kind)
+        try:
+            kind.check_overrides(self.rig, overrides, len(chunk), "rig_parameters")
+        except InvalidParameter:
+            for (_, params, _), section in zip(chunk, sections):  # name the first bad point
+                with _at(params):
+                    kind.check_overrides(self.rig, section, 1, "rig_parameters")
+            raise
 
+    def _check_chunk(self, chunk: list[Item]) -> Iterator[tuple[Item, float]]:
+        self._check_rig_parameters(chunk)
         fs = float(chunk[0][2]["campaign"]["fs"])
         try:
-            _, reference = factory.build([c for _, _, c in chunk], self.campaign.rig_info, fs)
+            _, reference = factory.build([c for _, _, c in chunk], self.rig_info, fs)
         except InvalidParameter as exc:
             for item in chunk:  # find the first bad point, to name it
                 with _at(item[1]):
-                    factory.build([item[2]], self.campaign.rig_info, fs)
+                    factory.build([item[2]], self.rig_info, fs)
             # every point is fine alone: the points differ in a value a batch must share
             values = {canonical_json(lookup(c, exc.field)) for _, _, c in chunk}
             if exc.field in self.split or len(values) < 2:
@@ -153,13 +179,10 @@ class StaticChecker:
             yield item, float(duration)
 
     def _check_safety(self, section: dict[str, Any], fs: float) -> None:
-        from labrunner.safety import SafetyConfig, SafetyMonitor
-
         key = canonical_json([section, fs])
         if key not in self._safety:
-            info = self.campaign.rig_info
-            config = SafetyConfig.from_sections(info, self.campaign.rig_safety, section)
-            SafetyMonitor([config], info, fs)
+            config = SafetyConfig.from_sections(self.rig_info, self.rig.safety, section)
+            SafetyMonitor([config], self.rig_info, fs)
             self._safety.add(key)
 
 
@@ -184,14 +207,5 @@ class _at:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None and issubclass(exc_type, InvalidParameter) and self.params:
-            message = str(exc).removeprefix(f"{exc.field}: ")
-            raise InvalidParameter(exc.field, f"{message} (at grid point {canonical_json(self.params)})") from None
+            raise InvalidParameter(exc.field, f"{exc.message} (at grid point {canonical_json(self.params)})") from None
 
-
-def _number(field: str, value: Any, *, positive: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InvalidParameter(field, f"must be a number, got {value!r}")
-    v = check_finite(field, value)
-    if positive and v <= 0:
-        raise InvalidParameter(field, f"must be > 0, got {v!r}")
-    return v

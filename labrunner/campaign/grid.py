@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from labrunner.errors import InvalidParameter, check_finite
+from labrunner.errors import InvalidParameter, check_finite, check_interval
 
 MAX_POINTS = 100_000  # a campaign beyond this is a typo or should be split
 _FORMS = ("values", "linspace", "log10")
@@ -109,12 +109,6 @@ def _count(field: str, spec: Mapping[str, Any]) -> int:
     return num
 
 
-def _pair(field: str, value: Any) -> tuple[float, float]:
-    if not isinstance(value, list) or len(value) != 2 or any(isinstance(v, (bool, str)) for v in value):
-        raise InvalidParameter(field, f"must be [start, stop] (two numbers), got {value!r}")
-    return check_finite(field, value[0]), check_finite(field, value[1])
-
-
 def parse_axis(field: str, key: str, spec: Any) -> Axis:
     """One axis from its table; ``field`` is its key path for errors (``grid."controller.k_p"``)."""
     if not isinstance(spec, Mapping):
@@ -133,7 +127,7 @@ def parse_axis(field: str, key: str, spec: Any) -> Axis:
         if not isinstance(values, list) or not values:
             raise InvalidParameter(f"{field}.values", f"must be a non-empty list, got {values!r}")
         return Axis(key, tuple(_scalar_value(f"{field}.values", v) for v in values))
-    a, b = _pair(f"{field}.{form}", spec[form])
+    a, b = check_interval(f"{field}.{form}", spec[form], what="[start, stop] (two numbers)", empty=True)
     num = _count(field, spec)
     if form == "log10" and max(abs(a), abs(b)) > _MAX_EXPONENT:
         raise InvalidParameter(f"{field}.log10", f"exponents must be within ±{_MAX_EXPONENT:g}, got [{a:g}, {b:g}]")

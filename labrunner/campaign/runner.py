@@ -18,15 +18,16 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 from labrunner import __version__
 from labrunner.campaign import integrity, recovery, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir, ledger_path
-from labrunner.campaign.lock import LOCK_NAME, DirectoryLock, holder
+from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.executors import check_executor_url, open_executor
 from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals, make_batches
+from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
 from labrunner.errors import CampaignError, LabrunnerError
 
@@ -242,38 +243,3 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
             ledger.end_session(reason)
         fsync_dir(ledger.directory)
     return out
-
-
-def status(directory: str | Path) -> dict[str, Any]:
-    """The ``labrunner status --json`` object (reads only)."""
-    directory = Path(directory)
-    with Ledger.open_readonly(directory) as ledger:
-        meta = ledger.meta()
-        counts = ledger.counts()
-        outcomes = ledger.outcome_counts()
-        sessions = ledger.sessions()
-        quarantined = len(ledger.quarantined())
-        finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
-    running = holder(directory)
-    now = time.time()
-    elapsed = 0.0
-    for i, s in enumerate(sessions):
-        live = running is not None and i == len(sessions) - 1 and s["ended_at"] is None
-        end = now if live else (s["ended_at"] or s["last_at"])
-        elapsed += max(0.0, end - s["started_at"])
-    total = sum(counts.values())
-    remaining = counts["planned"] + counts["claimed"]
-    rate = finished / elapsed if elapsed > 0 and finished else None
-    return {
-        "campaign": meta.get("campaign"),
-        "directory": str(directory),
-        "total": total,
-        **counts,
-        "outcomes": outcomes,
-        "quarantined": quarantined,
-        "elapsed_s": round(elapsed, 3),
-        "rate_per_s": round(rate, 3) if rate else None,
-        "estimate_s": round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None),
-        "running": None if running is None else {"host": running.host, "pid": running.pid},
-        "sessions": len(sessions),
-    }

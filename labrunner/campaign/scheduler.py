@@ -41,12 +41,18 @@ from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
 
-MAX_BATCH = 64  # runs per lockstep batch
 BATCH_MEMORY_BYTES = 256 * 2**20  # a batch's signal buffers stay below this
 _BYTES_PER_SAMPLE = 8 * 32  # float64 × (generous) number of logged traces per run
 POLL_S = 0.25  # how often the loop looks at signals, deadlines and results [s]
 PROBE_S = 2.0  # how often the executor's health is probed [s]
 GRACE_S = 10.0  # beyond the running batches' own duration, before they are abandoned [s]
+# The engine's per-tick cost model, cost(B) ≈ TICK_OVERHEAD_S + B · RUN_TICK_S (motor velocity MFC
+# at 200 Hz, one CPU of a loaded 2-core machine: ~130 µs per tick plus ~0.5 µs per run and tick;
+# benchmarks/bench_engine.py). A batch is large enough once the fixed part is at most
+# TICK_OVERHEAD_SHARE of a tick.
+TICK_OVERHEAD_S = 130e-6
+RUN_TICK_S = 0.5e-6
+TICK_OVERHEAD_SHARE = 0.1
 
 
 @dataclass
@@ -62,13 +68,22 @@ class Outcome:
 
 
 def batch_size(group_points: int, slots: int, samples: int, requested: int | None = None) -> int:
-    """Runs per batch: ≥ 2 batches per parallel slot, ≤ :data:`MAX_BATCH`, within the memory budget.
+    """Runs per batch of a group of ``group_points`` compatible points of ``samples`` ticks each.
 
-    Lockstep cost is dominated by the per-tick overhead, so larger batches are cheaper per run."""
+    Lockstep cost per run is ``(TICK_OVERHEAD_S / B + RUN_TICK_S)`` per tick, so larger batches are
+    cheaper per run, up to the size where the fixed part is :data:`TICK_OVERHEAD_SHARE` of a tick,
+    and within :data:`BATCH_MEMORY_BYTES`. The group is cut into a multiple of ``slots`` batches
+    of equal size, so that every worker has work and none is left running one batch alone at the
+    end: 1000 points on 2 workers → 2 batches of 500; 10 000 → 10 of 1000 (the memory budget at
+    1000 samples)."""
     if requested is not None:
         return requested
+    slots = max(slots, 1)
     by_memory = max(1, BATCH_MEMORY_BYTES // max(samples * _BYTES_PER_SAMPLE, 1))
-    return max(1, min(MAX_BATCH, by_memory, math.ceil(group_points / (2 * max(slots, 1)))))
+    by_cost = math.ceil(TICK_OVERHEAD_S / RUN_TICK_S * (1.0 - TICK_OVERHEAD_SHARE) / TICK_OVERHEAD_SHARE)
+    largest = min(by_memory, by_cost)
+    batches = slots * math.ceil(group_points / (slots * largest))
+    return max(1, math.ceil(group_points / batches))
 
 
 def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> list[tuple[str, list[Any]]]:
@@ -80,7 +95,12 @@ def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> l
     for key, members in groups.items():
         _, fs, duration, *_ = json.loads(key)
         size = batch_size(len(members), slots, round(fs * duration), requested)
-        out += [(key, members[i : i + size]) for i in range(0, len(members), size)]
+        count = math.ceil(len(members) / size)
+        if requested is None:  # automatic: equal sizes (differing by one at most), none above size
+            cuts = [len(members) * j // count for j in range(count + 1)]
+        else:  # as asked, the last batch takes the rest
+            cuts = [*range(0, len(members), size), len(members)]
+        out += [(key, members[lo:hi]) for lo, hi in zip(cuts, cuts[1:])]
     return out
 
 
@@ -176,7 +196,7 @@ class Scheduler:
             self.ledger.unclaim(ids)
             out.stop_reason = out.stop_reason or f"the executor refused a batch: {type(exc).__name__}: {exc}"
             return
-        self.inflight[future] = _Batch(ids, task.duration, time.monotonic())
+        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic())
 
     def _collect(self, future: Future, out: Outcome) -> None:
         batch = self.inflight.pop(future)
@@ -218,7 +238,7 @@ class Scheduler:
         for future in list(self.inflight):
             if future.cancel():
                 self._collect(future, out)
-        expected = max([self.longest_s, *(b.duration for b in self.inflight.values())], default=0.0)
+        expected = max([self.longest_s, *(b.expected_s for b in self.inflight.values())], default=0.0)
         self.bound_s = math.ceil(2.0 * expected + GRACE_S)  # a batch may wait behind one running on its slot
         self.deadline = time.monotonic() + self.bound_s
         if self.inflight:
@@ -291,8 +311,15 @@ class Scheduler:
 
 @dataclass
 class _Batch:
-    """A submitted batch: its point ids, simulated duration [s] and submit time (monotonic)."""
+    """A submitted batch: its point ids, run duration [s], ticks and submit time (monotonic)."""
 
     ids: list[str]
     duration: float
+    ticks: int
     submitted: float
+
+    @property
+    def expected_s(self) -> float:
+        """How long it may take [s]: a real rig its duration; a twin the tick cost model of
+        :func:`batch_size` with a margin of 10 for rigs heavier than the motor (the plate)."""
+        return max(self.duration, 10.0 * self.ticks * (TICK_OVERHEAD_S + len(self.ids) * RUN_TICK_S))

@@ -22,14 +22,18 @@ from pathlib import Path
 from typing import Any
 
 from labrunner.campaign import expressions, grid as gridmod
+from labrunner.campaign.checks import StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
-from labrunner.errors import InvalidParameter, check_finite
-from labrunner.rigs.base import RigInfo
+from labrunner.errors import InvalidParameter, check_number, check_positive
+from labrunner.rigs import config as rigconfig
+from labrunner.rigs.base import RigConfig, RigInfo
+from labrunner.rigs.kinds import rig_class
 
 SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_parameters")
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
-TOP_LEVEL = ("campaign", *SECTIONS, "grid", "derived")
+OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
+TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "derived")
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
 
@@ -62,6 +66,7 @@ class Campaign:
     source_path: Path | None
     project_root: Path
     rig_info: RigInfo = field(repr=False)
+    rig_config: RigConfig = field(repr=False, compare=False)  # the validated rig file
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -71,9 +76,7 @@ class Campaign:
 
     @property
     def rig_search(self) -> tuple[str, ...]:
-        from labrunner.rigs.config import default_search
-
-        return tuple(str(p) for p in default_search(self.project_root))
+        return tuple(str(p) for p in rigconfig.default_search(self.project_root))
 
     @property
     def size(self) -> int:
@@ -82,6 +85,7 @@ class Campaign:
     def resolve(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
         """The full run configuration of one point: base sections with its parameters set."""
         config: dict[str, Any] = {s: copy.deepcopy(dict(self.base.get(s, {}))) for s in SECTIONS}
+        config.update({s: copy.deepcopy(dict(self.base[s])) for s in OPTIONAL_SECTIONS if self.base.get(s)})
         config["campaign"] = {"name": self.name, "rig": self.rig, "fs": self.fs, "duration": self.duration, "seed": self.seed}
         for key, value in parameters.items():
             _set(config, key, value)
@@ -154,14 +158,6 @@ def _require(field_name: str, value: Any, kind: type | tuple[type, ...], what: s
     return value
 
 
-def _positive(field_name: str, value: Any) -> float:
-    _require(field_name, value, (int, float), "a number")
-    v = check_finite(field_name, value)
-    if v <= 0:
-        raise InvalidParameter(field_name, f"must be > 0, got {v!r}")
-    return v
-
-
 def parse(text: str, *, source_path: Path | None = None) -> dict[str, Any]:
     """TOML text → dict, with a one-line error naming the line on a syntax error."""
     try:
@@ -209,16 +205,23 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         raise InvalidParameter("campaign.name", f"must match [a-z0-9_-]+ (at most 64 characters), got {name!r}")
     description = _require("campaign.description", head.get("description", ""), str, "a string")
     rig, rig_path = _resolve_rig(head["rig"], source_path, root)
-    info, rig_safety, rig_params = rig_info(rig_path or rig, root)
-    fs = _positive("campaign.fs", head["fs"]) if "fs" in head else float(info.fs_default)
+    rig_config = load_rig_file(rig_path or rig, root)
+    info = rigconfig.rig_info(rig_config)
+    rig_params = tuple(rig_class(rig_config.kind).overridable())
+    fs = check_positive("campaign.fs", head["fs"], strict=True) if "fs" in head else float(info.fs_default)
     info.check_fs(fs, "campaign.fs")
-    duration = _positive("campaign.duration", head["duration"]) if "duration" in head else None
+    duration = check_positive("campaign.duration", head["duration"], strict=True) if "duration" in head else None
     seed = _require("campaign.seed", head.get("seed", 0), int, "an integer")
     if seed < 0:
         raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
     base = {s: doc.get(s, {}) for s in SECTIONS}
     for section in SECTIONS:
         _check_finite_leaves(section, base[section])
+    if "metrics" in doc:  # named windows [t0, t1] of the metrics (labrunner.metrics)
+        from labrunner.metrics import parse_windows
+
+        parse_windows(_require("metrics", doc["metrics"], dict, "a table"))
+        base["metrics"] = doc["metrics"]
     settable = {f"campaign.{k}" for k in GRID_CAMPAIGN_KEYS} | {k for s in SECTIONS for k in _keys(base[s], s)}
 
     def check_key(field_name: str, key: str) -> None:
@@ -229,10 +232,13 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         elif section not in SECTIONS or "." not in key:
             raise InvalidParameter(field_name, f"must be a dotted key in one of {', '.join(SECTIONS)} (or campaign.fs/duration/seed)")
         elif section == "rig_parameters" and key.split(".", 2)[1] not in rig_params:
-            raise InvalidParameter(field_name, f"rig {rig!r} has no parameter {key.split('.', 2)[1]!r}; it has {', '.join(rig_params)}")
+            has = f"it has {', '.join(rig_params)}" if rig_params else "it has no per-run parameters"
+            raise InvalidParameter(field_name, f"rig {rig!r} has no parameter {key.split('.', 2)[1]!r}; {has}")
 
     for key in base["rig_parameters"]:
         check_key(f"rig_parameters.{key}", f"rig_parameters.{key}")
+    fixed = {k: check_number(f"rig_parameters.{k}", v) for k, v in base["rig_parameters"].items()}
+    rig_class(rig_config.kind).check_overrides(rig_config, fixed, 1, "rig_parameters")  # grid values: in plan()
     grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
     derived: list[tuple[str, expressions.Expression]] = []
     known = set(settable) | set(grid.keys) | set(info.constants)
@@ -245,7 +251,7 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     return Campaign(
         name=name, description=description, rig=rig, rig_path=rig_path, fs=fs, duration=duration, seed=seed,
         base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
-        rig_info=info, rig_safety=rig_safety,
+        rig_info=info, rig_safety=dict(rig_config.safety), rig_config=rig_config,
     )
 
 
@@ -270,16 +276,18 @@ def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple
             yield path, value
 
 
-def rig_info(ref: str | Path, root: Path) -> tuple[RigInfo, dict[str, Any], tuple[str, ...]]:
-    """The rig's :class:`RigInfo`, its file's ``[safety]`` and the names ``[rig_parameters]`` may
-    override per run (its parameters and noise levels), without opening the rig."""
-    from labrunner.rigs import config as rigconfig
+def load_rig_file(ref: str | Path, root: Path) -> RigConfig:
+    """The campaign's rig file, validated, without opening the rig.
 
+    Its errors keep the loader's own field (``rigs/bad.toml: parameters.a``); only a rig file that
+    cannot be found is reported as ``campaign.rig``.
+    """
     try:
-        config = rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root))
+        return rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root))
     except InvalidParameter as exc:
-        raise InvalidParameter("campaign.rig", str(exc).removeprefix(f"{exc.field}: ")) from None
-    return rigconfig.rig_info(config), dict(config.safety), (*config.parameters, *config.noise)
+        if exc.field == "rig":
+            raise InvalidParameter("campaign.rig", exc.message) from None
+        raise
 
 
 def load(path: str | Path, *, root: Path | None = None) -> Campaign:
@@ -300,9 +308,7 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     The checksum covers the resolved configuration of every point (not the file's bytes), so a
     comment edit keeps a campaign resumable while any change of what would run does not.
     """
-    from labrunner.campaign.checks import StaticChecker, batch_key
-
-    checker = StaticChecker(campaign)
+    checker = StaticChecker(campaign.rig_config)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
     def accept(items) -> None:

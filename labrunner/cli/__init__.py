@@ -4,11 +4,13 @@ Each sub-command lives in its own module below ``labrunner.cli`` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules import
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
-One error boundary (:func:`main`): every failure is one line on stderr and an exit code —
-:class:`~labrunner.errors.InvalidParameter` (bad input: a file, a flag, a campaign directory that
-is not one) exit 2; any other :class:`~labrunner.errors.LabrunnerError` (a failed run or campaign)
-and an :class:`OSError` of the environment (permissions, a full disk, a read-only or special file
-system; the message names the path) exit 1; Ctrl-C exit 130. Anything else is a bug: one line
+One error boundary (:func:`main`): every failure is one line on stderr and an exit code — a usage
+error (argparse's own, returned rather than raised as SystemExit; only ``--help`` and
+``--version`` exit through it) or :class:`~labrunner.errors.InvalidParameter` (bad input: a file,
+a flag, a campaign directory that is not one) exit 2; any other
+:class:`~labrunner.errors.LabrunnerError` (a failed run or campaign) and an :class:`OSError` of the
+environment (permissions, a full disk, a read-only or special file system; the message names the
+path) exit 1; Ctrl-C exit 130. Anything else is a bug: one line
 saying where its full traceback was written, exit 1. A reader that closes the pipe early
 (``labrunner analyse DIR --json | head``) ends the command quietly, as in other tools.
 """
@@ -41,14 +43,19 @@ COMMANDS = (
     "identify",
     "bounds",
     "differentiator",
+    "reproduce",
 )
+
+
+class _UsageError(Exception):
+    """A bad option or argument, as argparse words it (``main`` prints it and returns 2)."""
 
 
 class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose usage errors are one line and exit 2, like every bad input."""
 
     def error(self, message: str) -> None:  # noqa: D401 - argparse API
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        raise _UsageError(f"{self.prog}: error: {message}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -77,7 +84,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # the program itself
         signal.signal(signal.SIGINT, _interrupt_once)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:  # returned like every other bad input, not raised as SystemExit
+        print(exc, file=sys.stderr)
+        return 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -8,6 +8,8 @@ import math
 import os
 from typing import Any
 
+from labrunner.cli.argtypes import positive_int
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -22,7 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("directory", metavar="DIR", help="campaign directory (holds ledger.sqlite)")
     p.add_argument("--out", metavar="DIR", help="output directory (default: DIR/report)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    p.add_argument("--workers", type=int, metavar="N", help="processes reading logs (default: all cores)")
+    p.add_argument("--workers", type=positive_int, metavar="N", help="processes reading logs (default: all cores)")
     p.add_argument("--margin", type=float, default=0.1, metavar="F",
                    help="leave out points within this relative distance of a predicted bound (default 0.1)")
     p.add_argument("--error", choices=("e", "e_hat"), default="e",
@@ -45,8 +47,6 @@ def run(args: argparse.Namespace) -> int:
     from labrunner.analysis.analyse import analyse
     from labrunner.errors import InvalidParameter
 
-    if args.workers is not None and args.workers < 1:
-        raise InvalidParameter("--workers", f"must be >= 1, got {args.workers}")
     if args.out is not None and os.path.exists(args.out) and not os.path.isdir(args.out):
         raise InvalidParameter("--out", f"{args.out!r} exists and is not a directory")
     if not (0.0 <= args.margin < 1.0):
@@ -57,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     agree = summary["agreement"]
     print(f"{summary['runs']} runs of {summary['points']} points: {summary['completed']} completed, "
-          f"{summary['no_motion']} no motion, {summary['aborted']} aborted, {summary['failed']} failed")
+          f"{summary['no_motion']} no motion, {summary['aborted']} aborted, {summary['failed']} failed"
+          + (f" ({summary['oscillating']} of the completed oscillating)" if summary.get("oscillating") else ""))
     best = summary["best"]
     if best:
         params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in best["params"].items())

@@ -20,10 +20,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("directory", metavar="DIR", help="campaign directory (as given to or made by `labrunner run`)")
     add_execution_options(p)
     p.add_argument("--retry-failed", action="store_true", help="run points that ended 'failed' again")
-    p.set_defaults(func=main)
+    p.set_defaults(func=run)
 
 
-def main(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from labrunner.campaign.runner import Options, resume
 
     opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)

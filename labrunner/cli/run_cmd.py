@@ -28,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="campaign directory (default: data/<name>/)")
     add_execution_options(p)
     p.add_argument("--dry-run", action="store_true", help="print points, batches and an estimated time; create nothing")
-    p.set_defaults(func=main)
+    p.set_defaults(func=run)
 
 
 def report(outcome, directory: str, command: str) -> int:
@@ -47,7 +47,7 @@ def report(outcome, directory: str, command: str) -> int:
     return 0
 
 
-def main(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from labrunner.campaign.runner import Options, start
 
     opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)

@@ -14,7 +14,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("directory", metavar="DIR", help="campaign directory")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=main)
+    p.set_defaults(func=run)
 
 
 def _clock(seconds: float | None) -> str:
@@ -24,8 +24,8 @@ def _clock(seconds: float | None) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
-def main(args: argparse.Namespace) -> int:
-    from labrunner.campaign.runner import status
+def run(args: argparse.Namespace) -> int:
+    from labrunner.campaign.status import status
 
     st = status(args.directory)
     if args.json:

@@ -34,6 +34,7 @@ on preallocated buffers.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -43,6 +44,16 @@ from labrunner.errors import InvalidParameter
 #: B·C from which a batch sharing one design uses the BLAS products (BLAS sums the taps in another
 #: order than the bank, so smaller batches, B = 1 above all, stay with the bank).
 SHARED_MIN_ROWS = 32
+
+
+class _Window(NamedTuple):
+    """Where one tick at one window position of the history writes and what it multiplies."""
+
+    y_to: np.ndarray  # y[k] goes here (the error rows too when e = y)
+    e_to: np.ndarray | None  # e[k] = y[k] − y_r[k] goes here (None: e = y, nothing to write)
+    copies: tuple[np.ndarray, ...]  # further rows that take e[k] (the bank's ê̇ row)
+    v_to: np.ndarray  # the applied v[k−1] goes here
+    products: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (taps, history block, target) to multiply
 
 
 class MFCEstimator:
@@ -106,14 +117,14 @@ class MFCEstimator:
         self._taps = taps
         targets = [o.reshape(-1) for o in (self._out_y, *self._e_block, self._out_v)]  # in the taps' order
         # per window position: where y, e (None: e = y), copies of e and v go; (taps, block, target) products
-        self._views = []
+        self._views: list[_Window] = []
         for rows, blocks in zip(self._hist.rows, self._hist.blocks):
             ry, rv = rows[0].reshape(B, C), rows[-1].reshape(B, C)
             re = None if e_signal == 0 else rows[1].reshape(B, C)
             products = [(taps[0], blocks[0], targets[0])]
             products += [(taps[1 + k], blocks[e_signal][:L], targets[1 + k]) for k in range(n)]
             products.append((taps[-1], blocks[-1][:L], targets[-1]))
-            self._views.append((ry, re, (), rv, products))
+            self._views.append(_Window(ry, re, (), rv, products))
 
     def _init_bank(self, taps: list[list[np.ndarray]]) -> None:
         """Row blocks [e; …; e; y; v] with per-row taps, zero-padded: one einsum summing in order."""
@@ -127,12 +138,12 @@ class MFCEstimator:
         self._hist = History(L, bank.shape[0] * B * C)
         self._fill_rows = [1] * n + [0, 2]
         target = self._buf[1:].reshape(-1)
-        self._views = []
+        self._views: list[_Window] = []
         output = self._mode == "output"  # e = y: y goes to the error blocks and its own in one copy
         for rows, blocks in zip(self._hist.rows, self._hist.blocks):
             x = rows[0].reshape(n + 2, B, C)
             y_to, e_to, copies = (x[: 1 + n], None, ()) if output else (x[n], x[0], tuple(x[1:n]))
-            self._views.append((y_to, e_to, copies, x[-1], [(self._bank, blocks[0], target)]))
+            self._views.append(_Window(y_to, e_to, copies, x[-1], [(self._bank, blocks[0], target)]))
 
     def reset(self, y0: np.ndarray, r0: np.ndarray | float = 0.0, v0: np.ndarray | float = 0.0) -> None:
         """Pre-fill the histories as a stationary past: y ≡ y0, y_r ≡ r0 (filtered errors only;
@@ -151,21 +162,21 @@ class MFCEstimator:
         and its derivatives at tick k.
         """
         mode, tmp = self._mode, self._tmp
-        y_to, re, copies, rv, products = self._views[self._hist.advance()]
-        y_to[...] = y
-        rv[...] = v_prev
+        window = self._views[self._hist.advance()]
+        window.y_to[...] = y
+        window.v_to[...] = v_prev
         if mode == "error":
-            np.subtract(y, r[:, :, 0], out=re)
+            np.subtract(y, r[:, :, 0], out=window.e_to)
         elif mode == "mixed":
             np.multiply(self._m, r[:, :, 0], out=tmp)
-            np.subtract(y, tmp, out=re)
-        for row in copies:  # the bank's second error row (ê̇)
-            row[...] = re
+            np.subtract(y, tmp, out=window.e_to)
+        for row in window.copies:  # the bank's second error row (ê̇)
+            row[...] = window.e_to
         if self._shared:
-            for taps, block, target in products:
+            for taps, block, target in window.products:
                 np.dot(taps, block, out=target)
         else:
-            taps, block, target = products[0]
+            taps, block, target = window.products[0]
             np.einsum("lb,lb->b", taps, block, out=target)
         if self._unit_gamma:  # 1·x is x: one ufunc fewer (paper 2's γ_v = 1)
             np.subtract(self._out_y, self._out_v, out=self.f_hat)

@@ -257,7 +257,12 @@ def reference(
     """
     sec = Section(points, "reference")
     rows: list[list[Trajectory]] = []
+    built: dict[str, list[Trajectory]] = {}  # runs with equal sections (and delays) share their trajectories
     for i, (kind, row) in enumerate(zip(sec.choice("kind", kinds, kinds[0], per_run=True), sec.rows)):
+        key = repr((kind, row, None if delays_s is None else float(delays_s[i])))
+        if key in built:
+            rows.append(built[key])
+            continue
         for k in row:
             if k != "kind" and k not in REFERENCE_KEYS[kind]:
                 raise InvalidParameter(sec.key(k), f"unknown key for kind {kind!r} (allowed: {', '.join(REFERENCE_KEYS[kind])})")
@@ -280,6 +285,7 @@ def reference(
         else:
             amp, freq, dur = one.number("amplitude")[0], one.number("frequency")[0], one.number("duration")[0]
             rows.append([Sine.build(amp, freq, dur, one.number("offset", 0.0)[0])] * n_outputs)
+        built[key] = rows[-1]
     return Reference(rows)
 
 

@@ -97,37 +97,39 @@ class PlateMFC(Controller):
         self._gamma_est = {"v": self.gamma, "force": -self.gamma, "u": -self.gamma, "current": -np.ones((B, 1))}[input]
         self.estimator = MFCEstimator(designs, 2, self._gamma_est, 3, filter_error=filter_error)
         self._set_estimates(self.estimator.block, ("f_hat", "e_hat", "de_hat"))
-        # per-tick buffers; gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
+        # gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
         full = lambda a: np.array(np.broadcast_to(a, (B, 3)))  # noqa: E731
         self._gains = np.stack([full(self.k_p), full(self.k_d)])  # (2, B, 3) against (ê, ê̇)
         self._gamma3 = full(self.gamma)
-        self._e_hats, self._ke = self.estimator.block[1:], np.zeros((2, B, 3))  # (ê, ê̇) and (k_p ê, k_d ê̇)
-        self._ke_rows = tuple(self._ke)
+        self._e_hats = self.estimator.block[1:]  # (ê, ê̇), (2, B, 3)
         self._unit_gamma = bool(np.all(self.gamma == 1.0))
         self._P_inv_B_T = self.geometry.P_inv_B.T
         self._V_T = self.geometry.V.T
         self._K_T = self.geometry.K.T
         self._lam_K_T = self.lam_inv_sqrt * self._K_T  # d(h) = λ^(−1/2) K y in one product
         self._weights_col = self.weights[:, None]
-        self._h = np.zeros((B, 4))  # the gaps of eq. (4) at the last tick (kept for the input u only)
-        self._lam_h = np.zeros((B, 4))  # d(h) = λ^(−1/2) h at those gaps
+        # per-tick scratch, one purpose each
+        self._gaps = np.zeros((B, 4))  # h = K y (eq. (4)) at the last tick (input u only)
+        self._d_h = np.zeros((B, 4))  # d(h) = λ^(−1/2) h at those gaps
         self._gamma_y = np.zeros((B, 3))  # γ_i(y) at the last tick (input current)
-        self._w, self._t, self._x = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 3))
-        self._u4, self._x4 = np.zeros((B, 4)), np.zeros((B, 1))
+        self._model_x = np.zeros((B, 3))  # the estimator's input x_k of the last applied currents
+        self._model_f = np.zeros((B, 4))  # the magnet forces behind it (input v)
+        self._ke = np.zeros((2, B, 3))  # (k_p ê, k_d ê̇)
+        self._bracket = np.zeros((B, 3))  # ÿ_r − k_p ê − k_d ê̇ − f̂ (its negative for the magnet inputs)
+        self._x = np.zeros((B, 3))  # the law's x_k = bracket / γ_s
+        self._sum_ax = np.zeros((B, 1))  # Σ a_k x_k of eq. (18)
+        self._u = np.zeros((B, 4))  # the four inputs of eq. (18), then the currents returned
         self._notch = None
         if notch_omega > 0:
             fs = designs[0].fs
             notch = tustin(tf_ss(*notch_tf(notch_omega, notch_q)), fs, notch_omega)
             self._notch = StreamingSS([notch] * B, channels=3)
-            self.controlled = self._notch.input[:, :, 0]  # y_1..y_3 go straight into the notch's input
-            self._notch_out = self._notch.output[:, :, 0]
 
     def _filtered(self) -> np.ndarray:
         """This tick's y_1..y_3 (:attr:`controlled`) after the notch filter (Fig. 10b), (B, 3)."""
         if self._notch is None:
             return self.controlled
-        self._notch.advance()
-        return self._notch_out
+        return self._notch.step(self.controlled[:, :, None])[:, :, 0]
 
     def _reset(self, y0: np.ndarray) -> None:
         if self._notch is not None:
@@ -139,9 +141,9 @@ class PlateMFC(Controller):
     def _measured(self) -> None:
         """From this tick's y_1..y_3: the gaps h = K y (eq. (4)), d(h) and γ_i(y) for the law and the next tick."""
         y3 = self.controlled  # a contiguous copy: half the cost of the strided view in a product
-        np.dot(y3, self._lam_K_T, out=self._lam_h)
+        np.dot(y3, self._lam_K_T, out=self._d_h)
         if self.input == "u":
-            np.dot(y3, self._K_T, out=self._h)
+            np.dot(y3, self._K_T, out=self._gaps)
         if self.input == "current":
             self._gamma_i(y3, out=self._gamma_y)
 
@@ -152,42 +154,40 @@ class PlateMFC(Controller):
 
     def _model_input(self, currents: np.ndarray) -> np.ndarray:
         """(B, 3) the applied input x_k of the ultra-local models for ``currents`` at the last gaps."""
-        x, t = self._x, self._u4
+        x = self._model_x
         if self.input == "v":  # v = P⁻¹ B f (eq. (5)) with f = i²/d(h)² (eq. (2))
-            return np.dot(force_at(currents, self._lam_h, out=t), self._P_inv_B_T, out=x)
+            return np.dot(force_at(currents, self._d_h, out=self._model_f), self._P_inv_B_T, out=x)
         if self.input == "force":
-            return force_at(currents[:, :3], self._lam_h[:, :3], out=x)
+            return force_at(currents[:, :3], self._d_h[:, :3], out=x)
         if self.input == "u":
-            return force_at(currents[:, :3], self._h[:, :3], out=x)  # (i/h)²
+            return force_at(currents[:, :3], self._gaps[:, :3], out=x)  # (i/h)²
         return np.multiply(self._gamma_y, currents[:, :3], out=x)
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
-        est, w, t, u, ke = self.estimator, self._w, self._t, self._u4, self._ke
-        kp_e, kd_de = self._ke_rows
+        est, w, x, u, ke = self.estimator, self._bracket, self._x, self._u, self._ke
         self.controlled[...] = y[:, :3]
         est.step(self._filtered(), self._model_input(self.u_applied), r)  # x_k of the last tick's gaps
-        # w = ÿ_r − k_p ê − k_d ê̇ − f̂
-        np.multiply(self._gains, self._e_hats, out=ke)
-        np.subtract(r[:, :, 2], kp_e, out=w)
-        np.subtract(w, kd_de, out=w)
+        np.multiply(self._gains, self._e_hats, out=ke)  # (k_p ê, k_d ê̇)
+        np.subtract(r[:, :, 2], ke[0], out=w)  # w = ÿ_r − k_p ê − k_d ê̇ − f̂
+        np.subtract(w, ke[1], out=w)
         np.subtract(w, est.f_hat, out=w)
         self._measured()
-        if self.input == "v":  # (14), then (11) and (12); x/1 is x (paper 2's γ_v = 1)
-            np.dot(w if self._unit_gamma else np.divide(w, self._gamma3, out=t), self._V_T, out=u)
-            return current_at(u, self._lam_h, out=u)
-        np.negative(w, out=w)
+        if self.input == "v":  # (14): v = w/γ_v; then u = V v (eq. (11)) and the currents by (12)
+            np.dot(w if self._unit_gamma else np.divide(w, self._gamma3, out=x), self._V_T, out=u)  # x/1 is x (γ_v = 1)
+            return current_at(u, self._d_h, out=u)
+        np.negative(w, out=w)  # w = −ÿ_r + k_p ê + k_d ê̇ + f̂
         # (21) with the sign of (17) and (19): i = (1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i); the printed
         # extra leading minus would be positive feedback on ÿ = f_i − γ_i(y) i (20)
         if self.input == "current":
-            return self._over_actuated(np.divide(w, self._gamma_y, out=t))
-        self._over_actuated(np.divide(w, self._gamma3, out=t))  # (17) or (19), then (18)
-        return current_at(u, self._lam_h if self.input == "force" else self._h, out=u)  # (12), or i = √u·h (Sec. 3.2.3)
+            return self._over_actuated(np.divide(w, self._gamma_y, out=x))
+        self._over_actuated(np.divide(w, self._gamma3, out=x))  # (17) or (19): F̃ or u = w/γ, then (18)
+        return current_at(u, self._d_h if self.input == "force" else self._gaps, out=u)  # (12), or i = √u·h (Sec. 3.2.3)
 
     def _over_actuated(self, x3: np.ndarray) -> np.ndarray:
         """(B, 4) = (x_1, x_2, x_3, Σ a_k x_k) in the input buffer (eq. (18))."""
-        u = self._u4
+        u = self._u
         u[:, :3] = x3
-        u[:, 3:] = np.dot(x3, self._weights_col, out=self._x4)
+        u[:, 3:] = np.dot(x3, self._weights_col, out=self._sum_ax)
         return u
 
 
@@ -226,7 +226,7 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
         try:
             rows = [over_actuation_weights(row) for row in ctl.values("weights", weights)]
         except InvalidParameter as exc:
-            raise InvalidParameter("controller.weights", str(exc).split(": ", 1)[1]) from None
+            raise InvalidParameter("controller.weights", exc.message) from None
         if any(not np.array_equal(row, rows[0]) for row in rows):
             raise InvalidParameter("controller.weights", "must be the same for every run of a batch")
         weights = tuple(rows[0])

@@ -203,7 +203,7 @@ def build_plate_mbc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
                           notch_omega=notch[i], notch_q=q[i], lowpass_omega=lp[i], lowpass_orders=matched_orders(alpha[i], alpha[i]))
             )  # fmt: skip
         except InvalidParameter as exc:
-            raise InvalidParameter(f"controller.{exc.field.split('[')[0]}", str(exc).split(": ", 1)[1]) from None
+            raise InvalidParameter(f"controller.{exc.field.split('[')[0]}", exc.message) from None
     geometry, lam = plate_geometry(rig_info)
     controller = PlateMBC(designs, geometry, lam_inv_sqrt=lam, i_max=i_max)
     return controller, reference_from_points(points, rig_info, delays_s=None)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import integrate, special
+from scipy import special
 
 from labrunner.differentiators.design import Differentiator
 from labrunner.differentiators.kernel import log_rho
@@ -88,5 +88,7 @@ def cost_db(d: Differentiator, order: int, omega_max: float | None = None, point
     omega = np.linspace(0.0, math.pi * d.fs if omega_max is None else float(omega_max), int(points))
     f = continuous_response(d, order, omega)
     fd = discrete_response(d, order, omega)
+    from scipy import integrate  # here, not at import: only the offline design tools need it
+
     j = integrate.trapezoid(np.abs(fd - f) ** 2, omega) / integrate.trapezoid(np.abs(f) ** 2, omega)
     return 20.0 * math.log10(j) if j > 0.0 else -math.inf

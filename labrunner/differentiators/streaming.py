@@ -9,7 +9,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy import signal
 
 from labrunner.differentiators.design import Differentiator
 from labrunner.errors import InvalidParameter
@@ -150,4 +149,6 @@ def estimate(design: Differentiator, x: np.ndarray, order: int) -> np.ndarray:
     head = np.repeat(xs[..., :1], w.size - 1, axis=-1)
     padded = np.concatenate([head, xs], axis=-1)
     kernel = w.reshape((1,) * (xs.ndim - 1) + (w.size,))
+    from scipy import signal  # here, not at import: the engine's streaming path does not need it
+
     return signal.oaconvolve(padded, kernel, mode="valid", axes=-1)

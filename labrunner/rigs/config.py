@@ -1,4 +1,5 @@
-"""Rig description files (``rigs/<name>.toml``): loading and validation into a frozen :class:`RigConfig`.
+"""Rig description files (``rigs/<name>.toml``): finding, loading and validating them into a frozen
+:class:`~labrunner.rigs.base.RigConfig`.
 
 A rig file has the sections ``[rig]`` (``kind``, ``name``, ``description``), ``[parameters]``,
 ``[limits]``, ``[noise]``, ``[faults]`` and ``[safety]`` (format: ``docs/rigs.md``). Every key is
@@ -7,9 +8,10 @@ whose field is ``"<file>: <section>.<key>"``, e.g.
 ``InvalidParameter("rigs/dcmotor-sim.toml: parameters.a", "must be > 0, got -1")``.
 
 The rig kind decides what ``[parameters]`` and ``[noise]`` may hold: its class (looked up in
-:mod:`labrunner.rigs.registry`) declares them as :class:`Param` schemas (see
-:class:`labrunner.rigs.sim.SimRig`). ``[safety]`` is validated by
-:class:`labrunner.safety.SafetyConfig`, the module that enforces it.
+:mod:`labrunner.rigs.kinds`) declares them as :class:`~labrunner.rigs.schema.Param` schemas and
+validates them (the :class:`~labrunner.rigs.base.Rig` contract). ``[safety]`` is validated by
+:class:`labrunner.safety_config.SafetyConfig`. ``Param``, ``RigConfig`` and ``validate_section``
+are re-exported here for the modules that describe rig files.
 """
 
 from __future__ import annotations
@@ -17,165 +19,26 @@ from __future__ import annotations
 import os
 import tomllib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from labrunner.errors import InvalidParameter, check_finite
-from labrunner.rigs.base import Faults, RigInfo, Signal
+from labrunner.errors import InvalidParameter, check_finite, check_interval
+from labrunner.rigs.base import Faults, RigConfig, RigInfo, Signal
+from labrunner.rigs.kinds import rig_class
+from labrunner.rigs.schema import Param, as_table, validate_section
+from labrunner.safety_config import SafetyConfig
+
+__all__ = [
+    "Param", "RigConfig", "apply_limits", "config_from_dict", "default_search", "load_rig_config",
+    "parse_faults", "resolve_rig_file", "rig_info", "search_path", "validate_section",
+]
 
 SECTIONS = ("rig", "parameters", "limits", "noise", "faults", "safety")
 _RIG_KEYS = ("kind", "name", "description")
 _FAULT_KEYS = ("t_start", "actuator_offset", "actuator_gain", "sensor_step")
-
-
-@dataclass(frozen=True)
-class Param:
-    """Schema of one rig parameter: default, unit, why it has this value, allowed range.
-
-    The type is the default's type (``float``, ``int``, ``str``, ``bool``). Numbers must lie in
-    ``[lo, hi]`` (``lo_open``: ``lo`` itself excluded); strings in ``choices`` when given.
-    """
-
-    default: float | int | str | bool
-    unit: str
-    doc: str
-    lo: float = -np.inf
-    hi: float = np.inf
-    lo_open: bool = False
-    choices: tuple[str, ...] = ()
-
-    @property
-    def numeric(self) -> bool:
-        return isinstance(self.default, (int, float)) and not isinstance(self.default, bool)
-
-    def _range(self) -> str:
-        left = "(" if self.lo_open else "["
-        return f"in {left}{self.lo:g}, {self.hi:g}]"
-
-    def check(self, field_name: str, value: Any) -> float | int | str | bool:
-        """Validate one value; return it with the schema's type."""
-        if isinstance(self.default, bool):
-            if not isinstance(value, bool):
-                raise InvalidParameter(field_name, f"must be true or false, got {value!r}")
-            return value
-        if isinstance(self.default, str):
-            if not isinstance(value, str) or (self.choices and value not in self.choices):
-                allowed = f"one of {list(self.choices)}" if self.choices else "a string"
-                raise InvalidParameter(field_name, f"must be {allowed}, got {value!r}")
-            return value
-        if isinstance(value, bool):
-            raise InvalidParameter(field_name, f"must be a number, got {value!r}")
-        v = check_finite(field_name, value)
-        if isinstance(self.default, int) and v != int(v):
-            raise InvalidParameter(field_name, f"must be an integer, got {value!r}")
-        self._check_range(field_name, np.array([v]))
-        return int(v) if isinstance(self.default, int) else v
-
-    def check_array(self, field_name: str, values: Any, batch: int, nominal: np.ndarray | float | None = None) -> np.ndarray:
-        """Validate per-run values (scalar or (B,)); return a (B,) float array.
-
-        With ``nominal``, NaN entries mean "this run keeps the nominal value" (the engine passes NaN
-        for runs whose point does not set the parameter).
-        """
-        if not self.numeric:
-            raise InvalidParameter(field_name, "is not a numeric parameter and cannot vary per run")
-        arr = np.asarray(values, dtype=float)
-        if arr.ndim > 1 or (arr.ndim == 1 and arr.size != batch):
-            raise InvalidParameter(field_name, f"needs a scalar or one value per run ({batch}), got shape {arr.shape}")
-        if nominal is not None:
-            arr = np.where(np.isnan(arr), nominal, arr)
-        if not np.all(np.isfinite(arr)):
-            raise InvalidParameter(field_name, f"must be finite, got {arr[~np.isfinite(arr)][0]!r}")
-        self._check_range(field_name, arr.reshape(-1))
-        return np.broadcast_to(arr, (batch,)).astype(float)
-
-    def _check_range(self, field_name: str, v: np.ndarray) -> None:
-        bad = (v <= self.lo) if self.lo_open else (v < self.lo)
-        bad |= v > self.hi
-        if bad.any():
-            x = v[bad][0]
-            if np.isinf(self.hi):
-                msg = f"must be {'>' if self.lo_open else '>='} {self.lo:g}, got {x:g}"
-            else:
-                msg = f"must be {self._range()}, got {x:g}"
-            raise InvalidParameter(field_name, msg)
-
-
-def validate_section(schema: Mapping[str, Param], raw: Mapping[str, Any], path: str) -> dict[str, Any]:
-    """Check ``raw`` against ``schema`` (unknown keys rejected) and fill in the defaults."""
-    raw = _table(raw, path)
-    unknown = sorted(set(raw) - set(schema))
-    if unknown:
-        allowed = ", ".join(schema) or "no keys"
-        raise InvalidParameter(f"{path}.{unknown[0]}", f"unknown key; allowed: {allowed}")
-    return {k: p.check(f"{path}.{k}", raw[k]) if k in raw else p.default for k, p in schema.items()}
-
-
-@dataclass(frozen=True)
-class RigConfig:
-    """A validated rig file. ``parameters``/``noise`` have every key of the kind's schema filled in.
-
-    ``limits`` narrows the rig's signal limits and sampling rates (``{signal: (lo, hi)}``, plus
-    ``fs: (lo, hi)`` and ``fs_default``); ``safety`` is the ``[safety]`` section as read, for
-    :class:`labrunner.safety.SafetyConfig` (``max_du_dt``, ``output_bounds``, ``input_bounds``,
-    ``max_duration``, ...).
-    """
-
-    name: str
-    kind: str
-    description: str = ""
-    parameters: Mapping[str, Any] = field(default_factory=dict)
-    limits: Mapping[str, Any] = field(default_factory=dict)
-    noise: Mapping[str, Any] = field(default_factory=dict)
-    faults: Faults = field(default_factory=Faults)
-    safety: Mapping[str, Any] = field(default_factory=dict)
-    source: str = "<dict>"
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly form (for run metadata)."""
-        f = self.faults
-        faults = {} if not f.any else {
-            "t_start": f.t_start,
-            "actuator_offset": list(f.actuator_offset),
-            "actuator_gain": list(f.actuator_gain),
-            "sensor_step": list(f.sensor_step),
-        }
-        return {
-            "rig": {"kind": self.kind, "name": self.name, "description": self.description, "source": self.source},
-            "parameters": _jsonable(self.parameters),
-            "limits": _jsonable(self.limits),
-            "noise": _jsonable(self.noise),
-            "faults": faults,
-            "safety": _jsonable(self.safety),
-        }
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, Mapping):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (tuple, list)):
-        return [_jsonable(v) for v in x]
-    return x
-
-
-def _table(raw: Any, path: str) -> dict[str, Any]:
-    if raw is None:
-        return {}
-    if not isinstance(raw, Mapping):
-        raise InvalidParameter(path, f"must be a table, got {raw!r}")
-    return dict(raw)
-
-
-def _pair(path: str, value: Any) -> tuple[float, float]:
-    if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise InvalidParameter(path, f"must be [lo, hi], got {value!r}")
-    lo, hi = (check_finite(path, v) for v in value)
-    if lo >= hi:
-        raise InvalidParameter(path, f"needs lo < hi, got [{lo:g}, {hi:g}]")
-    return lo, hi
 
 
 def apply_limits(info: RigInfo, raw: Mapping[str, Any], path: str = "limits") -> tuple[RigInfo, dict[str, Any]]:
@@ -184,7 +47,7 @@ def apply_limits(info: RigInfo, raw: Mapping[str, Any], path: str = "limits") ->
     Keys: a signal name → ``[lo, hi]`` inside the signal's physical range; ``fs = [lo, hi]`` inside
     the rig's allowed rates [Hz]; ``fs_default`` inside the (narrowed) rates.
     """
-    raw = _table(raw, path)
+    raw = as_table(raw, path)
     signals = {s.name: s for s in info.inputs + info.outputs}
     out: dict[str, Any] = {}
     narrowed: dict[str, Signal] = {}
@@ -192,7 +55,7 @@ def apply_limits(info: RigInfo, raw: Mapping[str, Any], path: str = "limits") ->
     for key, value in raw.items():
         kpath = f"{path}.{key}"
         if key == "fs":
-            lo, hi = _pair(kpath, value)
+            lo, hi = check_interval(kpath, value)
             if lo < fs_lo or hi > fs_hi:
                 raise InvalidParameter(kpath, f"must lie in [{fs_lo:g}, {fs_hi:g}] Hz, got [{lo:g}, {hi:g}]")
             out[key] = (lo, hi)
@@ -200,7 +63,7 @@ def apply_limits(info: RigInfo, raw: Mapping[str, Any], path: str = "limits") ->
             out[key] = check_finite(kpath, value)
         elif key in signals:
             s = signals[key]
-            lo, hi = _pair(kpath, value)
+            lo, hi = check_interval(kpath, value)
             if lo < s.lo or hi > s.hi:
                 raise InvalidParameter(kpath, f"must lie in [{s.lo:g}, {s.hi:g}] {s.unit}, got [{lo:g}, {hi:g}]")
             out[key] = (lo, hi)
@@ -232,7 +95,7 @@ def parse_faults(raw: Mapping[str, Any], info: RigInfo, path: str = "faults") ->
     ``t_start`` [s] ≥ 0; ``actuator_offset``, ``actuator_gain`` (> −1) per input and
     ``sensor_step`` per output, each a number (all channels) or a list with one value per channel.
     """
-    raw = _table(raw, path)
+    raw = as_table(raw, path)
     unknown = sorted(set(raw) - set(_FAULT_KEYS))
     if unknown:
         raise InvalidParameter(f"{path}.{unknown[0]}", f"unknown key; allowed: {', '.join(_FAULT_KEYS)}")
@@ -313,15 +176,12 @@ def load_rig_config(name_or_path: str | os.PathLike, search: Iterable[str | os.P
 
 def config_from_dict(data: Mapping[str, Any], *, source: str = "<dict>", default_name: str | None = None) -> RigConfig:
     """Validate a parsed rig file (the same checks as :func:`load_rig_config`)."""
-    from labrunner.rigs.registry import rig_class
-    from labrunner.safety import SafetyConfig
-
     pre = f"{source}: "
-    data = _table(data, source)
+    data = as_table(data, source)
     unknown = sorted(set(data) - set(SECTIONS))
     if unknown:
         raise InvalidParameter(f"{pre}{unknown[0]}", f"unknown section; allowed: {', '.join(SECTIONS)}")
-    rig = _table(data.get("rig"), f"{pre}rig")
+    rig = as_table(data.get("rig"), f"{pre}rig")
     bad = sorted(set(rig) - set(_RIG_KEYS))
     if bad:
         raise InvalidParameter(f"{pre}rig.{bad[0]}", f"unknown key; allowed: {', '.join(_RIG_KEYS)}")
@@ -334,22 +194,22 @@ def config_from_dict(data: Mapping[str, Any], *, source: str = "<dict>", default
     try:
         cls = rig_class(kind)
     except InvalidParameter as exc:
-        raise InvalidParameter(f"{pre}rig.kind", str(exc).split(": ", 1)[-1]) from None
+        raise InvalidParameter(f"{pre}rig.kind", exc.message) from None
     name = rig.get("name", default_name or kind)
     description = rig.get("description", "")
-    parameters = cls.validate_parameters(_table(data.get("parameters"), f"{pre}parameters"), f"{pre}parameters")
-    noise = cls.validate_noise(_table(data.get("noise"), f"{pre}noise"), f"{pre}noise")
+    parameters = cls.validate_parameters(as_table(data.get("parameters"), f"{pre}parameters"), f"{pre}parameters")
+    noise = cls.validate_noise(as_table(data.get("noise"), f"{pre}noise"), f"{pre}noise")
     info = cls.nominal_info(name, description, parameters)
     info, limits = apply_limits(info, data.get("limits"), f"{pre}limits")
     faults = parse_faults(data.get("faults"), info, f"{pre}faults")
-    safety = _table(data.get("safety"), f"{pre}safety")
+    safety = as_table(data.get("safety"), f"{pre}safety")
     SafetyConfig.from_sections(info, safety, prefix=f"{pre}safety")
-    return RigConfig(name, kind, description, parameters, limits, noise, faults, safety, source)
+    return RigConfig(name, kind, description, parameters, limits, noise, faults, safety, source, info)
 
 
 def rig_info(config: RigConfig) -> RigInfo:
     """The RigInfo a rig built from ``config`` has (nominal signals narrowed by ``[limits]``)."""
-    from labrunner.rigs.registry import rig_class
-
+    if config.info is not None:
+        return config.info
     info = rig_class(config.kind).nominal_info(config.name, config.description, config.parameters)
     return apply_limits(info, dict(config.limits))[0]

@@ -10,7 +10,9 @@ declares
 - ``_reset(batch, seeds, overrides)`` and ``_step(u)`` as for any Rig; in ``_reset`` it calls
   :meth:`SimRig.per_run` to get every parameter as a (B,) array with the per-run ``overrides``
   (keys of ``PARAMETERS`` or ``NOISE``; NaN entries keep the nominal value) applied and validated, and uses
-  :class:`labrunner.rigs.sim._noise.NoiseStreams` so that run i's noise depends only on its seed.
+  :class:`labrunner.rigs.sim._noise.NoiseStreams` so that run i's noise depends only on its seed;
+- rules between parameters in ``validate_parameters`` (the rig file) and ``check_overrides``
+  (per-run values), so that a campaign checks them before anything runs.
 
 Shared numerics live in :mod:`labrunner.rigs.sim._integrate` (sub-step counts, exact
 zero-order-hold discretisation, first-order decays, the play operator, sensor delay lines).
@@ -18,23 +20,21 @@ zero-order-hold discretisation, first-order decays, the play operator, sensor de
 
 from __future__ import annotations
 
-import abc
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from labrunner.errors import InvalidParameter
-from labrunner.rigs.base import Rig, RigInfo
-from labrunner.rigs.config import Param, RigConfig, config_from_dict, rig_info, validate_section
+from labrunner.rigs.base import Rig, RigConfig
+from labrunner.rigs.config import config_from_dict, rig_info
+from labrunner.rigs.schema import Schema
 
 
 class SimRig(Rig):
     """Base of the simulated twins: rig-file plumbing and per-run parameters."""
 
     KIND: ClassVar[str]
-    PARAMETERS: ClassVar[Mapping[str, Param]]
-    NOISE: ClassVar[Mapping[str, Param]]
 
     def __init__(self, config: RigConfig | None = None) -> None:
         if config is None:
@@ -44,19 +44,11 @@ class SimRig(Rig):
         super().__init__(rig_info(config), config.faults)
         self.config = config
 
-    # -- the registry contract -----------------------------------------------------------------
+    # -- the Rig contract ----------------------------------------------------------------------
     @classmethod
-    def validate_parameters(cls, raw: Mapping[str, Any], path: str = "parameters") -> dict[str, Any]:
-        return validate_section(cls.PARAMETERS, raw, path)
-
-    @classmethod
-    def validate_noise(cls, raw: Mapping[str, Any], path: str = "noise") -> dict[str, Any]:
-        return validate_section(cls.NOISE, raw, path)
-
-    @classmethod
-    @abc.abstractmethod
-    def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
-        """Signals with their physical limits, sampling rates, safe input and nominal constants."""
+    def overridable(cls) -> Schema:
+        """Every parameter and noise level (the numeric ones may vary per run)."""
+        return {**cls.PARAMETERS, **cls.NOISE}
 
     @classmethod
     def from_config(cls, config: RigConfig) -> SimRig:
@@ -68,12 +60,4 @@ class SimRig(Rig):
 
         An override is a scalar or a (B,) array; NaN entries keep the rig file's value for that run.
         """
-        schema = {**self.PARAMETERS, **self.NOISE}
-        unknown = sorted(set(overrides) - set(schema))
-        if unknown:
-            raise InvalidParameter(f"overrides.{unknown[0]}", f"unknown parameter; allowed: {', '.join(schema)}")
-        values = {**self.config.parameters, **self.config.noise}
-        out = {k: np.full(batch, float(values[k])) for k, p in schema.items() if p.numeric}
-        for key, value in overrides.items():
-            out[key] = schema[key].check_array(f"overrides.{key}", value, batch, nominal=out.get(key))
-        return out
+        return self.check_overrides(self.config, overrides, batch)

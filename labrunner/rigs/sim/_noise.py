@@ -3,7 +3,8 @@
 Run i draws from its own generator, seeded by ``SeedSequence([seed_i, stream])``, in blocks of
 ``block`` ticks; the loop over runs happens once per block, not per tick. Run i's noise therefore
 depends only on its seed and the stream id: a batch of B runs sees exactly the noise of B single
-runs with the same seeds.
+runs with the same seeds. Runs with equal seeds (a campaign's, by default) share one generator:
+the same numbers, drawn once.
 """
 
 from __future__ import annotations
@@ -33,30 +34,33 @@ class NoiseStreams:
         scale: np.ndarray | float | None = None,
         groups: int = 1,
     ) -> None:
-        self._gens = [
-            np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(s) % 2**64, stream])))
-            for s in np.asarray(seeds, dtype=np.int64).reshape(-1)
-        ]
+        seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
+        self.batch = len(seeds)
+        # one generator per distinct seed (a campaign's runs mostly share one), and its runs
+        unique, run_of = np.unique(seeds, return_inverse=True)
+        self._gens = [np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(s) % 2**64, stream]))) for s in unique]
+        self._runs = [np.flatnonzero(run_of.reshape(-1) == i) for i in range(len(unique))]
         self.width = int(width)
         self.block = int(block)
-        self._scale = None if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (len(self._gens), self.width))
+        self._scale = None if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (self.batch, self.width))
         if groups < 1 or self.width % groups:
             raise InvalidParameter("groups", f"must divide the width {self.width}, got {groups}")
         self.groups = groups
-        self._buf = np.empty((0, groups, len(self._gens), self.width // groups))
+        self._buf = np.empty((0, groups, self.batch, self.width // groups))
         self._i = 0
 
     def next(self) -> np.ndarray:
         """The next tick's draws: (B, width), or (G, B, width/G) in groups; valid until the next block."""
         if self._i >= self._buf.shape[0]:
-            G, B, per = self.groups, len(self._gens), self.width // self.groups
-            if self._buf.shape[0] != self.block:
-                self._buf = np.empty((self.block, G, B, per))
-            for i, g in enumerate(self._gens):  # once per block, not per tick
-                draws = g.standard_normal((self.block, self.width))
+            G, B, per, K = self.groups, self.batch, self.width // self.groups, self.block
+            if self._buf.shape[0] != K:
+                self._buf = np.empty((K, G, B, per))
+            for g, runs in zip(self._gens, self._runs):  # once per block, not per tick
+                draws = g.standard_normal((K, 1, self.width))  # the same numbers for every run of this seed
                 if self._scale is not None:
-                    draws *= self._scale[i]
-                self._buf[:, :, i, :] = draws.reshape(self.block, G, per)
+                    draws = draws * self._scale[runs]  # (K, n, width), each run at its own level
+                draws = np.broadcast_to(draws, (K, len(runs), self.width))
+                self._buf[:, :, runs, :] = draws.reshape(K, len(runs), G, per).transpose(0, 2, 1, 3)
             self._i = 0
         out = self._buf[self._i]
         self._i += 1

@@ -37,8 +37,8 @@ import numpy as np
 from labrunner._ufunc import clip, count_nonzero
 from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import LAMBDA_INV_SQRT, PlateGeometry
-from labrunner.rigs.base import Derived, RigInfo, Signal
-from labrunner.rigs.config import Param
+from labrunner.rigs.base import Derived, RigConfig, RigInfo, Signal
+from labrunner.rigs.schema import Param
 from labrunner.rigs.sim import SimRig
 from labrunner.rigs.sim._integrate import substeps
 from labrunner.rigs.sim._noise import NoiseStreams
@@ -89,6 +89,19 @@ class PlateTwin(SimRig):
         return p
 
     @classmethod
+    def check_overrides(
+        cls, config: RigConfig, overrides: Mapping[str, Any], batch: int, path: str = "overrides"
+    ) -> dict[str, np.ndarray]:
+        fixed = sorted(set(overrides) & set(GEOMETRY))
+        if fixed:
+            raise InvalidParameter(f"{path}.{fixed[0]}", f"cannot vary per run; fixed: {', '.join(GEOMETRY)}")
+        p = super().check_overrides(config, overrides, batch, path)
+        bad = p["top_gap"] >= p["screw_gap"]
+        if bad.any():
+            raise InvalidParameter(f"{path}.top_gap", f"must be < screw_gap = {p['screw_gap'][bad][0]:g} m")
+        return p
+
+    @classmethod
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
         p = {**{k: v.default for k, v in cls.PARAMETERS.items()}, **parameters}
         constants = {k: float(p[k]) for k in ("m", "g", "J_x", "J_y", "l_dx", "l_dy", "l_fx", "l_fy", "lambda_inv_sqrt")}
@@ -109,13 +122,7 @@ class PlateTwin(SimRig):
 
     # -- Rig hooks -------------------------------------------------------------------------------
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
-        fixed = sorted(set(overrides) & set(GEOMETRY))
-        if fixed:
-            raise InvalidParameter(f"overrides.{fixed[0]}", f"cannot vary per run; fixed: {', '.join(GEOMETRY)}")
         p = self.per_run(batch, overrides)
-        bad = p["top_gap"] >= p["screw_gap"]
-        if bad.any():
-            raise InvalidParameter("overrides.top_gap", f"must be < screw_gap = {p['screw_gap'][bad][0]:g} m")
         self.p = p
         c = self.config.parameters
         self.geometry = PlateGeometry(m=float(c["m"]), g=float(c["g"]), J_x=float(c["J_x"]), J_y=float(c["J_y"]),
@@ -147,7 +154,15 @@ class PlateTwin(SimRig):
         scale = np.column_stack([np.repeat(col(p["sensor_std"]), 4, axis=1), np.repeat(col(p["current_std"]), 4, axis=1)])
         self._noise = NoiseStreams(seeds, 8, stream=3, block=2048, scale=scale, groups=2)
         self._G_T = self._G.T
-        self._buffers = {name: np.zeros((batch, 4)) for name in ("gaps", "dd", "pen", "sign", "kpen", "lin", "cs", "f", "acc", "tmp")}
+        # per-tick scratch, (B, 4) each, one purpose each: the squared currents i², the drift/kick
+        # increments (h/2)·v and h·ẍ, the accelerations ẍ; at a position (:meth:`_at_position`): the
+        # gaps h = G x, d(h)², the stops' penetration, its sign and k·pen, gravity − the mode's spring;
+        # in :meth:`_acceleration`: the upward corner forces, the stops' damped forces, the generalised
+        # forces per unit mass and the mode's damping
+        scratch = lambda: np.zeros((batch, 4))  # noqa: E731
+        self._current_sq, self._increment, self._acc = scratch(), scratch(), scratch()
+        self._gaps, self._dd, self._pen, self._pen_sign, self._k_pen, self._lin = (scratch() for _ in range(6))
+        self._f_up, self._stop_force, self._gen_acc, self._damping = (scratch() for _ in range(4))
         # at rest on the four screws, sagging: (k G Gᵀ + S) x = M g + k G 1 screw_gap, S the mode's stiffness
         stiffness = self._k_c[:, :1, None] * (self._G @ self._G.T) + np.einsum("bi,ij->bij", self._stiff / self._inv_mass, np.eye(4))
         load = self._gravity / self._inv_mass + self._k_c[:, :1] * self._screw[:, :1] * self._G.sum(axis=1)
@@ -163,21 +178,20 @@ class PlateTwin(SimRig):
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         sensor_noise, current_noise = self._noise.next()
-        b = self._buffers
-        cs, acc, tmp, x, v = b["cs"], b["acc"], b["tmp"], self.x, self.v
+        cs, acc, inc, x, v = self._current_sq, self._acc, self._increment, self.x, self.v
         np.add(u, current_noise, out=cs)  # the currents with their ripple, squared
         np.maximum(cs, 0.0, out=cs)
         np.square(cs, out=cs)
         h, half = self._h_steps  # 0-d arrays: cheaper in a ufunc than Python floats
         for _ in range(self.substeps):  # drift-kick-drift (position Verlet): one evaluation per sub-step
-            np.multiply(half, v, out=tmp)
-            np.add(x, tmp, out=x)
+            np.multiply(half, v, out=inc)  # x += (h/2) v
+            np.add(x, inc, out=x)
             self._at_position()
             self._acceleration(cs, v, out=acc)
-            np.multiply(h, acc, out=tmp)
-            np.add(v, tmp, out=v)
-            np.multiply(half, v, out=tmp)
-            np.add(x, tmp, out=x)
+            np.multiply(h, acc, out=inc)  # v += h ẍ(x)
+            np.add(v, inc, out=v)
+            np.multiply(half, v, out=inc)  # x += (h/2) v
+            np.add(x, inc, out=x)
         return self._sensors(sensor_noise)
 
     # -- model -----------------------------------------------------------------------------------
@@ -216,40 +230,37 @@ class PlateTwin(SimRig):
         penetration pen = gap − clip(gap, top, screw) (> 0 below, < 0 above) and pushes back with
         sign(pen)·max(sign(pen)·(k pen + c ṗ), 0): a one-sided spring-damper (:meth:`_acceleration`).
         """
-        b = self._buffers
-        gaps = b["gaps"]
-        np.dot(self.x, self._G, out=gaps)
-        self._d_squared(gaps, b["dd"])
-        pen = b["pen"]
-        np.subtract(gaps, clip(gaps, self._top, self._screw, out=pen), out=pen)
+        gaps, pen = self._gaps, self._pen
+        np.dot(self.x, self._G, out=gaps)  # h = G x
+        self._d_squared(gaps, self._dd)
+        np.subtract(gaps, clip(gaps, self._top, self._screw, out=pen), out=pen)  # pen = h − clip(h, top, screw)
         self._contact = bool(count_nonzero(pen))  # any corner on a stop?
         if self._contact:
-            np.sign(pen, out=b["sign"])
-            np.multiply(self._k_c, pen, out=b["kpen"])
+            np.sign(pen, out=self._pen_sign)
+            np.multiply(self._k_c, pen, out=self._k_pen)
         # gravity minus the mode's spring: gravity acts on z only, the spring on q only, so
         # (gravity − F) − spring = (gravity − spring) − F exactly, and one subtraction moves here
-        np.multiply(self._stiff, self.x, out=b["lin"])
-        np.subtract(self._gravity, b["lin"], out=b["lin"])
+        np.multiply(self._stiff, self.x, out=self._lin)
+        np.subtract(self._gravity, self._lin, out=self._lin)
 
     def _acceleration(self, current_sq: np.ndarray, v: np.ndarray, out: np.ndarray) -> np.ndarray:
         """(B, 4) ẍ at the current x (see :meth:`_at_position`) for squared currents and velocity ``v``."""
-        b = self._buffers
-        f_up, tmp = b["f"], b["tmp"]
-        self._forces(current_sq, b["dd"], f_up)
-        if self._contact:
-            s = b["sign"]
-            np.dot(v, self._G, out=tmp)  # the gaps' rates
-            np.multiply(self._c_c, tmp, out=tmp)
-            np.add(b["kpen"], tmp, out=tmp)
-            np.multiply(s, tmp, out=tmp)
-            np.maximum(tmp, 0.0, out=tmp)
-            np.multiply(s, tmp, out=tmp)
-            np.add(f_up, tmp, out=f_up)
-        np.dot(f_up, self._G_T, out=tmp)  # generalised forces of the upward corner forces
-        np.multiply(tmp, self._inv_mass, out=tmp)
-        np.subtract(b["lin"], tmp, out=out)
-        np.multiply(self._damp, v, out=tmp)
-        return np.subtract(out, tmp, out=out)
+        f_up, stop, gen, damping = self._f_up, self._stop_force, self._gen_acc, self._damping
+        self._forces(current_sq, self._dd, f_up)  # i²/d(h)², eq. (2)
+        if self._contact:  # f_up += s·max(s·(k pen + c ḣ), 0), s = sign(pen), ḣ = G v
+            s = self._pen_sign
+            np.dot(v, self._G, out=stop)
+            np.multiply(self._c_c, stop, out=stop)
+            np.add(self._k_pen, stop, out=stop)
+            np.multiply(s, stop, out=stop)
+            np.maximum(stop, 0.0, out=stop)
+            np.multiply(s, stop, out=stop)
+            np.add(f_up, stop, out=f_up)
+        np.dot(f_up, self._G_T, out=gen)  # generalised forces of the upward corner forces, per unit mass
+        np.multiply(gen, self._inv_mass, out=gen)
+        np.subtract(self._lin, gen, out=out)  # ẍ = (gravity − spring) − M⁻¹ Gᵀ f − damping·v
+        np.multiply(self._damp, v, out=damping)
+        return np.subtract(out, damping, out=out)
 
     def _sensors(self, noise: np.ndarray) -> np.ndarray:
         """The four sensor readings (a new array) with their (pre-scaled) noise."""

@@ -38,8 +38,8 @@ import numpy as np
 from scipy.optimize import brentq
 
 from labrunner.errors import InvalidParameter
-from labrunner.rigs.base import RigInfo, Signal
-from labrunner.rigs.config import Param
+from labrunner.rigs.base import RigConfig, RigInfo, Signal
+from labrunner.rigs.schema import Param
 from labrunner.rigs.sim import SimRig
 from labrunner.rigs.sim._integrate import DelayLine, decay, play, substeps
 from labrunner.rigs.sim._noise import NoiseStreams
@@ -108,6 +108,14 @@ class ValveTwin(SimRig):
         return p
 
     @classmethod
+    def check_overrides(
+        cls, config: RigConfig, overrides: Mapping[str, Any], batch: int, path: str = "overrides"
+    ) -> dict[str, np.ndarray]:
+        p = super().check_overrides(config, overrides, batch, path)
+        _check_valve(p, path)
+        return p
+
+    @classmethod
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
         p = {**{k: v.default for k, v in cls.PARAMETERS.items()}, **parameters}
         rho = nominal_gain(p)
@@ -134,7 +142,6 @@ class ValveTwin(SimRig):
 
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
         p = self.per_run(batch, overrides)
-        _check_valve(p, "overrides")
         self.p = p
         self.n_sub = substeps(self.fs, float(p["max_substep"].min()))
         h = 1.0 / (self.fs * self.n_sub)

@@ -14,7 +14,7 @@ from typing import Any
 import can
 
 from labrunner.errors import RigError
-from labrunner.rigs.config import Param
+from labrunner.rigs.schema import Param
 from labrunner.rigs.transports.protocol import HOST_RECEIVES, PAYLOAD_BYTES, Frame, Link, MsgType, can_id, split_can_id
 from labrunner.rigs.transports.remote import RemoteRig
 

@@ -27,7 +27,9 @@ import numpy as np
 
 from labrunner.errors import LabrunnerError
 from labrunner.rigs.base import Rig
-from labrunner.rigs.config import RigConfig, config_from_dict, load_rig_config
+from labrunner.rigs.base import RigConfig
+from labrunner.rigs.config import config_from_dict, load_rig_config
+from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports.protocol import (
     DEVICE_RECEIVES,
     FLAG_COMMIT,
@@ -150,8 +152,6 @@ class Emulator:
 
 def twin_for(config: RigConfig) -> Rig:
     """The sim twin a remote rig file describes: its ``device`` kind with ``[parameters.model]``."""
-    from labrunner.rigs.registry import load_rig
-
     p = config.parameters
     return load_rig(config_from_dict({"rig": {"kind": p["device"], "name": config.name}, "parameters": dict(p["model"])}))
 

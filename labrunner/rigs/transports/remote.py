@@ -22,12 +22,14 @@ from typing import Any, ClassVar
 import numpy as np
 
 from labrunner.errors import InvalidParameter, RigError
-from labrunner.rigs.base import Faults, Rig, RigInfo
-from labrunner.rigs.config import Param, RigConfig, rig_info, validate_section
+from labrunner.rigs.base import Faults, Rig, RigConfig, RigInfo
+from labrunner.rigs.config import rig_info
+from labrunner.rigs.kinds import rig_class, rig_kinds
+from labrunner.rigs.schema import Param, validate_section
 from labrunner.rigs.transports.protocol import FLAG_COMMIT, ErrorCode, Frame, Link, MsgType
 
 COMMON = {
-    "device": Param("dcmotor", "", "the kind of rig behind the link (its signals and constants)", choices=("dcmotor", "valve", "plate")),
+    "device": Param("dcmotor", "", "the kind of rig behind the link (any registered kind that is not itself remote)"),
     "node_id": Param(1, "", "the device's node id on the link", lo=0, hi=255),
     "timeout_s": Param(0.1, "s", "longest wait for a measurement beyond one sample period", lo=0.0, lo_open=True, hi=60.0),
 }
@@ -38,7 +40,6 @@ class RemoteRig(Rig):
 
     KIND: ClassVar[str]
     TRANSPORT: ClassVar[Mapping[str, Param]]
-    NOISE: ClassVar[Mapping[str, Param]] = {}
 
     def __init__(self, info: RigInfo, link: Link, timeout_s: float, faults: Faults | None = None) -> None:
         super().__init__(info, faults)
@@ -46,27 +47,26 @@ class RemoteRig(Rig):
         self.timeout_s = float(timeout_s)
         self._seq = 0
 
-    # -- the registry contract -----------------------------------------------------------------
+    # -- the Rig contract (no noise, no per-run parameters: the base class's defaults) ------------
     @classmethod
     def validate_parameters(cls, raw: Mapping[str, Any], path: str = "parameters") -> dict[str, Any]:
-        from labrunner.rigs.registry import rig_class
-
+        """The link's keys, and ``[parameters.model]`` validated by the ``device`` kind's own schema."""
         raw = dict(raw)
         model = raw.pop("model", {})
         p = validate_section({**COMMON, **cls.TRANSPORT}, raw, path)
+        try:
+            device = rig_class(p["device"]) if p["device"] in rig_kinds() else None
+        except InvalidParameter as exc:  # registered, but its module does not import here
+            raise InvalidParameter(f"{path}.device", exc.message) from None
+        if device is None or issubclass(device, RemoteRig):
+            raise InvalidParameter(f"{path}.device", f"must be one of {device_kinds()}, got {p['device']!r}")
         if not isinstance(model, Mapping):
             raise InvalidParameter(f"{path}.model", f"must be a table, got {model!r}")
-        p["model"] = rig_class(p["device"]).validate_parameters(model, f"{path}.model")
+        p["model"] = device.validate_parameters(model, f"{path}.model")
         return p
 
     @classmethod
-    def validate_noise(cls, raw: Mapping[str, Any], path: str = "noise") -> dict[str, Any]:
-        return validate_section(cls.NOISE, raw, path)
-
-    @classmethod
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
-        from labrunner.rigs.registry import rig_class
-
         info = rig_class(parameters["device"]).nominal_info(name, description, parameters["model"])
         return replace(info, simulated=False, description=description or f"{info.kind} over {cls.KIND}")
 
@@ -84,8 +84,6 @@ class RemoteRig(Rig):
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
         if batch != 1:
             raise InvalidParameter("batch", f"must be 1 for a real rig, got {batch}")
-        if overrides:
-            raise InvalidParameter(f"overrides.{next(iter(overrides))}", "a real rig has no per-run parameters")
         while self.link.recv(0.0) is not None:  # drop what is left of an earlier run
             pass
         self._seq = 0
@@ -143,3 +141,16 @@ class RemoteRig(Rig):
     def _fail(self, message: str) -> None:
         self.safe_state()
         raise RigError(f"rig {self.info.name!r}: {message}")
+
+
+def device_kinds() -> list[str]:
+    """The kinds a remote rig's ``device`` may name: every registered kind that is not remote itself."""
+    kinds = []
+    for kind in rig_kinds():
+        try:
+            remote = issubclass(rig_class(kind), RemoteRig)
+        except InvalidParameter:  # a kind whose module cannot be imported here cannot be a device
+            continue
+        if not remote:
+            kinds.append(kind)
+    return sorted(kinds)

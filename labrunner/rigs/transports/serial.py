@@ -14,7 +14,7 @@ from typing import Any, Protocol
 import serial
 
 from labrunner.errors import RigError
-from labrunner.rigs.config import Param
+from labrunner.rigs.schema import Param
 from labrunner.rigs.transports.protocol import HOST_RECEIVES, Frame, Link, MsgType, SerialDecoder, encode_serial
 from labrunner.rigs.transports.remote import RemoteRig
 

@@ -1,0 +1,143 @@
+"""Start-up of the ``labrunner`` command (issue 14); prints figures.
+
+1. ``labrunner --version``, ``--help`` and ``status DIR``: best of ``--repeat`` fresh processes,
+   wall time from launch to exit. Target ≤ 0.2 s each.
+2. ``labrunner run FILE``: wall time from launch until a worker hands the first batch to the
+   engine (``labrunner.engine.run_batch`` entered; a one-point 0.05 s campaign). Target ≤ 0.5 s.
+3. What each command imports (``python -X importtime``): total import time and the heaviest
+   top-level packages; scipy, matplotlib, pandas and dask must not be among those of
+   ``--version``, ``--help`` and ``status``.
+
+Run: ``python benchmarks/bench_startup.py [--repeat 5]``. On a shared machine, read the best
+figures: start-up is short enough for other processes' load to dominate single measurements.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HEAVY = ("scipy", "matplotlib", "pandas", "dask", "distributed")
+CAMPAIGN = """
+[campaign]
+name = "startup"
+rig = "dcmotor-sim"
+fs = 200.0
+duration = 0.05
+[controller]
+kind = "mfc1"
+output = "velocity"
+gamma = 108.55
+k_p = 50.0
+[differentiator]
+alpha = 9
+beta = 9
+omega_c = 200.0
+[reference]
+kind = "setpoints"
+levels = [0.0, 20.0]
+transition = 1.0
+hold = 0.5
+"""
+# Run in the command's process: when labrunner.engine is loaded (in a worker), report the time
+# its run_batch is first entered; nothing else is imported early.
+HOOK = """
+import importlib.abc, importlib.machinery, sys, time
+class _Hook(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name != "labrunner.engine":
+            return None
+        spec = importlib.machinery.PathFinder.find_spec(name, path)
+        exec_module = spec.loader.exec_module
+        def run(module):
+            exec_module(module)
+            inner = module.run_batch
+            def run_batch(*a, **k):
+                print(f"first batch at {time.time():.6f}", file=sys.stderr, flush=True)
+                return inner(*a, **k)
+            module.run_batch = run_batch
+        spec.loader.exec_module = run
+        return spec
+sys.meta_path.insert(0, _Hook())
+from labrunner.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def best_wall(args: list[str], cwd: Path, repeat: int) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        subprocess.run(args, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def first_batch(work: Path, path: Path, repeat: int) -> float:
+    """Best of ``repeat``: launch → the first run_batch call in a worker [s]."""
+    best = float("inf")
+    for i in range(repeat):
+        out = work / f"first{i}"
+        t0 = time.time()
+        proc = subprocess.run([sys.executable, "-c", HOOK, "run", str(path), "--out", str(out), "--workers", "1"],
+                              cwd=work, capture_output=True, text=True, check=True)
+        stamps = [float(line.split()[-1]) for line in proc.stderr.splitlines() if line.startswith("first batch at")]
+        best = min(best, stamps[0] - t0)
+    return best
+
+
+def imports(args: list[str], cwd: Path) -> tuple[float, list[tuple[str, float]], set[str]]:
+    """One command's total import time [s], its top-level packages by cumulative import time, and
+    every package it imports at any depth."""
+    proc = subprocess.run([sys.executable, "-X", "importtime", *args], cwd=cwd, capture_output=True, text=True)
+    per_package: dict[str, float] = {}
+    everything: set[str] = set()
+    total = 0.0
+    for line in proc.stderr.splitlines():
+        if not line.startswith("import time:") or line.count("|") != 2:
+            continue
+        _, cumulative, name = line.split("|")
+        if not cumulative.strip().isdigit():
+            continue
+        package = name.strip().split(".")[0]
+        everything.add(package)
+        if not name.startswith("  "):  # a top-level import of this process
+            seconds = int(cumulative) * 1e-6
+            total += seconds
+            per_package[package] = per_package.get(package, 0.0) + seconds
+    return total, sorted(per_package.items(), key=lambda kv: -kv[1]), everything
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=5, help="fresh processes per figure; the best is reported")
+    args = parser.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="bench_startup_"))
+    try:
+        path = work / "startup.toml"
+        path.write_text(CAMPAIGN)
+        cli = [sys.executable, "-m", "labrunner"]
+        subprocess.run([*cli, "run", str(path), "--out", str(work / "done")], cwd=work, check=True, capture_output=True)
+        commands = {"--version": ["--version"], "--help": ["--help"], "status": ["status", str(work / "done")]}
+        for label, argv in commands.items():
+            wall = best_wall([*cli, *argv], work, args.repeat)
+            total, top, everything = imports(["-m", "labrunner", *argv], work)
+            heavy = sorted(everything & set(HEAVY))
+            listing = ", ".join(f"{name} {s * 1e3:.0f} ms" for name, s in top[:4])
+            print(f"labrunner {label:<10} {wall:5.3f} s (target <= 0.2 s); imports {total:.3f} s: {listing}"
+                  + (f"; HEAVY: {', '.join(heavy)}" if heavy else ""))
+        first = first_batch(work, path, args.repeat)
+        print(f"labrunner run: first batch in the engine {first:.3f} s after launch (target <= 0.5 s)")
+        total, top, _ = imports(["-m", "labrunner", "run", str(path), "--out", str(work / "imports"), "--workers", "1"], work)
+        print(f"  run's imports (runner and worker) {total:.3f} s: " + ", ".join(f"{n} {s * 1e3:.0f} ms" for n, s in top[:6]))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,47 @@
+"""``labrunner status``: where a campaign stands, from its ledger and lock alone (reads only; safe
+while it runs). Kept apart from :mod:`labrunner.campaign.runner` so that the command loads no
+campaign validation, controllers or numerics (start-up ≤ 0.2 s, issue 14)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from labrunner.campaign.ledger import Ledger
+from labrunner.campaign.lock import holder
+
+
+def status(directory: str | Path) -> dict[str, Any]:
+    """The ``labrunner status --json`` object (reads only)."""
+    directory = Path(directory)
+    with Ledger.open_readonly(directory) as ledger:
+        meta = ledger.meta()
+        counts = ledger.counts()
+        outcomes = ledger.outcome_counts()
+        sessions = ledger.sessions()
+        quarantined = len(ledger.quarantined())
+        finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
+    running = holder(directory)
+    now = time.time()
+    elapsed = 0.0
+    for i, s in enumerate(sessions):
+        live = running is not None and i == len(sessions) - 1 and s["ended_at"] is None
+        end = now if live else (s["ended_at"] or s["last_at"])
+        elapsed += max(0.0, end - s["started_at"])
+    total = sum(counts.values())
+    remaining = counts["planned"] + counts["claimed"]
+    rate = finished / elapsed if elapsed > 0 and finished else None
+    return {
+        "campaign": meta.get("campaign"),
+        "directory": str(directory),
+        "total": total,
+        **counts,
+        "outcomes": outcomes,
+        "quarantined": quarantined,
+        "elapsed_s": round(elapsed, 3),
+        "rate_per_s": round(rate, 3) if rate else None,
+        "estimate_s": round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None),
+        "running": None if running is None else {"host": running.host, "pid": running.pid},
+        "sessions": len(sessions),
+    }

@@ -1,0 +1,77 @@
+"""Instability a safety routine may miss: input pinned at a limit, saturated or growing oscillations.
+
+The thesis judges stability by its |du/dt| routine (Sec. 3.3): a run it aborts was unstable. A rig
+without such a routine (the valve of paper 1) lets an unstable loop run into its input limits and
+oscillate there — a bang-bang limit cycle between the controller's floor and i_max — and such a run
+"completes". This detector classifies a run from its logged input u and error e alone, with no
+rig-specific knowledge beyond the input's limits [lo, hi]:
+
+- **pinned**: an input sits within ``tolerance`` of the span at a limit for at least
+  ``pinned_share`` of the run (the loop has lost authority);
+- **saturated oscillation**: an input enters a limit band at least ``min_hits`` times and at least
+  ``hit_rate`` times per second (a limit cycle, e.g. paper 1's runs above the stability region);
+- **growing oscillation**: the RMS of the input's sample-to-sample change Δu rises quarter by
+  quarter of the run (r₂ < r₃ < r₄) to ``growth`` × its value in the second quarter (the first is
+  left out: runs start at rest). A growing oscillation adds energy at high frequency, where
+  Δu sees it and the smooth reference transitions barely register.
+
+Pure numpy; the metrics of :mod:`labrunner.metrics` call it once per run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Columns :func:`detect` adds to a run's metrics.
+DETECTOR_METRICS = ("pinned_share", "limit_hits_per_s", "du_growth", "oscillating")
+
+
+@dataclass(frozen=True)
+class Detector:
+    """Thresholds of the detector (defaults chosen on the twins: see tests/test_oscillation.py)."""
+
+    tolerance: float = 0.01  # share of the input span [lo, hi] that counts as "at the limit"
+    pinned_share: float = 0.5  # pinned: at a limit for at least this share of the samples
+    min_hits: int = 3  # saturated oscillation: at least this many entries into a limit band ...
+    hit_rate: float = 1.0  # ... and at least this many per second [1/s]
+    growth: float = 2.0  # growing: RMS(Δu) of the last quarter ≥ growth × the second quarter's
+
+    def detect(self, u: np.ndarray, lo: np.ndarray, hi: np.ndarray, fs: float) -> dict[str, float]:
+        """Detector metrics of one run: ``u`` (n_inputs, K) with limits ``lo``, ``hi`` (n_inputs,).
+
+        ``oscillating`` is 1.0 when any rule fires, else 0.0 (NaN when the run has no input).
+        Inputs with an infinite limit are never "at" that limit.
+        """
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        n, k = u.shape
+        if n == 0 or k < 8:
+            return {name: float("nan") for name in DETECTOR_METRICS}
+        lo = np.broadcast_to(np.asarray(lo, dtype=float), (n,))[:, None]
+        hi = np.broadcast_to(np.asarray(hi, dtype=float), (n,))[:, None]
+        span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        band = self.tolerance * span
+        at_hi = np.isfinite(hi) & (span > 0) & (u >= hi - band)
+        at_lo = np.isfinite(lo) & (span > 0) & (u <= lo + band)
+        at_limit = at_hi | at_lo
+        pinned = float(at_limit.mean(axis=1).max())
+        entries = (np.diff(at_hi.astype(np.int8), axis=1) == 1).sum(axis=1) + (
+            np.diff(at_lo.astype(np.int8), axis=1) == 1).sum(axis=1)
+        hits = int(entries.max())
+        rate = hits * fs / k
+        growth = _growth(u)
+        oscillating = (pinned >= self.pinned_share or (hits >= self.min_hits and rate >= self.hit_rate)
+                       or growth >= self.growth)
+        return {"pinned_share": pinned, "limit_hits_per_s": float(rate), "du_growth": growth,
+                "oscillating": float(oscillating)}
+
+
+def _growth(u: np.ndarray) -> float:
+    """r₄ / r₂ of the RMS of Δu per quarter when it rises monotonically from r₂ on, else 0."""
+    du = np.diff(u, axis=1)
+    quarter = du.shape[1] // 4
+    r = np.sqrt(np.mean(np.square(du[:, : 4 * quarter].reshape(du.shape[0], 4, quarter)), axis=(0, 2)))
+    if not (0.0 < r[1] < r[2] < r[3]):
+        return 0.0
+    return float(r[3] / r[1])

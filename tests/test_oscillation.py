@@ -1,0 +1,126 @@
+"""Oscillation/saturation detector (labrunner.oscillation) and metrics over named windows: synthetic
+signals with known answers, a saturated valve run (paper 1: above the stability region the flow
+oscillates with the current banging into i_max, and the run completes), and the theory agreement."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from labrunner import engine
+from labrunner.analysis.agreement import agreement, observed_status
+from labrunner.errors import InvalidParameter
+from labrunner.metrics import Roles, parse_windows, run_metrics
+from labrunner.oscillation import Detector
+from labrunner.rigs import registry
+
+FS = 1000.0
+T = np.arange(5000) / FS  # 5 s
+D = Detector()
+
+
+def test_stable_tracking_with_noise_and_transitions_is_not_flagged():
+    rng = np.random.default_rng(0)
+    u = 3.0 * np.clip(T - 1.0, 0.0, 1.0) + 0.05 * rng.standard_normal(T.size)  # a ramp to 3 V, noise
+    r = D.detect(u[None], [-12.0], [12.0], FS)
+    assert r == {"pinned_share": 0.0, "limit_hits_per_s": 0.0, "du_growth": 0.0, "oscillating": 0.0}
+
+
+def test_input_pinned_at_a_limit_for_most_of_the_run():
+    u = np.where(T < 2.0, 1.0, 12.0)  # pinned at +12 V for 60 % of the run: one entry only
+    r = D.detect(u[None], [-12.0], [12.0], FS)
+    assert r["pinned_share"] == pytest.approx(0.6) and r["limit_hits_per_s"] == pytest.approx(1 / 5)
+    assert r["oscillating"] == 1.0
+    assert D.detect(np.where(T < 3.0, 1.0, 12.0)[None], [-12.0], [12.0], FS)["oscillating"] == 0.0  # 40 %
+
+
+def test_bang_bang_limit_cycle_between_a_floor_and_the_upper_limit():
+    """Paper 1's saturated oscillation: 0.5 A floor (the controller's i_min) ↔ i_max, 7 Hz."""
+    u = np.where(np.sin(2 * np.pi * 7.0 * T) > 0.3, 1.01, 0.5)
+    r = D.detect(u[None], [0.0], [1.01], FS)
+    assert r["limit_hits_per_s"] == pytest.approx(7.0, rel=0.05)  # one entry per period
+    assert r["pinned_share"] < 0.5 and r["oscillating"] == 1.0
+    # two entries in the whole run are a transient, not a limit cycle
+    two = np.where((np.abs(T - 1.0) < 0.05) | (np.abs(T - 3.0) < 0.05), 1.01, 0.7)
+    assert D.detect(two[None], [0.0], [1.01], FS)["oscillating"] == 0.0
+
+
+def test_growing_oscillation_inside_the_limits():
+    u = 0.01 * np.exp(0.8 * T) * np.sin(2 * np.pi * 20.0 * T)  # e^(0.8·5) ≈ 55: stays inside ±12 V
+    r = D.detect(u[None], [-12.0], [12.0], FS)
+    assert np.abs(u).max() < 12.0 and r["pinned_share"] == 0.0
+    assert r["du_growth"] == pytest.approx(math.exp(0.8 * 2.5), rel=0.1)  # quarter 4 vs quarter 2
+    assert r["oscillating"] == 1.0
+    decaying = 0.5 * np.exp(-0.8 * T) * np.sin(2 * np.pi * 20.0 * T)
+    assert D.detect(decaying[None], [-12.0], [12.0], FS)["oscillating"] == 0.0
+
+
+def test_infinite_limits_and_several_inputs():
+    u = np.vstack([np.full(T.size, 2.0), np.where(T >= 1.0, 8.0, 3.0)])  # the second current pinned at 8 A
+    r = D.detect(u, [0.0, 0.0], [8.0, 8.0], FS)
+    assert r["pinned_share"] == pytest.approx(0.8) and r["oscillating"] == 1.0  # the worst input counts
+    r = D.detect(u, [-np.inf, -np.inf], [np.inf, np.inf], FS)
+    assert r["pinned_share"] == 0.0 and r["oscillating"] == 0.0
+
+
+def test_metrics_over_named_windows_match_the_slices():
+    e = np.concatenate([np.full(1000, 1.0), np.full(1000, 3.0), np.full(1000, 2.0)])
+    u = np.arange(3000, dtype=float)
+    roles = Roles(errors=("e",), inputs=("u",), input_limits=((-1e9, 1e9),))
+    m = run_metrics({"e": e, "u": u}, roles, fs=FS, windows=parse_windows({"fault": [1.0, 2.0], "late": [2.5, 9.0]}))
+    assert m["rms_error@fault"] == pytest.approx(3.0) and m["n_samples@fault"] == 1000
+    assert m["max_abs_input@fault"] == 1999.0 and m["input_energy@fault"] == pytest.approx(np.sum(u[1000:2000] ** 2))
+    assert m["n_samples@late"] == 500 and m["rms_error@late"] == pytest.approx(2.0)  # cut at the run's end
+    assert m["rms_error"] == pytest.approx(math.sqrt((1 + 9 + 4) / 3))
+    assert m["oscillating"] == 0.0
+    short = run_metrics({"e": e[:500], "u": u[:500]}, roles, fs=FS, windows={"fault": (1.0, 2.0)})
+    assert math.isnan(short["rms_error@fault"])  # the run ended (aborted) before the window
+
+
+@pytest.mark.parametrize("section, field", [
+    ({"w": [2.0, 1.0]}, "metrics.w"), ({"w": [0.0]}, "metrics.w"), ({"w": "0-1"}, "metrics.w"),
+    ({"w": [-1.0, 1.0]}, "metrics.w"), ({"bad name": [0.0, 1.0]}, "metrics.bad name"),
+    ({"w": [0.0, float("inf")]}, "metrics.w"),
+])
+def test_bad_windows_name_the_key(section, field):
+    with pytest.raises(InvalidParameter) as exc:
+        parse_windows(section)
+    assert exc.value.field == field
+
+
+def _valve_points():
+    base = {"controller": {"kind": "mfc1", "output": "flow", "k_p": 30.0, "i_min": 0.5},
+            "differentiator": {"alpha": 2, "beta": 2, "N": 0, "omega_c": 250.0, "method": "midpoint"},
+            "reference": {"kind": "setpoints", "levels": [1.0, 3.0], "transition": 1.0, "hold": 1.0},
+            "metrics": {"hold": [2.0, 3.0]}}
+    unstable = {**base, "controller": {**base["controller"], "gamma": 0.0268, "k_p": 7.2}}  # far above Fig. 5's region
+    stable = {**base, "controller": {**base["controller"], "gamma": 0.4}}  # paper 1 Sec. 5.3's choice
+    return [unstable, stable]
+
+
+def test_saturated_valve_run_completes_but_is_flagged(tmp_path):
+    points = _valve_points()
+    with registry.load_rig("valve-sim") as rig:
+        results = engine.run_batch(points, rig, fs=4000.0, duration=3.0, seeds=[0, 0])
+    unstable, stable = results
+    assert unstable.outcome.status == "completed"  # the valve has no |du/dt| routine
+    assert unstable.metrics["oscillating"] == 1.0 and unstable.metrics["limit_hits_per_s"] >= 2.0
+    assert np.max(unstable.signals["i"]) == pytest.approx(1.01)  # banging into i_max
+    assert stable.outcome.status == "completed" and stable.metrics["oscillating"] == 0.0
+    assert stable.metrics["rms_error@hold"] < 0.5 < unstable.metrics["rms_error@hold"]  # l/min
+    # the analysis counts the flagged run as observed unstable
+    table = pd.DataFrame([{"status": r.outcome.status, "oscillating": r.metrics["oscillating"],
+                           "controller.gamma": p["controller"]["gamma"], "controller.k_p": p["controller"]["k_p"]}
+                          for p, r in zip(points, results)])
+    assert list(observed_status(table)) == ["oscillating", "completed"]
+
+    class Always:  # a theory that predicts every point stable, far from any bound
+        def cases(self):
+            return ["mfc1-ultralocal"]
+
+        def predict(self, case, params):
+            return True, 1.0
+
+    result = agreement(table, lambda row: Always())
+    assert result["n_compared"] == 2 and result["false_stable"] == 1 and result["oscillating"] == 1
