@@ -24,7 +24,7 @@ from labrunner.campaign.ledger import Ledger
 from labrunner.campaign.scheduler import Scheduler, StopSignals
 from labrunner.campaign.worker import BatchResult
 from test_campaign_reliability import _alive, _children
-from test_campaign_support import campaign_text, cli, ledger_rows, project, spawn, wait_for, write  # noqa: F401
+from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_for, write
 
 TERMINAL = ("done", "aborted", "failed")
 GRID = '"controller.gamma" = { log10 = [1.0, 3.0], num = 8 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 8 }'

@@ -13,7 +13,7 @@ import pytest
 
 from labrunner.cli import main
 from labrunner.logs import read_run
-from test_campaign_support import campaign_text, ledger_rows, project, write  # noqa: F401
+from test_campaign_support import campaign_text, ledger_rows, write
 
 # what a rebuilt ledger cannot know: when the parent claimed and committed, and its timings
 LOCAL = ("claimed_at", "finished_at", "engine_s", "write_s", "publish_s")

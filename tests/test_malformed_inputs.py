@@ -1,7 +1,8 @@
 """Issue 18: every malformed input the suite tries, from one table (tests/data/malformed_inputs.toml).
 
 Each case is a campaign file (the table's base campaign with text replaced or appended) given to
-``labrunner run``, or a command line run in a project that holds a finished campaign, damaged
+``labrunner run``, or a command line run in a project that holds a finished campaign, two bad rig
+files (rigs/bad.toml: a negative parameter; rigs/badfault.toml: a fault of the wrong length), damaged
 copies of its ledger, foreign MCAP files and a few odd files. Every case must exit with its code
 (2, or 1 where the table says: an environment or a refused campaign directory), print exactly
 the table's one line on stderr, and create nothing. Cases run in-process through ``main()``; the
@@ -99,6 +100,8 @@ def build_world(project: Path) -> dict:
     (project / "pyproject.toml").write_text("[project]\nname = 'lab'\n")
     (project / "rigs").mkdir()
     (project / "rigs" / "motor.toml").write_text(table["rig"])
+    (project / "rigs" / "bad.toml").write_text(table["rig"].replace("a = 39.44", "a = -1.0"))
+    (project / "rigs" / "badfault.toml").write_text(table["rig"] + "\n[faults]\nt_start = 1\nsensor_step = [1, 2]\n")
     (project / "c.toml").write_text(table["base"])
     (project / "afile").write_text("not a campaign\n")
     (project / "notempty").mkdir()

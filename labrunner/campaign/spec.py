@@ -24,7 +24,7 @@ from typing import Any
 from labrunner.campaign import expressions, grid as gridmod
 from labrunner.campaign.checks import StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
-from labrunner.errors import InvalidParameter, check_number, check_positive
+from labrunner.errors import InvalidParameter, check_finite, check_number, check_positive
 from labrunner.rigs import config as rigconfig
 from labrunner.rigs.base import RigConfig, RigInfo
 from labrunner.rigs.kinds import rig_class
