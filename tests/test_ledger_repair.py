@@ -123,7 +123,7 @@ def test_an_unexpected_error_is_one_line_naming_the_traceback_file(monkeypatch, 
     def bug(args):
         raise RuntimeError("an invariant\nthat broke")
 
-    monkeypatch.setattr(status_cmd, "main", bug)  # registered as the command's func when main() builds its parser
+    monkeypatch.setattr(status_cmd, "run", bug)  # registered as the command's func when main() builds its parser
     assert main(["status", "anything"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "internal error: RuntimeError: an invariant that broke; traceback in " in err
