@@ -63,7 +63,7 @@ def _damage(directory: Path, kind: str) -> None:
         "bad-parameters": "UPDATE points SET parameters = '{not json' WHERE seq = 0",
         "bad-count": "UPDATE meta SET value = 'many' WHERE key = 'points'",
         "ids-changed": "UPDATE points SET id = 'ffffffffffffffff' WHERE seq = 0",
-        "no-meta-keys": "DELETE FROM meta WHERE key = 'plan_checksum'",
+        "no-meta-keys": "DELETE FROM meta WHERE key = 'points'",
         "schema-version": "UPDATE meta SET value = '99' WHERE key = 'schema_version'",
     }
     db = sqlite3.connect(path)

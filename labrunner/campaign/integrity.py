@@ -24,7 +24,7 @@ from labrunner.errors import InvalidParameter
 
 TABLES = ("meta", "points", "quarantine", "sessions")
 POINT_COLUMNS = ("seq", "id", "parameters", "batch_key", "state", "outcome", "outcome_json", "log_path", "attempts")
-META_KEYS = ("schema_version", "campaign", "campaign_file", "plan_checksum", "points")
+META_KEYS = ("schema_version", "campaign", "points")  # resume also needs campaign_file and plan_checksum
 
 
 class LedgerDamaged(InvalidParameter):

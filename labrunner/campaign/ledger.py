@@ -158,6 +158,8 @@ class Ledger:
 
             db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows())
             db.execute("INSERT INTO meta (key, value) VALUES ('ids_checksum', ?)", (ids.hexdigest(),))
+            if "points" not in meta:  # the planned count the integrity checks compare with
+                db.execute("INSERT INTO meta (key, value) SELECT 'points', COUNT(*) FROM points")
             db.execute("COMMIT")
         except BaseException as exc:  # Ctrl-C or an error while planning: leave nothing half-written
             db.close()

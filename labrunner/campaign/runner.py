@@ -170,6 +170,9 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
 def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     """The stored campaign, re-planned; refuse if it, or its original file, plans differently."""
     meta = ledger.meta()
+    lacking = [k for k in ("campaign_file", "campaign_path", "plan_checksum") if k not in meta]
+    if lacking:
+        raise integrity.damaged(ledger.directory / LEDGER_NAME, f"keeps no {', '.join(lacking)} to resume from")
     source_path = Path(meta["campaign_path"])
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
     points, checksum = spec.plan(campaign)
