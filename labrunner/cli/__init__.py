@@ -83,6 +83,13 @@ def _interrupt_once(signum: int, frame: object) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # the program itself
         signal.signal(signal.SIGINT, _interrupt_once)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # while the parser was built (imports) or the arguments parsed
+        return _say("labrunner: interrupted", 130)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
