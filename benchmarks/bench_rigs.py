@@ -47,15 +47,15 @@ def main() -> None:
     for interface, channel in (("udp_multicast", "239.74.163.2"), ("virtual", "bench")):
         config = config_from_dict({
             "rig": {"kind": "can"},
-            "parameters": {"device": "dcmotor", "interface": interface, "channel": channel, "bitrate": 0,
+            "parameters": {"device": "dcmotor", "interface": interface, "channel": channel,
                            "port": 47001 if interface == "udp_multicast" else 0, "node_id": 3},
         })
-        with Emulator(twin_for(config), device_link(config)):
+        with Emulator(twin_for(config), device_link(config), paced=False):
             rig = load_rig(config)
             report(f"can ({interface}) + emulator, B = 1, 200 Hz", bench(rig, 1, 200.0, rng.uniform(-12, 12, (200, 1, 1))))
             rig.close()
     serial = {"rig": {"kind": "serial"}, "parameters": {"device": "dcmotor", "port": "", "baudrate": 115200}}
-    name, emulator = serve_on_pty(twin_for(config_from_dict(serial)))
+    name, emulator = serve_on_pty(twin_for(config_from_dict(serial)), paced=False)
     serial["parameters"]["port"] = name
     rig = load_rig(config_from_dict(serial))
     report("serial (pty) + emulator, B = 1, 200 Hz", bench(rig, 1, 200.0, rng.uniform(-12, 12, (200, 1, 1))))

@@ -7,7 +7,9 @@ at its abort sample; the batch goes on until every run has ended or the duration
 
 Outcomes: ``completed``; ``aborted`` (a safety monitor tripped: monitor, time, value,
 threshold); ``no-motion`` (completed, but the load never moved beyond the sensor resolution, or
-the flow never rose above its threshold); ``failed`` (an exception: its message). The same code
+the flow never rose above its threshold); ``failed`` (an exception: its message; a
+:class:`~labrunner.errors.RigError` is re-raised after the runs are built, with them in
+``exc.results``, so the worker keeps their logs up to the failure and stops the campaign). The same code
 drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``.
 """
 
@@ -21,7 +23,7 @@ import numpy as np
 from labrunner._ufunc import count_nonzero
 from labrunner.control import factory
 from labrunner.control.base import Controller
-from labrunner.errors import LabrunnerError
+from labrunner.errors import LabrunnerError, RigError
 from labrunner.metrics import Roles, parse_windows, run_metrics
 from labrunner.rigs.base import Rig, RigInfo
 from labrunner.safety import SafetyConfig, SafetyMonitor
@@ -47,32 +49,35 @@ class Outcome:
 
 @dataclass
 class RunResult:
-    """One run: outcome, signals (name → (K,) float64; sample k at k/fs), channel roles, metrics."""
+    """One run: outcome, signals (name → (K,) float64; sample k at k/fs), channel roles, metrics,
+    and ``diagnostics`` a rig reports about the run (a device loop's timing and transfer), logged
+    as the MCAP's ``diagnostics`` metadata."""
 
     outcome: Outcome
     signals: dict[str, np.ndarray]
     fs: float
-    channels: dict[str, object]  # role group → names, and "units" (see _channel_names)
+    channels: dict[str, object]  # role group → names, and "units" (see channel_names)
     metrics: dict[str, float] = field(default_factory=dict)
+    diagnostics: dict[str, object] = field(default_factory=dict)
 
     @property
     def n_samples(self) -> int:
         return len(next(iter(self.signals.values()))) if self.signals else 0
 
 
-def _channel_names(rig: Rig, controller, estimates: Mapping[str, np.ndarray]) -> dict[str, object]:
+def channel_names(info: RigInfo, controller: Controller) -> dict[str, object]:
     """Signal names grouped by role, in the log's vocabulary (:func:`labrunner.logs.write_run`):
     ``outputs`` are the rig's measurements, ``controlled`` the tracked outputs computed from them
     (e.g. Ω from θ by (2.34)), plus ``units`` (SI unit per signal; references and errors share their output's)."""
-    outputs = controller.output_names
+    outputs, estimates = controller.output_names, controller.estimates
     est_names = []
     for name, value in estimates.items():
         if np.ndim(value) == 2:
             est_names += [f"{name}_{o}" for o in outputs]
         else:
             est_names.append(f"{name}_{outputs[0]}" if len(outputs) == 1 else name)
-    measured = [s.name for s in rig.info.outputs]
-    units = {s.name: s.unit for s in (*rig.info.outputs, *rig.info.inputs)}
+    measured = [s.name for s in info.outputs]
+    units = {s.name: s.unit for s in (*info.outputs, *info.inputs)}
     for o, unit in zip(outputs, controller.output_units):
         units[o] = unit or units.get(o, "")
         units[f"ref_{o}"] = units[f"e_{o}"] = units[o]
@@ -86,7 +91,7 @@ def _channel_names(rig: Rig, controller, estimates: Mapping[str, np.ndarray]) ->
         "controlled": [o for o in outputs if o not in measured],  # a measured one keeps role "output"
         "references": [f"ref_{o}" for o in outputs],
         "errors": [f"e_{o}" for o in outputs],
-        "inputs": [s.name for s in rig.info.inputs],
+        "inputs": [s.name for s in info.inputs],
         "estimates": est_names,
         "units": units,
     }
@@ -147,6 +152,7 @@ def run_batch(
     end = np.full(B, K)  # samples recorded per run
     active = np.ones(B, dtype=bool)
     failure = ""
+    rig_error: RigError | None = None
     k = logged = 0  # logged: ticks whose row is complete in every log
 
     try:
@@ -177,6 +183,11 @@ def run_batch(
             if finished:
                 break
             y = rig.step(u)
+    except RigError as exc:  # the rig failed: fail the open runs, keep what was logged, re-raise below
+        rig.safe_state()
+        rig_error, failure = exc, f"RigError: {exc}"
+        log.blank(logged)
+        end = np.where(active, np.minimum(end, k + 1), end)
     except LabrunnerError:
         rig.safe_state()
         raise
@@ -187,15 +198,12 @@ def run_batch(
         end = np.where(active, np.minimum(end, k + 1), end)
     else:
         rig.safe_state()
-    if sink is not None and K % _CHUNK:
-        last = K - K % _CHUNK
+    if sink is not None and int(end[0]) % _CHUNK:  # run 0's samples after its last full chunk
+        last = int(end[0]) - int(end[0]) % _CHUNK
         sink(last, log.signals(log.rows(0, last, int(end[0]))))
 
     channels = log.channels
-    roles = Roles(errors=tuple(channels["errors"]), inputs=tuple(channels["inputs"]),
-                  error_hats=tuple(n for n in channels["estimates"] if n.startswith("e_hat_")),
-                  currents=tuple(n for n, unit in channels["units"].items() if unit == "A"),
-                  input_limits=tuple((s.lo, s.hi) for s in rig.info.inputs))
+    roles = roles_of(channels, rig.info)
     results = []
     by_run = log.run_major(int(end.max()) if B else 0)
     for i in range(B):
@@ -212,7 +220,19 @@ def run_batch(
             outcome = Outcome("completed")
         metrics = run_metrics(signals, roles, fs=float(fs), windows=parse_windows(points[i].get("metrics")))
         results.append(RunResult(outcome, signals, float(fs), channels, metrics))
+    if rig_error is not None:  # the worker publishes these logs of the failed runs, then stops the campaign
+        rig_error.results = results
+        raise rig_error
     return results
+
+
+def roles_of(channels: Mapping[str, object], info: RigInfo | None = None) -> Roles:
+    """The metrics' signal roles from a result's channel groups (:func:`channel_names`); with the
+    rig's ``info``, its input limits for the oscillation detector."""
+    return Roles(errors=tuple(channels["errors"]), inputs=tuple(channels["inputs"]),  # type: ignore[arg-type]
+                 error_hats=tuple(n for n in channels["estimates"] if n.startswith("e_hat_")),  # type: ignore[union-attr]
+                 currents=tuple(n for n, unit in channels["units"].items() if unit == "A"),  # type: ignore[union-attr]
+                 input_limits=tuple((s.lo, s.hi) for s in info.inputs) if info is not None else ())
 
 
 def _safety_configs(points: Sequence[Mapping[str, object]], info: RigInfo, rig_safety: Mapping[str, object]) -> list[SafetyConfig]:
@@ -251,7 +271,7 @@ class _TickLog:
 
     def __init__(self, K: int, B: int, rig: Rig, controller: Controller) -> None:
         n_in, n_meas, n_out = len(rig.info.inputs), len(rig.info.outputs), controller.n_outputs
-        self.channels = _channel_names(rig, controller, controller.estimates)
+        self.channels = channel_names(rig.info, controller)
         self._outputs = controller.output_names
         self._measured = [s.name for s in rig.info.outputs]
         self.io = np.empty((K, B, n_in + n_meas))

@@ -132,7 +132,7 @@ def base_metrics(
     """
     lengths = {len(signals[name]) for name in _names(roles)}
     k = min(lengths) if lengths else 0
-    out: dict[str, float] = {"n_samples": float(k)}
+    out: dict[str, float] = {"n_samples": k}  # a count: an integer in the ledger, the log and the table
     for key, names in (("rms_error", roles.errors), ("rms_error_hat", roles.error_hats)):
         out[key], per_row = _rms_rows(_stack(signals, names, k))
         out.update({f"rms_{name}": float(v) for name, v in zip(names, per_row)})

@@ -5,7 +5,8 @@ same colour), the inputs, the estimates (one panel per quantity: ``f_hat_*``, ``
 ``de_hat_*``), then signals of unknown role. An aborted run gets a dotted red
 line at the abort time on every panel, the rest of the run (up to its planned ``run.duration``
 where the log records it: the engine ends the signals at the abort) greyed out, and a cross on
-each input at that instant; the title says what happened (monitor, value, threshold). Used by
+each input at that instant; the title says what happened (monitor, value, threshold). A run
+aborted early is drawn zoomed to its abort, under a strip showing the whole planned run. Used by
 ``labrunner plot`` and by the analysis report (pass a figure or sub-figure to draw into).
 No pyplot: the figure is a plain :class:`matplotlib.figure.Figure`, safe in worker threads.
 """
@@ -100,40 +101,96 @@ def _unit(log: RunLog, names: list[str]) -> tuple[str, float]:
     return ", ".join(units), 1.0
 
 
+def _draw(ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray, scale: float, lw: float = 1.0) -> None:
+    """The panel's lines: a reference dashed, in the colour of the signal it is the reference of."""
+    colours: dict[str, str] = {}
+    for name, style in lines:
+        base = name[4:] if style == "--" else name
+        colour = colours.setdefault(base, f"C{len(colours) % 10}")
+        ax.plot(t, scale * log.frame[name].to_numpy(), style, color=colour, lw=lw if style == "-" else 1.3 * lw,
+                label=_label(name))
+
+
+def _abort_window(log: RunLog, t: np.ndarray) -> tuple[float | None, float, float]:
+    """(abort time or None, end of the planned run, end of the panels' time axis) [s].
+
+    An aborted run's signals end at the abort; its axis is the planned run (``run.duration``).
+    When the run reached less than two thirds of it, the panels zoom to the abort (with a margin)
+    and a strip above them shows the whole planned time."""
+    out = log.outcome or {}
+    t_abort = out.get("time") if out.get("status") == "aborted" and _number(out.get("time")) else None
+    t_end = float(t[-1]) if len(t) else 0.0
+    planned = log.metadata.get("run", {}).get("duration")
+    if t_abort is None:
+        return None, t_end, t_end
+    if _number(planned):
+        t_end = max(t_end, float(planned))  # an aborted run on the axis of the run it should have been
+    reached = max(float(t_abort), float(t[-1]) if len(t) else 0.0)
+    if t_end <= 1.5 * reached:
+        return float(t_abort), t_end, t_end
+    step = 1.0 / log.fs if _number(log.fs) and log.fs > 0 else 0.0
+    return float(t_abort), t_end, min(t_end, reached + max(0.1 * reached, 10 * step))
+
+
+def _context(ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray, t_abort: float, t_end: float,
+             zoom_end: float) -> None:
+    """The whole planned run in one strip: the outputs, the part never reached greyed out, the
+    abort, and the window the panels below show."""
+    unit, scale = _unit(log, [n for n, _ in lines])
+    _draw(ax, log, lines, t, scale, 0.8)
+    ax.axvspan(t_abort, t_end, color="0.9", zorder=0)
+    ax.axvline(t_abort, color=_ABORT, ls=":", lw=1.5)
+    ax.axvspan(0.0, zoom_end, fill=False, edgecolor="0.3", lw=1.0, ls="--", zorder=3)
+    ax.set_xlim(0.0, t_end)
+    ax.set_yticks([])
+    ax.set_ylabel(f"[{unit}]" if unit else "")
+    ax.set_title(f"planned run, 0 – {t_end:.4g} s: aborted at {t_abort:.4g} s ({t_abort / t_end:.0%}); below: 0 – {zoom_end:.3g} s",
+                 fontsize="small", loc="left")
+
+
 def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | None = None) -> Figure | SubFigure:
-    """Draw a run (a :class:`RunLog` or the path of its MCAP) into ``fig`` (a new one if None)."""
+    """Draw a run (a :class:`RunLog` or the path of its MCAP) into ``fig`` (a new one if None).
+
+    ``fig.axes`` are the panels, top to bottom; an aborted run that ended early has one more, last
+    in the list and drawn above the panels: the planned run as context (:func:`_abort_window`)."""
     if not isinstance(log, RunLog):
         log = read_run(log)
     panels = _panels(log) or [("signals", [(n, "-") for n in log.signals])]
-    if fig is None:
-        fig = Figure(figsize=(7.5, 2.2 + 1.8 * len(panels)), layout="constrained")
-    axes: list[Axes] = list(fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0])
     t = log.frame.index.to_numpy()
-    out = log.outcome or {}
-    t_abort = out.get("time") if out.get("status") == "aborted" and _number(out.get("time")) else None
-    t_end = t[-1] if len(t) else 0.0
-    planned = log.metadata.get("run", {}).get("duration")
-    if t_abort is not None and _number(planned):
-        t_end = max(t_end, float(planned))  # an aborted run on the axis of the run it should have been
+    t_abort, t_end, zoom_end = _abort_window(log, t)
+    context = t_abort is not None and zoom_end < t_end
+    heights = [1.8] * len(panels) + ([0.9] if context else [])
+    if fig is None:
+        fig = Figure(figsize=(7.5, 1.4 + sum(heights) + (0.4 if context else 0.0)))
+    grid = fig.add_gridspec(len(heights), 1, height_ratios=[heights[-1], *heights[:-1]] if context else heights)
+    rows = range(1, len(heights)) if context else range(len(heights))
+    axes: list[Axes] = []
+    for row in rows:
+        axes.append(fig.add_subplot(grid[row], sharex=axes[0] if axes else None))
+    for ax in axes[:-1]:
+        ax.tick_params(labelbottom=False)
     for ax, (title, lines) in zip(axes, panels):
-        colours: dict[str, str] = {}
         unit, scale = _unit(log, [n for n, _ in lines])
-        for name, style in lines:
-            base = name[4:] if style == "--" else name
-            colour = colours.setdefault(base, f"C{len(colours) % 10}")
-            y = scale * log.frame[name].to_numpy()
-            ax.plot(t, y, style, color=colour, lw=1.0 if style == "-" else 1.3, label=_label(name))
-            if t_abort is not None and title == "inputs" and len(t):
-                k = min(int(np.searchsorted(t, t_abort)), len(t) - 1)
-                ax.plot([t[k]], [y[k]], "x", color=_ABORT, ms=8, mew=2)
+        _draw(ax, log, lines, t, scale)
+        if t_abort is not None and title == "inputs" and len(t):
+            k = min(int(np.searchsorted(t, t_abort)), len(t) - 1)
+            for line in list(ax.get_lines()):
+                ax.plot([t[k]], [line.get_ydata()[k]], "x", color=_ABORT, ms=8, mew=2)
         ax.set_ylabel(f"{title} [{unit}]" if unit else title)
         ax.grid(True, lw=0.4, alpha=0.6)
-        ax.legend(loc="best", fontsize="small", ncols=min(4, len(lines)))
+        ax.legend(loc="upper left" if t_abort is not None else "upper right",  # away from where an aborted run ends
+                  fontsize="small", ncols=min(4, len(lines)), framealpha=0.8)
         if t_abort is not None:
             ax.axvline(t_abort, color=_ABORT, ls=":", lw=1.5)
             ax.axvspan(t_abort, max(t_end, t_abort), color="0.9", zorder=0)
     axes[-1].set_xlabel("t [s]")
-    if len(t) and t_end > t[0]:
-        axes[-1].set_xlim(t[0], t_end)
+    if len(t) and zoom_end > t[0]:
+        axes[-1].set_xlim(t[0], zoom_end)
+    if context:
+        _context(fig.add_subplot(grid[0]), log, panels[0][1], t, t_abort, t_end, zoom_end)
     fig.suptitle(_title(log), fontsize="medium")
+    width, height = fig.get_size_inches() if isinstance(fig, Figure) else fig.figure.get_size_inches()
+    # fixed margins (no layout engine: it measures every text box, the most of a plot's cost)
+    fig.subplots_adjust(left=0.9 / width, right=1 - 0.15 / width, top=1 - (0.9 if context else 0.7) / height, bottom=0.5 / height,
+                        hspace=0.3 if context else 0.12)
     return fig

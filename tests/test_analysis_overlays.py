@@ -67,7 +67,7 @@ def test_overlays_drawn_on_the_map_axes():
     theory = Theory("mfc1", DELAY, MOTOR)
     g, kp = np.logspace(0, 4, 5), np.logspace(-1, 3, 5)
     G, K = np.meshgrid(g, kp)
-    table = pd.DataFrame({"controller.gamma": G.ravel(), "controller.k_p": K.ravel(), "status": "completed",
+    table = pd.DataFrame({"controller.gamma": G.ravel(), "controller.k_p": K.ravel(), "outcome": "completed",
                           "rms_error": 1.0})
     fig = map_figure(table, Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p"),
                      "rms_error", title="t", colour_label="c", overlays=gamma_kp_lines(theory, np.geomspace(0.5, 2e4, 50)))
@@ -108,7 +108,7 @@ def test_agreement_counts_and_margin():
         (lo * 2, "failed", None),
         (lo * 2, "planned", None),
     ]
-    table = pd.DataFrame({"controller.gamma": gamma, "controller.k_p": [r[0] for r in rows], "status": [r[1] for r in rows]})
+    table = pd.DataFrame({"controller.gamma": gamma, "controller.k_p": [r[0] for r in rows], "outcome": [r[1] for r in rows]})
     result = agreement(table, lambda row: theory, margin=0.1)
     assert result["case"] == "mfc1-motor"
     assert result["n_match"] == 4 and result["false_unstable"] == 1 and result["false_stable"] == 1
@@ -126,7 +126,7 @@ def test_agreement_of_a_kp_kd_grid_with_fixed_gamma():
     k_d = 20.0
     interval = theory.bounds("mfc2-motor", B, k_d)["k_p"]
     table = pd.DataFrame({"controller.k_p": [interval[1] / 3, interval[1] * 3], "controller.k_d": k_d,
-                          "status": ["completed", "aborted"]})
+                          "outcome": ["completed", "aborted"]})
     result = agreement(table, lambda row: theory, gains_of=lambda row: {"gamma": B, "k_p": row["controller.k_p"],
                                                                          "k_d": row["controller.k_d"]})
     assert result["case"] == "mfc2-motor" and result["share"] == 1.0 and result["n_compared"] == 2
@@ -176,8 +176,8 @@ def test_kp_kd_map_of_the_shipped_campaign_carries_the_corrected_bounds():
     path = Path(__file__).resolve().parents[1] / "campaigns" / "dcmotor-angle-kp-kd.toml"
     campaign = spec.from_text(path.read_text(), source_path=path)
     points, _ = spec.plan(campaign)
-    table = pd.DataFrame([{**p.parameters, "status": "completed", "rms_error": 1.0} for p in points])
-    table.loc[table["controller.k_d"] > 150, "status"] = "aborted"
+    table = pd.DataFrame([{**p.parameters, "outcome": "completed", "rms_error": 1.0} for p in points])
+    table.loc[table["controller.k_d"] > 150, "outcome"] = "aborted"
     forms = grid_forms(campaign)
     assert forms == {"controller.k_p": "log10", "controller.k_d": "log10"}
     x, y = (axis_of(table, k, {}, forms[k]) for k in ("controller.k_p", "controller.k_d"))

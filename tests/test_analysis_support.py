@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from labrunner.analysis.table import roles_of
 from labrunner.campaign.ledger import Ledger, RunRecord
 from labrunner.logs import write_run
+from labrunner.metrics import run_metrics
 
 CHANNELS = {
     "omega": {"role": "controlled", "unit": "rad/s"},
@@ -45,8 +47,10 @@ def expected_metrics(gamma: float, k_p: float) -> tuple[float, float, float]:
 
 
 def make_campaign(directory: Path, *, gammas=(1.0, 10.0, 100.0, 1000.0), k_ps=(0.1, 1.0, 10.0, 100.0),
-                  meta: dict[str, str] | None = None) -> list[dict]:
-    """Plan, run (synthetically) and commit every point; return the points' parameters and ids."""
+                  meta: dict[str, str] | None = None, legacy: bool = False) -> list[dict]:
+    """Plan, run (synthetically) and commit every point with its metrics, as the engine does; return
+    the points' parameters and ids. ``legacy``: commit only the three summary metrics, as ledgers
+    did before every metric was committed (the analysis must then read the logs)."""
     directory.mkdir(parents=True, exist_ok=True)
     (directory / "runs").mkdir(exist_ok=True)
     points = []
@@ -70,8 +74,11 @@ def make_campaign(directory: Path, *, gammas=(1.0, 10.0, 100.0, 1000.0), k_ps=(0
             rel = f"runs/{p['id']}.mcap"
             write_run(directory / rel, metadata={"run": {"point_id": p["id"]}, "config": {"controller": {"gamma": g, "k_p": kp}}},
                       fs=FS, signals=signals, outcome=outcome, channels=CHANNELS)
-            ledger.commit(RunRecord(p["id"], status, outcome, {"rms_error": c, "input_energy": n * v * v, "max_abs_input": v},
-                                    rel, "host", 1, time.time()))
+            metrics = run_metrics(signals, roles_of(CHANNELS))
+            ledger.commit(RunRecord(p["id"], status, outcome, metrics, rel, "host", 1, time.time()))
+    if legacy:
+        with Ledger.open(directory) as ledger:
+            ledger.db.execute("UPDATE points SET metrics_json = NULL")
     return points
 
 

@@ -46,11 +46,12 @@ def _json(argv):
 def test_summary_counts_and_agreement(analysed):
     out, summary = analysed
     assert summary["runs"] == summary["points"] == 20
-    assert summary["done"] + summary["aborted"] + summary["failed"] == 20
-    assert summary["aborted"] > 0 and summary["completed"] > 0
+    o = summary["outcomes"]
+    assert o["completed"] + o["no-motion"] + o["aborted"] + o["failed"] == 20
+    assert o["aborted"] > 0 and o["completed"] > 0
     agree = summary["agreement"]
     assert agree["case"] == "mfc1-motor" and agree["margin"] == 0.1
-    assert agree["n_compared"] + agree["n_excluded"] == 20 - summary["failed"]
+    assert agree["n_compared"] + agree["n_excluded"] == 20 - o["failed"]
     assert agree["share"] > 0.8  # the twin follows (2.46) away from its bounds
     best = summary["best"]
     assert set(best["params"]) == {"controller.gamma", "controller.k_p"} and best["rms"] > 0

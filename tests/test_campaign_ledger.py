@@ -129,13 +129,16 @@ def test_recovery_accepts_published_quarantines_torn_and_replans(project, capsys
 
 def test_progress_plain_lines_when_not_a_terminal(tmp_path):
     out = (tmp_path / "log.txt").open("w+")
-    p = Progress("camp", 10, done=2, stream=out, interval_s=0.0, bar=False)
-    p.update("done")
+    p = Progress("camp", 10, {"completed": 2}, stream=out, interval_s=0.0, bar=False)
+    p.started_runs(3)
+    p.update("no-motion")
     p.update("aborted")
     p.close()
     out.seek(0)
     lines = out.read().splitlines()
-    assert lines[-1].startswith("camp: 4/10 (done 3 aborted 1 failed 0)") and "runs/s" in lines[-1] and "ETA" in lines[-1]
+    assert lines[0].startswith("camp: 2/10 (2 completed, 0 no-motion, 0 aborted, 0 failed)")  # at once, before any run
+    assert lines[-1].startswith("camp: 4/10 (2 completed, 1 no-motion, 1 aborted, 0 failed, 1 running)")
+    assert "runs/s" in lines[-1] and "ETA" in lines[-1]
 
 
 def test_progress_bar_on_a_terminal_shows_counts_rate_and_eta():
@@ -147,15 +150,15 @@ def test_progress_bar_on_a_terminal_shows_counts_rate_and_eta():
             return True
 
     out = Terminal()
-    p = Progress("camp", 10, done=2, stream=out, interval_s=0.0)  # bar chosen because the stream is a TTY
-    for state in ("done", "aborted", "failed"):
-        p.update(state)
+    p = Progress("camp", 10, {"completed": 2}, stream=out, interval_s=0.0)  # bar chosen because the stream is a TTY
+    for outcome in ("completed", "aborted", "failed"):
+        p.update(outcome)
     p.tick()
     bar = out.getvalue().split("\r")[-1]
     assert re.search(r"camp: +50%.*\| 5/10 \[", bar), bar  # tqdm: label, share, bar, count
-    assert "run/s" in bar and "<" in bar and "done 3 aborted 1 failed 1" in bar  # rate, elapsed<ETA, counts
+    assert "run/s" in bar and "<" in bar and "3 completed, 0 no-motion, 1 aborted, 1 failed" in bar  # rate, elapsed<ETA, counts
     p.close()
-    assert out.getvalue().splitlines()[-1].startswith("camp: 5/10 (done 3 aborted 1 failed 1)")
+    assert out.getvalue().splitlines()[-1].startswith("camp: 5/10 (3 completed, 0 no-motion, 1 aborted, 1 failed)")
 
 
 def test_progress_rate_of_a_slow_rig_keeps_two_digits(monkeypatch):
@@ -167,6 +170,6 @@ def test_progress_rate_of_a_slow_rig_keeps_two_digits(monkeypatch):
     monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
     p = Progress("rig", 10, stream=io.StringIO(), bar=False, interval_s=1e9)
     now[0] = 24.0
-    p.update("done")
-    p.update("done")  # 2 runs in 24 s: 0.083 runs/s, 8 left → 96 s
+    p.update("completed")
+    p.update("completed")  # 2 runs in 24 s: 0.083 runs/s, 8 left → 96 s
     assert "0.083 runs/s" in p.line() and "ETA 1:36" in p.line()

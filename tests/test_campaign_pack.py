@@ -86,7 +86,7 @@ def test_unknown_figure_is_refused_before_anything_runs(tmp_path, capsys):
 
 def _walk(gammas, k_p, statuses, rms):
     frame = pd.DataFrame({"seq": range(len(gammas)), "controller.gamma": gammas, "controller.k_p": k_p,
-                          "status": statuses, "rms_error": rms, "oscillating": [0.0] * len(gammas)})
+                          "outcome": statuses, "rms_error": rms, "oscillating": [0.0] * len(gammas)})
     return CampaignResult("f", Path("."), frame, {}, [])
 
 

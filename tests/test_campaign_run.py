@@ -52,8 +52,9 @@ def test_run_then_status_and_logs(project, capsys):
     capsys.readouterr()
     assert main(["status", str(directory), "--json"]) == 0
     st = json.loads(capsys.readouterr().out)
-    assert st["campaign"] == "tiny" and st["total"] == 9 and st["planned"] == st["claimed"] == 0
-    assert st["done"] + st["aborted"] + st["failed"] == 9 and st["elapsed_s"] > 0 and st["running"] is None
+    o = st["outcomes"]
+    assert st["campaign"] == "tiny" and st["total"] == 9 and o["planned"] == o["claimed"] == 0
+    assert o["completed"] + o["no-motion"] + o["aborted"] + o["failed"] == 9 and st["elapsed_s"] > 0 and st["running"] is None
     assert main(["status", str(directory)]) == 0
     assert "9 points" in capsys.readouterr().out
 
@@ -279,11 +280,10 @@ def test_issue_example_runs_and_its_ledger_rows_agree_with_the_logs(project, cap
     capsys.readouterr()
     assert main(["status", str(directory), "--json"]) == 0
     st = json.loads(capsys.readouterr().out)
-    listed = {"campaign", "total", "planned", "claimed", "done", "aborted", "failed", "elapsed_s", "estimate_s"}
-    assert listed <= set(st)
-    states = [r["state"] for r in rows]
-    assert {k: st[k] for k in listed - {"campaign", "elapsed_s", "estimate_s"}} == {
-        "total": 4, **{s: states.count(s) for s in ("planned", "claimed", "done", "aborted", "failed")}}
+    assert {"campaign", "total", "outcomes", "elapsed_s", "estimate_s"} <= set(st)
+    words = [r["outcome"] or r["state"] for r in rows]
+    assert st["total"] == 4 and st["outcomes"] == {
+        w: words.count(w) for w in ("completed", "no-motion", "aborted", "failed", "claimed", "planned")}
     assert st["campaign"] == "quickstart" and st["estimate_s"] == 0.0 and 0 < st["elapsed_s"] < time.time() - t0
 
 

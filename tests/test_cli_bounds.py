@@ -107,3 +107,14 @@ def test_end_to_end_subprocess():
     bad = subprocess.run([sys.executable, "-m", "labrunner", "bounds", "--case", "mfc2-motor", "--gamma", "1",
                           "--delay", "0.01", *MOTOR], capture_output=True, text=True, check=False)
     assert bad.returncode == 2 and bad.stderr.strip() == "labrunner bounds: error: k_d: is required for the second-order case mfc2-motor"
+
+
+def test_numeric_round_off_at_a_zero_bound_prints_as_zero(capsys):
+    """The solver finds the lower k_p bound 0 to within ~1e-15; the text says 0, not 3.3e-15."""
+    args = ("--case", "mfc1-motor", "--gamma", "108.55", "--delay", "0.035", *MOTOR, "--numeric")
+    code, out, _ = run(capsys, *args, "--json")
+    lo = json.loads(out)["numeric"]["k_p"][0]
+    assert code == 0 and lo != 0.0 and abs(lo) < 1e-9  # the solver's own value, kept in JSON
+    code, out, _ = run(capsys, *args)
+    solver = out.split("numerical solver:")[1]
+    assert code == 0 and "k_p in (0, 112.2725304)" in solver and "e-" not in solver

@@ -38,6 +38,7 @@ def torn_run(tmp_path):
         w.finish(COMPLETED)
     with open(path, "rb") as f:
         ends = sorted(c.chunk_start_offset + c.chunk_length for c in make_reader(f).get_summary().chunk_indexes)
+    ends = ends[1::2]  # each flush writes a chunk of blocks, then one of per-sample messages
     path.write_bytes(path.read_bytes()[: ends[1] + 40])
     return path
 
@@ -166,17 +167,40 @@ def test_aborted_run_is_drawn_on_its_planned_time_axis(tmp_path):
     duration (run.duration) on its time axis and greys out the part the run never reached."""
     signals = {name: values[:521] for name, values in motor_run().items()}  # up to the abort at 2.6 s
     meta = metadata()
-    meta["run"]["duration"] = 5.0
+    meta["run"]["duration"] = 3.5  # the run reached 74 % of it: one time axis for all
     path = tmp_path / "cut.mcap"
     write_run(path, metadata=meta, fs=200.0, signals=signals, outcome=ABORTED, channels=CHANNELS)
     fig = plot_run(path)
+    assert len(fig.axes) == 3  # no context strip
     for ax in fig.axes:
-        assert ax.get_xlim() == (0.0, 5.0)
+        assert ax.get_xlim() == (0.0, 3.5)
         (grey,) = ax.patches
-        assert grey.get_x() == pytest.approx(2.6) and grey.get_x() + grey.get_width() == pytest.approx(5.0)
+        assert grey.get_x() == pytest.approx(2.6) and grey.get_x() + grey.get_width() == pytest.approx(3.5)
     del meta["run"]["duration"]  # a log without a planned duration ends at its last sample
     write_run(path, metadata=meta, fs=200.0, signals=signals, outcome=ABORTED, channels=CHANNELS)
     assert plot_run(path).axes[0].get_xlim() == (0.0, 520 / 200.0)
+
+
+def test_early_abort_is_zoomed_with_the_planned_run_as_context(tmp_path):
+    """A run aborted at 0.675 s of 5 s fills 13 % of a 5 s axis: the panels zoom to the abort (10 %
+    margin) and a strip above them shows the planned 5 s, the part never reached and the zoom."""
+    signals = {name: values[:136] for name, values in motor_run().items()}
+    meta = metadata()
+    meta["run"]["duration"] = 5.0
+    path = tmp_path / "early.mcap"
+    write_run(path, metadata=meta, fs=200.0, signals=signals, outcome={**ABORTED, "time": 0.675}, channels=CHANNELS)
+    fig = plot_run(path)
+    *panels, context = fig.axes
+    assert len(panels) == 3
+    for ax in panels:
+        assert ax.get_xlim() == pytest.approx((0.0, 0.675 * 1.1))
+        assert any(list(l.get_xdata()) == [0.675, 0.675] for l in ax.get_lines())
+    assert context.get_xlim() == (0.0, 5.0) and context.get_position().y0 > panels[0].get_position().y1
+    grey, window = context.patches
+    assert grey.get_x() == pytest.approx(0.675) and grey.get_x() + grey.get_width() == pytest.approx(5.0)
+    assert window.get_x() == 0.0 and window.get_width() == pytest.approx(0.675 * 1.1) and not window.get_fill()
+    assert "aborted at 0.675 s (14%)" in context.get_title(loc="left")
+    assert np.array_equal(context.get_lines()[0].get_ydata(), signals["omega"])
 
 
 def test_inspect_into_a_closed_pipe_is_quiet(aborted_run):

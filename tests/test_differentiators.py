@@ -367,3 +367,13 @@ def test_any_valid_design_is_consistent(alpha, beta, N, fs, n_s, method):
     if method != "trapezoidal" or min(alpha, beta) >= 0:
         w = d.weights(0)
         assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0, rel=1e-9)
+
+
+def test_cutoff_of_arcsine_kernel_below_mu_one_half():
+    """α = β = −1/2 (μ = 1/2, κ = 0), N = 0: ω_c T = (Γ(1)/Γ(1/2))^{1/μ} = 1/π (Othmane et al.
+    2022, eq. (31)); the i = 0 term (2μ+κ−1)Γ(2μ+κ−1) is taken as Γ(2μ+κ), not log(0) + lgamma(0)."""
+    from labrunner.differentiators.kernel import log_cutoff_product
+
+    assert math.exp(log_cutoff_product(-0.5, -0.5, 0, 0.0)) == pytest.approx(1.0 / math.pi, rel=1e-12)
+    d = design(alpha=-0.5, beta=-0.5, N=0, fs=20.0, window=0.1)
+    assert d.n_s == 2 and np.isfinite(d.omega_c_actual)

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from labrunner import engine
-from labrunner.analysis.agreement import agreement, observed_status
+from labrunner.analysis.agreement import agreement, observed_outcome
 from labrunner.errors import InvalidParameter
 from labrunner.metrics import Roles, parse_windows, run_metrics
 from labrunner.oscillation import Detector
@@ -110,10 +110,10 @@ def test_saturated_valve_run_completes_but_is_flagged(tmp_path):
     assert stable.outcome.status == "completed" and stable.metrics["oscillating"] == 0.0
     assert stable.metrics["rms_error@hold"] < 0.5 < unstable.metrics["rms_error@hold"]  # l/min
     # the analysis counts the flagged run as observed unstable
-    table = pd.DataFrame([{"status": r.outcome.status, "oscillating": r.metrics["oscillating"],
+    table = pd.DataFrame([{"outcome": r.outcome.status, "oscillating": r.metrics["oscillating"],
                            "controller.gamma": p["controller"]["gamma"], "controller.k_p": p["controller"]["k_p"]}
                           for p, r in zip(points, results)])
-    assert list(observed_status(table)) == ["oscillating", "completed"]
+    assert list(observed_outcome(table)) == ["oscillating", "completed"]
 
     class Always:  # a theory that predicts every point stable, far from any bound
         def cases(self):

@@ -95,8 +95,8 @@ def twin(kind: str) -> Callable:
 def over_can(extra: dict, monkeypatch):
     config = {"rig": {"kind": "can", "name": "motor-can"}, **extra,
               "parameters": {"device": "dcmotor", "interface": "virtual", "channel": f"contract-{uuid.uuid4().hex}",
-                             "bitrate": 0, "node_id": 3, "timeout_s": 0.5, "model": MOTOR_MODEL}}
-    emulator = Emulator(twin_for(config_from_dict(config)), device_link(config_from_dict(config)), watchdog_s=2.0).start()
+                             "node_id": 3, "timeout_s": 0.5, "watchdog_periods": 400, "model": MOTOR_MODEL}}
+    emulator = Emulator(twin_for(config_from_dict(config)), device_link(config_from_dict(config)), paced=False).start()
     rig = load_rig(config)
     return rig, lambda: (rig.close(), emulator.stop())
 
@@ -104,8 +104,8 @@ def over_can(extra: dict, monkeypatch):
 def over_serial(device: str, model: dict) -> Callable:
     def build(extra: dict, monkeypatch):
         config = {"rig": {"kind": "serial", "name": f"{device}-serial"}, **extra,
-                  "parameters": {"device": device, "timeout_s": 0.5, "model": model}}
-        port, emulator = serve_on_pty(twin_for(config_from_dict(config)), watchdog_s=2.0)
+                  "parameters": {"device": device, "timeout_s": 0.5, "watchdog_periods": 400, "model": model}}
+        port, emulator = serve_on_pty(twin_for(config_from_dict(config)), paced=False)
         config["parameters"]["port"] = port
         rig = load_rig(config)
         return rig, lambda: (rig.close(), emulator.stop())

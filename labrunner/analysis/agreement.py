@@ -3,8 +3,8 @@
 A run that completed (or did not move: its loop was stable, its input just too small) counts as
 observed stable, an aborted run as observed unstable; failed and unfinished runs are left out.
 A completed run that the oscillation detector flags (input pinned at a limit, a saturated or a
-growing oscillation: :mod:`labrunner.oscillation`) is observed unstable too: its status reads
-"oscillating" (:func:`observed_status`).
+growing oscillation: :mod:`labrunner.oscillation`) is observed unstable too: its observed outcome
+reads "oscillating" (:func:`observed_outcome`; the table's ``outcome`` stays "completed").
 The prediction is the model case of the campaign's controller (thesis (2.46) for the first-order
 MFC, the corrected (2.58)–(2.59) for the second-order one; the ultra-local case where the rig has
 no model). Points within ``margin`` (relative) of a predicted boundary are left out: there the
@@ -25,13 +25,13 @@ OBSERVED_UNSTABLE = ("aborted", "oscillating")
 GAIN_COLUMNS = {"gamma": "controller.gamma", "k_p": "controller.k_p", "k_d": "controller.k_d"}
 
 
-def observed_status(table: pd.DataFrame) -> pd.Series:
-    """Each row's status, "oscillating" for a completed run the detector flagged (column ``oscillating``)."""
-    status = table["status"]
+def observed_outcome(table: pd.DataFrame) -> pd.Series:
+    """Each row's outcome, "oscillating" for a completed run the detector flagged (column ``oscillating``)."""
+    outcome = table["outcome"]
     if "oscillating" not in table.columns:
-        return status
-    flagged = (status == "completed") & (pd.to_numeric(table["oscillating"], errors="coerce") == 1.0)
-    return status.where(~flagged, "oscillating")
+        return outcome
+    flagged = (outcome == "completed") & (pd.to_numeric(table["oscillating"], errors="coerce") == 1.0)
+    return outcome.where(~flagged, "oscillating")
 
 
 def table_gains(row: Mapping[str, object]) -> dict[str, float]:
@@ -58,11 +58,11 @@ def agreement(
     ``share`` is None when nothing could be compared; ``oscillating``: runs the detector turned
     from completed into observed unstable.
     """
-    status = observed_status(table)
-    rows = table.assign(status=status)[status.isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)]
+    outcome = observed_outcome(table)
+    rows = table.assign(outcome=outcome)[outcome.isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)].to_dict("records")
     case = None
     match = excluded = false_stable = false_unstable = observed_unstable = 0
-    for _, row in rows.iterrows():
+    for row in rows:
         theory = theory_of(row)
         if theory is None or not theory.cases():
             continue
@@ -74,7 +74,7 @@ def agreement(
         if distance <= margin:
             excluded += 1
             continue
-        ok = row["status"] in OBSERVED_STABLE
+        ok = row["outcome"] in OBSERVED_STABLE
         observed_unstable += not ok
         match += ok == stable
         false_stable += stable and not ok
@@ -90,5 +90,5 @@ def agreement(
         "false_stable": int(false_stable),
         "false_unstable": int(false_unstable),
         "observed_unstable": int(observed_unstable),
-        "oscillating": int((rows["status"] == "oscillating").sum()),
+        "oscillating": sum(row["outcome"] == "oscillating" for row in rows),
     }

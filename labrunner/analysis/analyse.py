@@ -1,27 +1,29 @@
 """``labrunner analyse``: a campaign directory → metrics table, maps, run plots and index.html.
 
-Steps: read the ledger (parameters, states, outcomes) and the campaign file it keeps; build the
-metrics table from the MCAPs (:mod:`.table`, cached); pick the map axes from the grid (γ–k_p and
-k_p–k_d as in the thesis, else grid order; further axes become facets); draw RMS and energy maps
-(or sweep plots) with the stability overlays that fit (:mod:`.overlays`); plot the best, the worst
-completed and the first aborted run; compare outcomes with the theory (:mod:`.agreement`); write
-the report. Returns the summary that ``--json`` prints.
+Steps: read the ledger (parameters, outcomes, every run's metrics) and the campaign file it keeps;
+build the metrics table from it (:mod:`.table`; logs are read only where the ledger has no
+metrics or with ``recompute``); pick the map axes from the grid (γ–k_p and k_p–k_d as in the
+thesis, else grid order; further axes become facets); draw RMS and energy maps (or sweep plots)
+with the stability overlays that fit (:mod:`.overlays`); plot the best, the worst completed, the
+first aborted run and any runs asked for (the only logs read then); compare outcomes with the
+theory (:mod:`.agreement`); write the report. Returns the summary that ``--json`` prints.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 import pandas as pd
 
 from labrunner.analysis import agreement as agreement_mod
-from labrunner.analysis import figures, report, table as table_mod
+from labrunner.analysis import campaign_report, figures, table as table_mod
 from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.maps import gain_units
 from labrunner.campaign import spec
+from labrunner.campaign.progress import FINISHED, OUTCOMES
 from labrunner.campaign.spec import Campaign
 from labrunner.control.mfc import GAMMA_UNITS
 from labrunner.errors import InvalidParameter, LabrunnerError
@@ -93,35 +95,43 @@ def _units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> d
     return {}
 
 
-def counts(frame: pd.DataFrame) -> dict[str, int]:
-    """Points per ledger state and per outcome."""
-    state = frame["state"].value_counts()
-    status = frame["status"].value_counts()
-    return {
-        "points": int(len(frame)),
-        "runs": int(sum(state.get(s, 0) for s in ("done", "aborted", "failed"))),
-        "done": int(state.get("done", 0)),
-        "completed": int(status.get("completed", 0)),
-        "no_motion": int(status.get("no-motion", 0)),
-        "oscillating": int((agreement_mod.observed_status(frame) == "oscillating").sum()),  # completed, flagged by the detector
-        "aborted": int(state.get("aborted", 0)),
-        "failed": int(state.get("failed", 0)),
-        "planned": int(state.get("planned", 0)),
-        "claimed": int(state.get("claimed", 0)),
-    }
+def counts(frame: pd.DataFrame) -> dict[str, Any]:
+    """Points, finished runs, points per outcome word (:data:`~labrunner.campaign.progress.OUTCOMES`),
+    and ``oscillating``: completed runs the oscillation detector flags (observed unstable)."""
+    found = frame["outcome"].value_counts()
+    outcomes = {w: int(found.get(w, 0)) for w in OUTCOMES}
+    return {"points": int(len(frame)), "runs": sum(outcomes[w] for w in FINISHED), "outcomes": outcomes,
+            "oscillating": int((agreement_mod.observed_outcome(frame) == "oscillating").sum())}
 
 
 def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
     """Best and worst completed run (by RMS of e) and the first aborted run (in grid order)."""
-    done = frame[(frame["status"] == "completed") & np.isfinite(frame["rms_error"].to_numpy(dtype=float))]
+    done = frame[(frame["outcome"] == "completed") & np.isfinite(frame["rms_error"].to_numpy(dtype=float))]
     out: dict[str, pd.Series] = {}
     if not done.empty:
         out["best"] = done.loc[done["rms_error"].idxmin()]
         out["worst completed"] = done.loc[done["rms_error"].idxmax()]
-    aborted = frame[frame["status"] == "aborted"]
+    aborted = frame[frame["outcome"] == "aborted"]
     if not aborted.empty:
         out["first aborted"] = aborted.loc[aborted["seq"].idxmin()]
     return out
+
+
+def plot_selection(frame: pd.DataFrame, plot: Sequence[str]) -> list[str]:
+    """Point ids the ``--plot`` words choose: ``all``, an outcome word (``aborted``, ...) or ids."""
+    ids: list[str] = []
+    known = set(frame["id"])
+    for word in plot:
+        if word == "all":
+            chosen = frame["id"]
+        elif word in OUTCOMES:
+            chosen = frame.loc[frame["outcome"] == word, "id"]
+        elif word in known:
+            chosen = [word]
+        else:
+            raise InvalidParameter("--plot", f"must be 'all', an outcome ({', '.join(FINISHED)}) or a point id, got {word!r}")
+        ids += [i for i in chosen if i not in ids]
+    return ids
 
 
 def analyse(
@@ -131,16 +141,37 @@ def analyse(
     workers: int | None = None,
     margin: float = 0.1,
     error: str = "e",
+    recompute: bool = False,
+    plot: Sequence[str] = (),
+    stream: TextIO | None = None,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Analyse a campaign directory; write the table, figures and ``index.html`` under ``out``.
 
     ``error="e_hat"`` ranks runs and draws the RMS map by the delayed, filtered error ê of paper 2
-    (logged as ``e_hat_<output>``) instead of e; the table always holds both.
+    (logged as ``e_hat_<output>``) instead of e; the table always holds both. The metrics come
+    from the ledger; ``recompute`` reads every log and computes them again. ``plot`` chooses runs
+    to draw besides the best, worst and first aborted ones (see :func:`plot_selection`). Progress
+    goes to ``stream`` (default stderr: a bar on a terminal, else plain lines; ``progress=False``: none).
     """
     from labrunner.campaign.ledger import Ledger
+    from labrunner.campaign.progress import Steps
 
+    if error not in ("e", "e_hat"):
+        raise InvalidParameter("error", f"must be 'e' or 'e_hat', got {error!r}")
     directory = Path(directory)
     out = Path(out) if out is not None else directory / "report"
+    steps = Steps(f"analyse {directory}", 4, stream=stream) if progress else None
+
+    def step(name: str, more: int = 0) -> None:
+        if steps is not None:
+            steps.begin(name, more)
+
+    def advance(n: int = 1) -> None:
+        if steps is not None:
+            steps.advance(n)
+
+    step("reading the ledger")
     with Ledger.open_readonly(directory) as ledger:
         rows = [dict(r) for r in ledger.rows()]
         meta = ledger.meta()
@@ -149,28 +180,45 @@ def analyse(
     rig_units = ({s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
                  if campaign is not None else {})
     rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
+    advance()
+    step("metrics table")
     built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units,
-                                  limits=rig_limits)
+                                  limits=rig_limits, recompute=recompute, tick=advance)
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
-    csv, parquet = table_mod.write_table(frame, out)
-    if error not in ("e", "e_hat"):
-        raise InvalidParameter("error", f"must be 'e' or 'e_hat', got {error!r}")
+    csv, parquet = table_mod.write_table(frame, out, directory)
     if error == "e_hat":
         if not frame.get("rms_error_hat", pd.Series(dtype=float)).notna().any():
             raise InvalidParameter("error", "e_hat: the runs of this campaign log no ê (e_hat_<output>)")
         frame = frame.assign(rms_error=frame["rms_error_hat"])
+    advance()
+    step("maps")
     ctx = Context(directory, out, campaign, note, varying_axes(frame, campaign), _units(frame, directory, campaign),
                   "ê" if error == "e_hat" else "e")
     theories = Theories(campaign)
     maps = figures.draw_maps(frame, ctx, theories)
+    advance()
     chosen = chosen_runs(frame)
-    runs = figures.draw_runs(chosen, ctx)
+    extra = plot_selection(frame, plot)
+    step("run plots", len(chosen) + len(extra))
+    plots = figures.draw_runs(frame, [*(row["id"] for row in chosen.values()), *extra], ctx, tick=advance)
     agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
+    sections, guided = [], None
+    if campaign is not None and campaign.guided is not None:  # the walk and its step counts
+        from labrunner.campaign import guided_report
+
+        sections, guided = guided_report.sections(ctx, directory, out)
+    step("report")
     summary = {**counts(frame), "best": _best(frame), "maps": [str(p) for p, _ in maps],
-               "run_plots": [str(p) for p in runs.values()], "agreement": agree,
+               "run_plots": [str(p) for p in plots.values()], "agreement": agree,
                "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}
-    summary["report"] = str(report.campaign_report(frame, ctx, summary, maps, chosen, runs))
+    if guided is not None:
+        summary["guided"] = guided
+    summary["report"] = str(campaign_report.campaign_report(frame, ctx, summary, maps, chosen, plots, theories,
+                                                            extra=sections))
+    advance()
+    if steps is not None:
+        steps.close()
     return summary
 
 

@@ -44,27 +44,47 @@ def _delay(config: Mapping[str, Any], fs: float) -> float | None:
         return None
 
 
+GAIN_KEYS = ("controller.gamma", "controller.k_p", "controller.k_d")
+
+
 class Theories:
-    """Theory (kind, δ_t, rig constants with the point's ``rig_parameters`` overrides) per table
-    row; δ_t cached per differentiator setting."""
+    """Theory (kind, δ_t, rig constants with the point's ``rig_parameters`` overrides) and gains
+    per table row (a mapping: a record of the table). The theory does not depend on the gains, so
+    it is resolved once per distinct setting of the other parameters (δ_t once per differentiator
+    setting), not once per row: a γ–k_p grid of 10 000 points has one."""
 
     def __init__(self, campaign: Campaign | None) -> None:
         self.campaign = campaign
         self._delays: dict[str, float | None] = {}
+        self._settings: dict[tuple, tuple[dict[str, Any], Theory | None]] = {}
 
-    def config(self, row: Mapping[str, Any]) -> dict[str, Any]:
-        params = {k: row[k] for k in row.keys() if "." in k and pd.notna(row[k])}
-        return self.campaign.resolve(params)
+    def _setting(self, row: Mapping[str, Any]) -> tuple[dict[str, Any], Theory | None]:
+        """(resolved configuration without the row's gains, theory) of the row's setting."""
+        params = tuple(sorted((k, v) for k, v in row.items()
+                              if "." in k and k not in GAIN_KEYS and isinstance(v, (int, float, str, bool)) and pd.notna(v)))
+        hit = self._settings.get(params)
+        if hit is None:
+            config = self.campaign.resolve(dict(params))
+            hit = self._settings[params] = (config, self._theory(config))
+        return hit
 
     def gains(self, row: Mapping[str, Any]) -> dict[str, float]:
-        """γ, k_p, k_d of the row's resolved controller section (grid values and fixed ones)."""
-        controller = self.config(row).get("controller", {})
-        return {k: float(v) for k in ("gamma", "k_p", "k_d") if isinstance(v := controller.get(k), (int, float))}
+        """γ, k_p, k_d of the row: its grid values, else the campaign's fixed ones."""
+        config, _ = self._setting(row)
+        controller = config.get("controller", {})
+        out = {k: float(v) for k in ("gamma", "k_p", "k_d") if isinstance(v := controller.get(k), (int, float))}
+        for key in GAIN_KEYS:
+            value = row.get(key)
+            if isinstance(value, (int, float)) and pd.notna(value):
+                out[key.split(".", 1)[1]] = float(value)
+        return out
 
     def __call__(self, row: Mapping[str, Any]) -> Theory | None:
         if self.campaign is None:
             return None
-        config = self.config(row)
+        return self._setting(row)[1]
+
+    def _theory(self, config: Mapping[str, Any]) -> Theory | None:
         fs = float(config["campaign"]["fs"])
         section = config.get("differentiator", {})
         key = json.dumps([section, fs], sort_keys=True, default=str)

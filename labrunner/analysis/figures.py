@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import replace
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -86,7 +86,7 @@ def facets(frame: pd.DataFrame, extra: Sequence[str]) -> list[tuple[str, pd.Data
 def common_theory(rows: pd.DataFrame, theories: Theories) -> Theory | None:
     """The one theory valid for all ``rows`` (same kind, δ_t and rig constants), else None."""
     found = {}
-    for _, row in rows.iterrows():
+    for row in rows.to_dict("records"):
         theory = theories(row)
         if theory is None:
             return None
@@ -108,7 +108,7 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
     if pair == ("controller.gamma", "controller.k_p") and theory.kind == "mfc1":
         return gamma_kp_lines(theory, dense_axis(cell_edges(x.values, x.log), x.log)), note
     if pair == ("controller.k_p", "controller.k_d") and theory.kind == "mfc2":
-        gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for _, r in rows.iterrows()}
+        gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for r in rows.to_dict("records")}
         if len(gammas) == 1:
             gamma = gammas.pop()
             return kp_kd_lines(theory, gamma, dense_axis(cell_edges(y.values, y.log), y.log)), f"{note}, γ = {gamma:.5g}"
@@ -132,7 +132,10 @@ def mark_outside(lines: Sequence[OverlayLine], x: Axis, y: Axis) -> list[Overlay
 
 
 def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
+    """Save atomically (temporary name, then rename): a killed analysis leaves no half a PNG."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    fig.savefig(tmp, dpi=DPI, format="png")
+    tmp.replace(path)
     return path
 
 
@@ -176,17 +179,32 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
     return paths
 
 
-def draw_runs(chosen: Mapping[str, pd.Series], ctx: Context) -> dict[str, Path]:
-    """Time-series plot of each chosen run (thesis Figs. 3.12, 3.20); unreadable logs are skipped."""
+PLOTS_DIR = "plots"  # run plots, one per point: <out>/plots/<id>.png
+
+
+def plot_path(out: Path, point_id: str) -> Path:
+    return out / PLOTS_DIR / f"{point_id}.png"
+
+
+def draw_runs(frame: pd.DataFrame, ids: Sequence[str], ctx: Context,
+              tick: Callable[[int], None] | None = None) -> dict[str, Path]:
+    """Time-series plot of each run in ``ids`` (thesis Figs. 3.12, 3.20) as ``plots/<id>.png``;
+    a plot newer than its log is kept as it is; unreadable logs are skipped."""
     from labrunner.runplot import plot_run
 
+    logs = dict(zip(frame["id"], frame["log_path"]))
     out: dict[str, Path] = {}
-    for label, row in chosen.items():
-        if not isinstance(row.get("log_path"), str):
-            continue
-        try:
-            fig = plot_run(ctx.directory / row["log_path"])
-        except (LabrunnerError, OSError, ValueError, KeyError):
-            continue
-        out[label] = _save(fig, ctx.out / f"run_{label.replace(' ', '_')}.png")
+    for point_id in dict.fromkeys(ids):
+        rel = logs.get(point_id)
+        if isinstance(rel, str):
+            log, png = ctx.directory / rel, plot_path(ctx.out, point_id)
+            try:
+                if not (png.is_file() and png.stat().st_mtime_ns >= log.stat().st_mtime_ns):
+                    png.parent.mkdir(parents=True, exist_ok=True)
+                    _save(plot_run(log), png)
+                out[point_id] = png
+            except (LabrunnerError, OSError, ValueError, KeyError):
+                pass
+        if tick:
+            tick(1)
     return out

@@ -1,13 +1,21 @@
-"""The metrics table of a campaign directory: one row per grid point, from the ledger and the MCAPs.
+"""The metrics table of a campaign directory: one row per grid point, from the ledger.
 
-The ledger gives each point's parameters, state, outcome and log path; each run's MCAP gives the
-full metrics (:mod:`labrunner.metrics`). Logs are read in parallel worker processes.
-The table doubles as a cache: a row whose log has the same size and modification time as when
-it was computed is reused, so re-analysing a finished campaign reads no log at all.
+The ledger gives each point's parameters, outcome, log path and — committed with the run — every
+metric of its run (:mod:`labrunner.metrics`), so building the table reads no log. Logs are read
+(in parallel worker processes) only for rows whose ledger holds no metrics (a ledger from before
+they were committed) or when asked to recompute; such rows are cached in ``metrics.parquet``
+and reused while their log keeps its size and modification time.
+
+Columns a user ranks by describe whole runs only: an aborted run's metrics cover the run up to
+its abort, so they are moved to ``<metric>_until_abort`` columns (``rms_error_until_abort``) and
+its ``rms_error`` etc. stay empty. ``outcome`` is one word per point: completed, no-motion,
+aborted, failed, or the ledger's planned / claimed for points without a run. In the written
+files ``log_path`` is relative to the file that holds it (``../runs/<id>.mcap`` from
+``report/metrics.csv``); counts are integers.
 
 Damaged material never stops the analysis: a torn log is salvaged and flagged, an unreadable or
-missing one falls back to the ledger's metric summary and is listed in ``problems``, and files
-moved to ``quarantine/`` are listed too.
+missing one falls back to the ledger's metrics and is listed in ``problems``, and files moved to
+``quarantine/`` are listed too.
 """
 
 from __future__ import annotations
@@ -15,7 +23,7 @@ from __future__ import annotations
 import functools
 import json
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,17 +32,22 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 from labrunner.errors import LabrunnerError
+from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 
 #: Columns that identify a point and its run, in this order at the left of the table.
-ID_COLUMNS = ("seq", "id", "state", "status", "monitor", "abort_time", "abort_value", "attempts", "log_path", "torn")
+ID_COLUMNS = ("seq", "id", "outcome", "monitor", "abort_time", "abort_value", "attempts", "log_path", "torn")
+#: Suffix of the columns that hold an aborted run's metrics (over the run up to its abort).
+UNTIL_ABORT = "_until_abort"
 #: Columns that tell whether a cached row still matches its log file.
 CACHE_COLUMNS = ("log_size", "log_mtime_ns")
+#: Integer columns (nullable where a point has no run).
+INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
-METRICS_VERSION = 2  # 2: windowed metrics and the oscillation detector
+METRICS_VERSION = 3  # 2: windowed metrics and the oscillation detector; 3: aborted runs' in _until_abort columns
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
+_LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)
 
 
 @dataclass
@@ -43,7 +56,7 @@ class CampaignTable:
 
     frame: pd.DataFrame
     problems: list[dict[str, str]] = field(default_factory=list)  # {"path", "kind", "detail"}
-    n_read: int = 0  # logs read now (the rest came from the cache)
+    n_read: int = 0  # logs read now (the rest came from the ledger or the cache)
 
 
 def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str] | None = None,
@@ -65,7 +78,7 @@ def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str]
 
 def log_metrics(path: str, units: Mapping[str, str] | None = None,
                 limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
-    """Metrics, outcome and torn flag of one MCAP; ``{"error": ...}`` if it cannot be read.
+    """Metrics and torn flag of one MCAP; ``{"error": ...}`` if it cannot be read.
 
     ``units``: the rig's signal units, for logs that record none; ``limits``: its input limits
     (see :func:`roles_of`).
@@ -80,66 +93,129 @@ def log_metrics(path: str, units: Mapping[str, str] | None = None,
         out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units, limits), fs=float(log.fs), windows=windows)
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
-    outcome = log.outcome or {}
-    out.update(torn=bool(log.torn), log_status=outcome.get("status"), log_monitor=outcome.get("monitor"),
-               log_time=outcome.get("time"), log_value=outcome.get("value"))
+    out["torn"] = bool(log.torn)
     return out
 
 
 def _read_many(paths: Sequence[str], workers: int, units: Mapping[str, str] | None,
-               limits: Mapping[str, tuple[float, float]] | None = None) -> list[dict[str, Any]]:
+               limits: Mapping[str, tuple[float, float]] | None = None,
+               tick: Callable[[int], None] | None = None) -> list[dict[str, Any]]:
     read = functools.partial(log_metrics, units=dict(units or {}), limits=dict(limits or {}))
+    out: list[dict[str, Any]] = []
     if workers <= 1 or len(paths) < _PARALLEL_MIN:
-        return [read(p) for p in paths]
-    chunk = max(1, len(paths) // (workers * 8))
+        for p in paths:
+            out.append(read(p))
+            if tick:
+                tick(1)
+        return out
+    chunk = max(1, min(64, len(paths) // (workers * 8)))
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(read, paths, chunksize=chunk))
+        for result in pool.map(read, paths, chunksize=chunk):
+            out.append(result)
+            if tick:
+                tick(1)
+    return out
 
 
-def _stat(path: Path) -> tuple[int, int] | None:
+_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _stat(path: Path) -> tuple[int, int, bool] | None:
+    """(size, mtime [ns], intact) of a log, None if it is missing; intact: it begins and ends with
+    the MCAP magic (a writer killed mid-file leaves no closing magic), ~10 µs instead of a read."""
     try:
-        st = path.stat()
+        with open(path, "rb") as f:
+            st = os.fstat(f.fileno())
+            head = f.read(len(_MAGIC))
+            intact = st.st_size >= 2 * len(_MAGIC) and head == _MAGIC
+            if intact:
+                f.seek(-len(_MAGIC), os.SEEK_END)
+                intact = f.read(len(_MAGIC)) == _MAGIC
     except OSError:
         return None
-    return st.st_size, st.st_mtime_ns
+    return st.st_size, st.st_mtime_ns, intact
 
 
 def _float(value: Any) -> float:
     return float(value) if value is not None else float("nan")
 
 
-def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
-    """One row per ledger point: ids, state, outcome details, parameters (dotted keys), ledger metrics."""
+def _ledger_metrics(r: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The run's metrics as committed (None: this ledger row holds only the three summary columns)."""
+    text = r.get("metrics_json")
+    if text:
+        return dict(json.loads(text))
+    return None
+
+
+def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
+    """One row per ledger point: ids, outcome and its details, parameters (dotted keys), metrics;
+    and the positions of finished rows whose ledger holds no full metrics (their logs must be read)."""
     records = []
-    for r in rows:
+    missing: list[int] = []
+    for i, r in enumerate(rows):
         outcome = json.loads(r["outcome_json"]) if r["outcome_json"] else {}
         params = json.loads(r["parameters"])
-        rec: dict[str, Any] = {
-            "seq": int(r["seq"]), "id": r["id"], "state": r["state"],
-            "status": r["outcome"] or r["state"],
+        aborted = r["outcome"] == "aborted"
+        metrics = _ledger_metrics(r)
+        if metrics is None:
+            metrics = {k: _float(r.get(k)) for k in _LEDGER_METRICS}
+            if r.get("log_path"):
+                missing.append(i)
+        records.append({
+            "seq": r["seq"], "id": r["id"], "outcome": r["outcome"] or r["state"],
             "monitor": outcome.get("monitor"),
-            "abort_time": _float(outcome.get("time")) if r["outcome"] == "aborted" else np.nan,
-            "abort_value": _float(outcome.get("value")) if r["outcome"] == "aborted" else np.nan,
-            "attempts": int(r["attempts"]),
-            "log_path": r["log_path"],
-            "torn": False,
+            "abort_time": _float(outcome.get("time")) if aborted else np.nan,
+            "abort_value": _float(outcome.get("value")) if aborted else np.nan,
+            "attempts": r["attempts"], "log_path": r["log_path"], "torn": False,
             **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
-            "rms_error": _float(r["rms_error"]), "input_energy": _float(r["input_energy"]),
-            "max_abs_input": _float(r["max_abs_input"]),
-        }
-        records.append(rec)
-    frame = pd.DataFrame.from_records(records)
-    if frame.empty:
-        frame = pd.DataFrame(columns=list(ID_COLUMNS))
-    return frame
+            **metrics,
+        })
+    frame = pd.DataFrame.from_records(records) if records else pd.DataFrame(columns=list(ID_COLUMNS))
+    return frame, missing
 
 
-def _cached(cache: pd.DataFrame | None) -> dict[tuple[str, str], dict[str, Any]]:
+def metric_columns(frame: pd.DataFrame) -> list[str]:
+    """The columns holding a run's metrics, of the whole run or of a window (``<metric>@<name>``),
+    other than its sample counts."""
+    prefixes = ("rms_", "energy_", "max_")
+
+    def base(column: str) -> str:
+        return column.split("@", 1)[0]
+
+    return [c for c in frame.columns if (base(c) in BASE_METRICS or base(c).startswith(prefixes))
+            and base(c) != "n_samples" and not c.endswith(UNTIL_ABORT)]
+
+
+def split_aborted(frame: pd.DataFrame) -> pd.DataFrame:
+    """Move the metrics of aborted runs to ``<metric>_until_abort`` columns (see the module)."""
+    aborted = (frame["outcome"] == "aborted").to_numpy()
+    out = {}
+    for col in metric_columns(frame):
+        values = frame[col].to_numpy(dtype=float)
+        out[col] = np.where(aborted, np.nan, values)
+        out[col + UNTIL_ABORT] = np.where(aborted, values, np.nan)
+    return frame.assign(**out)
+
+
+def _cached(cache: pd.DataFrame | None) -> dict[str, dict[str, Any]]:
     if cache is None or cache.empty or not set(CACHE_COLUMNS) <= set(cache.columns):
         return {}
     if "metrics_version" not in cache.columns or not (cache["metrics_version"] == METRICS_VERSION).all():
         return {}
-    return {(r["id"], r["log_path"]): r for r in cache.to_dict("records")}
+    return {r["id"]: r for r in cache.to_dict("records")}
+
+
+def _unsplit(row: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
+    """A cached table row's metrics as :func:`log_metrics` gave them (aborted runs' back from
+    their ``_until_abort`` columns); columns the ledger fills (``known``) left out."""
+    out = {}
+    for key, value in row.items():
+        if key.endswith(UNTIL_ABORT) or (key in known and key not in (*BASE_METRICS, "torn")):
+            continue
+        until = row.get(key + UNTIL_ABORT)
+        out[key] = until if until is not None and pd.notna(until) else value
+    return out
 
 
 def build_table(
@@ -150,51 +226,63 @@ def build_table(
     workers: int | None = None,
     units: Mapping[str, str] | None = None,
     limits: Mapping[str, tuple[float, float]] | None = None,
+    recompute: bool = False,
+    tick: Callable[[int], None] | None = None,
 ) -> CampaignTable:
-    """Merge ledger ``rows`` with metrics from their logs (reusing ``cache`` rows that still match);
-    ``units`` are the rig's signal units, for logs that record none; ``limits`` its input limits
-    (the oscillation detector's columns)."""
-    frame = ledger_frame(rows)
+    """The table of ledger ``rows``: metrics from the ledger; from the logs (reusing ``cache`` rows
+    that still match) where the ledger has none, or for every run with ``recompute``. ``units``
+    are the rig's signal units, for logs that record none; ``limits`` its input limits (the
+    oscillation detector's columns); ``tick(n)`` is called as logs are read."""
+    frame, missing_list = ledger_frame(rows)
+    missing = set(missing_list)
     problems: list[dict[str, str]] = []
-    cached = _cached(cache)
-    todo: list[int] = []
-    metrics: dict[int, dict[str, Any]] = {}
+    paths = frame["log_path"].tolist()
+    todo = set(i for i, p in enumerate(paths) if isinstance(p, str)) if recompute else set(missing)
     stats: dict[int, tuple[int, int]] = {}
-    for i, rec in enumerate(frame.to_dict("records")):
-        if not isinstance(rec.get("log_path"), str):
+    for i, rel in enumerate(paths):  # every log the table names must exist, whole
+        if not isinstance(rel, str):
             continue
-        st = _stat(directory / rec["log_path"])
+        st = _stat(directory / rel)
         if st is None:
-            problems.append({"path": rec["log_path"], "kind": "missing", "detail": f"point {rec['id']}: log file not found"})
+            problems.append({"path": rel, "kind": "missing", "detail": f"point {frame.at[i, 'id']}: log file not found"})
             continue
-        stats[i] = st
-        hit = cached.get((rec["id"], rec["log_path"]))
-        if hit is not None and (hit["log_size"], hit["log_mtime_ns"]) == st:
-            metrics[i] = {k: v for k, v in hit.items() if k not in frame.columns or k in (*BASE_METRICS, "torn")}
+        stats[i] = st[:2]
+        if not st[2]:
+            todo.add(i)  # damaged: read it (salvage) to flag it, its metrics stay the ledger's
+    todo = sorted(i for i in todo if i in stats)
+    cached = {} if recompute else _cached(cache)
+    metrics: dict[int, dict[str, Any]] = {}
+    read: list[int] = []
+    for i in todo:
+        hit = cached.get(frame.at[i, "id"])
+        if hit is not None and (hit["log_size"], hit["log_mtime_ns"]) == stats[i]:
+            metrics[i] = _unsplit(hit, frame.columns)
         else:
-            todo.append(i)
-    paths = [str(directory / frame.at[i, "log_path"]) for i in todo]
-    for i, result in zip(todo, _read_many(paths, workers or os.cpu_count() or 1, units, limits)):
+            read.append(i)
+    results = _read_many([str(directory / paths[i]) for i in read], workers or os.cpu_count() or 1, units, limits, tick)
+    for i, result in zip(read, results):
         if "error" in result:
-            problems.append({"path": frame.at[i, "log_path"], "kind": "unreadable", "detail": result["error"]})
+            problems.append({"path": paths[i], "kind": "unreadable", "detail": result["error"]})
             continue
+        if i not in missing and not recompute:  # a damaged log the ledger has whole metrics of: flag it only
+            result = {"torn": result["torn"]}
         metrics[i] = result
-    for i, st in stats.items():
-        if i in metrics:
-            metrics[i]["log_size"], metrics[i]["log_mtime_ns"] = st
-    extra = pd.DataFrame.from_dict(metrics, orient="index")
-    if not extra.empty:
-        extra = extra.drop(columns=[c for c in extra.columns if c.startswith("log_") and c not in CACHE_COLUMNS])
-        extra = extra.reindex(frame.index)
-        for col in extra.columns:  # the log's value where it was read, else the ledger's summary
+    for i in metrics:
+        metrics[i]["log_size"], metrics[i]["log_mtime_ns"] = stats[i]
+    if metrics:
+        extra = pd.DataFrame.from_dict(metrics, orient="index").reindex(frame.index)
+        extra = extra.drop(columns=[c for c in ("metrics_version", *ID_COLUMNS) if c in extra.columns and c != "torn"])
+        for col in extra.columns:  # the log's value where it was read, else the ledger's
             frame[col] = extra[col].combine_first(frame[col]) if col in frame.columns else extra[col]
-        for col in CACHE_COLUMNS:
-            frame[col] = frame[col].astype("Int64")
     frame["torn"] = frame["torn"].fillna(False).astype(bool)
+    frame = split_aborted(frame)
+    for col in [*INTEGER_COLUMNS, *(c for c in frame.columns if c.startswith("n_samples@"))]:
+        if col in frame.columns:
+            frame[col] = pd.to_numeric(frame[col]).round().astype("Int64")
     frame["metrics_version"] = METRICS_VERSION
-    for rec in frame[frame["torn"]].to_dict("records"):
+    for rec in frame.loc[frame["torn"], ["id", "log_path"]].to_dict("records"):
         problems.append({"path": rec["log_path"], "kind": "torn", "detail": f"point {rec['id']}: salvaged a torn log"})
-    return CampaignTable(frame, problems, n_read=len(todo))
+    return CampaignTable(frame, problems, n_read=len(read))
 
 
 def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory: Path) -> list[dict[str, str]]:
@@ -211,16 +299,28 @@ def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory:
     return out
 
 
-def write_table(frame: pd.DataFrame, out: Path) -> tuple[Path, Path]:
-    """Write ``metrics.csv`` and ``metrics.parquet`` into ``out`` (atomically, each)."""
+def relative_paths(paths: pd.Series, directory: Path, out: Path) -> pd.Series:
+    """Campaign-relative paths as seen from the folder ``out`` (None stays None)."""
+    base = os.path.relpath(directory.resolve(), out.resolve())
+    return paths.map(lambda p: os.path.join(base, p) if isinstance(p, str) else p)
+
+
+def ordered(frame: pd.DataFrame) -> pd.DataFrame:
+    """The table's columns in their order: ids, parameters, metrics, then the rest."""
+    return frame[[*[c for c in ID_COLUMNS if c in frame.columns], *[c for c in frame.columns if c not in ID_COLUMNS]]]
+
+
+def write_table(frame: pd.DataFrame, out: Path, directory: Path) -> tuple[Path, Path]:
+    """Write ``metrics.csv`` and ``metrics.parquet`` into ``out`` (atomically, each), log paths
+    relative to ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     csv, parquet = out / "metrics.csv", out / "metrics.parquet"
-    ordered = frame[[*[c for c in ID_COLUMNS if c in frame.columns], *[c for c in frame.columns if c not in ID_COLUMNS]]]
+    table = ordered(frame.assign(log_path=relative_paths(frame["log_path"], directory, out)))
     tmp = csv.with_name(".metrics.csv.tmp")
-    ordered.to_csv(tmp, index=False)
+    table.to_csv(tmp, index=False)
     tmp.replace(csv)
     tmp = parquet.with_name(".metrics.parquet.tmp")
-    ordered.astype({c: "string" for c in ordered.columns if ordered[c].dtype == object}).to_parquet(tmp, index=False)
+    table.astype({c: "string" for c in table.columns if table[c].dtype == object}).to_parquet(tmp, index=False)
     tmp.replace(parquet)
     return csv, parquet
 

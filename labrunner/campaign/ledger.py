@@ -6,6 +6,10 @@ transaction that moves its row from ``claimed`` to a terminal state; the update 
 ``state = 'claimed'``, so a run can never be committed twice. The database is created under a
 temporary name and renamed into place, so a crash while planning leaves no half-written ledger.
 The ``meta`` table keeps a copy of the campaign file and the checksum of the planned grid.
+``metrics_json`` holds every metric of the run (:data:`labrunner.metrics.BASE_METRICS` and the
+per-channel ones) as one JSON object, so that ``analyse`` tabulates without reading the logs; a
+ledger made before that column existed gains it when opened for writing (:func:`_migrate`), and
+readers treat a missing column as "no metrics here" (the analysis then reads the logs).
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ CREATE TABLE points (
     rms_error REAL,
     input_energy REAL,
     max_abs_input REAL,
+    metrics_json TEXT,
     log_path TEXT,
     attempts INTEGER NOT NULL DEFAULT 0,
     host TEXT,
@@ -190,6 +195,7 @@ class Ledger:
         except BaseException:
             db.close()
             raise
+        _migrate(db)
         return cls(directory, db)
 
     @classmethod
@@ -226,6 +232,12 @@ class Ledger:
 
     def outcome_counts(self) -> dict[str, int]:
         rows = self.db.execute("SELECT outcome, COUNT(*) FROM points WHERE outcome IS NOT NULL GROUP BY outcome")
+        return {r[0]: r[1] for r in rows}
+
+    def by_outcome(self) -> dict[str, int]:
+        """Points per outcome word (completed, no-motion, aborted, failed; claimed and planned for
+        points without a finished run): what every command counts with."""
+        rows = self.db.execute("SELECT COALESCE(outcome, state), COUNT(*) FROM points GROUP BY COALESCE(outcome, state)")
         return {r[0]: r[1] for r in rows}
 
     def rows(self, states: Sequence[str] | None = None) -> list[sqlite3.Row]:
@@ -290,7 +302,8 @@ class Ledger:
         with self._txn():
             self.db.executemany(
                 "UPDATE points SET state = 'planned', outcome = NULL, outcome_json = NULL, rms_error = NULL,"
-                " input_energy = NULL, max_abs_input = NULL, log_path = NULL, finished_at = NULL WHERE id = ?",
+                " input_energy = NULL, max_abs_input = NULL, metrics_json = NULL, log_path = NULL, finished_at = NULL"
+                " WHERE id = ?",
                 ((i,) for i in ids),
             )
 
@@ -302,11 +315,12 @@ class Ledger:
         with self._txn():
             cur = self.db.execute(
                 "UPDATE points SET state = ?, outcome = ?, outcome_json = ?, rms_error = ?, input_energy = ?,"
-                " max_abs_input = ?, log_path = ?, host = ?, pid = ?, finished_at = ?, engine_s = ?, write_s = ?,"
-                f" publish_s = ? WHERE id = ? AND state IN ({marks})",
+                " max_abs_input = ?, metrics_json = ?, log_path = ?, host = ?, pid = ?, finished_at = ?, engine_s = ?,"
+                f" write_s = ?, publish_s = ? WHERE id = ? AND state IN ({marks})",
                 (
                     state, record.outcome, json.dumps(dict(record.outcome_record), sort_keys=True),
-                    m.get("rms_error"), m.get("input_energy"), m.get("max_abs_input"), record.log_path,
+                    m.get("rms_error"), m.get("input_energy"), m.get("max_abs_input"),
+                    json.dumps({k: _plain(v) for k, v in m.items()}) if m else None, record.log_path,
                     record.host, record.pid, record.finished_at, record.engine_s, record.write_s,
                     record.publish_s, record.point_id, *from_states,
                 ),
@@ -315,6 +329,15 @@ class Ledger:
                 raise CampaignError(f"ledger: point {record.point_id} is not in state {'/'.join(from_states)}; not committed twice")
             if self.session is not None:
                 self.db.execute("UPDATE sessions SET last_at = ? WHERE n = ?", (time.time(), self.session))
+
+    def add_points(self, points: Iterable[tuple[str, Mapping[str, Any], str]]) -> int:
+        """Append ``planned`` rows (id, parameters, batch key) after the last ``seq``, in one
+        transaction: a guided campaign's next round. Returns the number of rows added."""
+        with self._txn():
+            last = self.db.execute("SELECT COALESCE(MAX(seq), -1) FROM points").fetchone()[0]
+            rows = [(last + 1 + n, i, json.dumps(dict(p), sort_keys=True), k) for n, (i, p, k) in enumerate(points)]
+            self.db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows)
+        return len(rows)
 
     def record_quarantine(self, point_id: str | None, original: str, moved_to: str, reason: str, size: int) -> None:
         with self._txn():
@@ -356,6 +379,18 @@ class _Transaction:
     def _error(self, exc: sqlite3.Error) -> LedgerWriteError:
         hint = " (disk full or file-size limit?)" if "disk" in str(exc) or "full" in str(exc) else ""
         return LedgerWriteError(f"{self.path}: cannot write the ledger: {exc}{hint}")
+
+
+def _plain(value: Any) -> Any:
+    """A metric as JSON can hold it (numpy scalars as Python numbers)."""
+    return value.item() if hasattr(value, "item") else value
+
+
+def _migrate(db: sqlite3.Connection) -> None:
+    """Add the columns later versions of this schema (still version 1: only additions) have."""
+    columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
+    if "metrics_json" not in columns:
+        db.execute("ALTER TABLE points ADD COLUMN metrics_json TEXT")
 
 
 def fsync_dir(directory: Path) -> None:

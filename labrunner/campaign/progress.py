@@ -1,14 +1,33 @@
-"""Live progress of a campaign: done / aborted / failed, rate and ETA.
+"""Live progress of a campaign or an analysis, and the words every command counts runs with.
 
-On a terminal (stderr is a TTY) a tqdm bar; otherwise plain lines at most every ``interval_s``
-seconds and one at the end, so logs of batch jobs stay readable.
+A point's **outcome** is one of :data:`OUTCOMES`: a run ``completed``, found ``no-motion`` (its
+input too small to move the load), was ``aborted`` by the safety routine, or ``failed`` (an error,
+not the plant); a point without a finished run is ``claimed`` (running) or ``planned``.
+``labrunner run``, ``resume``, ``status``, ``analyse`` and the report count with
+:func:`format_counts`, so they say the same thing in the same words.
+
+On a terminal (stderr is a TTY) a tqdm bar; otherwise plain lines: one at once (so a log shows
+the command started), then at most every ``interval_s`` seconds, and one at the end, so logs of
+batch jobs stay readable.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Mapping
 from typing import TextIO
+
+#: A point's outcome, in the order counts are given everywhere.
+OUTCOMES = ("completed", "no-motion", "aborted", "failed", "claimed", "planned")
+#: Outcomes of a finished run.
+FINISHED = OUTCOMES[:4]
+
+
+def format_counts(counts: Mapping[str, int]) -> str:
+    """``"51 completed, 2 no-motion, 0 aborted, 0 failed"`` (then claimed and planned if any)."""
+    shown = [w for w in OUTCOMES if w in FINISHED or counts.get(w, 0)]
+    return ", ".join(f"{int(counts.get(w, 0))} {w}" for w in shown)
 
 
 def _clock(seconds: float) -> str:
@@ -18,79 +37,64 @@ def _clock(seconds: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
-def _rate(runs_per_s: float) -> str:
-    """Runs per second to two significant digits below 10 (a real rig's 0.083 is not "0.1")."""
-    return f"{runs_per_s:.1f}" if runs_per_s >= 10 else f"{runs_per_s:.2g}"
+def _rate(per_s: float) -> str:
+    """Items per second to two significant digits below 10 (a real rig's 0.083 is not "0.1")."""
+    return f"{per_s:.1f}" if per_s >= 10 else f"{per_s:.2g}"
 
 
-class Progress:
-    """Counts of finished runs; ``total`` and the counts already terminal when the session began."""
+class _Reporter:
+    """A tqdm bar on a terminal, else periodic plain lines; subclasses say what a line holds."""
 
-    def __init__(
-        self,
-        label: str,
-        total: int,
-        done: int = 0,
-        aborted: int = 0,
-        failed: int = 0,
-        *,
-        stream: TextIO | None = None,
-        interval_s: float = 5.0,
-        bar: bool | None = None,
-    ) -> None:
-        self.label, self.total = label, total
-        self.counts = {"done": done, "aborted": aborted, "failed": failed}
-        self.initial = sum(self.counts.values())
+    unit = "run"
+
+    def __init__(self, label: str, total: int, initial: int, *, stream: TextIO | None, interval_s: float,
+                 bar: bool | None) -> None:
+        self.label, self.total, self.initial = label, total, initial
         self.stream = stream or sys.stderr
         self.interval_s = interval_s
         self.started = time.monotonic()
         self._last_line = self.started
-        use_bar = self.stream.isatty() if bar is None else bar
         self._bar = None
-        if use_bar:
+        if self.stream.isatty() if bar is None else bar:
             from tqdm import tqdm
 
             class _Bar(tqdm):  # no monitor thread: the process pool forks after the bar exists
                 monitor_interval = 0
 
-            self._bar = _Bar(
-                total=total, initial=self.initial, desc=label, unit="run", file=self.stream,
-                dynamic_ncols=True, smoothing=0.1,
-            )
-            self._bar.set_postfix_str(self._counts())
+            self._bar = _Bar(total=total, initial=initial, desc=label, unit=self.unit, file=self.stream,
+                             dynamic_ncols=True, smoothing=0.1)
+            self._bar.set_postfix_str(self.detail())
+        else:
+            self.write(self.line())  # from the first second, not after the first result
 
     @property
     def finished(self) -> int:
-        return sum(self.counts.values())
+        raise NotImplementedError
 
-    def _counts(self) -> str:
-        c = self.counts
-        return f"done {c['done']} aborted {c['aborted']} failed {c['failed']}"
+    def detail(self) -> str:
+        return ""
 
     def rate(self) -> float:
-        """Runs per second in this session."""
+        """Items per second in this session."""
         elapsed = time.monotonic() - self.started
         return (self.finished - self.initial) / elapsed if elapsed > 0 else 0.0
 
     def line(self) -> str:
         rate = self.rate()
         eta = (self.total - self.finished) / rate if rate > 0 else float("nan")
-        return (
-            f"{self.label}: {self.finished}/{self.total} ({self._counts()}) "
-            f"{_rate(rate)} runs/s, elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}"
-        )
+        detail = f" ({self.detail()})" if self.detail() else ""
+        return (f"{self.label}: {self.finished}/{self.total}{detail} {_rate(rate)} {self.unit}s/s, "
+                f"elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}")
 
-    def update(self, state: str) -> None:
-        """One more run in ``state`` (done | aborted | failed)."""
-        self.counts[state] += 1
+    def _advanced(self, n: int) -> None:
         if self._bar is not None:
-            self._bar.update(1)
-            self._bar.set_postfix_str(self._counts(), refresh=False)
+            self._bar.update(n)
+            self._bar.set_postfix_str(self.detail(), refresh=False)
         elif time.monotonic() - self._last_line >= self.interval_s:
             self.write(self.line())
 
     def tick(self) -> None:
-        """Called while waiting: a plain line every ``interval_s`` even when no run finished."""
+        """Called while waiting: a plain line every ``interval_s`` even when nothing finished."""
         if self._bar is not None:
             self._bar.refresh()
         elif time.monotonic() - self._last_line >= self.interval_s:
@@ -109,3 +113,68 @@ class Progress:
             self._bar.close()
             self._bar = None
         print(self.line(), file=self.stream, flush=True)
+
+
+class Progress(_Reporter):
+    """Runs of a campaign by outcome; ``counts`` are those the ledger held when the session began
+    (outcome words of :data:`OUTCOMES`; claimed and planned ones are what is left to run)."""
+
+    def __init__(self, label: str, total: int, counts: Mapping[str, int] | None = None, *,
+                 stream: TextIO | None = None, interval_s: float = 5.0, bar: bool | None = None) -> None:
+        self.counts = {w: int((counts or {}).get(w, 0)) for w in FINISHED}
+        self.running = 0  # runs handed to workers and not yet committed
+        super().__init__(label, total, sum(self.counts.values()), stream=stream, interval_s=interval_s, bar=bar)
+
+    @property
+    def finished(self) -> int:
+        return sum(self.counts.values())
+
+    def detail(self) -> str:
+        running = f", {self.running} running" if self.running else ""
+        return format_counts(self.counts) + running
+
+    def started_runs(self, n: int) -> None:
+        """``n`` more runs handed to the workers (shown until they finish)."""
+        self.running += n
+
+    def update(self, outcome: str) -> None:
+        """One more run with ``outcome`` (completed | no-motion | aborted | failed)."""
+        self.counts[outcome] += 1
+        self.running = max(0, self.running - 1)
+        self._advanced(1)
+
+
+class Steps(_Reporter):
+    """Progress of a long analysis: items done out of ``total`` (logs read, figures drawn), with
+    the step under way named in each line."""
+
+    unit = "step"
+
+    def __init__(self, label: str, total: int, *, stream: TextIO | None = None, interval_s: float = 2.0,
+                 bar: bool | None = None) -> None:
+        self.done, self.step = 0, "starting"
+        super().__init__(label, total, 0, stream=stream, interval_s=interval_s, bar=bar)
+
+    @property
+    def finished(self) -> int:
+        return self.done
+
+    def detail(self) -> str:
+        return self.step
+
+    def begin(self, step: str, more: int = 0) -> None:
+        """Start ``step``; ``more`` items join the total (e.g. the logs it will read)."""
+        self.step, self.total = step, self.total + more
+        if self._bar is not None:
+            self._bar.total = self.total
+            self._bar.set_postfix_str(step)
+        elif time.monotonic() - self._last_line >= self.interval_s:
+            self.write(self.line())
+
+    def advance(self, n: int = 1) -> None:
+        self.done += n
+        if self.done > self.total:  # more items than announced (e.g. logs read while building a table)
+            self.total = self.done
+            if self._bar is not None:
+                self._bar.total = self.total
+        self._advanced(n)

@@ -71,7 +71,10 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
                 f"`labrunner resume {directory}`"
             )
         what = "this campaign" if other == name else f"campaign {other!r}"
-        raise CampaignError(f"{directory} already holds {what}; continue it with `labrunner resume {directory}`")
+        raise CampaignError(
+            f"{directory} already holds {what}; continue it with `labrunner resume {directory}`, or start over "
+            f"in another directory with --out DIR (or delete {directory} first)"
+        )
     if directory.exists() and (not directory.is_dir() or any(not _ours(p) for p in directory.iterdir())):
         raise CampaignError(f"{directory} exists and is not an empty campaign directory; choose another --out")
 
@@ -138,7 +141,13 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
     if dry:
-        text = dry_run(campaign, points, opts)
+        if campaign.guided is not None:
+            from labrunner.campaign import guided_run
+
+            slots = opts.workers or len(os.sched_getaffinity(0)) if campaign.rig_info.simulated else 1
+            text = guided_run.dry_run(campaign, points, slots)
+        else:
+            text = dry_run(campaign, points, opts)
         try:
             _check_new_directory(directory, campaign.name, checksum)
         except CampaignError as exc:
@@ -158,6 +167,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             "rig": campaign.rig,
             "created_at": repr(time.time()),
             "created_by": f"labrunner {__version__} on {socket.gethostname()}",
+            **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
         }
         ledger = Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points))
         del points
@@ -223,8 +233,9 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
 def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts: Options, command: str) -> Outcome:
     ledger.start_session(command)
     c = ledger.counts()
+    total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
     progress = Progress(
-        campaign.name, sum(c.values()), c["done"], c["aborted"], c["failed"],
+        campaign.name, total, ledger.by_outcome(),
         stream=opts.stream, interval_s=opts.progress_interval_s,
     )
     real = not campaign.rig_info.simulated
@@ -238,7 +249,12 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
                 campaign, ledger, executor=handle, batch_size=1 if real else opts.batch_size, progress=progress,
                 signals=signals,
             )
-            out = scheduler.run()
+            if campaign.guided is None:
+                out = scheduler.run()
+            else:  # rounds: the procedure proposes, the scheduler runs
+                from labrunner.campaign import guided_run
+
+                out = guided_run.execute(campaign, ledger, scheduler.run)
         reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
     finally:
         progress.close()

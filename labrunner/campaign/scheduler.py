@@ -65,6 +65,7 @@ class Outcome:
     stop_reason: str = ""
     elapsed_s: float = 0.0
     counts: dict[str, int] = field(default_factory=dict)
+    signals: int = 0  # Ctrl-C/SIGTERM received, also one after the last batch began (a guided campaign stops on it)
 
 
 def batch_size(group_points: int, slots: int, samples: int, requested: int | None = None) -> int:
@@ -172,7 +173,7 @@ class Scheduler:
         return BatchTask(
             directory=str(self.ledger.directory.resolve()), campaign=c.name, campaign_source=c.source, rig=c.rig_ref,
             rig_search=c.rig_search, rig_safety=dict(c.rig_safety), fs=float(fs), duration=float(duration),
-            runs=tuple(runs),
+            runs=tuple(runs), samples_hz=c.logging.get("samples_hz"),
         )
 
     def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:
@@ -197,6 +198,8 @@ class Scheduler:
             out.stop_reason = out.stop_reason or f"the executor refused a batch: {type(exc).__name__}: {exc}"
             return
         self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic())
+        if self.progress:
+            self.progress.started_runs(len(ids))
 
     def _collect(self, future: Future, out: Outcome) -> None:
         batch = self.inflight.pop(future)
@@ -219,7 +222,7 @@ class Scheduler:
             self.ledger.commit(record)
             out.committed += 1
             if self.progress:
-                self.progress.update({"completed": "done", "no-motion": "done"}.get(record.outcome, record.outcome))
+                self.progress.update(record.outcome)
         if result.stop:
             out.stop_reason = out.stop_reason or result.stop
 
@@ -270,6 +273,7 @@ class Scheduler:
         """Run every planned point; returns when done, stopped, or interrupted."""
         out = Outcome()
         t0 = time.monotonic()
+        self.deadline = None  # a guided campaign runs one session per round
         rows = self.ledger.rows(("planned",))
         pending = deque(make_batches(rows, self.slots, self.requested))
         del rows
@@ -300,8 +304,9 @@ class Scheduler:
             except LedgerWriteError as exc:  # a full disk: nothing more can be committed; resume accepts the logs
                 out.stop_reason = out.stop_reason or str(exc)
                 self._abandon(out)
+            out.signals = signals.count
         out.elapsed_s = time.monotonic() - t0
-        out.counts = self.ledger.counts()
+        out.counts = self.ledger.by_outcome()
         return out
 
     def _say(self, message: str) -> None:

@@ -13,6 +13,7 @@ the first hundred runs.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import re
 import tomllib
@@ -33,7 +34,8 @@ SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_paramete
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
 OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
-TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "derived")
+TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived", "logging")
+LOGGING_KEYS = ("samples_hz",)  # [logging]: how the run logs are written
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
 
@@ -68,6 +70,8 @@ class Campaign:
     rig_info: RigInfo = field(repr=False)
     rig_config: RigConfig = field(repr=False, compare=False)  # the validated rig file
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
+    guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
+    logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz] or nothing
 
     @property
     def rig_ref(self) -> str:
@@ -80,7 +84,8 @@ class Campaign:
 
     @property
     def size(self) -> int:
-        return self.grid.size
+        """Points of the grid; of a guided campaign, the most runs its procedure can ask for."""
+        return self.grid.size if self.guided is None else self.guided.max_runs()
 
     def resolve(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
         """The full run configuration of one point: base sections with its parameters set."""
@@ -91,15 +96,19 @@ class Campaign:
             _set(config, key, value)
         return config
 
+    def expand(self, params: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+        """(parameters with the derived values added, resolved config) of one point."""
+        config = self.resolve(params)
+        for key, expr in self.derived:
+            value = expr.evaluate(_NameView(config, self.rig_info.constants))
+            _set(config, key, value)
+            params[key] = value
+        return params, config
+
     def points(self) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
         """(parameters, config) of every point in grid order, derived values evaluated."""
         for params in self.grid.points():
-            config = self.resolve(params)
-            for key, expr in self.derived:
-                value = expr.evaluate(_NameView(config, self.rig_info.constants))
-                _set(config, key, value)
-                params[key] = value
-            yield params, config
+            yield self.expand(params)
 
 
 class _NameView(Mapping[str, Any]):
@@ -188,7 +197,7 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     unknown = sorted(set(doc) - set(TOP_LEVEL))
     if unknown:
         raise InvalidParameter(unknown[0], f"unknown section; allowed: {', '.join(TOP_LEVEL)}")
-    for section in (*SECTIONS, "campaign", "derived"):
+    for section in (*SECTIONS, "campaign", "derived", "logging"):
         if section in doc:
             _require(section, doc[section], dict, "a table")
     head = doc.get("campaign")
@@ -239,6 +248,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         check_key(f"rig_parameters.{key}", f"rig_parameters.{key}")
     fixed = {k: check_number(f"rig_parameters.{k}", v) for k, v in base["rig_parameters"].items()}
     rig_class(rig_config.kind).check_overrides(rig_config, fixed, 1, "rig_parameters")  # grid values: in plan()
+    if "grid" in doc and "guided" in doc:
+        raise InvalidParameter("guided", "a campaign has either [grid] (a fixed grid) or [guided] (a tuning procedure), not both")
     grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
     derived: list[tuple[str, expressions.Expression]] = []
     known = set(settable) | set(grid.keys) | set(info.constants)
@@ -248,11 +259,27 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
             raise InvalidParameter(f'derived."{key}"', "is also a grid axis; a key is either swept or derived")
         derived.append((key, expressions.parse(f'derived."{key}"', source, known)))
         known.add(key)
-    return Campaign(
+    campaign = Campaign(
         name=name, description=description, rig=rig, rig_path=rig_path, fs=fs, duration=duration, seed=seed,
         base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
         rig_info=info, rig_safety=dict(rig_config.safety), rig_config=rig_config,
+        logging=_logging(doc.get("logging", {})),
     )
+    if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
+        from labrunner.campaign import guided
+
+        procedure = guided.parse(doc["guided"], campaign)
+        campaign = dataclasses.replace(campaign, guided=procedure, grid=Grid(procedure.axes()))
+    return campaign
+
+
+def _logging(table: Mapping[str, Any]) -> dict[str, Any]:
+    """``[logging]``: ``samples_hz`` > 0 thins the logs' per-sample channel /run/samples to about
+    that rate (at or above f_s: every sample); the lossless /run/blocks always keep every sample."""
+    bad = sorted(set(table) - set(LOGGING_KEYS))
+    if bad:
+        raise InvalidParameter(f"logging.{bad[0]}", f"unknown key; allowed: {', '.join(LOGGING_KEYS)}")
+    return {"samples_hz": check_positive("logging.samples_hz", table["samples_hz"], strict=True)} if "samples_hz" in table else {}
 
 
 def _check_finite_leaves(path: str, node: Any) -> None:
@@ -308,6 +335,10 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     The checksum covers the resolved configuration of every point (not the file's bytes), so a
     comment edit keeps a campaign resumable while any change of what would run does not.
     """
+    if campaign.guided is not None:
+        from labrunner.campaign import guided_run
+
+        return guided_run.plan(campaign)
     checker = StaticChecker(campaign.rig_config)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
@@ -326,6 +357,9 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
         config["campaign"]["duration"] = duration
         points.append(PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split)))
     gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
+    from labrunner.rigs.device.plan import check_placement
+
+    check_placement(campaign, points)  # a loop the rig's link or device cannot carry
     digest = hashlib.sha256(canonical_json({"name": campaign.name, "rig": campaign.rig}).encode())
     for *_, d in checked:
         digest.update(d.encode())

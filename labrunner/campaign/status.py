@@ -10,6 +10,7 @@ from typing import Any
 
 from labrunner.campaign.ledger import Ledger
 from labrunner.campaign.lock import holder
+from labrunner.campaign.progress import OUTCOMES
 
 
 def status(directory: str | Path) -> dict[str, Any]:
@@ -17,11 +18,11 @@ def status(directory: str | Path) -> dict[str, Any]:
     directory = Path(directory)
     with Ledger.open_readonly(directory) as ledger:
         meta = ledger.meta()
-        counts = ledger.counts()
-        outcomes = ledger.outcome_counts()
+        outcomes = ledger.by_outcome()
         sessions = ledger.sessions()
         quarantined = len(ledger.quarantined())
         finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
+        guided = _guided_status(meta, ledger) if "guided" in meta else None
     running = holder(directory)
     now = time.time()
     elapsed = 0.0
@@ -29,19 +30,31 @@ def status(directory: str | Path) -> dict[str, Any]:
         live = running is not None and i == len(sessions) - 1 and s["ended_at"] is None
         end = now if live else (s["ended_at"] or s["last_at"])
         elapsed += max(0.0, end - s["started_at"])
-    total = sum(counts.values())
-    remaining = counts["planned"] + counts["claimed"]
+    total = sum(outcomes.values())
+    remaining = outcomes.get("planned", 0) + outcomes.get("claimed", 0)
     rate = finished / elapsed if elapsed > 0 and finished else None
     return {
         "campaign": meta.get("campaign"),
         "directory": str(directory),
         "total": total,
-        **counts,
-        "outcomes": outcomes,
+        "outcomes": {word: outcomes.get(word, 0) for word in OUTCOMES},  # every command's words (progress.py)
         "quarantined": quarantined,
         "elapsed_s": round(elapsed, 3),
         "rate_per_s": round(rate, 3) if rate else None,
         "estimate_s": round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None),
         "running": None if running is None else {"host": running.host, "pid": running.pid},
         "sessions": len(sessions),
+        **({"guided": guided} if guided is not None else {}),
     }
+
+
+def _guided_status(meta: dict[str, str], ledger: Ledger) -> dict[str, Any]:
+    """A guided campaign's decisions so far, replayed from the ledger (or why they cannot be). Only
+    this loads the campaign (its procedure): a grid campaign's status stays as light as before."""
+    from labrunner.analysis.analyse import load_campaign
+    from labrunner.campaign import guided_run
+
+    campaign, note = load_campaign(meta, ledger.directory)
+    if campaign is None or campaign.guided is None:
+        return {"procedure": meta["guided"], "note": note or "the stored campaign is not guided"}
+    return guided_run.summary(campaign, [dict(r) for r in ledger.rows()])

@@ -54,6 +54,7 @@ class BatchTask:
     fs: float
     duration: float
     runs: tuple[RunTask, ...]
+    samples_hz: float | None = None  # [logging] samples_hz: thin the logs' per-sample channel (None: full rate)
 
 
 @dataclass
@@ -86,7 +87,8 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
-def _metadata(task: BatchTask, run: RunTask, host: str, rig: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> dict[str, dict[str, Any]]:
+    """A run's own log records (the rig record is shared by the batch: :func:`_publish_all`)."""
     return {
         "run": {
             "campaign": task.campaign,
@@ -97,29 +99,27 @@ def _metadata(task: BatchTask, run: RunTask, host: str, rig: Mapping[str, Any]) 
             "duration": task.duration,
             "host": host,
             "pid": os.getpid(),
-            "start_time": time.time(),
+            "start_time": start_time,  # [s since 1970] the batch's start: sample k's log time is this + k / fs
         },
         "config": dict(run.config),
         "parameters": dict(run.parameters),
-        "rig": dict(rig),  # kind, parameters, limits, noise, faults, safety as the rig file gave them
     }
 
 
 def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | None = None) -> BatchResult:
     """Run ``task`` and publish its logs; never raises for a run's own failure.
 
-    ``run_batch`` defaults to :func:`labrunner.engine.run_batch` (tests inject fakes). A rig that
+    ``run_batch`` defaults to :func:`labrunner.engine.run_batch`, or to the rig's
+    ``run_on_device`` when its loop runs on the device (tests inject fakes). A rig that
     cannot be opened asks the parent to stop and leaves the points claimed (nothing ran; ``resume``
     reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
-    asks the parent to stop (architecture: "stop-campaign"); any other exception marks the batch's
+    asks the parent to stop (architecture: "stop-campaign"), publishing the logs up to the failure
+    when the engine attached them (``exc.results``); any other exception marks the batch's
     points failed with the message (they have no log) and the campaign goes on.
     """
-    from labrunner import engine
-
-    run_batch = run_batch or engine.run_batch
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
-    t0 = time.perf_counter()
+    t0, start_time = time.perf_counter(), time.time()
     try:
         rig, rig_record = _load_rig(task)
     except Exception as exc:  # no rig, no campaign: stop; nothing ran, so the points stay claimed for resume
@@ -128,45 +128,68 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     try:
         with rig:
             results = list(
-                run_batch(
+                (run_batch or _batch_runner(rig))(
                     [r.config for r in task.runs], rig, fs=task.fs, duration=task.duration,
                     seeds=[r.seed for r in task.runs], rig_safety=task.rig_safety,
                 )
             )
-    except RigError as exc:
+    except RigError as exc:  # the engine hands over the failed runs' logs up to the failure when it has them
         out.stop = f"rig {task.rig!r}: {exc}"
-        return _failed(task, out, out.stop, host, pid)
+        partial = getattr(exc, "results", None)
+        if not partial:
+            return _failed(task, out, out.stop, host, pid)
+        results = list(partial)
     except Exception as exc:  # bad configuration or a crash: the batch's points fail, the campaign goes on
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
         return _failed(task, out, detail, host, pid)
+    diagnostics = rig.diagnostics() if hasattr(rig, "diagnostics") else None  # a real rig's link record (B = 1)
     engine_s = (time.perf_counter() - t0) / max(len(task.runs), 1)
     try:
-        _publish_all(task, results, out, engine_s, host, pid, rig_record)
+        _publish_all(task, results, out, engine_s, host, pid, rig_record, start_time, diagnostics)
     except Exception as exc:  # re-raised as a plain, picklable error: the parent stops the campaign
         raise CampaignError(f"publishing the logs of batch {task.runs[0].point_id}… failed: {type(exc).__name__}: {exc}") from None
     return out
 
 
+def _batch_runner(rig: Any) -> Callable[..., Sequence[Any]]:
+    """How a batch runs on ``rig``: the engine's loop, or the rig's own for a loop on the device."""
+    from labrunner import engine
+
+    if getattr(rig, "loop", "host") == "device":
+        return lambda points, rig, **kw: rig.run_on_device(points, **kw)
+    return engine.run_batch
+
+
 def _publish_all(
-    task: BatchTask, results: list[Any], out: BatchResult, engine_s: float, host: str, pid: int, rig: Mapping[str, Any]
+    task: BatchTask, results: list[Any], out: BatchResult, engine_s: float, host: str, pid: int, rig: Mapping[str, Any],
+    start_time: float,
+    diagnostics: Mapping[str, Any] | None = None,
 ) -> None:
     """Write every log under a temporary name, fsync them concurrently (one journal flush for many
-    files instead of one each), rename them into place, fsync the directory once."""
-    from labrunner.logs import write_run
+    files instead of one each), rename them into place, fsync the directory once. What the logs
+    share (rig record, campaign file, schemas) is encoded once for the batch. A real rig's
+    ``diagnostics`` record (docs/protocol.md § Diagnostics), or a device-loop run's own
+    (``RunResult.diagnostics``, docs/device-loop.md), goes into the metadata and the outcome."""
+    from labrunner.logs import BatchPrefixes, write_run
 
     runs_dir = Path(task.directory) / RUNS_DIR
-    attachments = {"campaign.toml": task.campaign_source.encode()}
+    samples_hz = None if task.samples_hz is None or task.samples_hz >= task.fs else task.samples_hz
+    # rig: kind, parameters, limits, noise, faults, safety as the rig file gave them
+    prefixes = BatchPrefixes(task.fs, {"rig": dict(rig)}, {"campaign.toml": task.campaign_source.encode()}, samples_hz)
     written = []
     with ThreadPoolExecutor(max_workers=_FSYNC_THREADS) as syncer:
         for i, run in enumerate(task.runs):
             result, results[i] = results[i], None  # free each run's signals as soon as it is written
             t1 = time.perf_counter()
             tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{secrets.token_hex(4)}.mcap"
-            metadata = _metadata(task, run, host, rig)
+            metadata = _metadata(task, run, host, start_time)
             metadata["metrics"] = dict(result.metrics)
             outcome = result.outcome.as_dict()
-            write_run(tmp, metadata=metadata, fs=task.fs, signals=result.signals, outcome=outcome,
-                      attachments=attachments, channels=result.channels)
+            record = getattr(result, "diagnostics", None) or diagnostics  # a device loop's record is per run
+            if record is not None:
+                metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
+            write_run(tmp, metadata=metadata, signals=result.signals, outcome=outcome,
+                      prefix=prefixes.get(list(result.signals), result.channels), start_time=start_time)
             written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1, syncer.submit(_fsync, tmp)))
         t2 = time.perf_counter()
         for run, tmp, _, _, _, synced in written:

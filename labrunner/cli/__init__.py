@@ -1,6 +1,7 @@
 """The ``labrunner`` command: a thin argparse front end over the library.
 
-Each sub-command lives in its own module below ``labrunner.cli`` and exposes
+Each sub-command lives in its own module below ``labrunner.cli`` (``check-rig`` in
+``check_rig_cmd``) and exposes
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules import
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
@@ -44,6 +45,8 @@ COMMANDS = (
     "bounds",
     "differentiator",
     "reproduce",
+    "emulate",
+    "check-rig",
 )
 
 
@@ -69,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"labrunner {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
-        importlib.import_module(f"labrunner.cli.{name}_cmd").register(sub)
+        importlib.import_module(f"labrunner.cli.{name.replace('-', '_')}_cmd").register(sub)
     return parser
 
 

@@ -1,4 +1,5 @@
-"""``labrunner analyse DIR [--out DIR/report] [--json]``: metrics table, maps and an HTML report."""
+"""``labrunner analyse DIR [--out DIR/report] [--plot WHICH] [--recompute] [--json]``: metrics
+table, maps and an HTML report."""
 
 from __future__ import annotations
 
@@ -16,9 +17,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "analyse",
         help="turn a campaign directory into metrics, maps and an HTML report",
         description=(
-            "Read the ledger and run logs of a campaign directory; write metrics.csv/.parquet, RMS and "
-            "input-energy maps with the thesis's markers and stability bounds, plots of the best, worst "
-            "completed and first aborted runs, and a self-contained index.html."
+            "Read the ledger of a campaign directory (every run's metrics are committed there); write "
+            "metrics.csv/.parquet, RMS and input-energy maps with the thesis's markers and stability bounds, "
+            "plots of the best, worst completed and first aborted runs (and of those --plot names), and "
+            "index.html with a sortable table of all runs linking to their logs and plots."
         ),
     )
     p.add_argument("directory", metavar="DIR", help="campaign directory (holds ledger.sqlite)")
@@ -29,6 +31,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="leave out points within this relative distance of a predicted bound (default 0.1)")
     p.add_argument("--error", choices=("e", "e_hat"), default="e",
                    help="rank runs and draw the RMS map by e (default) or by paper 2's delayed error ê")
+    p.add_argument("--plot", action="append", default=[], metavar="WHICH",
+                   help="also plot these runs into OUT/plots/: a point id, an outcome (aborted, completed, no-motion, "
+                        "failed) or all; repeat or separate by commas")
+    p.add_argument("--recompute", action="store_true",
+                   help="read every run log and compute the metrics again instead of taking the ledger's")
     p.set_defaults(func=run)
 
 
@@ -51,13 +58,16 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidParameter("--out", f"{args.out!r} exists and is not a directory")
     if not (0.0 <= args.margin < 1.0):
         raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
-    summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin, error=args.error)
+    from labrunner.campaign.progress import format_counts
+
+    plot = [word for item in args.plot for word in item.split(",") if word]
+    summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin, error=args.error,
+                      recompute=args.recompute, plot=plot)
     if args.json:
         print(json.dumps(_strict(summary), ensure_ascii=False))
         return 0
     agree = summary["agreement"]
-    print(f"{summary['runs']} runs of {summary['points']} points: {summary['completed']} completed, "
-          f"{summary['no_motion']} no motion, {summary['aborted']} aborted, {summary['failed']} failed"
+    print(f"{summary['runs']} runs of {summary['points']} points: {format_counts(summary['outcomes'])}"
           + (f" ({summary['oscillating']} of the completed oscillating)" if summary.get("oscillating") else ""))
     best = summary["best"]
     if best:

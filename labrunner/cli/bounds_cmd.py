@@ -4,6 +4,7 @@ appendix A, corrected), optionally checked by the numerical spectral-abscissa so
 from __future__ import annotations
 
 import argparse
+import math
 
 from labrunner.cli.argtypes import numeric
 
@@ -35,12 +36,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _end(value: float, lo: float, hi: float) -> str:
+    """One end of an interval; the numerical solver's round-off around a bound of 0 (±1e-15) is
+    printed as 0, since |value| ≤ 1e-9 of the interval's larger end is no information."""
+    scale = max(abs(lo), abs(hi)) if all(map(math.isfinite, (lo, hi))) else 1.0
+    return "0" if abs(value) <= 1e-9 * scale else f"{value:.10g}"
+
+
 def _fmt(interval) -> str:
     if interval is None:
         return ": none stable"
-    if isinstance(interval[0], list):
-        return " in " + " or ".join(f"({lo:.10g}, {hi:.10g})" for lo, hi in interval)
-    return f" in ({interval[0]:.10g}, {interval[1]:.10g})"
+    pairs = interval if isinstance(interval[0], list) else [interval]
+    return " in " + " or ".join(f"({_end(lo, lo, hi)}, {_end(hi, lo, hi)})" for lo, hi in pairs)
 
 
 def _lines(result: dict, k_d: float | None) -> list[str]:

@@ -22,7 +22,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run",
         help="run a campaign file",
-        description="Validate every point of a campaign file, create its directory (ledger, runs/) and run it.",
+        description=(
+            "Validate every point of a campaign file, create its directory (ledger, runs/) and run it. A guided "
+            "campaign ([guided]) runs its tuning procedure in rounds, each next point chosen from the outcomes so far."
+        ),
     )
     p.add_argument("file", metavar="FILE", help="campaign file (TOML), e.g. campaigns/quickstart.toml")
     p.add_argument("--out", metavar="DIR", help="campaign directory (default: data/<name>/)")
@@ -33,14 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def report(outcome, directory: str, command: str) -> int:
     """Print how a session ended; the exit code (0 done, 130 interrupted); raise if it stopped."""
-    c = outcome.counts
-    left = c.get("planned", 0) + c.get("claimed", 0)
-    print(
-        f"{directory}: {c.get('done', 0)} done, {c.get('aborted', 0)} aborted, {c.get('failed', 0)} failed, "
-        f"{left} left ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)"
-    )
+    from labrunner.campaign.progress import format_counts
+
+    print(f"{directory}: {format_counts(outcome.counts)} ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)")
     if outcome.stop_reason:
-        raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`")
+        retry = f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)" if outcome.counts.get("failed", 0) else ""
+        raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`{retry}")
     if outcome.interrupted:
         print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
         return 130

@@ -9,8 +9,11 @@ import json
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "status",
-        help="counts of a campaign's points by state, elapsed time and an estimate",
-        description="Show a campaign's points by state (planned, claimed, done, aborted, failed), its elapsed time and an estimate of the time left.",
+        help="counts of a campaign's points by outcome, elapsed time and an estimate",
+        description=(
+            "Show a campaign's points by outcome (completed, no-motion, aborted, failed; claimed and planned "
+            "for points not run yet), its elapsed time and an estimate of the time left."
+        ),
     )
     p.add_argument("directory", metavar="DIR", help="campaign directory")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -25,20 +28,20 @@ def _clock(seconds: float | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from labrunner.campaign.progress import format_counts
     from labrunner.campaign.status import status
 
     st = status(args.directory)
     if args.json:
         print(json.dumps(st, sort_keys=True))
         return 0
-    outcomes = ", ".join(f"{k} {v}" for k, v in sorted(st["outcomes"].items())) or "none yet"
     runner = f"running (host {st['running']['host']} PID {st['running']['pid']})" if st["running"] else "not running"
     print(f"campaign {st['campaign']} in {st['directory']}: {runner}")
-    print(
-        f"  {st['total']} points: {st['done']} done, {st['aborted']} aborted, {st['failed']} failed, "
-        f"{st['claimed']} claimed, {st['planned']} planned"
-    )
-    print(f"  outcomes: {outcomes}; quarantined files: {st['quarantined']}")
+    print(f"  {st['total']} points: {format_counts(st['outcomes'])}; quarantined files: {st['quarantined']}")
     rate = f"{st['rate_per_s']:.2f} runs/s" if st["rate_per_s"] else "no rate yet"
     print(f"  elapsed {_clock(st['elapsed_s'])} over {st['sessions']} session(s), {rate}, estimated {_clock(st['estimate_s'])} left")
+    if "guided" in st:  # what the procedure decided so far
+        from labrunner.campaign.guided_run import status_lines
+
+        print("\n".join(status_lines(st["guided"])))
     return 0

@@ -86,7 +86,10 @@ def log_cutoff_product(alpha: float, beta: float, N: int, theta: float) -> float
     ref = math.lgamma(2 * mu + kappa) - math.lgamma(mu + kappa)  # log r for N = 0
     r = s = 0.0  # r/e^ref and, used only for κ = 0 where Γ(μ+κ+i) = Γ(μ+i), s/e^ref
     for i in range(N + 1):
-        log_ci = math.log(2 * mu + kappa + 2 * i - 1) + math.lgamma(2 * mu + kappa + i - 1)
+        if 2 * mu + kappa + 2 * i - 1 <= 0.0:  # i = 0, μ ≤ 1/2: (2μ+κ−1)·Γ(2μ+κ−1) = Γ(2μ+κ) > 0
+            log_ci = math.lgamma(2 * mu + kappa)
+        else:
+            log_ci = math.log(2 * mu + kappa + 2 * i - 1) + math.lgamma(2 * mu + kappa + i - 1)
         term = math.exp(log_ci - math.lgamma(mu + kappa + i) - ref)
         term *= special.eval_jacobi(i, mu - 1, mu + kappa - 1, sigma * theta)
         r += term

@@ -10,17 +10,24 @@ The file has the layout ``mcap``'s writer produces (MCAP spec v0): header; data 
 metadata, attachments and chunks, each chunk followed by the message index of every channel in
 it, chunks with the CRC of their uncompressed records; data end; summary with the schemas and
 channels repeated, statistics, chunk, attachment and metadata indexes, summary offsets; footer
-with the summary CRC. One difference: schemas and channels go in the data section when they are
+with the summary CRC. Two differences: schemas and channels go in the data section when they are
 added rather than inside the next chunk, so a file torn before its first chunk still declares its
-topics. The small records are written by ``mcap.records``' own classes.
+topics; and each channel's messages go into chunks of their own, so that reading one topic (the
+lossless blocks) decompresses nothing of another (the per-sample channel). The small records
+are written by ``mcap.records``' own classes. The start of a file that many files share (header,
+schemas, channels, attachments, constant metadata) can be captured once as a :class:`Prefix` and
+written again as bytes (:meth:`BulkWriter.resume`).
 """
 
 from __future__ import annotations
 
+import functools
 import struct
+import threading
 import zlib
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import BinaryIO
 
 import numpy as np
@@ -49,7 +56,7 @@ CHUNK_SIZE = 1 << 20  # uncompressed bytes of records per chunk (mcap's default)
 # and a motor run's 3 % smaller at 1.7× the compression time; negative levels give up entropy
 # coding of the float64 mantissas (files ~10 % larger) for 5× faster compression.
 ZSTD_LEVEL = 1
-_ZSTD = b"zstd"  # the chunks' compression, as MCAP names it
+_CHUNK_TAIL = struct.pack("<I", 4) + b"zstd"  # the chunks' compression, as MCAP names it
 _OUTPUT_PIECE = 1 << 16  # bytes of compressed output per piece (see _close_chunk)
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log and publish time
 _MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")  # opcode, record length, channel, index byte length
@@ -58,46 +65,99 @@ _FOOTER_PREFIX = struct.Struct("<BQQQ")  # opcode, record length, summary start,
 _INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 
 
-def message_records(channel_id: int, log_times: np.ndarray, sequences: np.ndarray, payloads: np.ndarray) -> np.ndarray:
-    """MCAP message records, one row each, for ``payloads`` (n, size) uint8 of equal size.
+@functools.lru_cache(maxsize=16)
+def _compressor(level: int, thread: int | None = None) -> zstandard.ZstdCompressor:
+    """One compressor per level and thread (its context is reused: creating one costs ~50 µs; a
+    compressor must not be used by two threads at once)."""
+    return zstandard.ZstdCompressor(level=level)
+
+
+def message_array(n: int, channel_id: int, payload: np.dtype | int, template: np.ndarray | None = None) -> np.ndarray:
+    """``n`` MCAP message records of ``channel_id`` whose ``data`` field has dtype ``payload`` (a
+    structured dtype the caller fills field by field, or a byte count for raw bytes).
 
     Row layout: opcode 0x05, record length (u64), channel id (u16), sequence (u32), log time and
-    publish time (u64, ns; publish time = log time), payload.
+    publish time (u64, ns), payload. Opcode, length and channel are filled here, and the payload
+    from ``template`` (one payload, e.g. the constant tags of a protobuf message) if given — by
+    broadcasting one row's bytes, 10× faster than assigning fields; the caller fills ``sequence``,
+    ``log_time`` and the payload's varying fields (:meth:`BulkWriter.add_records` sets the
+    publish time).
     """
-    n, size = payloads.shape
+    payload = np.dtype(("u1", (payload,))) if isinstance(payload, int) else np.dtype(payload)
     dtype = np.dtype(
         {
             "names": ["opcode", "length", "channel", "sequence", "log_time", "publish_time", "data"],
-            "formats": ["u1", "<u8", "<u2", "<u4", "<u8", "<u8", ("u1", (size,))],
+            "formats": ["u1", "<u8", "<u2", "<u4", "<u8", "<u8", payload],
             "offsets": [0, 1, 9, 11, 15, 23, _MESSAGE_HEADER.size],
-            "itemsize": _MESSAGE_HEADER.size + size,
+            "itemsize": _MESSAGE_HEADER.size + payload.itemsize,
         }
     )
+    row = np.zeros(1, dtype=dtype)
+    row["opcode"], row["length"], row["channel"] = Opcode.MESSAGE, dtype.itemsize - 9, channel_id
+    if template is not None:
+        row["data"] = template
     records = np.empty(n, dtype=dtype)
-    records["opcode"] = Opcode.MESSAGE
-    records["length"] = _MESSAGE_HEADER.size - 9 + size
-    records["channel"] = channel_id
-    records["sequence"] = sequences
-    records["log_time"] = log_times
-    records["publish_time"] = log_times
-    records["data"] = payloads
+    records.view(np.uint8).reshape(n, dtype.itemsize)[...] = row.view(np.uint8)
     return records
+
+
+def message_records(channel_id: int, log_times: np.ndarray, sequences: np.ndarray, payloads: np.ndarray) -> np.ndarray:
+    """A :func:`message_array` holding ``payloads`` (n, size) uint8 of equal size, with their log
+    times [ns] and sequence numbers."""
+    records = message_array(payloads.shape[0], channel_id, payloads.shape[1])
+    records["data"], records["log_time"], records["sequence"] = payloads, log_times, sequences
+    return records
+
+
+def _encoded(records: Sequence[McapRecord]) -> bytes:
+    """Records as bytes, through ``mcap``'s own encoder."""
+    builder = RecordBuilder()
+    for record in records:
+        record.write(builder)
+    return builder.end()
+
+
+@dataclass(frozen=True)
+class Prefix:
+    """The start of a file as :meth:`BulkWriter.prefix` captured it: its bytes and the records
+    the summary repeats or indexes, so that many files can begin with it without re-encoding."""
+
+    data: bytes
+    schemas: tuple[Schema, ...]
+    channels: tuple[Channel, ...]
+    attachment_indexes: tuple[AttachmentIndex, ...]
+    metadata_indexes: tuple[MetadataIndex, ...]
+    options: tuple[tuple[int, tuple[int, bool]], ...]  # channel id → (zstd level, CRC) where not the default
+    summary_records: tuple[bytes, bytes]  # the schemas and the channels as the summary repeats them
+
+
+class _Chunk:
+    """An open chunk: its records as pieces (joined only by the compressor), per-channel indexes."""
+
+    def __init__(self, level: int, crc: bool) -> None:
+        self.level, self.crc = level, crc
+        self.pieces: list[bytes | np.ndarray] = []
+        self.size = 0
+        self.index: dict[int, list[np.ndarray]] = {}
+        self.times: tuple[int, int] | None = None
 
 
 class BulkWriter:
     """Write one MCAP file to ``stream`` (opened for binary writing; not closed here).
 
-    Call :meth:`start`, then in any order :meth:`add_schema`, :meth:`add_channel`,
-    :meth:`add_metadata`, :meth:`add_attachment`, :meth:`add_message`, :meth:`add_messages` and
-    :meth:`flush`, then :meth:`finish`; records land in the file in call order. A chunk is closed
-    when its records pass ``chunk_size`` bytes, before a metadata record or an attachment, and at
-    every flush.
+    Call :meth:`start` (or :meth:`resume` from a :class:`Prefix`), then in any order
+    :meth:`add_schema`, :meth:`add_channel`, :meth:`add_metadata`, :meth:`add_attachment`,
+    :meth:`add_message`, :meth:`add_messages`, :meth:`add_records` and :meth:`flush`, then
+    :meth:`finish`. Each channel's messages collect in a chunk of their own (so that a reader of one
+    topic decompresses only its chunks); chunks are closed when their records pass ``chunk_size``
+    bytes, before a metadata record or an attachment, and at every flush.
     """
 
     def __init__(self, stream: BinaryIO, *, chunk_size: int = CHUNK_SIZE, level: int = ZSTD_LEVEL) -> None:
         self._stream = stream
         self._chunk_size = chunk_size
-        self._compressor = zstandard.ZstdCompressor(level=level)
+        self._level = level
+        self._options: dict[int, tuple[int, bool]] = {}  # channel id → (zstd level, CRC) if not (level, True)
         self._offset = 0  # bytes written to the stream
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
@@ -107,13 +167,8 @@ class BulkWriter:
         self._counts: dict[int, int] = defaultdict(int)  # messages per channel
         self._first_time: int | None = None
         self._last_time = 0
-        self._reset_chunk()
-
-    def _reset_chunk(self) -> None:
-        self._pieces: list[bytes | np.ndarray] = []
-        self._size = 0
-        self._index: dict[int, list[np.ndarray]] = {}
-        self._chunk_times: tuple[int, int] | None = None
+        self._open: dict[int, _Chunk] = {}  # channel id → its open chunk
+        self._summary_records: tuple[bytes, bytes] | None = None  # a prefix's schemas and channels, encoded
 
     def _write(self, data: bytes | memoryview) -> None:
         self._stream.write(data)
@@ -132,33 +187,59 @@ class BulkWriter:
         self._write(MCAP0_MAGIC)
         self._write_record(Header(profile=profile, library=library))
 
+    def prefix(self) -> Prefix:
+        """What was written so far (``stream`` must be a :class:`io.BytesIO`), to :meth:`resume` from."""
+        self._close_chunks()
+        return Prefix(
+            self._stream.getvalue(), tuple(self._schemas), tuple(self._channels),  # type: ignore[attr-defined]
+            tuple(self._attachment_indexes), tuple(self._metadata_indexes), tuple(self._options.items()),
+            (_encoded(self._schemas), _encoded(self._channels)),
+        )
+
+    def resume(self, prefix: Prefix) -> None:
+        """Begin the file with ``prefix`` (instead of :meth:`start`): its bytes as they are."""
+        self._write(prefix.data)
+        self._schemas, self._channels = list(prefix.schemas), list(prefix.channels)
+        self._attachment_indexes = list(prefix.attachment_indexes)
+        self._metadata_indexes = list(prefix.metadata_indexes)
+        self._options = dict(prefix.options)
+        self._summary_records = prefix.summary_records
+
     def add_schema(self, name: str, encoding: str, data: bytes) -> int:
         """Register a schema (ids from 1); return its id."""
         schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
         self._schemas.append(schema)
+        self._summary_records = None
         self._write_record(schema)
         return schema.id
 
-    def add_channel(self, topic: str, message_encoding: str, schema_id: int, metadata: Mapping[str, str] | None = None) -> int:
-        """Register a channel (ids from 1); return its id."""
+    def add_channel(
+        self, topic: str, message_encoding: str, schema_id: int, metadata: Mapping[str, str] | None = None,
+        *, level: int | None = None, crc: bool = True,
+    ) -> int:
+        """Register a channel (ids from 1); return its id. ``level`` (zstd) and ``crc`` (whether its
+        chunks carry the CRC of their records; 0 means "not checked" in MCAP) apply to its chunks."""
         channel = Channel(
             id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
             schema_id=schema_id, metadata=dict(metadata or {}),
         )
         self._channels.append(channel)
+        self._summary_records = None
         self._write_record(channel)
+        if (level is not None and level != self._level) or not crc:
+            self._options[channel.id] = (self._level if level is None else level, crc)
         return channel.id
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        """A metadata record, after everything added so far (the open chunk is closed first)."""
-        self._close_chunk()
+        """A metadata record, after everything added so far (open chunks are closed first)."""
+        self._close_chunks()
         offset = self._offset
         length = self._write_record(Metadata(name=name, metadata=dict(data)))
         self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
 
     def add_attachment(self, name: str, media_type: str, data: bytes, *, log_time: int = 0, create_time: int = 0) -> None:
         """An attachment record (times in ns), after everything added so far."""
-        self._close_chunk()
+        self._close_chunks()
         offset = self._offset
         record = Attachment(create_time=create_time, log_time=log_time, name=name, media_type=media_type, data=data)
         length = self._write_record(record)
@@ -174,59 +255,78 @@ class BulkWriter:
         only when the chunk is written); ``log_time`` [ns]."""
         length = _MESSAGE_HEADER.size - 9 + sum(memoryview(p).nbytes for p in parts)
         header = _MESSAGE_HEADER.pack(Opcode.MESSAGE, length, channel_id, sequence, log_time, log_time)
-        self._append(channel_id, np.array([log_time], dtype=np.uint64), np.array([self._size], dtype=np.uint64), [header, *parts])
+        chunk = self._chunk(channel_id)
+        self._append(chunk, channel_id, np.array([log_time], dtype=np.uint64), np.array([chunk.size], dtype=np.uint64), [header, *parts])
 
     def add_messages(self, channel_id: int, log_times: np.ndarray, sequences: np.ndarray, payloads: np.ndarray) -> None:
         """Append messages of one channel with equal-sized payloads, a (n, size) uint8 array
         (vectorised: one structured array of records); ``log_times`` [ns]."""
-        log_times = np.asarray(log_times, dtype=np.uint64)
-        records = message_records(channel_id, log_times, np.asarray(sequences, dtype=np.uint32), payloads)
+        self.add_records(channel_id, message_records(channel_id, log_times, sequences, payloads))
+
+    def add_records(self, channel_id: int, records: np.ndarray) -> None:
+        """Append messages of channel ``channel_id`` from a :func:`message_array` of it whose
+        payloads, ``log_time`` and ``sequence`` are filled (publish time = log time, set here)."""
+        records["publish_time"] = records["log_time"]
         size = records.dtype.itemsize
         start = 0
         while start < len(records):  # split where the open chunk fills up
-            stop = min(len(records), start + max(1, -(-(self._chunk_size - self._size) // size)))
-            offsets = self._size + size * np.arange(stop - start, dtype=np.uint64)
-            self._append(channel_id, log_times[start:stop], offsets, [records[start:stop].view(np.uint8)])
+            chunk = self._chunk(channel_id)
+            stop = min(len(records), start + max(1, -(-(self._chunk_size - chunk.size) // size)))
+            offsets = chunk.size + size * np.arange(stop - start, dtype=np.uint64)
+            self._append(chunk, channel_id, records["log_time"][start:stop], offsets, [records[start:stop].view(np.uint8)])
             start = stop
 
-    def _append(self, channel_id: int, log_times: np.ndarray, offsets: np.ndarray, pieces: list) -> None:
-        """Add records (``pieces``, in order) of one channel's messages at ``offsets`` in the open
+    def _chunk(self, channel_id: int) -> _Chunk:
+        chunk = self._open.get(channel_id)
+        if chunk is None:
+            chunk = self._open[channel_id] = _Chunk(*self._options.get(channel_id, (self._level, True)))
+        return chunk
+
+    def _append(self, chunk: _Chunk, channel_id: int, log_times: np.ndarray, offsets: np.ndarray, pieces: list) -> None:
+        """Add records (``pieces``, in order) of one channel's messages at ``offsets`` in its open
         chunk; close the chunk once full."""
         entries = np.empty(len(offsets), dtype=_INDEX_ENTRY)
         entries["log_time"], entries["offset"] = log_times, offsets
-        self._index.setdefault(channel_id, []).append(entries)
-        self._pieces += pieces
-        self._size += sum(memoryview(p).nbytes for p in pieces)
-        lo, hi = int(np.min(entries["log_time"])), int(np.max(entries["log_time"]))
-        self._chunk_times = (lo, hi) if self._chunk_times is None else (min(lo, self._chunk_times[0]), max(hi, self._chunk_times[1]))
+        chunk.index.setdefault(channel_id, []).append(entries)
+        chunk.pieces += pieces
+        chunk.size += sum(memoryview(p).nbytes for p in pieces)
+        lo, hi = int(log_times.min()), int(log_times.max())
+        chunk.times = (lo, hi) if chunk.times is None else (min(lo, chunk.times[0]), max(hi, chunk.times[1]))
         self._counts[channel_id] += len(entries)
-        if self._size >= self._chunk_size:
-            self._close_chunk()
+        if chunk.size >= self._chunk_size:
+            self._close_chunk(self._open.pop(channel_id))
 
-    def _close_chunk(self) -> None:
-        """Write the open chunk (zstd) and its message indexes; no-op when it holds no message."""
-        if self._chunk_times is None:
+    def _close_chunks(self) -> None:
+        """Write every open chunk, in the order their channels opened them."""
+        chunks, self._open = list(self._open.values()), {}
+        for chunk in chunks:
+            self._close_chunk(chunk)
+
+    def _close_chunk(self, chunk: _Chunk) -> None:
+        """Write one chunk (zstd) and its message indexes; no-op when it holds no message."""
+        if chunk.times is None:
             return
         # The pieces are compressed and check-summed as they are, never joined, and the output
         # comes in small pieces: fresh memory costs a page fault per 4 KiB (≈ 2 µs measured), which for
         # the joined records and one compressed buffer would be a fifth of the write time.
-        chunker = self._compressor.chunker(size=self._size, chunk_size=_OUTPUT_PIECE)
+        chunker = _compressor(chunk.level, threading.get_ident()).chunker(size=chunk.size, chunk_size=_OUTPUT_PIECE)
         compressed, crc = [], 0
-        for piece in self._pieces:
-            crc = zlib.crc32(piece, crc)
+        for piece in chunk.pieces:
+            if chunk.crc:
+                crc = zlib.crc32(piece, crc)
             compressed += chunker.compress(piece)
         compressed += chunker.finish()
         compressed_size = sum(len(c) for c in compressed)
-        start_time, end_time = self._chunk_times
-        tail = struct.pack("<I", len(_ZSTD)) + _ZSTD + struct.pack("<Q", compressed_size)  # compression, records length
-        length = _CHUNK_HEADER.size - 9 + len(tail) + compressed_size
+        start_time, end_time = chunk.times
+        length = _CHUNK_HEADER.size - 9 + len(_CHUNK_TAIL) + 8 + compressed_size
         chunk_start = self._offset
-        self._write(_CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, self._size, crc) + tail)
+        self._write(_CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, chunk.size, crc)
+                    + _CHUNK_TAIL + struct.pack("<Q", compressed_size))
         for piece in compressed:
             self._write(piece)
         chunk_length = self._offset - chunk_start
         offsets = {}
-        for channel_id, parts in self._index.items():
+        for channel_id, parts in chunk.index.items():
             entries = np.concatenate(parts) if len(parts) > 1 else parts[0]
             offsets[channel_id] = self._offset
             self._write(_MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes, channel_id, entries.nbytes))
@@ -236,21 +336,20 @@ class BulkWriter:
                 message_start_time=start_time, message_end_time=end_time, chunk_start_offset=chunk_start,
                 chunk_length=chunk_length, message_index_offsets=offsets,
                 message_index_length=self._offset - chunk_start - chunk_length, compression="zstd",
-                compressed_size=compressed_size, uncompressed_size=self._size,
+                compressed_size=compressed_size, uncompressed_size=chunk.size,
             )
         )
         self._first_time = start_time if self._first_time is None else min(self._first_time, start_time)
         self._last_time = max(self._last_time, end_time)
-        self._reset_chunk()
 
     def flush(self) -> None:
-        """Close the open chunk and flush the stream (no fsync): what was added survives a kill."""
-        self._close_chunk()
+        """Close the open chunks and flush the stream (no fsync): what was added survives a kill."""
+        self._close_chunks()
         self._stream.flush()
 
     def finish(self) -> None:
-        """Close the open chunk; write data end, summary, footer and closing magic; flush."""
-        self._close_chunk()
+        """Close the open chunks; write data end, summary, footer and closing magic; flush."""
+        self._close_chunks()
         self._write_record(DataEnd(data_section_crc=0))
         summary_start = self._offset
         builder = RecordBuilder()
@@ -270,8 +369,11 @@ class BulkWriter:
         for opcode, records in groups:
             if records:
                 group_start = builder.count
-                for record in records:
-                    record.write(builder)
+                if opcode in (Opcode.SCHEMA, Opcode.CHANNEL) and self._summary_records is not None:
+                    builder.write(self._summary_records[opcode == Opcode.CHANNEL])  # the prefix's, encoded once
+                else:
+                    for record in records:
+                        record.write(builder)
                 offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + group_start,
                                              group_length=builder.count - group_start))
         summary_offset_start = summary_start + builder.count

@@ -1,8 +1,8 @@
 """Reading run logs: the signals as a DataFrame, the metadata, the outcome; salvage of torn files.
 
 A finished file is read through its summary (``mcap``'s seeking reader): only chunks that hold
-``/run/blocks`` messages are decompressed, and their records are scanned for block messages
-without decoding the per-sample preview. A *torn* file (no footer or summary: its writer was
+``/run/blocks`` messages are decompressed (the writer keeps ``/run/samples`` in chunks of their
+own), and their records are scanned for block messages. A *torn* file (no footer or summary: its writer was
 killed) is read front to back with ``mcap``'s stream reader, in file order, keeping every record
 up to the first incomplete one — all complete chunks survive.
 """
@@ -32,6 +32,7 @@ from mcap.writer import MCAP0_MAGIC
 
 from labrunner.errors import InvalidParameter
 from labrunner.logs import schema
+from labrunner.logs.writer import LOG_FORMAT, decode_record
 
 # What a file cut short raises while being read: end of data, a truncated chunk, a bad record.
 _TRUNCATED = (McapError, struct.error, zstandard.ZstdError, ValueError, EOFError)
@@ -88,7 +89,7 @@ def _strict_json(value: Any) -> Any:
     return value
 
 
-def _decode_record(record: dict[str, str]) -> dict[str, Any]:
+def _decode_json_record(record: dict[str, str]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, text in record.items():
         try:
@@ -96,6 +97,15 @@ def _decode_record(record: dict[str, str]) -> dict[str, Any]:
         except ValueError:  # written by another tool: keep the text
             out[key] = text
     return out
+
+
+def _decode_records(raw: dict[str, dict[str, str]]) -> dict[str, dict[str, Any]]:
+    """Metadata records of one file to Python values: plain text (this format, marked by
+    ``run.log_format``), or every value JSON text (logs of labrunner before it, which always
+    wrote a ``run`` record without that mark)."""
+    plain = "run" not in raw or raw["run"].get("log_format") == LOG_FORMAT
+    decode = decode_record if plain else _decode_json_record
+    return {name: decode(record) for name, record in raw.items()}
 
 
 def _open(path: str | os.PathLike[str]) -> BinaryIO:
@@ -214,7 +224,7 @@ class _ChunkReader:
 def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Frame, str]:
     summary = reader.get_summary()
     assert summary is not None
-    records = {m.name: _decode_record(m.metadata) for m in reader.iter_metadata()}
+    records = _decode_records({m.name: m.metadata for m in reader.iter_metadata()})
     attachments = {a.name: a.data for a in reader.iter_attachments()}
     ids = {cid for cid, ch in summary.channels.items() if ch.topic == schema.BLOCK_TOPIC}
     chunks = sorted(
@@ -240,25 +250,30 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
 
 
 def _read_torn(f: BinaryIO) -> tuple[dict, dict, _Frame]:
-    records: dict[str, dict[str, Any]] = {}
+    raw: dict[str, dict[str, str]] = {}
     attachments: dict[str, bytes] = {}
     ids: set[int] = set()
     frame: _Frame | None = None
     try:
         for record in StreamReader(f).records:
             if isinstance(record, Metadata):
-                records[record.name] = _decode_record(record.metadata)
+                raw[record.name] = record.metadata
             elif isinstance(record, Attachment):
                 attachments[record.name] = record.data
             elif isinstance(record, Channel) and record.topic == schema.BLOCK_TOPIC:
                 ids.add(record.id)
             elif isinstance(record, Message) and record.channel_id in ids:
                 if frame is None:
-                    frame = _Frame(list(records.get("channels", {})))
+                    frame = _Frame(_channel_names(raw))
                 frame.add(schema.decode_block(record.data))
     except _TRUNCATED:
         pass  # the rest of the file is incomplete
-    return records, attachments, frame if frame is not None else _Frame(list(records.get("channels", {})))
+    return _decode_records(raw), attachments, frame if frame is not None else _Frame(_channel_names(raw))
+
+
+def _channel_names(raw: dict[str, dict[str, str]]) -> list[str]:
+    """Signal names from a raw ``channels`` record (either format)."""
+    return list(decode_record(raw.get("channels", {})))
 
 
 def read_run(path: str | os.PathLike[str]) -> RunLog:
@@ -296,20 +311,20 @@ def _check_records(records: dict[str, dict[str, Any]], path: str | os.PathLike[s
 
 
 def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
-    """Every metadata record (``run``, ``config``, ``channels``, ``outcome`` if finished), JSON-
-    decoded, without reading the signals: through the metadata index, or a scan of a torn file."""
+    """Every metadata record (``run``, ``config``, ``channels``, ``outcome`` if finished), decoded,
+    without reading the signals: through the metadata index, or a scan of a torn file."""
     with _open(path) as f:
         reader = _finished(f)
         if reader is not None:
-            return {m.name: _decode_record(m.metadata) for m in reader.iter_metadata()}
-        records = {}
+            return _decode_records({m.name: m.metadata for m in reader.iter_metadata()})
+        raw = {}
         try:
             for record in StreamReader(f, emit_chunks=True).records:  # chunks are not decompressed
                 if isinstance(record, Metadata):
-                    records[record.name] = _decode_record(record.metadata)
+                    raw[record.name] = record.metadata
         except _TRUNCATED:
             pass
-        return records
+        return _decode_records(raw)
 
 
 def read_outcome(path: str | os.PathLike[str]) -> dict[str, Any] | None:

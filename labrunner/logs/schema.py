@@ -1,27 +1,36 @@
 """Protobuf schemas of a run log and their wire encoding.
 
-Two topics carry a run's signals (``t`` is implicit: sample k is at k / f_s):
+Two topics carry a run's signals:
 
 ``/run/blocks`` — message ``labrunner.logs.SignalBlock``, the lossless record, one message per
-≈ 1000 samples (:data:`BLOCK_SAMPLES`)::
+≈ 1000 samples (:data:`BLOCK_SAMPLES`); ``t`` is implicit, sample k is at k / f_s::
 
     message Signal      { string name = 1; repeated double values = 2 [packed = true]; }
     message SignalBlock { uint64 first_index = 1; double t0 = 2; double fs = 3;
                           repeated Signal signals = 4; }
 
-``/run/preview`` — message ``labrunner.logs.RunSample``, one message per kept sample, thinned to
-≤ 1 kHz (500 Hz by default), so that Foxglove plots ``/run/preview.<signal>`` as a time series.
-Its type is built per run from the signal names::
+``/run/samples`` — message ``labrunner.logs.Sample``, one message per sample at the full rate
+(unless the campaign's ``[logging] samples_hz`` thins it, which the channel's metadata and the
+``run`` record then say), so that Foxglove plots ``/run/samples.<field>`` as a time series at every
+rate, the plate's 942 rad/s mode included. Its type is built per run from the signal names and
+units::
 
-    message RunSample { double t = 1; double <signal_1> = 2; double <signal_2> = 3; ... }
+    message Sample { double t__s = 1; double <field_1> = 2; double <field_2> = 3; ... }
+
+A field is named ``<signal>__<unit>`` (:func:`sample_field`): the signal's name, two underscores
+and its SI unit spelt as an identifier (``/`` → ``_per_``, ``²`` → ``2``, ``·`` → ``_``), e.g.
+``omega__rad_per_s``, ``h1__m``, ``i1__A``; a signal without unit keeps its bare name. So a plot's
+legend names the unit, and the channel's metadata repeats it exactly (``unit.<field>`` = ``rad/s``).
+``t__s`` is the time since the run's first sample; the messages' ``log_time`` is the wall-clock time
+of the sample (ns since 1970).
 
 Both schemas are stored in the file as serialised ``FileDescriptorSet`` (MCAP schema encoding
 ``protobuf``), built here from ``FileDescriptorProto`` objects, so no ``protoc`` step exists and
 any protobuf-aware MCAP tool decodes the messages. The hot paths (writing and reading blocks,
-writing preview samples) encode the wire format directly with numpy — a packed double field is
-the little-endian float64 array itself, a preview sample a fixed-size row of tags and doubles —
-which is ~50× faster than filling message objects; ``tests/test_logs.py`` and
-``tests/test_logs_mcap.py`` check the bytes against the generated message classes.
+writing samples) encode the wire format directly with numpy — a packed double field is the
+little-endian float64 array itself, a sample a fixed-size row of tags and doubles — which is
+~50× faster than filling message objects; ``tests/test_logs.py`` and ``tests/test_logs_mcap.py``
+check the bytes against the generated message classes.
 """
 
 from __future__ import annotations
@@ -37,15 +46,13 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from labrunner.errors import InvalidParameter
 
 BLOCK_TOPIC = "/run/blocks"
-PREVIEW_TOPIC = "/run/preview"
+SAMPLES_TOPIC = "/run/samples"
 BLOCK_SCHEMA_NAME = "labrunner.logs.SignalBlock"
-PREVIEW_SCHEMA_NAME = "labrunner.logs.RunSample"
+SAMPLES_SCHEMA_NAME = "labrunner.logs.Sample"
 BLOCK_SAMPLES = 1000  # samples per block message
-PREVIEW_MAX_HZ = 1000.0  # highest rate of the per-sample preview channel [Hz]
-# Default preview rate [Hz]: the preview repeats the blocks' data, so it is kept to what a plot of a
-# run needs (a sample of ten signals is a 130-byte message, < 1 µs to encode and compress with
-# the bulk writer); a run at f_s ≤ 500 Hz, such as the motor's at 200 Hz, is not thinned at all.
-PREVIEW_HZ = 500.0
+TIME_FIELD = "t__s"  # the per-sample message's time since the run's first sample [s]
+_UNIT_SPELLING = (("/", "_per_"), ("²", "2"), ("³", "3"), ("·", "_"), ("*", "_"), (" ", "_"), ("°", "deg"),
+                  ("µ", "u"), ("Ω", "Ohm"), ("%", "percent"), ("^", ""), ("(", ""), (")", ""), ("-", "_"))
 
 _F = descriptor_pb2.FieldDescriptorProto
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
@@ -71,12 +78,12 @@ def _block_file() -> descriptor_pb2.FileDescriptorProto:
     return fdp
 
 
-def _preview_file(names: Sequence[str]) -> descriptor_pb2.FileDescriptorProto:
+def _samples_file(fields: Sequence[str]) -> descriptor_pb2.FileDescriptorProto:
     fdp = descriptor_pb2.FileDescriptorProto(
-        name="labrunner/logs/run_sample.proto", package="labrunner.logs", syntax="proto3"
+        name="labrunner/logs/sample.proto", package="labrunner.logs", syntax="proto3"
     )
-    msg = fdp.message_type.add(name="RunSample")
-    for number, name in enumerate(("t", *names), start=1):
+    msg = fdp.message_type.add(name="Sample")
+    for number, name in enumerate((TIME_FIELD, *fields), start=1):
         msg.field.add(name=name, number=number, type=_F.TYPE_DOUBLE, label=_F.LABEL_OPTIONAL)
     return fdp
 
@@ -106,10 +113,29 @@ def check_signal_names(names: Sequence[str]) -> None:
         raise InvalidParameter("signals", f"names must be unique, got {list(names)}")
 
 
-def preview_schema(names: Sequence[str]) -> bytes:
-    """Serialised ``FileDescriptorSet`` of this run's ``RunSample`` message."""
+def sample_field(name: str, unit: str) -> str:
+    """The per-sample message's field of signal ``name`` in ``unit``: ``<name>__<unit spelt as an
+    identifier>`` (``omega``, ``rad/s`` → ``omega__rad_per_s``), or ``name`` without a unit."""
+    spelt = str(unit or "")
+    for old, new in _UNIT_SPELLING:
+        spelt = spelt.replace(old, new)
+    spelt = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "", spelt)).strip("_")
+    return f"{name}__{spelt}" if spelt else name
+
+
+def sample_fields(names: Sequence[str], units: Sequence[str]) -> list[str]:
+    """Fields of the per-sample message for signals ``names`` in ``units`` (all distinct)."""
     check_signal_names(names)
-    return descriptor_pb2.FileDescriptorSet(file=[_preview_file(names)]).SerializeToString()
+    fields = [sample_field(n, u) for n, u in zip(names, units, strict=True)]
+    if len(set(fields) | {TIME_FIELD}) != len(fields) + 1:
+        raise InvalidParameter("signals", f"names and units give clashing per-sample fields: {fields}")
+    return fields
+
+
+def samples_schema(fields: Sequence[str]) -> bytes:
+    """Serialised ``FileDescriptorSet`` of this run's ``Sample`` message (``fields`` from
+    :func:`sample_fields`)."""
+    return descriptor_pb2.FileDescriptorSet(file=[_samples_file(fields)]).SerializeToString()
 
 
 def varint(n: int) -> bytes:
@@ -232,17 +258,38 @@ def decode_block(buf: bytes | memoryview) -> tuple[int, float, dict[str, np.ndar
     return first_index, fs, signals
 
 
-def encode_preview(t: np.ndarray, columns: Sequence[np.ndarray]) -> np.ndarray:
-    """Wire bytes of one ``RunSample`` per element of ``t``: a (len(t), 9 · (1 + len(columns)))
-    uint8 array, row k the message of sample k (vectorised: every field is a 1-byte tag and a
-    little-endian double, zeros included, so all records have one size)."""
-    fields = [("t", t), *((f"s{j}", c) for j, c in enumerate(columns))]
-    tags = [varint((number << 3) | 1) for number in range(1, len(fields) + 1)]
-    dtype = np.dtype(
-        [item for (key, _), tag in zip(fields, tags) for item in ((f"k_{key}", "u1", (len(tag),)), (key, "<f8"))]
-    )
-    records = np.empty(len(t), dtype=dtype)
-    for (key, values), tag in zip(fields, tags):
-        records[f"k_{key}"] = np.frombuffer(tag, dtype="u1")
-        records[key] = values
-    return records.view(np.uint8).reshape(len(t), dtype.itemsize)
+@functools.lru_cache(maxsize=64)
+def sample_dtype(n_signals: int) -> np.dtype:
+    """Wire layout of one ``Sample`` of ``n_signals`` signals: every field its tag (a varint of
+    1–2 bytes, held as a little-endian u1 or u2) and a little-endian double (zeros included), so
+    that all messages have one size; fields ``t``, ``s0``, ``s1``, ... with tags ``k_t``, ``k_s0``, ..."""
+    keys = ["t", *(f"s{j}" for j in range(n_signals))]
+    sizes = [len(varint((number << 3) | 1)) for number in range(1, len(keys) + 1)]  # wire type 1: 64-bit
+    if max(sizes) > 2:
+        raise InvalidParameter("signals", f"at most 2046 signals fit the per-sample message, got {n_signals}")
+    return np.dtype([item for key, size in zip(keys, sizes) for item in ((f"k_{key}", f"<u{size}"), (key, "<f8"))])
+
+
+def sample_tags(n_signals: int) -> np.ndarray:
+    """One :func:`sample_dtype` row with the tags set and the doubles zero: the template that
+    :func:`labrunner.logs.mcap_writer.message_array` broadcasts."""
+    row = np.zeros(1, dtype=sample_dtype(n_signals))
+    for number, key in enumerate(row.dtype.names[::2], start=1):
+        row[key] = int.from_bytes(varint((number << 3) | 1), "little")
+    return row
+
+
+def fill_samples(rows: np.ndarray, t: np.ndarray, columns: Sequence[np.ndarray]) -> None:
+    """Write the doubles of ``Sample`` messages into ``rows`` (of :func:`sample_dtype`, tags from
+    :func:`sample_tags`), row k from ``t[k]`` and ``columns[j][k]``."""
+    rows["t"] = t
+    for j, values in enumerate(columns):
+        rows[f"s{j}"] = values
+
+
+def encode_samples(t: np.ndarray, columns: Sequence[np.ndarray]) -> np.ndarray:
+    """Wire bytes of one ``Sample`` per element of ``t``: a (len(t), message size) uint8 array,
+    row k the message of sample k (vectorised)."""
+    rows = np.repeat(sample_tags(len(columns)), len(t))
+    fill_samples(rows, t, columns)
+    return rows.view(np.uint8).reshape(len(t), rows.dtype.itemsize)

@@ -3,7 +3,7 @@
 A check takes the item's results (``{file: CampaignResult}``) and returns a :class:`Verdict`: what
 was measured (one sentence), whether it agrees with the claim (None: no yes/no answer), and a table
 to print beside the source's numbers. Pure functions of the metrics tables; "observed unstable" is
-aborted or oscillating (:func:`labrunner.analysis.agreement.observed_status`), as in the maps.
+aborted or oscillating (:func:`labrunner.analysis.agreement.observed_outcome`), as in the maps.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from labrunner.analysis.agreement import observed_status
+from labrunner.analysis.agreement import observed_outcome
 from labrunner.reproduce.run import CampaignResult
 
 Results = Mapping[str, CampaignResult]
@@ -33,11 +33,11 @@ def _one(results: Results, part: str = "") -> CampaignResult:
 
 
 def _unstable(frame: pd.DataFrame) -> pd.Series:
-    return observed_status(frame).isin(("aborted", "oscillating"))
+    return observed_outcome(frame).isin(("aborted", "oscillating"))
 
 
 def _done(frame: pd.DataFrame) -> pd.DataFrame:
-    return frame[observed_status(frame) == "completed"]
+    return frame[observed_outcome(frame) == "completed"]
 
 
 def identification(results: Results) -> Verdict:
@@ -108,7 +108,7 @@ def constant_ratio_lines(results: Results) -> Verdict:
     run = _one(results)
     frame = run.frame.copy()
     frame["γ/k_p"] = frame["controller.gamma"] / frame["controller.k_p"]
-    frame["status"] = observed_status(frame)
+    frame["status"] = observed_outcome(frame)
     lines = (frame.groupby(np.round(np.log10(frame["γ/k_p"]), 3))
              .agg(runs=("rms_error", "size"), stable=("status", lambda s: int((s == "completed").sum())),
                   mean_rms=("rms_error", "mean"), spread=("rms_error", lambda v: _spread(v.to_numpy())))

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from labrunner.analysis.agreement import observed_status
+from labrunner.analysis.agreement import observed_outcome
 from labrunner.reproduce.checks import Results, Verdict, _one
 
 #: Paper 2 Table 3 [µm]: (experiment, sensor) → (MBC, MFC v, F̄, u, i).
@@ -33,10 +33,10 @@ COLUMNS = ("MBC", "MFC v", "MFC F̄", "MFC u", "MFC i")
 
 def _walk(frame: pd.DataFrame) -> tuple[int | None, pd.Series | None]:
     """(index of the first observed-unstable run or None, the chosen run) of a walk in seq order."""
-    status = observed_status(frame).to_numpy()
+    status = observed_outcome(frame).to_numpy()
     stop = next((i for i, s in enumerate(status) if s in ("aborted", "oscillating")), None)
     before = frame.iloc[: stop if stop is not None else len(frame)]
-    done = before[observed_status(before) == "completed"]
+    done = before[observed_outcome(before) == "completed"]
     return stop, (done.loc[done["rms_error"].idxmin()] if len(done) else None)
 
 
@@ -47,7 +47,7 @@ def tuning_walks(results: Results) -> Verdict:
     if ff is None or fb is None:
         return Verdict("a Polack stage found no completed run", False)
     target = float(fb["rms_error"])
-    reach = g2[(observed_status(g2) == "completed") & (g2["rms_error"] <= target)]
+    reach = g2[(observed_outcome(g2) == "completed") & (g2["rms_error"] <= target)]
     n_ff, n_fb = int(ff["seq"]) + 1, int(fb["seq"]) + 1
     n_g2 = int(reach["seq"].min()) + 1 if len(reach) else None
     g2_run = g2.loc[g2["seq"] == n_g2 - 1].iloc[0] if n_g2 else None
@@ -74,7 +74,7 @@ def _g(frame: pd.DataFrame, stop: int | None) -> str:
 def valve_parametrisations(results: Results) -> Verdict:
     """Share of (γ, k_p) cells whose observed class (stable / unstable) equals that of No. 1."""
     frame = _one(results).frame.copy()
-    frame["unstable"] = observed_status(frame).isin(("aborted", "oscillating"))
+    frame["unstable"] = observed_outcome(frame).isin(("aborted", "oscillating"))
     keys = ["controller.gamma", "controller.k_p"]
     groups = list(frame.groupby(["differentiator.alpha", "differentiator.omega_c"], sort=False))
     ref = groups[0][1].set_index(keys)["unstable"]
@@ -82,7 +82,7 @@ def valve_parametrisations(results: Results) -> Verdict:
     for (alpha, omega), g in groups:
         cls = g.set_index(keys)["unstable"].reindex(ref.index)
         rows.append({"α = β": int(alpha), "ω_c [rad/s]": omega, "unstable": int(g["unstable"].sum()),
-                     "oscillating (detector)": int((observed_status(g) == "oscillating").sum()),
+                     "oscillating (detector)": int((observed_outcome(g) == "oscillating").sum()),
                      "same class as No. 1": float((cls == ref).mean())})
     table = pd.DataFrame(rows)
     low = float(table["same class as No. 1"].min())
@@ -117,7 +117,7 @@ def plate_optimum(results: Results) -> Verdict:
     keys = [k for k in ("differentiator.alpha", "differentiator.omega_c", "controller.k_p", "controller.k_d")
             if k in frame.columns and frame[k].nunique() > 1]
     paper = {"differentiator.alpha": 4, "differentiator.omega_c": 840.0, "controller.k_p": 5000.0, "controller.k_d": 195.0}
-    done = frame[observed_status(frame) == "completed"]
+    done = frame[observed_outcome(frame) == "completed"]
     best = done.loc[done["ehat"].idxmin()]
     at_paper = done[np.logical_and.reduce([np.isclose(done[k], paper[k], rtol=0.02) for k in keys])]
     ratio = float(at_paper["ehat"].iloc[0] / best["ehat"]) if len(at_paper) else math.nan
@@ -129,7 +129,7 @@ def plate_optimum(results: Results) -> Verdict:
 def plate_input_gains(results: Results) -> Verdict:
     frame = _one(results).frame.copy()
     frame["ehat"] = _ehat(frame, "move")
-    frame["status"] = observed_status(frame)
+    frame["status"] = observed_outcome(frame)
     nominal = {"v": 1.0, "force": 1.0, "u": 1.6e-5, "current": 0.04}
     frame["factor"] = [g / nominal[i] for g, i in zip(frame["controller.gamma"], frame["controller.input"])]
     table = frame.pivot_table(index="factor", columns="controller.input", values="ehat", aggfunc="first") * 1e6

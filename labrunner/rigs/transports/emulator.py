@@ -1,66 +1,96 @@
-"""Device-firmware twin: serves a simulated rig (B = 1) over a frame link, in a thread.
+"""The emulated device: the firmware's reference behaviour, serving a simulated twin over a link.
 
-It behaves as the rig protocol asks of real firmware (:mod:`~labrunner.rigs.transports.protocol`):
-RESET starts a run and answers with the first measurement, a committed INPUT steps the twin by one
-sample and answers with its measurement, SAFE holds the safe input until the next RESET, HEARTBEAT
-is answered with STATUS, and a running device that hears nothing for ``watchdog_s`` goes safe on
-its own and sends ERROR WATCHDOG. It answers as fast as it can (no real-time pacing): the host's
-``step`` blocks on the answer exactly as it does on a device-clocked rig.
+:class:`Emulator` is the firmware's main loop in a thread: it receives host frames and calls the
+handler registered for their kind in :attr:`Emulator.handlers`, and between frames it runs the
+periodic :attr:`Emulator.tasks` (each returns the monotonic time it next wants to run). The core
+here serves what every device does (``docs/protocol.md``): HELLO → IDENTITY, HEARTBEAT → STATUS,
+SAFE (the safe input latched until the next run; a host-loop clock keeps ticking so the host
+can log the rig coming to rest, until STOP or the watchdog), STOP (idle), the watchdog armed by a
+run's set-up, a STATUS
+heartbeat every :data:`STATUS_PERIOD_S` while running. The loop placements install their own
+handlers: :mod:`.hostloop_device` (SETUP, INPUT and the tick clock) always, and the modules named
+in :data:`EXTENSIONS` (``"module:function"``, each called with the emulator) add theirs, e.g. the
+device loop's bulk transfers.
 
-Used by the tests (CAN over ``udp_multicast``, serial over a pty pair) and to try a real-rig
-campaign without hardware::
-
-    python -m labrunner.rigs.transports.emulator rigs/dcmotor-can.toml
+Paced by default (the device's clock ticks in real time); ``paced=False`` ticks as soon as the
+host commits an input, for fast tests. :class:`~.faults.LinkFaults` injects faults into what it sends.
 """
 
 from __future__ import annotations
 
-import argparse
+import contextlib
+import importlib
 import os
 import select
 import threading
 import time
 import tty
-from collections.abc import Sequence
-
-import numpy as np
+from collections.abc import Callable
 
 from labrunner.errors import LabrunnerError
-from labrunner.rigs.base import Rig
-from labrunner.rigs.base import RigConfig
-from labrunner.rigs.config import config_from_dict, load_rig_config
+from labrunner.rigs.base import Rig, RigConfig
+from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
-from labrunner.rigs.transports.protocol import (
-    DEVICE_RECEIVES,
-    FLAG_COMMIT,
-    FLAG_LAST,
-    DeviceState,
-    ErrorCode,
-    Frame,
-    Link,
-    MsgType,
-)
+from labrunner.rigs.transports import messages as m
+from labrunner.rigs.transports.faults import FaultyLink, LinkFaults
+from labrunner.rigs.transports.hostloop_device import install
+from labrunner.rigs.transports.link import Link
+from labrunner.rigs.transports.protocol import PROTOCOL_VERSION, End, Frame, Kind
+from labrunner.rigs.transports.realtime import realtime
+
+Handler = Callable[[Frame], None]
+Task = Callable[[float], "float | None"]
+
+STATUS_PERIOD_S = 0.1
+FIRMWARE_ID = 0x4C520001  # "LR", emulator build 1
+EXTENSIONS: list[str] = ["labrunner.rigs.device.emulated:install"]  # "module:function" installers of further handlers
 
 
 class Emulator:
     """Serve ``rig`` behind ``link`` until :meth:`stop`; ``errors`` collects exceptions of the twin."""
 
-    def __init__(self, rig: Rig, link: Link, *, watchdog_s: float = 0.5) -> None:
-        self.rig, self.link, self.watchdog_s = rig, link, float(watchdog_s)
-        self.state = DeviceState.IDLE
-        self.last_error = ErrorCode.NONE
+    def __init__(self, rig: Rig, link: Link, *, paced: bool = True, faults: LinkFaults | None = None,
+                 extensions: list[str] | None = None, realtime: bool = False) -> None:
+        faults = faults or LinkFaults()
+        self.rig, self.paced, self.faults = rig, paced, faults
+        self.realtime = realtime  # ask for SCHED_FIFO in the firmware thread; False after start if not granted
+        self.link: Link = FaultyLink(link, faults) if faults.any else link
+        self.state = m.DeviceState.IDLE
+        self.ticking = False  # a host-loop run's clock runs (in RUNNING and, holding the safe input, in SAFE)
+        self.last_error = m.ErrorCode.NONE
+        self.seq = 0  # the current tick, for STATUS and ERROR
+        self.watchdog_s = float("inf")
+        self.rejected = 0  # protocol-level rejects since the run's set-up (the link's drops come on top)
+        self.late = 0
+        self.safe_at: float | None = None  # monotonic time the device last went safe
         self.errors: list[BaseException] = []
-        self._u = np.zeros((1, len(rig.info.inputs)))
-        self._seq = 0
-        self._fault: ErrorCode | None = None
+        self.capabilities = m.Capability.HOST_LOOP | (m.Capability.CAN_FD if link.max_payload > 8 else 0)
+        self.handlers: dict[Kind, Handler] = {
+            Kind.HELLO: self._hello, Kind.HEARTBEAT: lambda f: self.send_status(),
+            Kind.SAFE: self._safe, Kind.STOP: self._stop_run,
+        }
+        self.tasks: list[Task] = [self._watchdog, self._heartbeat]
+        self._link_rejects_at_setup = 0
+        self._fault: m.ErrorCode | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="labrunner-emulator", daemon=True)
         self._t0 = time.monotonic()
-        self._last_rx = self._t0
+        self._last_rx = self._last_status = self._t0
+        self._die_at = float("inf")  # set by the first run's set-up
+        install(self)
+        for target in EXTENSIONS if extensions is None else extensions:
+            module, _, function = target.partition(":")
+            getattr(importlib.import_module(module), function)(self)
 
     def start(self) -> Emulator:
+        self._started = threading.Event()
         self._thread.start()
+        self._started.wait(2.0)
         return self
+
+    def is_alive(self) -> bool:
+        """Whether the firmware loop still runs (it ends when its link fails or it dies)."""
+        return self._thread.is_alive()
 
     def stop(self, close_link: bool = True) -> None:
         """Stop serving (the device is gone); close its end of the link."""
@@ -69,7 +99,7 @@ class Emulator:
         if close_link:
             self.link.close()
 
-    def inject_fault(self, code: ErrorCode = ErrorCode.DEVICE_FAULT) -> None:
+    def inject_fault(self, code: m.ErrorCode = m.ErrorCode.DEVICE_FAULT) -> None:
         """Make the device report ``code`` (and go safe) at its next host frame, like a driver fault."""
         self._fault = code
 
@@ -79,75 +109,126 @@ class Emulator:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    # -- services for the handlers -------------------------------------------------------------
+    def begin_run(self, watchdog_s: float) -> None:
+        """A run was set up: arm the watchdog, clear the run's counters, state RUNNING."""
+        self.state, self.last_error, self.seq, self.ticking = m.DeviceState.RUNNING, m.ErrorCode.NONE, 0, True
+        self.watchdog_s, self.rejected, self.late = float(watchdog_s), 0, 0
+        self._link_rejects_at_setup = self._link_rejects()
+        self._last_rx = self._last_status = time.monotonic()
+        if self._die_at == float("inf"):
+            self._die_at = self._last_rx + self.faults.die_after_s
+
+    def go_safe(self) -> None:
+        if self.state == m.DeviceState.RUNNING:
+            self.rig.safe_state()
+            self.state, self.safe_at = m.DeviceState.SAFE, time.monotonic()
+
+    def error(self, code: m.ErrorCode, detail: float = 0.0, go_safe: bool = True) -> None:
+        if go_safe:
+            self.go_safe()
+        self.last_error = code
+        self.link.send(m.pack(m.Error(int(code), self.seq, detail)))
+
+    def send_status(self) -> None:
+        rejected = self.rejected + self._link_rejects() - self._link_rejects_at_setup
+        self.link.send(m.pack(m.Status(int(self.state), int(self.last_error), min(rejected, 0xFFFF),
+                                       min(self.late, 0xFFFF), self.seq % 2**16)))
+        self._last_status = time.monotonic()
+
+    def identity(self) -> m.Identity:
+        info = self.rig.info
+        kind = m.DeviceKind.__members__.get(info.kind.upper(), m.DeviceKind.OTHER)
+        return m.Identity(PROTOCOL_VERSION, int(kind), len(info.inputs), len(info.outputs),
+                          int(self.capabilities), float(info.fs_range[1]), FIRMWARE_ID)
+
     # -- firmware loop ---------------------------------------------------------------------------
     def _serve(self) -> None:
+        with realtime() if self.realtime else contextlib.nullcontext(False) as granted:
+            self.realtime = granted
+            self._started.set()
+            self._loop()
+
+    def _loop(self) -> None:
+        faulty = self.link if isinstance(self.link, FaultyLink) else None
         while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= self._die_at:
+                return  # the board lost power: silent from now on
+            wake = now + 0.01
             try:
-                frame = self.link.recv(0.005)
+                for task in self.tasks:
+                    due = task(now)
+                    if due is not None:
+                        wake = min(wake, due)
+                if faulty is not None:
+                    faulty.pump()
+                    wake = min(wake, faulty.next_due() or wake)
+                frame = self.link.recv(max(0.0, wake - time.monotonic()))
             except LabrunnerError as exc:  # the host end went away
                 self.errors.append(exc)
                 return
-            now = time.monotonic()
             if frame is not None:
-                self._last_rx = now
-                try:
-                    self._handle(frame)
-                except Exception as exc:  # a twin failure is reported like a device fault
-                    self.errors.append(exc)
-                    self._error(ErrorCode.DEVICE_FAULT)
-            elif self.state == DeviceState.RUNNING and now - self._last_rx > self.watchdog_s:
-                self._error(ErrorCode.WATCHDOG)
+                self._dispatch(frame)
 
-    def _handle(self, frame: Frame) -> None:
-        if self._fault is not None:
-            code, self._fault = self._fault, None
-            self._error(code)
-            return
-        if frame.type == MsgType.RESET:
-            y = self.rig.reset(1, [frame.seq], float(frame.value))
-            self.state, self._seq, self.last_error = DeviceState.RUNNING, 0, ErrorCode.NONE
-            self._u = np.asarray([self.rig.info.safe_input], dtype=float)
-            self._measure(y)
-        elif frame.type == MsgType.INPUT:
-            self._input(frame)
-        elif frame.type == MsgType.SAFE:
-            if self.state != DeviceState.IDLE:
-                self.rig.safe_state()
-                self.state = DeviceState.SAFE
-            self._status()
-        elif frame.type == MsgType.HEARTBEAT:
-            self._status()
+    def _dispatch(self, frame: Frame) -> None:
+        self._last_rx = time.monotonic()
+        try:
+            if self._fault is not None:
+                code, self._fault = self._fault, None
+                self.error(code)
+                return
+            handler = self.handlers.get(frame.kind)
+            if handler is None:
+                self.rejected += 1
+                self.error(m.ErrorCode.UNSUPPORTED, float(frame.kind), go_safe=False)
+                return
+            handler(frame)
+        except LabrunnerError as exc:
+            self.errors.append(exc)
+        except Exception as exc:  # a twin failure is reported like a device fault
+            self.errors.append(exc)
+            self.error(m.ErrorCode.DEVICE_FAULT)
 
-    def _input(self, frame: Frame) -> None:
-        if self.state == DeviceState.IDLE:
-            self._error(ErrorCode.NOT_RUNNING, go_safe=False)
-            return
-        if frame.channel >= self._u.shape[1]:
-            self._error(ErrorCode.BAD_CHANNEL, float(frame.channel))
-            return
-        if frame.seq != (self._seq + 1) % 2**16:
-            self._error(ErrorCode.SEQUENCE, float(frame.seq))
-            return
-        self._u[0, frame.channel] = frame.value
-        if frame.flags & FLAG_COMMIT:
-            self._seq = frame.seq
-            self._measure(self.rig.step(self._u))
+    def _link_rejects(self) -> int:
+        c = self.link.counters
+        return c.malformed + c.spoofed + c.crc_errors
 
-    def _measure(self, y: np.ndarray) -> None:
-        n = y.shape[1]
-        for ch in range(n):
-            self.link.send(Frame(MsgType.MEASUREMENT, self._seq, ch, FLAG_LAST if ch == n - 1 else 0, float(y[0, ch])))
+    # -- core handlers and tasks -----------------------------------------------------------------
+    def _hello(self, frame: Frame) -> None:
+        if m.unpack(frame).version != PROTOCOL_VERSION:
+            self.error(m.ErrorCode.VERSION, float(PROTOCOL_VERSION), go_safe=False)
+        for record in m.identity_frames(self.identity()):
+            self.link.send(record)
 
-    def _status(self) -> None:
-        t = time.monotonic() - self._t0
-        self.link.send(Frame(MsgType.STATUS, self._seq, int(self.state), int(self.last_error), t))
+    def _safe(self, frame: Frame) -> None:
+        if self.state != m.DeviceState.IDLE:
+            self.go_safe()
+        self.send_status()
 
-    def _error(self, code: ErrorCode, detail: float = 0.0, go_safe: bool = True) -> None:
-        if go_safe and self.state == DeviceState.RUNNING:
+    def _stop_run(self, frame: Frame) -> None:
+        if self.state != m.DeviceState.IDLE:
             self.rig.safe_state()
-            self.state = DeviceState.SAFE
-        self.last_error = code
-        self.link.send(Frame(MsgType.ERROR, self._seq, int(code), 0, detail))
+            self.state = m.DeviceState.IDLE
+        self.ticking = False
+        self.send_status()
+
+    def _watchdog(self, now: float) -> float | None:
+        if self.state == m.DeviceState.SAFE and self.ticking and now - self._last_rx > self.watchdog_s:
+            self.ticking = False  # safe, and nobody listens: stop sending measurements
+        if self.state != m.DeviceState.RUNNING:
+            return None
+        if now - self._last_rx > self.watchdog_s:
+            self.error(m.ErrorCode.WATCHDOG, now - self._last_rx)
+            return None
+        return self._last_rx + self.watchdog_s
+
+    def _heartbeat(self, now: float) -> float | None:
+        if self.state != m.DeviceState.RUNNING:
+            return None
+        if now - self._last_status >= STATUS_PERIOD_S:
+            self.send_status()
+        return self._last_status + STATUS_PERIOD_S
 
 
 def twin_for(config: RigConfig) -> Rig:
@@ -161,10 +242,10 @@ def device_link(config: RigConfig) -> Link:
     if config.kind == "can":
         from labrunner.rigs.transports.can import CanLink
 
-        return CanLink.open(config.parameters, DEVICE_RECEIVES)
+        return CanLink.open(config.parameters, End.DEVICE)
     from labrunner.rigs.transports.serial import SerialLink
 
-    return SerialLink.open(config.parameters, DEVICE_RECEIVES)
+    return SerialLink.open(config.parameters, End.DEVICE)
 
 
 class PtyPort:
@@ -196,32 +277,16 @@ class PtyPort:
             os.close(self.slave_fd)
 
 
-def serve_on_pty(rig: Rig, node_id: int = 1, *, watchdog_s: float = 0.5) -> tuple[str, Emulator]:
-    """Serve ``rig`` on a new pty pair; return the port name for a serial rig and the running emulator."""
+def pty_link(node_id: int) -> tuple[str, Link]:
+    """A new pty pair: the name of the host's end and the device's link on the other end."""
     from labrunner.rigs.transports.serial import SerialLink
 
     master, slave = os.openpty()
     tty.setraw(slave)
-    name = os.ttyname(slave)
-    emulator = Emulator(rig, SerialLink(PtyPort(master, slave), node_id, DEVICE_RECEIVES), watchdog_s=watchdog_s)
-    return name, emulator.start()
+    return os.ttyname(slave), SerialLink(PtyPort(master, slave), node_id, End.DEVICE)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Serve a rig file's device as a simulated twin on its bus.")
-    parser.add_argument("rig", help="a can or serial rig file (its device kind and [parameters.model] are served)")
-    parser.add_argument("--watchdog", type=float, default=0.5, help="device watchdog [s]")
-    args = parser.parse_args(argv)
-    config = load_rig_config(args.rig)
-    emulator = Emulator(twin_for(config), device_link(config), watchdog_s=args.watchdog).start()
-    print(f"serving {config.parameters['device']} twin for {config.source}; Ctrl-C stops")
-    try:
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        emulator.stop()
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+def serve_on_pty(rig: Rig, node_id: int = 1, **options) -> tuple[str, Emulator]:
+    """Serve ``rig`` on a new pty pair; return the port name for a serial rig and the running emulator."""
+    name, link = pty_link(node_id)
+    return name, Emulator(rig, link, **options).start()

@@ -1,19 +1,24 @@
-"""A real rig behind a frame link (:mod:`~labrunner.rigs.transports.protocol`): the host side, B = 1.
+"""A real rig behind a frame link: the host side of the protocol's host loop (``loop = "host"``, B = 1).
 
-The device is the clock: ``step(u)`` sends the inputs of sample k and blocks until the device's
-measurement of sample k arrives. A missing answer within ``timeout_s``, a dead transport or an
-ERROR frame raises :class:`~labrunner.errors.RigError`, and the rig goes to its safe state first
-(a SAFE frame, best effort: if it cannot be sent, the device's watchdog takes over).
+The device is the clock (``docs/protocol.md`` § Host loop): SETUP starts a run and the device
+samples y_0; ``step(u)`` sends u_k (INPUT frames, COMMIT on the last channel) and blocks until the
+device's tick k+1 is complete (every output channel and the tick's trailer). A tick whose input
+missed its deadline arrives flagged LATE (the device held u_{k−1}); the host counts and lists it,
+and more than ``max_late_ticks`` late ticks in a row fail the run (the link cannot carry this
+rate). Stale, duplicate and out-of-range measurements are counted and ignored; a tick with a
+channel missing is never committed: the run fails. A missing answer within ``timeout_s + 1/f_s``,
+a dead transport or an ERROR frame raises :class:`~labrunner.errors.RigError`, and the rig goes
+to its safe state first (SAFE, best effort: if it cannot be sent, the device's watchdog takes over).
 
 Rig files of the remote kinds (``can``, ``serial``) name the ``device`` kind whose signals,
-limits and nominal constants the rig has (``[parameters.model]`` holds that kind's parameters,
-e.g. the motor's ``a`` and ``b`` for the stability overlays); ``RigInfo.kind`` is the device
-kind and ``RigInfo.simulated`` is False.
+limits and nominal constants the rig has (``[parameters.model]`` holds that kind's parameters);
+``RigInfo.kind`` is the device kind and ``RigInfo.simulated`` is False.
 """
 
 from __future__ import annotations
 
 import abc
+import contextlib
 import time
 from collections.abc import Mapping
 from dataclasses import replace
@@ -26,12 +31,26 @@ from labrunner.rigs.base import Faults, Rig, RigConfig, RigInfo
 from labrunner.rigs.config import rig_info
 from labrunner.rigs.kinds import rig_class, rig_kinds
 from labrunner.rigs.schema import Param, validate_section
-from labrunner.rigs.transports.protocol import FLAG_COMMIT, ErrorCode, Frame, Link, MsgType
+from labrunner.rigs.transports import messages as m
+from labrunner.rigs.transports.diagnostics import DeviceReport, HostCounters, diagnostics_record
+from labrunner.rigs.transports.link import Link, LinkCounters
+from labrunner.rigs.transports.protocol import NODE_MAX, NODE_MIN, PROTOCOL_VERSION, Kind
+from labrunner.rigs.transports.realtime import realtime
+
+SETUP_ANSWER_S = 0.5  # longest wait for y_0 after SETUP (a device may reset its hardware first)
+DEFAULT_LOOP = {"dcmotor": "host", "valve": "device", "plate": "device"}
 
 COMMON = {
     "device": Param("dcmotor", "", "the kind of rig behind the link (any registered kind that is not itself remote)"),
-    "node_id": Param(1, "", "the device's node id on the link", lo=0, hi=255),
+    "node_id": Param(1, "", "the device's node id (0 is CANopen NMT; ids stay below 0x7F0)", lo=NODE_MIN, hi=NODE_MAX),
+    "loop": Param("", "", "where the closed loop runs: host (B = 1 over the link) or device; "
+                  "empty: host for dcmotor, device for valve and plate", choices=("", "host", "device")),
     "timeout_s": Param(0.1, "s", "longest wait for a measurement beyond one sample period", lo=0.0, lo_open=True, hi=60.0),
+    "watchdog_periods": Param(10.0, "1", "device watchdog in sample periods, sent in SETUP", lo=2.0, hi=1e6),
+    "max_late_ticks": Param(10, "", "late ticks in a row that fail a host-loop run", lo=1, hi=1_000_000),
+    "realtime": Param(False, "", "run the host loop's thread at SCHED_FIFO priority (root or CAP_SYS_NICE; "
+                      "ignored where not granted)"),
+    "handshake_timeout_s": Param(0.5, "s", "longest wait for the device's IDENTITY", lo=0.0, lo_open=True, hi=60.0),
 }
 
 
@@ -41,11 +60,21 @@ class RemoteRig(Rig):
     KIND: ClassVar[str]
     TRANSPORT: ClassVar[Mapping[str, Param]]
 
-    def __init__(self, info: RigInfo, link: Link, timeout_s: float, faults: Faults | None = None) -> None:
+    def __init__(self, info: RigInfo, link: Link, parameters: Mapping[str, Any], faults: Faults | None = None) -> None:
         super().__init__(info, faults)
         self.link = link
-        self.timeout_s = float(timeout_s)
+        self.parameters = dict(parameters)
+        self.timeout_s = float(parameters["timeout_s"])
+        self.loop = parameters["loop"]
+        self.identity: m.Identity | None = None
+        self.host = HostCounters()
+        self.device = DeviceReport()
+        self._link_at_setup = LinkCounters()
         self._seq = 0
+        self._late_run = 0
+        self._last_send = time.monotonic()
+        self._heartbeat = 0
+        self._realtime: contextlib.ExitStack | None = None  # SCHED_FIFO held from the first reset to close
 
     # -- the Rig contract (no noise, no per-run parameters: the base class's defaults) ------------
     @classmethod
@@ -63,6 +92,7 @@ class RemoteRig(Rig):
         if not isinstance(model, Mapping):
             raise InvalidParameter(f"{path}.model", f"must be a table, got {model!r}")
         p["model"] = device.validate_parameters(model, f"{path}.model")
+        p["loop"] = p["loop"] or DEFAULT_LOOP.get(p["device"], "host")
         return p
 
     @classmethod
@@ -73,70 +103,223 @@ class RemoteRig(Rig):
     @classmethod
     def from_config(cls, config: RigConfig) -> RemoteRig:
         p = config.parameters
-        return cls(rig_info(config), cls.open_link(p), p["timeout_s"], config.faults)
+        return cls(rig_info(config), cls.open_link(p), p, config.faults)
 
     @classmethod
     @abc.abstractmethod
     def open_link(cls, parameters: Mapping[str, Any]) -> Link:
         """Open the transport named by validated ``parameters`` (raises RigError)."""
 
+    # -- handshake and diagnostics -------------------------------------------------------------
+    def handshake(self, attempts: int = 3) -> m.Identity:
+        """HELLO → IDENTITY (HELLO again, up to ``attempts`` times, while a record is missing);
+        checks version, device kind and channel counts (RigError on a mismatch or no answer)."""
+        self._drain()
+        records: dict[int, bytes] = {}
+        wait = float(self.parameters["handshake_timeout_s"]) / attempts
+        for _ in range(attempts):
+            self._send(m.hello())
+            deadline = time.monotonic() + wait
+            while len(records) < m.IDENTITY_RECORDS and (frame := self._recv(deadline)) is not None:
+                if frame.kind == Kind.IDENTITY:
+                    record = m.unpack(frame)
+                    records[record.index] = record.value
+                elif frame.kind == Kind.ERROR:
+                    self._device_error(m.unpack(frame))
+            if len(records) == m.IDENTITY_RECORDS:
+                break
+        else:
+            self._fail(f"no complete IDENTITY answer to {attempts} HELLOs within {wait * attempts:.3g} s")
+        ident = m.identity_from(records)
+        kind = int(m.DeviceKind.__members__.get(self.info.kind.upper(), m.DeviceKind.OTHER))
+        wrong = [f"{what} {got} (expected {want})" for what, got, want in (
+            ("protocol version", ident.version, PROTOCOL_VERSION), ("device kind", ident.device_kind, kind),
+            ("inputs", ident.n_inputs, len(self.info.inputs)), ("outputs", ident.n_outputs, len(self.info.outputs)))
+            if got != want]
+        if wrong:
+            self._fail("the device reports " + ", ".join(wrong))
+        self.identity = ident
+        return ident
+
+    def diagnostics(self) -> dict[str, Any]:
+        """This run's ``diagnostics`` record (see :mod:`.diagnostics`)."""
+        now, then = self.link.counters.as_dict(), self._link_at_setup.as_dict()
+        return diagnostics_record({k: now[k] - then[k] for k in now}, self.host, self.device, loop=self.loop,
+                                  firmware_id=self.identity.firmware_id if self.identity else None)
+
+    def ping(self, stale_errors: bool = False) -> float:
+        """Round trip [s] of one HEARTBEAT to the device's STATUS answer (RigError after ``timeout_s``).
+
+        Frames from one sender arrive in order, so everything before the answer is older than the
+        HEARTBEAT; with ``stale_errors`` an ERROR among them (of an earlier run) is counted stale."""
+        self._heartbeat += 1
+        t0 = time.perf_counter()
+        self._send(m.pack(m.Heartbeat(self._heartbeat)))
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            frame = self._recv_until(deadline, f"no STATUS answer to HEARTBEAT within {self.timeout_s:g} s")
+            if frame.kind == Kind.STATUS:
+                self._status(m.unpack(frame))
+                return time.perf_counter() - t0
+            if frame.kind == Kind.ERROR:
+                if not stale_errors:
+                    self._device_error(m.unpack(frame))
+                self.host.stale += 1
+
+    def keepalive(self) -> None:
+        """Send a HEARTBEAT if the host sent nothing for half a watchdog period (call while idle)."""
+        if time.monotonic() - self._last_send > 0.5 * self._watchdog_s():
+            self._heartbeat += 1
+            self.host.heartbeats_sent += 1
+            self._send(m.pack(m.Heartbeat(self._heartbeat)))
+
+    def run_on_device(self, points, *, fs: float, duration: float, seeds, rig_safety=None) -> list:
+        """Run ``points`` with the loop on the device (``loop = "device"``): one run description
+        each, their results as RunResults (:mod:`labrunner.rigs.device.remote`)."""
+        from labrunner.rigs.device.remote import run_on_device
+
+        return run_on_device(self, points, fs=fs, duration=duration, seeds=seeds, rig_safety=rig_safety)
+
     # -- Rig hooks -----------------------------------------------------------------------------
     def _reset(self, batch: int, seeds: np.ndarray, overrides: dict[str, np.ndarray]) -> np.ndarray:
         if batch != 1:
             raise InvalidParameter("batch", f"must be 1 for a real rig, got {batch}")
-        while self.link.recv(0.0) is not None:  # drop what is left of an earlier run
-            pass
-        self._seq = 0
-        self._send(Frame(MsgType.RESET, int(seeds[0]) % 2**32, value=self.fs))
-        return self._collect(0)
+        if self.loop != "host":
+            raise RigError(f"rig {self.info.name!r}: loop = {self.loop!r} is not served by the host loop")
+        if self.parameters["realtime"] and self._realtime is None:
+            self._realtime = contextlib.ExitStack()
+            self._realtime.enter_context(realtime())
+        if self.identity is None:
+            self.handshake()
+        if self.identity is not None and not self.identity.capabilities & m.Capability.HOST_LOOP:
+            self._fail("the device does not serve the host loop (capabilities lack HOST_LOOP)")
+        self._drain()
+        self.host, self.device = HostCounters(), DeviceReport()
+        self.ping(stale_errors=True)  # in step: what the device sent before this run is behind us
+        self._link_at_setup = replace(self.link.counters)
+        self._seq, self._late_run = 0, 0
+        for frame in m.setup_frames(self.fs, self._watchdog_s(), int(seeds[0])):
+            self._send(frame)
+        return self._collect(0, 0)
 
     def _step(self, u: np.ndarray) -> np.ndarray:
-        self._seq = (self._seq + 1) % 2**16
         n = u.shape[1]
         for ch in range(n):
-            self._send(Frame(MsgType.INPUT, self._seq, ch, FLAG_COMMIT if ch == n - 1 else 0, float(u[0, ch])))
-        return self._collect(self._seq)
+            self._send(m.pack(m.Input(self._seq, ch, m.FLAG_COMMIT if ch == n - 1 else 0, float(u[0, ch]))))
+        self._seq = (self._seq + 1) % 2**16
+        return self._collect(self._seq, self.k + 1)
 
     def _enter_safe_state(self, safe: np.ndarray) -> None:
         if safe.any():
             try:
-                self.link.send(Frame(MsgType.SAFE, self._seq))
+                self.link.send(m.pack(m.Safe(self._seq)))
             except RigError:
                 pass  # the device's watchdog puts it in its safe state when the host falls silent
 
     def _close(self) -> None:
+        try:
+            self.link.send(m.pack(m.Stop(self._seq)))
+        except RigError:
+            pass
         self.link.close()
+        if self._realtime is not None:
+            self._realtime.close()
 
     # -- helpers -------------------------------------------------------------------------------
-    def _send(self, frame: Frame) -> None:
+    def _watchdog_s(self) -> float:
+        return float(self.parameters["watchdog_periods"]) / self.fs
+
+    def _send(self, frame: m.Frame) -> None:
         try:
             self.link.send(frame)
         except RigError as exc:
             self._fail(str(exc))
+        self._last_send = time.monotonic()
 
-    def _collect(self, seq: int) -> np.ndarray:
-        """Wait for every output channel of sample ``seq``; ERROR frames and timeouts fail the rig."""
+    def _drain(self) -> None:
+        """Drop what is left of an earlier run or handshake."""
+        try:
+            while self.link.recv(0.0) is not None:
+                pass
+        except RigError as exc:
+            self._fail(str(exc))
+
+    def _recv(self, deadline: float) -> m.Frame | None:
+        """The next frame before ``deadline`` (monotonic), else None; a HEARTBEAT goes out while waiting."""
+        while (remaining := deadline - time.monotonic()) > 0.0:
+            try:
+                frame = self.link.recv(min(remaining, 0.5 * self._watchdog_s()))
+            except RigError as exc:
+                self._fail(str(exc))
+            if frame is not None:
+                return frame
+            self.keepalive()
+        return None
+
+    def _recv_until(self, deadline: float, what: str) -> m.Frame:
+        """The next frame before ``deadline``; the rig fails with ``what`` when none comes."""
+        frame = self._recv(deadline)
+        if frame is None:
+            self._fail(what)
+        return frame
+
+    def _collect(self, seq: int, tick: int) -> np.ndarray:
+        """Every output channel and the trailer of tick ``seq`` (the run's tick ``tick``); see the
+        module doc for the rules."""
         n = len(self.info.outputs)
         y = np.zeros((1, n))
         missing = set(range(n))
-        deadline = time.monotonic() + self.timeout_s + 1.0 / self.fs
-        while missing:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0.0:
-                self._fail(f"no measurement for sample {seq} within {self.timeout_s + 1.0 / self.fs:.3g} s")
-            try:
-                frame = self.link.recv(remaining)
-            except RigError as exc:
-                self._fail(str(exc))
-            if frame is None:
+        limit = (self.timeout_s if tick else max(self.timeout_s, SETUP_ANSWER_S)) + 1.0 / self.fs
+        deadline = time.monotonic() + limit
+        while True:
+            frame = self._recv_until(deadline, f"no complete measurement of tick {seq} within {limit:.3g} s "
+                                               f"(missing channels {sorted(missing)})")
+            if frame.kind == Kind.STATUS:
+                self._status(m.unpack(frame))
                 continue
-            if frame.type == MsgType.ERROR:
-                code = ErrorCode(frame.channel).name if frame.channel in ErrorCode._value2member_map_ else frame.channel
-                self._fail(f"device error {code} (detail {frame.value:g})")
-            if frame.type == MsgType.MEASUREMENT and frame.seq == seq and frame.channel < n:
-                y[0, frame.channel] = frame.value
-                missing.discard(frame.channel)
-        return y
+            if frame.kind == Kind.ERROR:
+                self._device_error(m.unpack(frame))
+            if frame.kind != Kind.MEASUREMENT:
+                continue
+            msg = m.unpack(frame)
+            age = (seq - msg.seq) % 2**16
+            if 0 < age < 2**15:
+                self.host.stale += 1
+            elif age != 0:  # a later tick began: this one lost channels
+                self.host.lost_ticks += 1
+                self._fail(f"tick {seq} incomplete: channels {sorted(missing) or ['trailer']} lost")
+            elif isinstance(msg, m.TickEnd):
+                if missing:
+                    self.host.lost_ticks += 1
+                    self._fail(f"tick {seq} incomplete: channels {sorted(missing)} lost")
+                self._tick_end(msg, tick)
+                return y
+            elif msg.channel >= n:
+                self.host.bad_channel += 1
+            elif msg.channel not in missing:
+                self.host.duplicate += 1
+            else:
+                y[0, msg.channel] = msg.value
+                missing.discard(msg.channel)
+
+    def _tick_end(self, msg: m.TickEnd, tick: int) -> None:
+        late, overrun = bool(msg.flags & m.FLAG_LATE), bool(msg.flags & m.FLAG_OVERRUN)
+        self.host.note_tick(tick, late, overrun)
+        self.device.device_time_s = msg.timestamp_us * 1e-6
+        self._late_run = self._late_run + 1 if late else 0
+        if self._late_run > int(self.parameters["max_late_ticks"]):
+            self._fail(f"{self._late_run} late ticks in a row at {self.fs:g} Hz: the host loop cannot keep "
+                       f"this rate over this link (lower fs, or loop = \"device\")")
+
+    def _status(self, msg: m.Status) -> None:
+        self.host.status_frames += 1
+        self.device.state, self.device.last_error = msg.state, msg.last_error
+        self.device.rejected, self.device.late = msg.rejected, msg.late
+
+    def _device_error(self, msg: m.Error) -> None:
+        self.host.device_errors += 1
+        code = m.ErrorCode(msg.code).name if msg.code in m.ErrorCode._value2member_map_ else msg.code
+        self._fail(f"device error {code} at tick {msg.seq} (detail {msg.detail:g})")
 
     def _fail(self, message: str) -> None:
         self.safe_state()

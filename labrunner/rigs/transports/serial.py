@@ -1,7 +1,8 @@
 """A real rig on a serial line through pyserial (USB-UART of a microcontroller, or a pty in tests).
 
-Frames are ``SYNC node type payload[8] crc8`` (:func:`~labrunner.rigs.transports.protocol.encode_serial`);
-the decoder resynchronises on corrupted bytes. Port errors raise :class:`~labrunner.errors.RigError`.
+Frames are COBS-encoded ``node code payload crc16`` ending in 0x00
+(:mod:`~labrunner.rigs.transports.framing`); the decoder resynchronises at the next delimiter
+after garbage and counts what it dropped. Port errors raise :class:`~labrunner.errors.RigError`.
 """
 
 from __future__ import annotations
@@ -15,7 +16,9 @@ import serial
 
 from labrunner.errors import RigError
 from labrunner.rigs.schema import Param
-from labrunner.rigs.transports.protocol import HOST_RECEIVES, Frame, Link, MsgType, SerialDecoder, encode_serial
+from labrunner.rigs.transports.framing import SERIAL_MAX_PAYLOAD, SerialDecoder, encode_frame
+from labrunner.rigs.transports.link import Link
+from labrunner.rigs.transports.protocol import End, Frame, Kind, function_code, split_function_code
 from labrunner.rigs.transports.remote import RemoteRig
 
 
@@ -32,24 +35,29 @@ class Port(Protocol):
 
 
 class SerialLink(Link):
-    """One end of the protocol on a byte stream, receiving only the frame types in ``receives``."""
+    """One end of the protocol on a byte stream (see :class:`~.link.Link` for the contract)."""
 
-    def __init__(self, port: Port, node_id: int, receives: frozenset[MsgType]) -> None:
-        self.port, self.node_id, self.receives = port, int(node_id), receives
-        self._decoder = SerialDecoder()
+    def __init__(self, port: Port, node_id: int, end: End) -> None:
+        super().__init__(node_id, end)
+        self.port = port
+        self._decoder = SerialDecoder(self.counters)
         self._pending: collections.deque[Frame] = collections.deque()
 
+    @property
+    def max_payload(self) -> int:
+        return SERIAL_MAX_PAYLOAD
+
     @classmethod
-    def open(cls, parameters: Mapping[str, Any], receives: frozenset[MsgType]) -> SerialLink:
+    def open(cls, parameters: Mapping[str, Any], end: End) -> SerialLink:
         try:
             port = serial.Serial(parameters["port"], parameters["baudrate"], timeout=0.0)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise RigError(f"cannot open serial port {parameters['port']!r}: {exc}") from exc
-        return cls(port, parameters["node_id"], receives)
+        return cls(port, parameters["node_id"], end)
 
-    def send(self, frame: Frame) -> None:
+    def _send(self, kind: Kind, payload: bytes) -> None:
         try:
-            self.port.write(encode_serial(self.node_id, frame))
+            self.port.write(encode_frame(self.node_id, function_code(kind, self.end), payload))
         except (serial.SerialException, OSError) as exc:
             raise RigError(f"serial write failed: {exc}") from exc
 
@@ -64,8 +72,14 @@ class SerialLink(Link):
                     data += self.port.read(self.port.in_waiting)
             except (serial.SerialException, OSError) as exc:
                 raise RigError(f"serial read failed: {exc}") from exc
-            for node, frame in self._decoder.feed(data):
-                if node == self.node_id and frame.type in self.receives:
+            for node, code, payload in self._decoder.feed(data):
+                try:
+                    kind, sender = split_function_code(code)
+                except ValueError:
+                    self.counters.malformed += 1
+                    continue
+                frame = self._accept(node, kind, sender, payload)
+                if frame is not None:
                     self._pending.append(frame)
             if not self._pending and remaining <= 0.0:
                 return None
@@ -76,14 +90,14 @@ class SerialLink(Link):
 
 
 class SerialRig(RemoteRig):
-    """A rig whose firmware speaks the labrunner protocol on a serial line (B = 1)."""
+    """A rig whose firmware speaks the labrunner protocol on a serial line (B = 1 host loop)."""
 
     KIND = "serial"
     TRANSPORT = {
-        "port": Param("/dev/ttyUSB0", "", "serial device (or a pty for the emulator)"),
-        "baudrate": Param(115_200, "bit/s", "line speed", lo=1),
+        "port": Param("/dev/ttyUSB0", "", "serial device (or the pty `labrunner emulate` prints)"),
+        "baudrate": Param(115_200, "bit/s", "line speed (8N1: 10 bits per byte)", lo=1200, hi=12_000_000),
     }
 
     @classmethod
     def open_link(cls, parameters: Mapping[str, Any]) -> SerialLink:
-        return SerialLink.open(parameters, HOST_RECEIVES)
+        return SerialLink.open(parameters, End.HOST)

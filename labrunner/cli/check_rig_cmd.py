@@ -1,0 +1,37 @@
+"""``labrunner check-rig RIG.toml``: handshake, round trips, error counters and link load of a real rig."""
+
+from __future__ import annotations
+
+import argparse
+
+from labrunner.cli.argtypes import positive_int
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "check-rig",
+        help="handshake a can/serial rig, time round trips, show error counters, link load and the host loop's highest f_s",
+        description="Open a can or serial rig file's link, handshake with the device (protocol version, device kind, "
+                    "channels, max f_s, capabilities, firmware id), time N HEARTBEAT round trips, and report the "
+                    "error counters, the link load of both loop placements and the highest f_s the host loop "
+                    "sustains with margin. Nothing moves: no run is set up.",
+    )
+    p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
+    p.add_argument("--pings", type=positive_int, default=200, metavar="N", help="round trips to time (default 200)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    import json
+
+    from labrunner.errors import InvalidParameter
+    from labrunner.rigs.config import load_rig_config
+    from labrunner.rigs.transports.checkrig import check_rig, describe
+
+    config = load_rig_config(args.rig)
+    if config.kind not in ("can", "serial"):
+        raise InvalidParameter("rig.kind", f"check-rig checks can or serial rig files, got {config.kind!r}")
+    report = check_rig(config, args.pings)
+    print(json.dumps(report, sort_keys=True) if args.json else "\n".join(describe(report)))
+    return 0

@@ -1,0 +1,66 @@
+"""The emulated device's loop on board: the device-loop handlers of the firmware emulator.
+
+:func:`install` (named in :data:`labrunner.rigs.transports.emulator.EXTENSIONS`) registers the
+bulk kinds in the emulator's dispatch table and adds DEVICE_LOOP to its capabilities. A complete
+run description runs at once, inside the handler, through the firmware's reference executor on
+the emulator's twin: the device is busy with the run and its upload, reading its link itself
+(ACKs; HEARTBEAT, HELLO and the like go to the emulator's own handlers; SAFE or STOP end the run).
+The run's clock is virtual (see :mod:`labrunner.rigs.device.executor`): pacing does not apply.
+"""
+
+from __future__ import annotations
+
+from labrunner.rigs.device import executor, session
+from labrunner.rigs.transports import messages as m
+from labrunner.rigs.transports.faults import FaultyLink
+from labrunner.rigs.transports.protocol import Frame, Kind
+
+_IN = {Kind.BULK_TO_DEVICE: session.TO_DEVICE, Kind.BULK_ACK: session.ACK}
+_OUT = {session.TO_HOST: Kind.BULK_TO_HOST, session.ACK: Kind.BULK_ACK}
+
+
+class DeviceLoop:
+    """The device-loop service of one emulator."""
+
+    def __init__(self, emulator) -> None:
+        self.emulator = emulator
+        self.session = session.DeviceSession(self._send, self._recv, emulator.link.max_payload, self._execute)
+
+    def on_frame(self, frame: Frame) -> None:
+        self.session.on_message(_IN[frame.kind], frame.payload)
+
+    def _send(self, kind: str, payload: bytes) -> None:
+        self.emulator.link.send(Frame(_OUT[kind], payload))
+
+    def _recv(self, timeout: float) -> tuple[str | None, bytes] | None:
+        link = self.emulator.link
+        if isinstance(link, FaultyLink):
+            link.pump()  # delayed frames of the fault injection go out while the device is busy
+        frame = link.recv(timeout)
+        if frame is None:
+            return None
+        if frame.kind in _IN:
+            return _IN[frame.kind], frame.payload
+        self.emulator._dispatch(frame)  # HELLO, HEARTBEAT, SAFE, STOP: the core's answers
+        return (session.STOP if frame.kind in (Kind.SAFE, Kind.STOP) else None), frame.payload
+
+    def _execute(self, data: bytes, hook, on_accept) -> executor.DeviceRun:
+        emulator = self.emulator
+
+        def accepted(description) -> None:
+            emulator.state, emulator.seq = m.DeviceState.RUNNING, 0
+            on_accept(description)
+
+        try:
+            return executor.execute(data, emulator.rig, hook, accepted)
+        finally:
+            emulator.state = m.DeviceState.IDLE
+
+
+def install(emulator) -> DeviceLoop:
+    """Serve the device loop on ``emulator``: BULK_TO_DEVICE and BULK_ACK handlers, DEVICE_LOOP capability."""
+    service = DeviceLoop(emulator)
+    emulator.handlers[Kind.BULK_TO_DEVICE] = service.on_frame
+    emulator.handlers[Kind.BULK_ACK] = service.on_frame
+    emulator.capabilities |= m.Capability.DEVICE_LOOP
+    return service

@@ -1,0 +1,112 @@
+"""The device firmware's reference executor: a run description in, the logged samples and the
+verdict out (pure: the rig it drives is passed in, samples go to a callback).
+
+It runs the ONE closed loop there is, :func:`labrunner.engine.run_batch` at B = 1, on the point the
+description's parameter records rebuild, so a device-loop run of a point gives the twin's result
+for that point. Before it runs, it checks that the records a firmware computes with (FIR weights,
+saturation, resolved reference segments, column count) equal what the engine's factory builds
+from that point: a description whose two halves disagree is refused, so firmware implementing
+the records runs the law the engine runs.
+
+The emulated device's clock is virtual: tick k is at k/f_s device time whatever the host
+computer's speed (a Python twin of the plate runs slower than 32 kHz), so it never overruns;
+``compute_ns`` says how long the run really took.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from labrunner import engine
+from labrunner.control import factory
+from labrunner.rigs.base import Rig
+from labrunner.rigs.device import blocks
+from labrunner.rigs.device.columns import column_names, to_columns
+from labrunner.rigs.device.description import (
+    DEVICE_KINDS,
+    FIR_CONTROLLER,
+    Description,
+    DescriptionError,
+    decode,
+    expected_trajectories,
+    rig_safety,
+)
+
+#: ``hook(first_tick, columns)``: every 1024 ticks during the run, float32 rows of those ticks
+Hook = Callable[[int, np.ndarray], None]
+
+
+@dataclass
+class DeviceRun:
+    """A finished device run: its rows (K, n_columns) float32, the verdict, its channel groups."""
+
+    columns: np.ndarray
+    verdict: blocks.Verdict
+    channels: Mapping[str, object]
+
+
+def check(description: Description, rig: Rig) -> dict[str, object]:
+    """The channel groups of the described run on ``rig``; raises DescriptionError where the
+    description does not fit this device or its firmware records disagree with its point."""
+    info = rig.info
+    if (description.n_inputs, description.n_outputs) != (len(info.inputs), len(info.outputs)):
+        raise DescriptionError(f"description for {description.n_inputs} inputs and {description.n_outputs} outputs; "
+                               f"this {info.kind} has {len(info.inputs)} and {len(info.outputs)}")
+    if description.kind not in DEVICE_KINDS:
+        raise DescriptionError(f"controller kind {description.kind!r} is not in this firmware")
+    point = description.point()
+    try:
+        controller, reference = factory.build([point], info, description.fs)
+    except Exception as exc:
+        raise DescriptionError(f"the description's point does not build: {exc}") from None
+    channels = engine.channel_names(info, controller)
+    if len(column_names(channels)) != description.n_columns:
+        raise DescriptionError(f"description asks for {description.n_columns} columns, the run logs {len(column_names(channels))}")
+    order = DEVICE_KINDS[description.kind]
+    if order is not None and point.get("differentiator"):
+        design = factory.differentiators([point], description.fs, order)[0]
+        for n in range(order + 1):
+            sent = description.fir.get((FIR_CONTROLLER, n))
+            if sent is None or not np.array_equal(sent, design.weights(n)):
+                raise DescriptionError(f"FIR weights of derivative order {n} differ from the point's design")
+    if description.saturation is None or not (np.array_equal(description.saturation[0], controller.u_min[0])
+                                              and np.array_equal(description.saturation[1], controller.u_max[0])):
+        raise DescriptionError("input saturation differs from the point's")
+    expected = expected_trajectories(reference.trajectories[0])
+    if len(expected) != len(description.trajectories) or any(
+        code != c or len(a) != len(b) or any(not np.array_equal(x, y) for x, y in zip(a, b))
+        for (code, a), (c, b) in zip(expected, description.trajectories)
+    ):
+        raise DescriptionError("reference segments differ from the point's reference")
+    return channels
+
+
+def execute(data: bytes, rig: Rig, hook: Hook | None = None, on_accept: Callable[[Description], None] | None = None) -> DeviceRun:
+    """Decode, check and run one description on ``rig`` (B = 1); raises DescriptionError for a
+    description the device refuses (before the rig moves). ``on_accept(description)`` is called
+    once it is checked, before the first tick."""
+    description = decode(data)
+    channels = check(description, rig)
+    if on_accept is not None:
+        on_accept(description)
+    sink = None
+    if hook is not None:
+        def sink(first: int, signals: Mapping[str, np.ndarray]) -> None:
+            hook(first, to_columns(signals, channels))
+
+    t0 = time.perf_counter_ns()
+    result = engine.run_batch([description.point()], rig, fs=description.fs, duration=description.duration,
+                              seeds=[description.seed], rig_safety=rig_safety(description), sink=sink)[0]
+    compute_ns = time.perf_counter_ns() - t0
+    n = result.n_samples
+    o = result.outcome
+    verdict = blocks.Verdict(
+        o.status, n, n, 0, o.monitor or "",
+        *(float("nan") if v is None else float(v) for v in (o.time, o.value, o.threshold)),
+        message=o.message, device_us=blocks.tick_us(n, description.fs), compute_ns=compute_ns,
+    )  # fmt: skip
+    return DeviceRun(to_columns(result.signals, channels), verdict, channels)

@@ -1,0 +1,75 @@
+"""Host side of device-loop runs: campaign points → run descriptions → ordinary RunResults.
+
+:func:`plan` builds (and so checks) every point's description before the rig moves; :func:`run`
+sends them one after the other over a bulk link and turns each device answer into the
+:class:`~labrunner.engine.RunResult` the twin engine would have returned — same signal names and
+roles, metrics computed by the same code from the float32 samples — with the device's timing
+and the transfer's figures in ``RunResult.diagnostics`` (the MCAP's ``diagnostics`` metadata).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from labrunner import engine
+from labrunner.control import factory
+from labrunner.metrics import run_metrics
+from labrunner.rigs.base import RigInfo
+from labrunner.rigs.device import blocks, description, session
+from labrunner.rigs.device.columns import column_names, from_columns
+from labrunner.rigs.transports import linkload
+
+
+def plan(points: Sequence[Mapping[str, object]], rig_info: RigInfo, *, fs: float, duration: float, seeds: Sequence[int],
+         rig_safety: Mapping[str, object] | None, watchdog_s: float = 0.5, link: linkload.LinkSpec | None = None) -> list[bytes]:
+    """One encoded description per point (raises InvalidParameter for one the device cannot run).
+    With ``link``, each says whether its samples stream during the run (they fit the link)."""
+    out = []
+    for point, seed in zip(points, seeds):
+        data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, watchdog_s=watchdog_s)
+        if link is not None:
+            n_columns = description.decode(data).n_columns
+            if linkload.device_loop_load(link, fs, n_columns) <= linkload.MAX_LOAD:
+                data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety,
+                                         watchdog_s=watchdog_s, stream=True)
+        out.append(data)
+    return out
+
+
+def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict: blocks.Verdict, rows: np.ndarray,
+              diagnostics: Mapping[str, object]) -> engine.RunResult:
+    """The RunResult of one device run, named and measured as the engine names and measures a twin run."""
+    controller, _ = factory.build([point], rig_info, fs)
+    channels = engine.channel_names(rig_info, controller)
+    if rows.shape[1] != len(column_names(channels)):
+        raise ValueError(f"{rows.shape[1]} columns for {len(column_names(channels))} signals")
+    signals = from_columns(rows, channels)
+
+    def opt(x: float) -> float | None:
+        return None if math.isnan(x) else float(x)
+
+    outcome = engine.Outcome(verdict.status, verdict.monitor or None, opt(verdict.time), opt(verdict.value),
+                             opt(verdict.threshold), verdict.message)
+    return engine.RunResult(outcome, signals, float(fs), channels, run_metrics(signals, engine.roles_of(channels)), dict(diagnostics))
+
+
+def run(send: session.Send, recv: session.Recv, max_payload: int, points: Sequence[Mapping[str, object]], rig_info: RigInfo,
+        *, fs: float, duration: float, seeds: Sequence[int], rig_safety: Mapping[str, object] | None = None,
+        watchdog_s: float = 0.5, link: linkload.LinkSpec | None = None, silence_s: float = 5.0) -> list[engine.RunResult]:
+    """Run ``points`` on the device one after the other; one RunResult each (a RigError stops the batch)."""
+    descriptions = plan(points, rig_info, fs=fs, duration=duration, seeds=seeds, rig_safety=rig_safety,
+                        watchdog_s=watchdog_s, link=link)
+    results = []
+    for point, data in zip(points, descriptions):
+        d = description.decode(data)
+        verdict, rows, transfer = session.run_on_device(send, recv, max_payload, data, d.ticks, d.n_columns, silence_s=silence_s)
+        diagnostics = {
+            "loop": "device", "description_bytes": len(data), "columns": d.n_columns, "streamed": d.stream, "ticks": verdict.ticks,
+            "overruns": verdict.overruns, "device_run_s": verdict.device_us / 1e6, "device_compute_s": verdict.compute_ns / 1e9,
+            **transfer.as_dict(),
+        }
+        results.append(to_result(point, rig_info, fs, verdict, rows, diagnostics))
+    return results

@@ -1,0 +1,271 @@
+"""Bulk transfer over any frame link: sequence-numbered, CRC-32-checked blocks in indexed frames,
+with cumulative acknowledgements, selective retransmission requests and a send window (pure:
+frames go through callbacks, time is passed in).
+
+Why not ISO-TP (ISO 15765-2): its consecutive frames carry a 4-bit index (16 lost frames go
+unseen), it has no checksum of its own, a classic transfer ends at 4095 bytes, and it repeats a
+whole transfer after any loss; a plate run's samples are megabytes. Our layer is one level, the
+same on classic CAN, CAN FD and serial (docs/device-loop.md, "Bulk transfer"):
+
+* **block** — ``seq`` u32, ``kind`` u8, ``flags`` u8, ``length`` u16, ``body``, CRC-32 (zlib's,
+  over everything before it); the unit that is numbered, checked, acknowledged and resent;
+* **frame** — a link payload of at most ``max_payload`` bytes: frame index u8 (0 starts a
+  block) and the next ``max_payload − 1`` bytes of the block; a block spans ≤ 256 frames;
+* **ACK** — 8 bytes ``code`` u8 (ACK: every block < ``seq`` arrived; NACK: resend ``seq``;
+  CANCEL: the receiver gave up), ``direction`` u8 (which stream it acknowledges: 0 host → device,
+  1 device → host), ``window`` u16 (blocks beyond ``seq`` the receiver takes), ``seq`` u32.
+
+A receiver delivers blocks in order; a frame out of index order drops the block it belonged to
+(counted), a block failing its CRC is dropped (counted), and a later good block reveals the gap,
+which the receiver asks for by NACK. A sender resends what stays unacknowledged for ``retry_s``.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+BLOCK = struct.Struct("<IBBH")  # seq, kind, flags, body length
+ACK = struct.Struct("<BBHI")  # code, direction, window, seq
+CRC = struct.Struct("<I")
+MAX_FRAMES = 256
+BLOCK_BYTES = 4096  #: largest block a sender makes (a lost frame costs one block: keep them small)
+WINDOW_BYTES = 32768  #: unacknowledged bytes a sender keeps in flight (a receiver's buffers hold them)
+FLAG_LAST = 0x01  # the last block of a transfer (description) or of a run's results (verdict)
+
+ACK_OK, NACK, CANCEL = 1, 2, 3
+TO_DEVICE, TO_HOST = 0, 1  # stream directions (the ``direction`` of an ACK)
+
+
+def max_body(max_payload: int) -> int:
+    """Largest block body a link with ``max_payload``-byte frames carries in ≤ 256 frames."""
+    if max_payload < 2:
+        raise ValueError(f"bulk frames need a payload of at least 2 bytes, got {max_payload}")
+    return min(MAX_FRAMES * (max_payload - 1) - BLOCK.size - CRC.size, 0xFFFF)
+
+
+@dataclass(frozen=True)
+class Block:
+    """One bulk block: sequence number, kind, flags, body."""
+
+    seq: int
+    kind: int
+    flags: int
+    body: bytes
+
+    def encode(self) -> bytes:
+        head = BLOCK.pack(self.seq % 2**32, self.kind, self.flags, len(self.body)) + self.body
+        return head + CRC.pack(zlib.crc32(head))
+
+    def frames(self, max_payload: int) -> list[bytes]:
+        """The block cut into link payloads: index byte + up to ``max_payload − 1`` bytes."""
+        if len(self.body) > max_body(max_payload):
+            raise ValueError(f"block body of {len(self.body)} bytes exceeds {max_body(max_payload)}")
+        raw, step = self.encode(), max_payload - 1
+        return [bytes((i,)) + raw[at : at + step] for i, at in enumerate(range(0, len(raw), step))]
+
+
+@dataclass
+class Counters:
+    """What a receiver saw go wrong, for the run's diagnostics."""
+
+    frames: int = 0
+    blocks: int = 0
+    crc_errors: int = 0  # blocks dropped for a bad CRC-32
+    broken: int = 0  # blocks dropped for a missing or out-of-order frame
+    duplicates: int = 0  # blocks that had arrived before (a resend crossed an ACK)
+    nacks: int = 0  # retransmission requests sent
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+class Assembler:
+    """Frames → blocks of one stream, in arrival order; drops and counts broken ones."""
+
+    def __init__(self, counters: Counters) -> None:
+        self.counters = counters
+        self._buf = bytearray()
+        self._next = -1  # the frame index expected next; −1: waiting for a block's first frame
+        self._need = 0  # bytes of the block in progress (0 until its header has arrived)
+
+    def feed(self, payload: bytes) -> Block | None:
+        self.counters.frames += 1
+        if not payload:
+            return None
+        index = payload[0]
+        if index == 0:
+            if self._next > 0:
+                self.counters.broken += 1  # the block in progress lost its tail
+            self._buf, self._next, self._need = bytearray(), 0, 0
+        elif index != self._next:
+            if self._next > 0:
+                self.counters.broken += 1
+            self._next = -1
+            return None
+        self._buf += payload[1:]
+        self._next = (index + 1) % MAX_FRAMES
+        if not self._need and len(self._buf) >= BLOCK.size:
+            self._need = BLOCK.size + BLOCK.unpack_from(self._buf)[3] + CRC.size
+        if not self._need or len(self._buf) < self._need:
+            return None
+        raw, self._next = bytes(self._buf[: self._need]), -1  # padding after the CRC is ignored
+        if zlib.crc32(raw[: -CRC.size]) != CRC.unpack_from(raw, len(raw) - CRC.size)[0]:
+            self.counters.crc_errors += 1
+            return None
+        seq, kind, flags, n = BLOCK.unpack_from(raw)
+        return Block(seq, kind, flags, raw[BLOCK.size : BLOCK.size + n])
+
+
+class Receiver:
+    """One stream's receiving end: delivers blocks in sequence order, ACKs them, NACKs gaps.
+
+    ``send_ack(payload)`` sends a BULK_ACK; ``direction`` names the stream in it.
+    """
+
+    def __init__(self, send_ack: Callable[[bytes], None], direction: int, *, window: int = 64, nack_s: float = 0.2) -> None:
+        self.send_ack, self.direction, self.window, self.nack_s = send_ack, direction, window, nack_s
+        self.counters = Counters()
+        self._assembler = Assembler(self.counters)
+        self.expected = 0
+        self._held: dict[int, Block] = {}
+        self._nacked: dict[int, float] = {}
+
+    def feed(self, payload: bytes, now: float) -> list[Block]:
+        """Take one frame; return the blocks now deliverable in order."""
+        block = self._assembler.feed(payload)
+        if block is None:
+            return []
+        self.counters.blocks += 1
+        if block.seq < self.expected or block.seq in self._held:
+            self.counters.duplicates += 1
+            self._ack(ACK_OK, self.expected)
+            return []
+        if block.seq >= self.expected + self.window:
+            return []  # beyond the window: the sender will resend it
+        self._held[block.seq] = block
+        out = []
+        while self.expected in self._held:
+            out.append(self._held.pop(self.expected))
+            self._nacked.pop(self.expected, None)
+            self.expected += 1
+        if out:
+            self._ack(ACK_OK, self.expected)
+        self._nack_gaps(now)
+        return out
+
+    def poll(self, now: float) -> None:
+        """Repeat NACKs of gaps still open after ``nack_s`` (call while waiting)."""
+        self._nack_gaps(now)
+
+    def _nack_gaps(self, now: float) -> None:
+        if not self._held:
+            return
+        for seq in range(self.expected, max(self._held)):
+            if seq not in self._held and now - self._nacked.get(seq, -1e9) >= self.nack_s:
+                self._nacked[seq] = now
+                self.counters.nacks += 1
+                self._ack(NACK, seq)
+
+    def cancel(self) -> None:
+        self._ack(CANCEL, self.expected)
+
+    def _ack(self, code: int, seq: int) -> None:
+        self.send_ack(ACK.pack(code, self.direction, self.window, seq % 2**32))
+
+
+@dataclass
+class _Pending:
+    block: Block
+    frames: list[bytes]
+    sent_at: float = -1e9  # never sent
+    resent_at: float = -1e9  # never resent
+
+
+@dataclass
+class Sender:
+    """One stream's sending end: numbers blocks, sends within the window (``window`` blocks, by
+    default :data:`WINDOW_BYTES` worth, at most what the receiver advertises), resends what is
+    NACKed (a block not again within ``retry_s``/4 of its last resend) or stays unacknowledged for ``retry_s``.
+    ``send_frame(payload)`` sends one frame."""
+
+    send_frame: Callable[[bytes], None]
+    max_payload: int
+    direction: int
+    window: int = 0
+    retry_s: float = 0.5
+    next_seq: int = 0
+    acked: int = 0  # every block below this one has arrived
+    cancelled: bool = False
+    resent: int = 0
+    bytes_sent: int = 0
+    _pending: dict[int, _Pending] = field(default_factory=dict)
+    _nacked: list[int] = field(default_factory=list)
+    _advertised: int = 1 << 16
+
+    def __post_init__(self) -> None:
+        if self.window <= 0:
+            self.window = max(2, WINDOW_BYTES // (self.body_limit + BLOCK.size + CRC.size))
+
+    @property
+    def body_limit(self) -> int:
+        """Largest body :meth:`queue` takes."""
+        return min(max_body(self.max_payload), BLOCK_BYTES - BLOCK.size - CRC.size)
+
+    @property
+    def done(self) -> bool:
+        """Every queued block acknowledged."""
+        return self.acked >= self.next_seq
+
+    def queue(self, kind: int, body: bytes, flags: int = 0) -> int:
+        """Queue one block; return its sequence number (sent by :meth:`pump`)."""
+        block = Block(self.next_seq, kind, flags, bytes(body))
+        self._pending[block.seq] = _Pending(block, block.frames(self.max_payload))
+        self.next_seq += 1
+        return block.seq
+
+    def on_ack(self, payload: bytes) -> None:
+        """Take a BULK_ACK payload (ignored unless it acknowledges this stream)."""
+        if len(payload) < ACK.size:
+            return
+        code, direction, window, seq = ACK.unpack_from(payload)
+        if direction != self.direction:
+            return
+        if code == CANCEL:
+            self.cancelled = True
+        elif code == ACK_OK and seq > self.acked:
+            for s in range(self.acked, min(seq, self.next_seq)):
+                self._pending.pop(s, None)
+            self.acked = min(seq, self.next_seq)
+            self._advertised = max(1, window)
+        elif code == NACK and seq in self._pending and seq not in self._nacked:
+            self._nacked.append(seq)
+
+    def pump(self, now: float, budget: int = 1 << 30) -> int:
+        """Send NACKed blocks, then new or overdue ones within the window; at most ``budget``
+        blocks. Returns how many blocks went out."""
+        sent = 0
+        while self._nacked and sent < budget:
+            p = self._pending.get(self._nacked.pop(0))
+            if p is not None and now - p.resent_at >= self.retry_s / 4:
+                p.resent_at = now
+                self._send(p, now)
+                self.resent += 1
+                sent += 1
+        for seq in range(self.acked, min(self.next_seq, self.acked + min(self.window, self._advertised))):
+            if sent >= budget:
+                break
+            p = self._pending.get(seq)
+            if p is not None and now - p.sent_at >= self.retry_s:
+                self.resent += p.sent_at > -1e9
+                self._send(p, now)
+                sent += 1
+        return sent
+
+    def _send(self, p: _Pending, now: float) -> None:
+        for frame in p.frames:
+            self.send_frame(frame)
+            self.bytes_sent += len(frame)
+        p.sent_at = now

@@ -1,0 +1,120 @@
+"""Link faults the emulated device injects into what it sends (for tests and ``labrunner emulate``).
+
+:class:`FaultyLink` wraps the device's link: each frame the device sends may be dropped,
+delayed, duplicated, followed by garbage (random bytes on a serial line; a malformed frame on
+CAN), by a stale repeat of an earlier frame, by a spoofed frame (this node's id on a kind only
+the host sends), or by a CAN error frame. ``die_after_s`` after the first run's set-up silences the device
+for good (the emulator stops answering, like a board that lost power).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import random
+import time
+from dataclasses import dataclass
+
+import can
+
+from labrunner.rigs.transports.can import CanLink
+from labrunner.rigs.transports.framing import encode_frame
+from labrunner.rigs.transports.link import Link
+from labrunner.rigs.transports.protocol import FIXED_PAYLOAD, End, Frame, Kind, can_id
+from labrunner.rigs.transports.serial import SerialLink
+
+
+@dataclass(frozen=True)
+class LinkFaults:
+    """Per-frame probabilities (0..1) and delays of the faults the device injects."""
+
+    drop: float = 0.0
+    delay_ms: float = 0.0  # every frame sent this much later
+    garbage: float = 0.0
+    duplicate: float = 0.0
+    stale: float = 0.0  # repeat a frame sent 10 frames earlier
+    spoof: float = 0.0
+    error_frame: float = 0.0  # CAN only
+    die_after_s: float = float("inf")  # counted from the first run's set-up
+    seed: int = 0
+
+    @property
+    def any(self) -> bool:
+        return any((self.drop, self.delay_ms, self.garbage, self.duplicate, self.stale, self.spoof, self.error_frame)) \
+            or self.die_after_s != float("inf")
+
+
+class FaultyLink:
+    """``inner`` (a :class:`~.link.Link`) with :class:`LinkFaults` applied to what it sends;
+    delayed frames go out in :meth:`pump`. Everything else is the inner link's."""
+
+    def __init__(self, inner: Link, faults: LinkFaults) -> None:
+        self.inner, self.faults = inner, faults
+        self.node_id, self.end, self.counters = inner.node_id, inner.end, inner.counters
+        self.injected: dict[str, int] = {k: 0 for k in ("drop", "garbage", "duplicate", "stale", "spoof", "error_frame")}
+        self._rng = random.Random(faults.seed)
+        self._delayed: list[tuple[float, int, Frame]] = []
+        self._order = itertools.count()
+        self._history: list[Frame] = []
+
+    @property
+    def max_payload(self) -> int:
+        return self.inner.max_payload
+
+    def send(self, frame: Frame) -> None:
+        f, rng = self.faults, self._rng
+        self._history = (self._history + [frame])[-11:]
+        if rng.random() < f.drop:
+            self.injected["drop"] += 1
+            return
+        copies = 2 if rng.random() < f.duplicate else 1
+        self.injected["duplicate"] += copies - 1
+        for _ in range(copies):
+            if f.delay_ms:
+                heapq.heappush(self._delayed, (time.monotonic() + f.delay_ms * 1e-3, next(self._order), frame))
+            else:
+                self.inner.send(frame)
+        if rng.random() < f.stale and len(self._history) == 11:
+            self.injected["stale"] += 1
+            self.inner.send(self._history[0])
+        for name, inject in (("garbage", self._garbage), ("spoof", self._spoof), ("error_frame", self._error_frame)):
+            if rng.random() < getattr(f, name):
+                self.injected[name] += 1
+                inject()
+
+    def pump(self) -> None:
+        """Send the delayed frames that are due."""
+        now = time.monotonic()
+        while self._delayed and self._delayed[0][0] <= now:
+            self.inner.send(heapq.heappop(self._delayed)[2])
+
+    def next_due(self) -> float | None:
+        return self._delayed[0][0] if self._delayed else None
+
+    def recv(self, timeout: float) -> Frame | None:
+        return self.inner.recv(timeout)
+
+    def close(self) -> None:
+        self.inner.close()
+
+    # -- injected traffic ------------------------------------------------------------------------
+    def _garbage(self) -> None:
+        noise = bytes(self._rng.randrange(256) for _ in range(self._rng.randrange(1, 24)))
+        if isinstance(self.inner, SerialLink):
+            self.inner.port.write(noise)
+        elif isinstance(self.inner, CanLink):  # this node's measurement id with a short payload
+            self._can_send(can_id(self.node_id, Kind.MEASUREMENT, End.DEVICE), noise[: FIXED_PAYLOAD - 1])
+
+    def _spoof(self) -> None:
+        payload = bytes(FIXED_PAYLOAD)
+        if isinstance(self.inner, SerialLink):
+            self.inner.port.write(encode_frame(self.node_id, int(Kind.INPUT), payload))
+        elif isinstance(self.inner, CanLink):
+            self._can_send(can_id(self.node_id, Kind.INPUT, End.HOST), payload)
+
+    def _error_frame(self) -> None:
+        if isinstance(self.inner, CanLink):
+            self.inner.bus.send(can.Message(is_error_frame=True, arbitration_id=0, is_extended_id=False, dlc=0))
+
+    def _can_send(self, arbitration_id: int, data: bytes) -> None:
+        self.inner.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
