@@ -26,6 +26,7 @@ from labrunner.campaign.ledger import LEDGER_NAME, Ledger, RunRecord, fsync_dir
 from labrunner.campaign.lock import DirectoryLock
 from labrunner.campaign.recovery import QUARANTINE_DIR, verify_log
 from labrunner.campaign.worker import final_path
+from labrunner.engine import Outcome
 from labrunner.errors import InvalidParameter
 
 COPY = "campaign.toml"
@@ -140,7 +141,7 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
             if found is None:
                 report.rejected.append(f"{final_path(p.id)}: {reason}")
                 continue
-            outcome = dict(found["outcome"])
+            outcome = {**Outcome(str(found["outcome"].get("status"))).as_dict(), **found["outcome"]}  # logs leave None out
             outcome.pop("n_samples", None)
             run = found["run"]
             restored.append((RunRecord(
@@ -155,8 +156,11 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
             "created_at": meta.get("created_at", repr(time.time())), "created_by": meta.get("created_by", "repair"),
             "repaired_at": repr(time.time()),
         }
-        if path.exists() or Path(f"{path}-wal").exists():
+        if path.exists():
             report.old = _quarantine(path, directory)
+        else:  # a deleted ledger's stray -wal/-shm must not be read as the new one's
+            for suffix in ("-wal", "-shm"):
+                Path(f"{path}{suffix}").unlink(missing_ok=True)
         by_id = {p.id: p for p in points}
         with Ledger.create(directory, meta=new_meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points)) as ledger:
             del points

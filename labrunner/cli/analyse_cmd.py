@@ -7,6 +7,7 @@ import argparse
 import json
 import math
 import os
+from pathlib import Path
 from typing import Any
 
 from labrunner.cli.argtypes import positive_int
@@ -58,6 +59,10 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidParameter("--out", f"{args.out!r} exists and is not a directory")
     if not (0.0 <= args.margin < 1.0):
         raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
+    from labrunner.campaign.ledger import Ledger
+
+    with Ledger.open_readonly(Path(args.directory)):  # a missing or damaged ledger: one line, before any progress
+        pass
     from labrunner.campaign.progress import format_counts
 
     plot = [word for item in args.plot for word in item.split(",") if word]
