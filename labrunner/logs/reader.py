@@ -14,6 +14,7 @@ import json
 import math
 import os
 import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -202,7 +203,7 @@ class _ChunkReader:
         self.f.seek(index.chunk_start_offset)
         if self.f.readinto(raw) != index.chunk_length:
             raise McapError(f"chunk at offset {index.chunk_start_offset} is cut short")
-        opcode, _, _, _, size, _, name_length = _CHUNK_HEAD.unpack_from(raw)
+        opcode, _, _, _, size, crc, name_length = _CHUNK_HEAD.unpack_from(raw)
         if opcode != Opcode.CHUNK:
             raise McapError(f"no chunk at offset {index.chunk_start_offset}")
         start = _CHUNK_HEAD.size + name_length + 8
@@ -218,6 +219,8 @@ class _ChunkReader:
                 done += got
         if done != size:
             raise McapError(f"chunk at offset {index.chunk_start_offset} holds {done} bytes, not {size}")
+        if crc and zlib.crc32(out) != crc:  # zstd without a frame checksum decodes damage silently
+            raise McapError(f"chunk at offset {index.chunk_start_offset} fails its CRC")
         return out
 
 
