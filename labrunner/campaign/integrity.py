@@ -80,10 +80,7 @@ def _rows(db: sqlite3.Connection, meta: dict[str, str]) -> str:
         return f"has point rows out of grid order (seq {lo}…{hi}, expected 0…{n - 1})"
     expected = meta.get("ids_checksum")
     if expected is not None:  # ledgers written before it was kept are checked by count only
-        digest = hashlib.sha256()
-        for (pid,) in db.execute("SELECT id FROM points ORDER BY seq"):
-            digest.update(f"{pid}\n".encode())
-        if digest.hexdigest() != expected:
+        if ids_checksum(db) != expected:
             return "has point rows that are not the planned ones (their ids changed)"
     bad = db.execute(
         "SELECT seq FROM points WHERE json_valid(parameters) = 0 OR json_type(parameters) != 'object' LIMIT 1"
@@ -91,6 +88,14 @@ def _rows(db: sqlite3.Connection, meta: dict[str, str]) -> str:
     if bad is not None:
         return f"has a point row (seq {bad[0]}) whose parameters are not a JSON object"
     return ""
+
+
+def ids_checksum(db: sqlite3.Connection) -> str:
+    """SHA-256 of the point ids in grid order, one per line (as :meth:`Ledger.create` writes it)."""
+    digest = hashlib.sha256()
+    for (pid,) in db.execute("SELECT id FROM points ORDER BY seq"):
+        digest.update(f"{pid}\n".encode())
+    return digest.hexdigest()
 
 
 def verify(db: sqlite3.Connection, path: Path) -> None:

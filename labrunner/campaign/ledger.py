@@ -337,6 +337,9 @@ class Ledger:
             last = self.db.execute("SELECT COALESCE(MAX(seq), -1) FROM points").fetchone()[0]
             rows = [(last + 1 + n, i, json.dumps(dict(p), sort_keys=True), k) for n, (i, p, k) in enumerate(points)]
             self.db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows)
+            # the planned count and ids the integrity checks compare with grow with the rounds
+            self.db.execute("UPDATE meta SET value = (SELECT COUNT(*) FROM points) WHERE key = 'points'")
+            self.db.execute("UPDATE meta SET value = ? WHERE key = 'ids_checksum'", (integrity.ids_checksum(self.db),))
         return len(rows)
 
     def record_quarantine(self, point_id: str | None, original: str, moved_to: str, reason: str, size: int) -> None:

@@ -130,6 +130,8 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
     with DirectoryLock(directory, "repair"):
         meta, failed, sessions, quarantine, problem = _old_ledger(path)
         campaign = _campaign(directory, meta, campaign_file)
+        if campaign.guided is not None:
+            raise InvalidParameter("DIR", "a guided campaign's rounds cannot be rebuilt from its file; its logs stay in runs/")
         points, checksum = spec.plan(campaign)
         report = Repaired(points=len(points), problem=problem)
         restored: list[tuple[RunRecord, int]] = []

@@ -186,7 +186,8 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     source_path = Path(meta["campaign_path"])
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
     points, checksum = spec.plan(campaign)
-    integrity.check_plan(ledger.directory / LEDGER_NAME, [r["id"] for r in ledger.rows()], [p.id for p in points])
+    if campaign.guided is None:  # a guided campaign's rows are its rounds, not the plan's points
+        integrity.check_plan(ledger.directory / LEDGER_NAME, [r["id"] for r in ledger.rows()], [p.id for p in points])
     del points
     if checksum != meta["plan_checksum"]:
         raise CampaignError(
@@ -254,7 +255,7 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
             else:  # rounds: the procedure proposes, the scheduler runs
                 from labrunner.campaign import guided_run
 
-                out = guided_run.execute(campaign, ledger, scheduler.run)
+                out = guided_run.execute(campaign, ledger, scheduler.run, signals)
         reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
     finally:
         progress.close()

@@ -153,8 +153,6 @@ def design(
     for name, value in (("alpha", a), ("beta", b)):
         if not -1.0 < value <= MAX_EXPONENT:
             raise InvalidParameter(name, f"must be > -1 and <= {MAX_EXPONENT:g}, got {value!r}")
-    if a + b <= -1.0:  # the cutoff relation (31) of Othmane et al. (2022) has Γ(α + β + 1)
-        raise InvalidParameter("beta", f"alpha + beta must be > -1 for a defined cutoff, got {a!r} + {b!r}")
     f = check_positive("fs", fs)
     if isinstance(N, bool) or not float(check_finite("N", N, "an integer >= 0")).is_integer() or not 0 <= N <= MAX_N:
         raise InvalidParameter("N", f"must be an integer in 0..{MAX_N}, got {N!r}")
