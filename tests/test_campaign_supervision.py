@@ -173,12 +173,13 @@ def _one_line(err: str) -> str:
 
 @pytest.mark.parametrize("workers, batch, victim", [(4, None, "busy"), (2, 64, "idle")])
 def test_killing_a_worker_of_a_running_pool_ends_the_run_within_a_bound(project, workers, batch, victim):
-    write(project / "k.toml", campaign_text(name="k", grid=GRID, duration=4.0))
+    write(project / "k.toml", campaign_text(name="k", grid=GRID, duration=20.0))  # long enough to be killed mid-batch
     args = ["run", "k.toml", "--workers", str(workers)] + (["--batch-size", str(batch)] if batch else [])
     proc = spawn(*args, cwd=project)
     assert wait_for(lambda: len(_children(proc.pid)) >= workers, 60)
     time.sleep(0.3)
     kids = sorted(_children(proc.pid))
+    assert proc.poll() is None, "the campaign ended before a worker could be killed"
     os.kill(kids[-1] if victim == "idle" else kids[0], signal.SIGKILL)
     t0 = time.monotonic()
     _, err = proc.communicate(timeout=30)
