@@ -231,9 +231,9 @@ def _device_thread(rig):
     return channel, held, stop, thread
 
 
-def _send_description(send, data: bytes) -> None:
+def _send_description(send, data: bytes, transfer: int = 0) -> None:
     """The description's blocks, sent once and never acknowledged or resent."""
-    sender = bulk.Sender(lambda p: send(session.TO_DEVICE, p), 8, bulk.TO_DEVICE)
+    sender = bulk.Sender(lambda p: send(session.TO_DEVICE, p), 8, bulk.TO_DEVICE, transfer)
     parts = session._slices(data, sender.body_limit)
     for i, part in enumerate(parts):
         sender.queue(blocks.DESCRIPTION, part, bulk.FLAG_LAST if i == len(parts) - 1 else 0)
@@ -273,6 +273,29 @@ def test_a_silent_host_trips_the_device_watchdog():
     run = held["runs"][0]
     assert run.verdict.status == "failed" and "watchdog" in run.verdict.message and rig.is_safe.all()
     assert run.verdict.n_samples < 20.0 * fs
+
+
+def test_the_next_description_ends_an_upload_whose_last_acks_were_lost():
+    """The host holds a run's verdict but its final ACKs were lost: the device is still resending
+    that run's results when the next description arrives. It must take the new run at once
+    instead of ignoring it until its upload times out (the host's own silence limit is as long,
+    so a campaign's second run failed "no new block … during the description")."""
+    point, rig_name, fs, _, safety = POINTS["motor-mfc1"]
+    rig = load_rig(rig_name)
+    channel, held, stop, thread = _device_thread(rig)
+    try:
+        send, _ = channel.end("host", "device")
+        data = description.build(point, rig.info, fs=fs, duration=1.0, seed=0, rig_safety=safety, watchdog_s=30.0)
+        _send_description(send, data, transfer=1)  # its results are never acknowledged
+        assert _wait(lambda: len(held.get("runs", ())) == 1)
+        t0 = time.monotonic()
+        _send_description(send, data, transfer=2)
+        assert _wait(lambda: len(held["runs"]) == 2, timeout=3.0), "the device ignored the next description"
+        assert time.monotonic() - t0 < held["session"].upload_silence_s / 2
+        assert held["session"].tx.transfer == 2  # the second run's results go out under its transfer
+    finally:
+        stop.set()
+        thread.join()
 
 
 def _wait(predicate, timeout=20.0):

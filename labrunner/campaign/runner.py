@@ -22,7 +22,7 @@ from typing import TextIO
 
 from labrunner import __version__
 from labrunner.campaign import integrity, recovery, spec
-from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir, ledger_path
+from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.executors import check_executor_url, open_executor

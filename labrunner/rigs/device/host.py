@@ -57,7 +57,7 @@ def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict
 
 def run(send: session.Send, recv: session.Recv, max_payload: int, points: Sequence[Mapping[str, object]], rig_info: RigInfo,
         *, fs: float, duration: float, seeds: Sequence[int], rig_safety: Mapping[str, object] | None = None,
-        watchdog_s: float = 0.5, link: linkload.LinkSpec | None = None, silence_s: float = 5.0) -> list[engine.RunResult]:
+        watchdog_s: float = 0.5, link: linkload.LinkSpec | None = None, silence_s: float = 10.0) -> list[engine.RunResult]:
     """Run ``points`` on the device one after the other; one RunResult each (a RigError stops the batch)."""
     descriptions = plan(points, rig_info, fs=fs, duration=duration, seeds=seeds, rig_safety=rig_safety,
                         watchdog_s=watchdog_s, link=link)

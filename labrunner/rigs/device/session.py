@@ -57,7 +57,7 @@ def _slices(data: bytes, size: int) -> list[bytes]:
 
 
 def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, n_ticks: int, n_columns: int,
-                  *, silence_s: float = 5.0, heartbeat_s: float = 0.25) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
+                  *, silence_s: float = 10.0, heartbeat_s: float = 0.25) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
     """Host side of one run: send ``description``, collect the samples and the verdict; a
     HEARTBEAT goes out whenever the host sent nothing for ``heartbeat_s`` (the device's watchdog).
 
@@ -146,7 +146,7 @@ class DeviceSession:
     """
 
     def __init__(self, send: Send, recv: Recv, max_payload: int, execute: Callable[..., object], *,
-                 upload_silence_s: float = 5.0) -> None:
+                 upload_silence_s: float = 10.0) -> None:
         self.send, self.recv, self.max_payload, self.execute = send, recv, max_payload, execute
         self.upload_silence_s = upload_silence_s
         self.runs = 0
@@ -154,6 +154,7 @@ class DeviceSession:
         self.last_rx = time.monotonic()  # the host's last message (the watchdog's reference)
         self._done: deque[int] = deque(maxlen=16)  # transfers run lately: a late resend never runs again
         self._parts: list[bytes] = []
+        self._next: bytes | None = None  # a description completed while results were still uploading
         self.rx = bulk.Receiver(lambda p: self.send(ACK, p), bulk.TO_DEVICE, follow=self._follow)
         self.tx = self._results(0)
 
@@ -170,27 +171,34 @@ class DeviceSession:
 
     def on_message(self, kind: str, payload: bytes) -> None:
         """One bulk message from the host; a complete description runs here and now (the device
-        is busy until its results are acknowledged)."""
+        is busy until its results are acknowledged, or until the host sends the next description:
+        it does so only once it holds the verdict, so a lost final ACK never blocks the next run)."""
         self.last_rx = time.monotonic()
         if kind == ACK:
             self.tx.on_ack(payload)
             return
         if kind != TO_DEVICE:
             return
+        data = self._take_description(payload)
+        while data is not None:
+            self._done.append(self.rx.transfer)
+            self.tx = self._results(self.rx.transfer)  # the results go under the description's transfer
+            try:
+                self._run(data)
+            finally:
+                self.runs += 1
+            data, self._next = self._next, None
+
+    def _take_description(self, payload: bytes) -> bytes | None:
+        """Feed one TO_DEVICE frame; the whole description once its last block is in, else None."""
         for block in self.rx.feed(payload, time.monotonic()):
             if block.kind != blocks.DESCRIPTION:
                 continue
             self._parts.append(block.body)
             if block.flags & bulk.FLAG_LAST:
-                data = b"".join(self._parts)
-                self._done.append(self.rx.transfer)
-                self.tx = self._results(self.rx.transfer)  # the results go under the description's transfer
-                try:
-                    self._run(data)
-                finally:
-                    self.runs += 1
-                    self._parts = []
-                return
+                data, self._parts = b"".join(self._parts), []
+                return data
+        return None
 
     def _run(self, data: bytes) -> None:
         state = {"streamed": 0, "stream": False, "fs": 1.0, "per_block": 1, "last": time.monotonic(), "watchdog": float("inf")}
@@ -244,12 +252,16 @@ class DeviceSession:
                 self.tx.on_ack(payload)
             elif kind == STOP:
                 self.stopped = True
+            elif kind == TO_DEVICE:  # resends of this run's description (re-ACKed), or the next run's
+                data = self._take_description(payload)
+                if data is not None:
+                    self._next = data
             timeout = 0.0
 
     def _upload(self) -> None:
         """Send every queued block until the host has acknowledged them all (or gave up)."""
         last_progress, acked = time.monotonic(), self.tx.acked
-        while not (self.tx.done or self.tx.cancelled):
+        while not (self.tx.done or self.tx.cancelled or self._next is not None):
             self._service(0.005)
             now = time.monotonic()
             if self.tx.acked != acked:
