@@ -130,6 +130,13 @@ def _init_worker(lock_fd: int | None) -> None:
             os.close(lock_fd)
 
 
+def _preload_worker_modules() -> None:
+    """Import what every batch needs (the engine, the log writer) before the pool forks: the
+    workers inherit it instead of each importing it again (~0.1–0.2 s CPU per worker)."""
+    import labrunner.engine  # noqa: F401
+    import labrunner.logs.writer  # noqa: F401
+
+
 def check_executor_url(url: str | None) -> None:
     """``--executor`` must be a Dask scheduler address."""
     if url is not None and not url.startswith(("tcp://", "tls://", "inproc://")):
@@ -159,6 +166,7 @@ def open_executor(
             client.close()
         return
     n = workers or len(os.sched_getaffinity(0))
+    _preload_worker_modules()
     pool = ProcessPoolExecutor(
         max_workers=n, mp_context=multiprocessing.get_context("fork"), initializer=_init_worker, initargs=(lock_fd,)
     )

@@ -12,6 +12,16 @@ Guideline 2 vs Polack step counts of the guided campaigns where that module is p
 
 from __future__ import annotations
 
-from labrunner.reproduce.report import reproduce
+from typing import Any
 
 __all__ = ["reproduce"]
+
+
+def __getattr__(name: str) -> Any:
+    """``reproduce`` on first use: the report imports pandas, matplotlib and the stability solver,
+    which ``labrunner --help`` and ``labrunner run`` (whose parser lists the pack's items) do not need."""
+    if name == "reproduce":
+        from labrunner.reproduce.report import reproduce
+
+        return reproduce
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
