@@ -75,6 +75,11 @@ def test_executor_refuses_records_that_disagree_with_the_point():
         executor.check(description.Description(**{**d.__dict__, "trajectories": d.trajectories[:0]}), rig)
     with pytest.raises(DescriptionError, match="outputs"):
         executor.check(d, _plate())
+    point, _, fs, duration, safety = POINTS["plate-mfc"]
+    plate = description.decode(description.build(point, _plate().info, fs=fs, duration=duration, seed=0, rig_safety=safety))
+    notch = {"_notch": plate.filters["_notch"] * 1.001}
+    with pytest.raises(DescriptionError, match="filter matrices"):
+        executor.check(description.Description(**{**plate.__dict__, "filters": notch}), _plate())
 
 
 def _plate():
@@ -93,15 +98,16 @@ def test_executor_equals_the_twin_engine(name):
 
 
 class _Channel:
-    """Two queues between host and device; bulk frames the device sends are dropped or corrupted."""
+    """Two queues between host and device; bulk frames the device sends (of ``kinds``) are dropped
+    or corrupted with probability ``fault``."""
 
-    def __init__(self, fault: float, seed: int) -> None:
+    def __init__(self, fault: float, seed: int, kinds: tuple[str, ...] = (session.TO_HOST,)) -> None:
         self.q = {"host": queue.Queue(), "device": queue.Queue()}
-        self.rng, self.fault = random.Random(seed), fault
+        self.rng, self.fault, self.kinds = random.Random(seed), fault, kinds
 
     def end(self, me: str, other: str):
         def send(kind, payload):
-            if kind == session.TO_HOST and self.rng.random() < self.fault:
+            if me == "device" and kind in self.kinds and self.rng.random() < self.fault:
                 if self.rng.random() < 0.5:
                     return
                 b = bytearray(payload)
@@ -126,7 +132,7 @@ def _serve(channel: _Channel, rig, stop: threading.Event):
             dev.on_message(*msg)
 
 
-@pytest.mark.parametrize("name, stream", [("motor-mfc2", False), ("motor-mfc2", True), ("valve-mfc1", False)])
+@pytest.mark.parametrize("name, stream", [("motor-mfc2", False), ("motor-mfc2", True), ("motor-aborted", True), ("valve-mfc1", False)])
 def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     point, rig_name, fs, duration, safety = POINTS[name]
     channel, stop = _Channel(fault=0.003, seed=5), threading.Event()
@@ -147,6 +153,34 @@ def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     assert d["received"]["crc_errors"] + d["received"]["broken"] > 0 and d["received"]["nacks"] > 0  # faults were healed
 
 
+def test_lost_device_acks_never_run_a_description_twice():
+    """The device's ACKs of the description are lost: the host resends it while the device runs,
+    and again later; the device runs it once (its transfer is done) and the host gets its result."""
+    point, rig_name, fs, duration, safety = POINTS["motor-mfc1"]
+    rig = load_rig(rig_name)
+    channel, stop = _Channel(fault=1.0, seed=0, kinds=(session.ACK,)), threading.Event()
+    runs = []
+
+    def serve():
+        send, recv = channel.end("device", "host")
+        dev = session.DeviceSession(send, recv, 8, lambda data, **kw: runs.append(1) or executor.execute(data, rig, **kw))
+        while not stop.is_set():
+            if (msg := recv(0.01)) is not None:
+                dev.on_message(*msg)
+
+    device = threading.Thread(target=serve, daemon=True)
+    device.start()
+    try:
+        send, recv = channel.end("host", "device")
+        [result] = host.run(send, recv, 8, [point], rig.info, fs=fs, duration=duration, seeds=[11], rig_safety=safety)
+        time.sleep(1.2)  # past the host's resend timer: nothing may start another run
+    finally:
+        stop.set()
+        device.join()
+    assert runs == [1]
+    assert_same_as_twin(result, "motor-mfc1", 11)
+
+
 def test_a_refused_description_raises_on_the_host():
     point, rig_name, fs, duration, safety = POINTS["motor-mfc1"]
     channel, stop = _Channel(fault=0.0, seed=0), threading.Event()
@@ -163,7 +197,7 @@ def test_a_refused_description_raises_on_the_host():
 
 
 def test_a_silent_device_raises():
-    with pytest.raises(RigError, match="silent"):
+    with pytest.raises(RigError, match="no new block"):
         session.run_on_device(lambda k, p: None, lambda t: None, 8, b"x" * 20, 10, 6, silence_s=0.05)
 
 
@@ -246,3 +280,32 @@ def _wait(predicate, timeout=20.0):
     while not predicate() and time.monotonic() < deadline:
         time.sleep(0.01)
     return predicate()
+
+
+def test_filter_records_step_like_the_controllers_filters():
+    """The plate MBC's FILTER record, run as firmware would ([out, x⁺] = [x, w] · M), gives the
+    controller's own filter outputs for a random input sequence."""
+    from labrunner.control import factory
+
+    point, rig_name, fs, duration, safety = POINTS["plate-mbc"]
+    info = load_rig(rig_name).info
+    d = description.decode(description.build(point, info, fs=fs, duration=duration, seed=0, rig_safety=safety))
+    controller, _ = factory.build([point], info, fs)
+    chain = controller._chain
+    M = d.filters["_chain"]
+    n, m = chain.n, chain.m
+    rng = np.random.default_rng(0)
+    w = rng.normal(size=(50, 3, m))
+    chain.reset(np.zeros((1, 3, m)))
+    x = np.zeros((3, n))
+    for k in range(50):
+        out, x = np.split(np.hstack([x, w[k]]) @ M, [chain.p], axis=1)
+        np.testing.assert_allclose(chain.step(w[k][None])[0], out, rtol=1e-12, atol=1e-12)
+
+
+def test_the_stream_flag_keeps_the_description_valid():
+    point, rig_name, fs, duration, safety = POINTS["motor-mfc1"]
+    data = description.build(point, load_rig(rig_name).info, fs=fs, duration=duration, seed=0, rig_safety=safety)
+    assert not description.decode(data).stream
+    streamed = description.with_stream(data, True)
+    assert description.decode(streamed).stream and description.with_stream(streamed, False) == data

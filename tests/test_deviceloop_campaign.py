@@ -95,3 +95,17 @@ def test_plan_refuses_what_the_device_cannot_run(tmp_path: Path):
     (tmp_path / "campaign.toml").write_text(CAMPAIGN + '\n[rig_parameters]\nm = 5.0\n')
     done = _labrunner("run", str(tmp_path / "campaign.toml"), "--dry-run")
     assert done.returncode != 0 and "rig_parameters" in done.stderr
+
+
+def test_dry_run_counts_the_sample_upload(tmp_path: Path):
+    from labrunner.rigs.transports import linkload
+
+    config = rig_file("plate-mfc", "canfd")
+    (tmp_path / "plate-fd.toml").write_text(rig_toml(config))
+    (tmp_path / "campaign.toml").write_text(CAMPAIGN)
+    done = _labrunner("run", str(tmp_path / "campaign.toml"), "--dry-run")
+    assert done.returncode == 0, done.stderr
+    # 2 points of 0.26 s × 32 kHz × 20 float32 columns, after each run, on CAN FD at 1/5 Mbit/s
+    link = linkload.from_rig("can", config["parameters"])
+    expected = 2 * linkload.upload_s(link, 32000.0, 0.26, 20)
+    assert f"{expected:.0f} s of it sending samples after the runs" in done.stdout

@@ -79,7 +79,7 @@ def device_run(name: str, config: dict, seed: int = 11):
     return result
 
 
-CASES = [("motor-mfc2", "can"), ("valve-mfc1", "can"), ("plate-mfc", "canfd"),
+CASES = [("motor-mfc2", "can"), ("motor-aborted", "can"), ("valve-mfc1", "can"), ("plate-mfc", "canfd"),
          ("motor-mfc1", "serial"), ("valve-mfc1", "serial"), ("plate-mbc", "serial")]
 
 

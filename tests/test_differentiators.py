@@ -374,3 +374,16 @@ def test_cutoff_of_arcsine_kernel_below_mu_one_half():
     assert math.exp(log_cutoff_product(-0.5, -0.5, 0, 0.0)) == pytest.approx(1.0 / math.pi, rel=1e-12)
     d = design(alpha=-0.5, beta=-0.5, N=0, fs=20.0, window=0.1)
     assert d.n_s == 2 and np.isfinite(d.omega_c_actual)
+
+
+def test_rho_zero_for_alpha_plus_beta_at_most_minus_one():
+    """ρ_0 = 2^{α+β+1}/‖P_0‖² = Γ(α+β+2)/(Γ(α+1)Γ(β+1)) (the Beta-function normalisation); at
+    α = β = −1/2 that is 1/π, where (α+β+1)·Γ(α+β+1) is 0·∞ in the two-term form."""
+    from labrunner.differentiators.kernel import log_rho
+
+    assert math.exp(log_rho(-0.5, -0.5, 0)) == pytest.approx(1.0 / math.pi, rel=1e-12)
+    assert math.exp(log_rho(-0.7, -0.6, 0)) == pytest.approx(
+        math.gamma(0.7) / (math.gamma(0.3) * math.gamma(0.4)), rel=1e-12)
+    for method in ("midpoint", "analytic"):
+        w = design(alpha=-0.5, beta=-0.5, N=0, fs=20.0, window=0.1, method=method).weights(0)
+        assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0, rel=1e-9)

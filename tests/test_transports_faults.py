@@ -22,8 +22,9 @@ from test_transports import U, can_config, direct_run, serial_config
 
 def run_until_failure(rig, u: np.ndarray, seed: int = 3) -> tuple[np.ndarray, RigError | None]:
     """The measurements the host got, and the RigError that ended the run early (or None)."""
-    ys = [rig.reset(1, [seed], 200.0)[0, 0]]
+    ys = []
     try:
+        ys.append(rig.reset(1, [seed], 200.0)[0, 0])
         for v in u:
             ys.append(rig.step(np.array([[v]]))[0, 0])
     except RigError as exc:
@@ -32,6 +33,7 @@ def run_until_failure(rig, u: np.ndarray, seed: int = 3) -> tuple[np.ndarray, Ri
 
 
 def serve(faults: LinkFaults, interface: str = "virtual", paced: bool = False, **parameters):
+    parameters.setdefault("watchdog_periods", 200)  # 1 s at 200 Hz: these tests are about the link, not the watchdog
     config = can_config(interface, **parameters)
     emulator = Emulator(twin_for(config), device_link(config), paced=paced, faults=faults).start()
     return load_rig(config), emulator
@@ -164,3 +166,35 @@ def test_device_counts_rejected_frames_and_reports_them_in_status():
     finally:
         rig.close()
         emulator.stop()
+
+
+def test_a_long_burst_echoed_back_counts_as_echoes_not_spoofed_frames():
+    """udp_multicast loops a node's own frames back, here after a burst of 1000 bulk frames (a
+    device-loop upload): every echo is recognised as this end's own frame; a device-kind frame
+    with the host's node id that the host never sent counts as spoofed."""
+    from labrunner.rigs.transports.link import Link
+    from labrunner.rigs.transports.protocol import End, Frame, Kind
+
+    class Loopback(Link):
+        def __init__(self) -> None:
+            super().__init__(1, End.DEVICE)
+            self.wire: list[tuple[Kind, bytes]] = []
+
+        max_payload = 8
+
+        def _send(self, kind: Kind, payload: bytes) -> None:
+            self.wire.append((kind, payload))
+
+        def recv(self, timeout: float) -> Frame | None:
+            return None
+
+        def close(self) -> None:
+            pass
+
+    link = Loopback()
+    for i in range(1000):
+        link.send(Frame(Kind.BULK_TO_HOST, i.to_bytes(4, "little")))
+    for kind, payload in link.wire:
+        assert link._accept(1, kind, End.DEVICE, payload) is None
+    assert link._accept(1, Kind.BULK_TO_HOST, End.DEVICE, b"\xff" * 8) is None
+    assert (link.counters.echoes, link.counters.spoofed) == (1000, 1)

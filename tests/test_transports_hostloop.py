@@ -143,8 +143,9 @@ def test_a_dying_device_stops_the_campaign_keeps_the_log_and_resume_retries(proj
 
     with open(project / "data" / "can" / rows["failed"]["log_path"], "rb") as f:
         metadata = {r.name: r.metadata for r in make_reader(f).iter_metadata()}
-    assert "no complete" in json.loads(metadata["outcome"]["message"])
-    assert json.loads(metadata["diagnostics"]["link"])["sent"] > 0
+    metadata = {name: json.loads(metadata[name]["json"]) for name in ("outcome", "diagnostics")}  # JSON records
+    assert "no complete" in metadata["outcome"]["message"] and metadata["outcome"]["n_samples"] > 0
+    assert metadata["diagnostics"]["link"]["sent"] > 0 and metadata["diagnostics"] == failed["diagnostics"]
     done = json.loads(rows["done"]["outcome_json"])
     assert done["diagnostics"]["host"]["late_ticks"] == done["diagnostics"]["device"]["late"]
 

@@ -207,7 +207,7 @@ def analyse(
     if campaign is not None and campaign.guided is not None:  # the walk and its step counts
         from labrunner.campaign import guided_report
 
-        sections, guided = guided_report.sections(ctx, directory, out)
+        sections, guided = guided_report.sections(campaign, rows, out)
     step("report")
     summary = {**counts(frame), "best": _best(frame), "maps": [str(p) for p, _ in maps],
                "run_plots": [str(p) for p in plots.values()], "agreement": agree,

@@ -77,12 +77,13 @@ def walk_figure(table: pd.DataFrame, title: str):
     return fig
 
 
-def sections(ctx: Any, directory: Path, out: Path) -> tuple[list[Any], dict[str, Any]]:
-    """Report sections (``labrunner.analysis.report.Section``) and the summary of a guided campaign."""
+def sections(campaign: Any, rows: list[dict[str, Any]], out: Path) -> tuple[list[Any], dict[str, Any]]:
+    """Report sections (``labrunner.analysis.report.Section``) and the summary of a guided campaign
+    from its ledger ``rows``; writes ``walk.csv`` (and ``walk.png``) into ``out``."""
     from labrunner.analysis.report import Image, Section
     from labrunner.campaign import guided_run
 
-    campaign, state, summary = guided_run.directory_state(directory)
+    state, summary = guided_run.replay(campaign, rows), guided_run.summary(campaign, rows)
     table = walk_table(state)
     table.to_csv(out / "walk.csv", index=False)
     facts: dict[str, object] = {"procedure": campaign.guided.describe(), "runs": state.runs,

@@ -153,17 +153,37 @@ def status_lines(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
+def stored_summary(meta: Mapping[str, str], rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """:func:`summary` of the campaign a ledger keeps (``meta``), or why it cannot be given (``status``)."""
+    campaign, note = _stored_campaign(meta)
+    if campaign is None:
+        return {"procedure": meta.get("guided"), "note": note}
+    return summary(campaign, rows)
+
+
+def _stored_campaign(meta: Mapping[str, str]) -> tuple[Campaign | None, str]:
+    """The guided campaign kept in a ledger's ``meta`` (without the analysis' heavy imports)."""
+    from labrunner.campaign import spec
+    from labrunner.errors import LabrunnerError
+
+    source = meta.get("campaign_path")
+    try:
+        campaign = spec.from_text(meta.get("campaign_file", ""), source_path=Path(source) if source else None)
+    except LabrunnerError as exc:
+        return None, f"the campaign file could not be loaded again: {exc}"
+    return (campaign, "") if campaign.guided is not None else (None, "the stored campaign is not guided")
+
+
 def directory_state(directory: str | Path) -> tuple[Campaign, Advance, dict[str, Any]]:
     """(campaign, replayed state, summary) of a guided campaign directory (reads only)."""
-    from labrunner.analysis.analyse import load_campaign
     from labrunner.errors import CampaignError
 
     with Ledger.open_readonly(Path(directory)) as ledger:
         rows = [dict(r) for r in ledger.rows()]
         meta = ledger.meta()
-    campaign, note = load_campaign(meta, Path(directory))
-    if campaign is None or campaign.guided is None:
-        raise CampaignError(f"{directory} holds no guided campaign{': ' + note if note else ''}")
+    campaign, note = _stored_campaign(meta)
+    if campaign is None:
+        raise CampaignError(f"{directory} holds no guided campaign: {note}")
     return campaign, replay(campaign, rows), summary(campaign, rows)
 
 

@@ -79,15 +79,15 @@ def bisect(stage: str, points: list[dict[str, Any]], *, target: float | None = N
         return obs.tripped or (target is not None and obs.completed and obs.rms_error <= target)
 
     def end(reason: str, chosen: Observation | None) -> StageEnd:
-        return StageEnd(stage, tuple(seen[i] for i in seen), reason, chosen)
+        return StageEnd(stage, tuple(seen.values()), reason, chosen)
 
     last = len(points) - 1
-    for i in (0, last) if last > 0 else (0,):
+    for i in dict.fromkeys((0, last)):  # the two ends (one point when the ladder has one)
         (seen[i],) = yield ask(stage, points[i])
         if seen[i].status == "failed":
             return end("failed", None)
-        if stops(seen[i]) and i == 0:
-            return end("target" if not seen[0].tripped else "start trips", None if seen[0].tripped else seen[0])
+        if i == 0 and stops(seen[0]):
+            return end("start trips", None) if seen[0].tripped else end("target", seen[0])
     if not stops(seen[last]):
         return end("end of range", best(list(seen.values())))
     lo, hi = 0, last

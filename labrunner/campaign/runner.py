@@ -111,7 +111,11 @@ def dry_run(campaign: spec.Campaign, points: list[spec.PlannedPoint], opts: Opti
         est = _estimate_sim(campaign, points, slots, max(groups[next(iter(groups))]))
         lines.append(f"  estimated time ≈ {est:.0f} s on {slots} worker(s) ({total_s:g} s of simulated time)")
     else:
-        lines.append(f"  estimated time ≈ {total_s + 2.0 * len(points):.0f} s on the real rig (one run at a time)")
+        from labrunner.rigs.device.plan import upload_s
+
+        upload = upload_s(campaign, points)  # a device loop's samples sent after each run
+        lines.append(f"  estimated time ≈ {total_s + upload + 2.0 * len(points):.0f} s on the real rig (one run at a time"
+                     + (f"; {upload:.0f} s of it sending samples after the runs)" if upload else ")"))
     return "\n".join(lines)
 
 

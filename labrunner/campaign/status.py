@@ -22,7 +22,7 @@ def status(directory: str | Path) -> dict[str, Any]:
         sessions = ledger.sessions()
         quarantined = len(ledger.quarantined())
         finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
-        guided = _guided_status(meta, ledger) if "guided" in meta else None
+        guided = _guided(meta, ledger) if "guided" in meta else None
     running = holder(directory)
     now = time.time()
     elapsed = 0.0
@@ -48,13 +48,9 @@ def status(directory: str | Path) -> dict[str, Any]:
     }
 
 
-def _guided_status(meta: dict[str, str], ledger: Ledger) -> dict[str, Any]:
-    """A guided campaign's decisions so far, replayed from the ledger (or why they cannot be). Only
-    this loads the campaign (its procedure): a grid campaign's status stays as light as before."""
-    from labrunner.analysis.analyse import load_campaign
-    from labrunner.campaign import guided_run
+def _guided(meta: dict[str, str], ledger: Ledger) -> dict[str, Any]:
+    """A guided campaign's decisions so far, replayed from the ledger. Only this loads the campaign
+    (≈ 0.3 s): a grid campaign's status stays as light as before."""
+    from labrunner.campaign.guided_run import stored_summary
 
-    campaign, note = load_campaign(meta, ledger.directory)
-    if campaign is None or campaign.guided is None:
-        return {"procedure": meta["guided"], "note": note or "the stored campaign is not guided"}
-    return guided_run.summary(campaign, [dict(r) for r in ledger.rows()])
+    return stored_summary(meta, [dict(r) for r in ledger.rows()])

@@ -25,14 +25,15 @@ import numpy as np
 
 
 def log_rho(alpha: float, beta: float, i: int) -> float:
-    """log ρ_i = log(2^{α+β+1}/‖P_i^{(α,β)}‖²) (thesis Remark 2.2), via log-gamma."""
-    return (
-        math.lgamma(i + 1)
-        + math.log(2 * i + alpha + beta + 1)
-        + math.lgamma(i + alpha + beta + 1)
-        - math.lgamma(i + alpha + 1)
-        - math.lgamma(i + beta + 1)
-    )
+    """log ρ_i = log(2^{α+β+1}/‖P_i^{(α,β)}‖²) (thesis Remark 2.2), via log-gamma.
+
+    For i = 0 and α + β + 1 ≤ 0 the factor (2i+α+β+1)·Γ(i+α+β+1) is taken as Γ(α+β+2) > 0
+    (Γ(x+1) = xΓ(x)); the two-term form would be log(0) or the log of a negative number."""
+    if 2 * i + alpha + beta + 1 <= 0.0:
+        lead = math.lgamma(alpha + beta + 2)
+    else:
+        lead = math.log(2 * i + alpha + beta + 1) + math.lgamma(i + alpha + beta + 1)
+    return math.lgamma(i + 1) + lead - math.lgamma(i + alpha + 1) - math.lgamma(i + beta + 1)
 
 
 def kernel_u(alpha: float, beta: float, N: int, theta: float, k: int, u: np.ndarray) -> np.ndarray:

@@ -4,7 +4,8 @@ records + CRC-32, every byte in docs/device-loop.md (pure, no I/O).
 The description carries the point's sections as named parameter records (the firmware reads the
 gains by name, the reference executor rebuilds the controller from them with the engine's own
 factory) *and* everything a firmware would otherwise have to design: the differentiator's FIR
-weights of every derivative order the law uses, the input saturation, the reference as resolved
+weights of every derivative order the law uses, the controller's discretised linear filters, the
+input saturation, the reference as resolved
 poly-5 segments (or steps, or a sine), the safety limits with the |du/dt| estimator's weights and
 the weights of derived outputs (the plate's air gaps), the watchdog, f_s, the tick count and the
 seed. :func:`build` refuses at plan time what a description cannot carry, with a one-line
@@ -22,8 +23,10 @@ import numpy as np
 
 from labrunner.control import factory
 from labrunner.control.trajectories import Setpoints, Sine, Steps
+from labrunner.differentiators import design as design_rate
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo
+from labrunner.rigs.device.columns import column_count
 from labrunner.safety import SafetyConfig
 
 MAGIC = b"LRDL"
@@ -34,7 +37,7 @@ RUN = struct.Struct("<ddIIdBBH")  # fs, duration, ticks, seed, watchdog, n_input
 FLAG_STREAM = 0x0001  # header flag: send the samples during the run
 
 #: record types (docs/device-loop.md, "Run description")
-R_RUN, R_KIND, R_PARAM, R_FIR, R_SATURATION, R_BOUNDS, R_RATE, R_MAX_DURATION, R_TRAJECTORY, R_DERIVED = range(1, 11)
+R_RUN, R_KIND, R_PARAM, R_FIR, R_SATURATION, R_BOUNDS, R_RATE, R_MAX_DURATION, R_TRAJECTORY, R_DERIVED, R_FILTER = range(1, 12)
 #: point sections carried as parameter records, by id (``rig_safety``: the rig file's [safety])
 SECTIONS = {"controller": 1, "differentiator": 2, "reference": 3, "safety": 4, "rig_safety": 5}
 #: parameter value types
@@ -71,6 +74,7 @@ class Description:
     trajectories: list[tuple[int, list[np.ndarray]]] = field(default_factory=list)  # per output
     derived: np.ndarray | None = None  # (n_derived, n_outputs) weights
     stream: bool = False  # send the samples during the run
+    filters: dict[str, np.ndarray] = field(default_factory=dict)  # name → (n + m, p + n) tick matrix
 
     def point(self) -> dict[str, object]:
         """The campaign point these sections came from (what the engine's factory reads)."""
@@ -121,11 +125,10 @@ def build(
     seed: int,
     rig_safety: Mapping[str, object] | None = None,
     watchdog_s: float = 0.5,
-    stream: bool = False,
 ) -> bytes:
     """The encoded description of one resolved ``point``; raises InvalidParameter for what the
     device loop cannot run (unknown kind, per-run rig parameters, values without an encoding).
-    ``stream``: the device sends its samples during the run (the link has room for them)."""
+    The STREAM flag is clear: :func:`with_stream` sets it where the link has room for the samples."""
     kind = str(dict(point.get("controller") or {}).get("kind"))
     if kind not in DEVICE_KINDS:
         raise InvalidParameter("controller.kind", f"{kind!r} cannot run on a device-loop rig (device kinds: {', '.join(DEVICE_KINDS)})")
@@ -133,8 +136,6 @@ def build(
         raise InvalidParameter("rig_parameters", "a device-loop rig has no per-run rig parameters; remove the section")
     controller, reference = factory.build([point], rig_info, fs)  # every check the engine runs
     config = SafetyConfig.from_sections(rig_info, rig_safety or {}, dict(point.get("safety") or {}))
-    from labrunner.rigs.device.columns import column_count
-
     ticks = int(round(duration * fs))
     if not 0 < ticks < 2**32:
         raise InvalidParameter("campaign.duration", f"needs 1..2³²−1 ticks at {fs:g} Hz, got {duration!r} s")
@@ -167,8 +168,6 @@ def build(
         weights = np.array([d.weights for d in rig_info.derived], dtype=float)
         records.append(_record(R_DERIVED, struct.pack("<BB", *weights.shape) + _f64(weights)))
     if config.max_du_dt is not None:
-        from labrunner.differentiators import design as design_rate
-
         records.append(_record(R_RATE, _f64([config.max_du_dt, config.du_dt_alpha, config.du_dt_beta, config.du_dt_omega_c])))
         w = design_rate(alpha=config.du_dt_alpha, beta=config.du_dt_beta, omega_c=config.du_dt_omega_c, fs=fs).weights(1)
         records.append(_record(R_FIR, struct.pack("<BBI", FIR_RATE, 1, w.size) + _f64(w)))
@@ -180,9 +179,20 @@ def build(
         arrays = [np.atleast_1d(np.asarray(a, float)) for a in trajectory._params()]
         body = struct.pack("<BBB", j, code, len(arrays)) + b"".join(struct.pack("<I", a.size) + _f64(a) for a in arrays)
         records.append(_record(R_TRAJECTORY, body))
+    for name, f in _streaming_filters(controller).items():
+        raw = name.encode("ascii")
+        records.append(_record(R_FILTER, struct.pack("<BHBB", len(raw), f.n, f.m, f.p) + raw + _f64(f._M[0])))
     body = b"".join(records)
-    head = HEADER.pack(MAGIC, VERSION, HEADER.size, len(body), FLAG_STREAM if stream else 0, len(records))
+    head = HEADER.pack(MAGIC, VERSION, HEADER.size, len(body), 0, len(records))
     return head + body + struct.pack("<I", zlib.crc32(head + body))
+
+
+def with_stream(data: bytes, stream: bool) -> bytes:
+    """The same description with its STREAM flag set or cleared (and its CRC-32 renewed)."""
+    head = bytearray(data[:-4])
+    flags = int.from_bytes(head[12:14], "little")
+    head[12:14] = ((flags | FLAG_STREAM) if stream else (flags & ~FLAG_STREAM)).to_bytes(2, "little")
+    return bytes(head) + struct.pack("<I", zlib.crc32(head))
 
 
 def _param(section: str, key: str, value: object) -> bytes:
@@ -212,7 +222,7 @@ def decode(data: bytes) -> Description:
     if zlib.crc32(data[:-4]) != crc:
         raise DescriptionError("description CRC-32 mismatch")
     run: tuple | None = None
-    out: dict[str, object] = {"sections": {name: {} for name in SECTIONS}, "fir": {}, "bounds": {}, "trajectories": [],
+    out: dict[str, object] = {"sections": {name: {} for name in SECTIONS}, "fir": {}, "bounds": {}, "trajectories": [], "filters": {},
                               "stream": bool(flags & FLAG_STREAM)}
     names = {v: k for k, v in SECTIONS.items()}
     pos, end = head_len, len(data) - 4
@@ -257,6 +267,11 @@ def decode(data: bytes) -> Description:
                     arrays.append(np.frombuffer(value, "<f8", n, at + 4).copy())
                     at += 4 + 8 * n
                 out["trajectories"].append((code, arrays))  # type: ignore[union-attr]
+            elif kind == R_FILTER:
+                n_name, n, m, p = struct.unpack_from("<BHBB", value)
+                name = value[5 : 5 + n_name].decode("ascii")
+                matrix = np.frombuffer(value, "<f8", (n + m) * (p + n), 5 + n_name).reshape(n + m, p + n)
+                out["filters"][name] = matrix.copy()  # type: ignore[index]
             else:
                 raise DescriptionError(f"unknown record type {kind}")
     except (struct.error, ValueError, KeyError, IndexError) as exc:
@@ -308,3 +323,16 @@ def rig_safety(description: Description) -> dict[str, object]:
 def expected_trajectories(reference_rows: Sequence[object]) -> list[tuple[int, list[np.ndarray]]]:
     """(type code, parameter arrays) per output of one run's trajectories, as :func:`build` sends them."""
     return [(TRAJECTORIES[type(t)], [np.atleast_1d(np.asarray(a, float)) for a in t._params()]) for t in reference_rows]
+
+
+def _streaming_filters(controller: object) -> dict[str, object]:
+    from labrunner.control.plate_filters import StreamingSS
+
+    return {name: obj for name, obj in sorted(vars(controller).items()) if isinstance(obj, StreamingSS)}
+
+
+def filter_matrices(controller: object) -> dict[str, np.ndarray]:
+    """The controller's streaming linear filters (the plate's notch, the MBC's observer chain) as
+    their per-tick matrices M of run 0: [out[k], x[k+1]] = [x[k], w[k]] · M, so firmware runs
+    them without designing them (Tustin, pole placement: labrunner/control/plate_filters.py)."""
+    return {name: np.array(f._M[0]) for name, f in _streaming_filters(controller).items()}

@@ -33,6 +33,7 @@ from labrunner.rigs.device.description import (
     DescriptionError,
     decode,
     expected_trajectories,
+    filter_matrices,
     rig_safety,
 )
 
@@ -76,6 +77,9 @@ def check(description: Description, rig: Rig) -> dict[str, object]:
     if description.saturation is None or not (np.array_equal(description.saturation[0], controller.u_min[0])
                                               and np.array_equal(description.saturation[1], controller.u_max[0])):
         raise DescriptionError("input saturation differs from the point's")
+    mine = filter_matrices(controller)
+    if mine.keys() != description.filters.keys() or any(not np.array_equal(mine[k], description.filters[k]) for k in mine):
+        raise DescriptionError("filter matrices differ from the point's controller")
     expected = expected_trajectories(reference.trajectories[0])
     if len(expected) != len(description.trajectories) or any(
         code != c or len(a) != len(b) or any(not np.array_equal(x, y) for x, y in zip(a, b))

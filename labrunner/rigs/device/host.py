@@ -16,7 +16,7 @@ import numpy as np
 
 from labrunner import engine
 from labrunner.control import factory
-from labrunner.metrics import run_metrics
+from labrunner.metrics import parse_windows, run_metrics
 from labrunner.rigs.base import RigInfo
 from labrunner.rigs.device import blocks, description, session
 from labrunner.rigs.device.columns import column_names, from_columns
@@ -30,11 +30,8 @@ def plan(points: Sequence[Mapping[str, object]], rig_info: RigInfo, *, fs: float
     out = []
     for point, seed in zip(points, seeds):
         data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, watchdog_s=watchdog_s)
-        if link is not None:
-            n_columns = description.decode(data).n_columns
-            if linkload.device_loop_load(link, fs, n_columns) <= linkload.MAX_LOAD:
-                data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety,
-                                         watchdog_s=watchdog_s, stream=True)
+        if link is not None and linkload.device_loop_load(link, fs, description.decode(data).n_columns) <= linkload.MAX_LOAD:
+            data = description.with_stream(data, True)
         out.append(data)
     return out
 
@@ -53,7 +50,8 @@ def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict
 
     outcome = engine.Outcome(verdict.status, verdict.monitor or None, opt(verdict.time), opt(verdict.value),
                              opt(verdict.threshold), verdict.message)
-    return engine.RunResult(outcome, signals, float(fs), channels, run_metrics(signals, engine.roles_of(channels)), dict(diagnostics))
+    metrics = run_metrics(signals, engine.roles_of(channels, rig_info), fs=float(fs), windows=parse_windows(point.get("metrics")))
+    return engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
 
 
 def run(send: session.Send, recv: session.Recv, max_payload: int, points: Sequence[Mapping[str, object]], rig_info: RigInfo,

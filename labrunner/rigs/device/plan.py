@@ -17,6 +17,35 @@ from labrunner.rigs.device import description
 from labrunner.rigs.transports import linkload
 
 
+def _device_link(campaign) -> linkload.LinkSpec | None:
+    """The link of a rig whose loop runs on the device, else None."""
+    if campaign.rig_info.simulated:
+        return None
+    config = load_rig_config(campaign.rig_ref, search=campaign.rig_search)
+    if config.parameters.get("loop") != "device":
+        return None
+    return linkload.from_rig(config.kind, config.parameters)
+
+
+def upload_s(campaign, points: Sequence) -> float:
+    """Seconds the device loop's after-the-run sample uploads add to a campaign on its link
+    (0 for a host loop, a simulated rig, or samples that stream during the run)."""
+    link = _device_link(campaign)
+    if link is None:
+        return 0.0
+    total, columns = 0.0, {}
+    for p in points:
+        fs, duration = json.loads(p.batch_key)[1:3]
+        key = p.batch_key
+        if key not in columns:
+            data = description.build(campaign.resolve(p.parameters), campaign.rig_info, fs=fs, duration=duration,
+                                     seed=campaign.seed, rig_safety=campaign.rig_safety)
+            columns[key] = description.decode(data).n_columns
+        if linkload.device_loop_load(link, fs, columns[key]) > linkload.MAX_LOAD:
+            total += linkload.upload_s(link, fs, duration, columns[key])
+    return total
+
+
 def check_placement(campaign, points: Sequence) -> None:
     """Raise InvalidParameter (one line) for a plan the rig's loop placement cannot run."""
     if campaign.rig_info.simulated or not points:

@@ -3,7 +3,7 @@
 :func:`run_on_device` is what :meth:`RemoteRig.run_on_device` does: handshake (the device must
 announce DEVICE_LOOP), then per point one description, its results and a RunResult whose
 ``diagnostics`` hold the link's counters of that run, the device's timing and the transfer's
-figures. ERROR frames and device silence raise :class:`~labrunner.errors.RigError` (the
+figures. ERROR frames and a device that delivers nothing new for 5 s raise :class:`~labrunner.errors.RigError` (the
 campaign stops; the device is safe: its run ended or its watchdog fired).
 """
 

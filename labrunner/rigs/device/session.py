@@ -1,7 +1,7 @@
 """Both ends of one device-loop run over bulk messages (docs/device-loop.md, "A run").
 
-Host: DESCRIPTION blocks → device; device: ACCEPT (or REJECT), PROGRESS at least every
-:data:`PROGRESS_S` while it runs, SAMPLES (during the run when the description says ``stream``,
+Host: DESCRIPTION blocks → device; device: ACCEPT (or REJECT), PROGRESS while it runs (checked
+every 1024 ticks, sent when :data:`PROGRESS_S` has passed since the last), SAMPLES (during the run when the description says ``stream``,
 else after it), VERDICT with FLAG_LAST. Each side ACKs the other's blocks and NACKs gaps;
 every block is resent until acknowledged. The ends talk through two callables, medium-agnostic:
 ``send(kind, payload)`` and ``recv(timeout) -> (kind, payload) | None`` with ``kind`` one of
@@ -12,7 +12,9 @@ adapter deals with itself and hands over as ``(None, payload)``.
 
 from __future__ import annotations
 
+import secrets
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -26,7 +28,7 @@ from labrunner.rigs.transports import bulk
 TO_DEVICE, TO_HOST, ACK = "to_device", "to_host", "ack"
 STOP = "stop"  #: what a device's link adapter hands over for the host's SAFE / STOP message
 HEARTBEAT = "heartbeat"  #: the host's keep-alive while it has nothing else to send (payload ignored)
-PROGRESS_S = 0.25  #: longest device silence while it runs [s]
+PROGRESS_S = 0.25  #: shortest interval between PROGRESS blocks [s]
 Send = Callable[[str, bytes], None]
 Recv = Callable[[float], "tuple[str | None, bytes] | None"]
 
@@ -60,8 +62,8 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
     HEARTBEAT goes out whenever the host sent nothing for ``heartbeat_s`` (the device's watchdog).
 
     Returns the verdict, the (n_samples, n_columns) float32 rows and the transfer's figures.
-    Raises RigError when the device refuses the description, falls silent for ``silence_s`` or
-    sends samples that do not fit the run.
+    Raises RigError when the device refuses the description, delivers no new block (and
+    acknowledges none) for ``silence_s``, or sends samples that do not fit the run.
     """
     last_tx = [time.monotonic()]
 
@@ -69,8 +71,9 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
         send(kind, payload)
         last_tx[0] = time.monotonic()
 
-    tx = bulk.Sender(lambda p: sent(TO_DEVICE, p), max_payload, bulk.TO_DEVICE)
-    rx = bulk.Receiver(lambda p: sent(ACK, p), bulk.TO_HOST)
+    transfer = secrets.randbelow(2**16)  # this run's; the device answers under it
+    tx = bulk.Sender(lambda p: sent(TO_DEVICE, p), max_payload, bulk.TO_DEVICE, transfer)
+    rx = bulk.Receiver(lambda p: sent(ACK, p), bulk.TO_HOST, transfer=transfer)
     parts = _slices(description, tx.body_limit)
     for i, part in enumerate(parts):
         tx.queue(blocks.DESCRIPTION, part, bulk.FLAG_LAST if i == len(parts) - 1 else 0)
@@ -87,19 +90,24 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
             sent(HEARTBEAT, b"")
         msg = recv(0.01)
         now = time.monotonic()
+        if now - last_rx > silence_s:  # nothing new arrived: a dead device or a link that delivers nothing
+            rx.cancel()
+            phase = "description" if t_accept is None else f"results ({covered} of {n_ticks} ticks in)"
+            raise RigError(f"device-loop run: no new block from the device for {silence_s:g} s during the {phase}; "
+                           f"host sent {tx.acked}/{tx.next_seq} description blocks acknowledged, received {rx.expected} "
+                           f"blocks ({rx.counters.as_dict()})")
         if msg is None:
             rx.poll(now)
-            if now - last_rx > silence_s:
-                rx.cancel()
-                raise RigError(f"device-loop run: the device was silent for {silence_s:g} s")
             continue
         kind, payload = msg
-        last_rx = now
+        before = (tx.acked, rx.expected)
         if kind == ACK:
             tx.on_ack(payload)
         elif kind == TO_HOST:
             out.bytes_to_host += len(payload)
             for block in rx.feed(payload, now):
+                if block.kind in (blocks.ACCEPT, blocks.REJECT):
+                    tx.finish()  # the description arrived: no more resends of it
                 if block.kind == blocks.REJECT:
                     raise RigError(f"the device refused the run: {block.body.decode('ascii', 'replace')}")
                 if block.kind == blocks.ACCEPT:
@@ -117,6 +125,8 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
                     covered += len(chunk)
                 elif block.kind == blocks.VERDICT:
                     verdict = blocks.Verdict.decode(block.body)
+        if (tx.acked, rx.expected) != before:
+            last_rx = now
     if verdict.n_samples != covered:
         raise RigError(f"the device logged {verdict.n_samples} ticks but sent {covered}")
     end = time.monotonic()
@@ -142,12 +152,21 @@ class DeviceSession:
         self.runs = 0
         self.stopped = False
         self.last_rx = time.monotonic()  # the host's last message (the watchdog's reference)
-        self._new()
-
-    def _new(self) -> None:
-        self.rx = bulk.Receiver(lambda p: self.send(ACK, p), bulk.TO_DEVICE)
-        self.tx = bulk.Sender(lambda p: self.send(TO_HOST, p), self.max_payload, bulk.TO_HOST)
+        self._done: deque[int] = deque(maxlen=16)  # transfers run lately: a late resend never runs again
         self._parts: list[bytes] = []
+        self.rx = bulk.Receiver(lambda p: self.send(ACK, p), bulk.TO_DEVICE, follow=self._follow)
+        self.tx = self._results(0)
+
+    def _follow(self, transfer: int) -> bool:
+        """Whether a description starting under ``transfer`` is a new run (then a half-received
+        earlier one is dropped)."""
+        if transfer in self._done:
+            return False
+        self._parts = []
+        return True
+
+    def _results(self, transfer: int) -> bulk.Sender:
+        return bulk.Sender(lambda p: self.send(TO_HOST, p), self.max_payload, bulk.TO_HOST, transfer)
 
     def on_message(self, kind: str, payload: bytes) -> None:
         """One bulk message from the host; a complete description runs here and now (the device
@@ -164,19 +183,20 @@ class DeviceSession:
             self._parts.append(block.body)
             if block.flags & bulk.FLAG_LAST:
                 data = b"".join(self._parts)
+                self._done.append(self.rx.transfer)
+                self.tx = self._results(self.rx.transfer)  # the results go under the description's transfer
                 try:
                     self._run(data)
                 finally:
                     self.runs += 1
-                    self._new()
+                    self._parts = []
                 return
 
     def _run(self, data: bytes) -> None:
-        state = {"streamed": 0, "stream": False, "fs": 1.0, "cols": 0, "per_block": 1, "last": time.monotonic(),
-                 "watchdog": float("inf")}
+        state = {"streamed": 0, "stream": False, "fs": 1.0, "per_block": 1, "last": time.monotonic(), "watchdog": float("inf")}
 
         def on_accept(description) -> None:
-            state.update(stream=description.stream, fs=description.fs, cols=description.n_columns, watchdog=description.watchdog_s,
+            state.update(stream=description.stream, fs=description.fs, watchdog=description.watchdog_s,
                          per_block=blocks.samples_per_block(self.tx.body_limit, description.n_columns))
             self.tx.queue(blocks.ACCEPT, blocks.ACCEPT_BODY.pack(description.ticks, description.n_columns))
             self._service()

@@ -7,13 +7,16 @@ unseen), it has no checksum of its own, a classic transfer ends at 4095 bytes, a
 whole transfer after any loss; a plate run's samples are megabytes. Our layer is one level, the
 same on classic CAN, CAN FD and serial (docs/device-loop.md, "Bulk transfer"):
 
-* **block** — ``seq`` u32, ``kind`` u8, ``flags`` u8, ``length`` u16, ``body``, CRC-32 (zlib's,
-  over everything before it); the unit that is numbered, checked, acknowledged and resent;
+* **block** — ``seq`` u32, ``transfer`` u16, ``kind`` u8, ``flags`` u8, ``length`` u16, ``body``,
+  CRC-32 (zlib's, over everything before it); the unit that is numbered, checked, acknowledged
+  and resent. ``transfer`` names the run both streams belong to (the host draws it), so a late
+  copy of an earlier run's block is never taken for this run's;
 * **frame** — a link payload of at most ``max_payload`` bytes: frame index u8 (0 starts a
   block) and the next ``max_payload − 1`` bytes of the block; a block spans ≤ 256 frames;
-* **ACK** — 8 bytes ``code`` u8 (ACK: every block < ``seq`` arrived; NACK: resend ``seq``;
-  CANCEL: the receiver gave up), ``direction`` u8 (which stream it acknowledges: 0 host → device,
-  1 device → host), ``window`` u16 (blocks beyond ``seq`` the receiver takes), ``seq`` u32.
+* **ACK** — 8 bytes: ``code`` u8 (bits 0–6: 1 ACK: every block < ``seq`` arrived; 2 NACK:
+  resend ``seq``; 3 CANCEL: the receiver gave up; bit 7: the stream acknowledged, 0 host →
+  device, 1 device → host), ``window`` u8 (blocks beyond ``seq`` the receiver takes),
+  ``transfer`` u16, ``seq`` u32.
 
 A receiver delivers blocks in order; a frame out of index order drops the block it belonged to
 (counted), a block failing its CRC is dropped (counted), and a later good block reveals the gap,
@@ -27,11 +30,12 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-BLOCK = struct.Struct("<IBBH")  # seq, kind, flags, body length
-ACK = struct.Struct("<BBHI")  # code, direction, window, seq
+BLOCK = struct.Struct("<IHBBH")  # seq, transfer, kind, flags, body length
+ACK = struct.Struct("<BBHI")  # code | direction << 7, window, transfer, seq
 CRC = struct.Struct("<I")
 MAX_FRAMES = 256
 BLOCK_BYTES = 4096  #: largest block a sender makes (a lost frame costs one block: keep them small)
+BLOCK_FRAMES = 64  #: and at most this many frames (one lost frame in 256 breaks 2 in 3 such blocks)
 WINDOW_BYTES = 32768  #: unacknowledged bytes a sender keeps in flight (a receiver's buffers hold them)
 FLAG_LAST = 0x01  # the last block of a transfer (description) or of a run's results (verdict)
 
@@ -48,15 +52,16 @@ def max_body(max_payload: int) -> int:
 
 @dataclass(frozen=True)
 class Block:
-    """One bulk block: sequence number, kind, flags, body."""
+    """One bulk block: sequence number, transfer id, kind, flags, body."""
 
     seq: int
+    transfer: int
     kind: int
     flags: int
     body: bytes
 
     def encode(self) -> bytes:
-        head = BLOCK.pack(self.seq % 2**32, self.kind, self.flags, len(self.body)) + self.body
+        head = BLOCK.pack(self.seq % 2**32, self.transfer, self.kind, self.flags, len(self.body)) + self.body
         return head + CRC.pack(zlib.crc32(head))
 
     def frames(self, max_payload: int) -> list[bytes]:
@@ -76,6 +81,7 @@ class Counters:
     crc_errors: int = 0  # blocks dropped for a bad CRC-32
     broken: int = 0  # blocks dropped for a missing or out-of-order frame
     duplicates: int = 0  # blocks that had arrived before (a resend crossed an ACK)
+    foreign: int = 0  # blocks of another transfer (a late copy from an earlier run)
     nacks: int = 0  # retransmission requests sent
 
     def as_dict(self) -> dict[str, int]:
@@ -108,25 +114,29 @@ class Assembler:
         self._buf += payload[1:]
         self._next = (index + 1) % MAX_FRAMES
         if not self._need and len(self._buf) >= BLOCK.size:
-            self._need = BLOCK.size + BLOCK.unpack_from(self._buf)[3] + CRC.size
+            self._need = BLOCK.size + BLOCK.unpack_from(self._buf)[4] + CRC.size
         if not self._need or len(self._buf) < self._need:
             return None
         raw, self._next = bytes(self._buf[: self._need]), -1  # padding after the CRC is ignored
         if zlib.crc32(raw[: -CRC.size]) != CRC.unpack_from(raw, len(raw) - CRC.size)[0]:
             self.counters.crc_errors += 1
             return None
-        seq, kind, flags, n = BLOCK.unpack_from(raw)
-        return Block(seq, kind, flags, raw[BLOCK.size : BLOCK.size + n])
+        seq, transfer, kind, flags, n = BLOCK.unpack_from(raw)
+        return Block(seq, transfer, kind, flags, raw[BLOCK.size : BLOCK.size + n])
 
 
 class Receiver:
-    """One stream's receiving end: delivers blocks in sequence order, ACKs them, NACKs gaps.
-
-    ``send_ack(payload)`` sends a BULK_ACK; ``direction`` names the stream in it.
+    """One stream's receiving end: delivers blocks of one transfer in sequence order, ACKs them,
+    NACKs gaps. ``send_ack(payload)`` sends a BULK_ACK; ``direction`` names the stream in it;
+    ``transfer`` the transfer taken. With ``follow``, the first block (seq 0) of another transfer
+    for which ``follow(transfer)`` is true starts that transfer afresh (the device side: each run
+    is a new transfer; ``follow`` refuses the ones it has run).
     """
 
-    def __init__(self, send_ack: Callable[[bytes], None], direction: int, *, window: int = 64, nack_s: float = 0.2) -> None:
+    def __init__(self, send_ack: Callable[[bytes], None], direction: int, *, transfer: int | None = None,
+                 follow: Callable[[int], bool] | None = None, window: int = 64, nack_s: float = 0.2) -> None:
         self.send_ack, self.direction, self.window, self.nack_s = send_ack, direction, window, nack_s
+        self.transfer, self.follow = transfer, follow
         self.counters = Counters()
         self._assembler = Assembler(self.counters)
         self.expected = 0
@@ -139,6 +149,13 @@ class Receiver:
         if block is None:
             return []
         self.counters.blocks += 1
+        if block.transfer != self.transfer:
+            if self.follow is None or block.seq != 0 or not self.follow(block.transfer):
+                self.counters.foreign += 1
+                return []
+            self.transfer, self.expected = block.transfer, 0
+            self._held.clear()
+            self._nacked.clear()
         if block.seq < self.expected or block.seq in self._held:
             self.counters.duplicates += 1
             self._ack(ACK_OK, self.expected)
@@ -173,7 +190,8 @@ class Receiver:
         self._ack(CANCEL, self.expected)
 
     def _ack(self, code: int, seq: int) -> None:
-        self.send_ack(ACK.pack(code, self.direction, self.window, seq % 2**32))
+        if self.transfer is not None:
+            self.send_ack(ACK.pack(code | self.direction << 7, min(self.window, 255), self.transfer, seq % 2**32))
 
 
 @dataclass
@@ -186,14 +204,20 @@ class _Pending:
 
 @dataclass
 class Sender:
-    """One stream's sending end: numbers blocks, sends within the window (``window`` blocks, by
-    default :data:`WINDOW_BYTES` worth, at most what the receiver advertises), resends what is
-    NACKed (a block not again within ``retry_s``/4 of its last resend) or stays unacknowledged for ``retry_s``.
-    ``send_frame(payload)`` sends one frame."""
+    """One stream's sending end: numbers blocks, sends within the window, resends what is NACKed
+    (a block not again within ``retry_s``/4 of its last resend) and, when nothing is acknowledged
+    for ``retry_s``, the oldest unacknowledged block. ``send_frame(payload)`` sends one frame.
+
+    The window is at most ``window`` blocks (by default :data:`WINDOW_BYTES` worth) and what the
+    receiver advertises; like TCP's congestion window it halves on a NACK, drops to one block on
+    a timeout and grows by one block per acknowledged block, so a link that loses frames because
+    it is flooded (a receiver's socket buffer, a busy bus) is not flooded harder by the resends.
+    """
 
     send_frame: Callable[[bytes], None]
     max_payload: int
     direction: int
+    transfer: int = 0
     window: int = 0
     retry_s: float = 0.5
     next_seq: int = 0
@@ -204,15 +228,19 @@ class Sender:
     _pending: dict[int, _Pending] = field(default_factory=dict)
     _nacked: list[int] = field(default_factory=list)
     _advertised: int = 1 << 16
+    _cwnd: float = 0.0
+    _progress_at: float | None = None  # when the oldest pending block was last acknowledged or resent
 
     def __post_init__(self) -> None:
         if self.window <= 0:
             self.window = max(2, WINDOW_BYTES // (self.body_limit + BLOCK.size + CRC.size))
+        self._cwnd = float(self.window)
 
     @property
     def body_limit(self) -> int:
         """Largest body :meth:`queue` takes."""
-        return min(max_body(self.max_payload), BLOCK_BYTES - BLOCK.size - CRC.size)
+        per_frame = self.max_payload - 1
+        return min(BLOCK_FRAMES * per_frame, BLOCK_BYTES) - BLOCK.size - CRC.size
 
     @property
     def done(self) -> bool:
@@ -221,7 +249,7 @@ class Sender:
 
     def queue(self, kind: int, body: bytes, flags: int = 0) -> int:
         """Queue one block; return its sequence number (sent by :meth:`pump`)."""
-        block = Block(self.next_seq, kind, flags, bytes(body))
+        block = Block(self.next_seq, self.transfer, kind, flags, bytes(body))
         self._pending[block.seq] = _Pending(block, block.frames(self.max_payload))
         self.next_seq += 1
         return block.seq
@@ -230,18 +258,29 @@ class Sender:
         """Take a BULK_ACK payload (ignored unless it acknowledges this stream)."""
         if len(payload) < ACK.size:
             return
-        code, direction, window, seq = ACK.unpack_from(payload)
-        if direction != self.direction:
+        code, window, transfer, seq = ACK.unpack_from(payload)
+        code, direction = code & 0x7F, code >> 7
+        if direction != self.direction or transfer != self.transfer:
             return
         if code == CANCEL:
             self.cancelled = True
         elif code == ACK_OK and seq > self.acked:
-            for s in range(self.acked, min(seq, self.next_seq)):
+            new = min(seq, self.next_seq) - self.acked
+            for s in range(self.acked, self.acked + new):
                 self._pending.pop(s, None)
-            self.acked = min(seq, self.next_seq)
+            self.acked += new
             self._advertised = max(1, window)
+            self._cwnd = min(float(self.window), self._cwnd + new)
+            self._progress_at = None
         elif code == NACK and seq in self._pending and seq not in self._nacked:
             self._nacked.append(seq)
+            self._cwnd = max(1.0, self._cwnd / 2)
+
+    def finish(self) -> None:
+        """Stop sending: the peer has shown it has every block (it answered the last one)."""
+        self._pending.clear()
+        self._nacked.clear()
+        self.acked = self.next_seq
 
     def pump(self, now: float, budget: int = 1 << 30) -> int:
         """Send NACKed blocks, then new or overdue ones within the window; at most ``budget``
@@ -254,12 +293,20 @@ class Sender:
                 self._send(p, now)
                 self.resent += 1
                 sent += 1
-        for seq in range(self.acked, min(self.next_seq, self.acked + min(self.window, self._advertised))):
+        oldest = self._pending.get(self.acked)
+        if oldest is not None and oldest.sent_at > -1e9:
+            if self._progress_at is None:
+                self._progress_at = now
+            elif now - self._progress_at >= self.retry_s and sent < budget:  # a timeout: the oldest again, slowly
+                self._send(oldest, now)
+                self.resent += 1
+                sent += 1
+                self._progress_at, self._cwnd = now, 1.0
+        for seq in range(self.acked, min(self.next_seq, self.acked + min(int(self._cwnd), self._advertised))):
             if sent >= budget:
                 break
             p = self._pending.get(seq)
-            if p is not None and now - p.sent_at >= self.retry_s:
-                self.resent += p.sent_at > -1e9
+            if p is not None and p.sent_at == -1e9:
                 self._send(p, now)
                 sent += 1
         return sent

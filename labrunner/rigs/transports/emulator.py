@@ -152,6 +152,14 @@ class Emulator:
     def _loop(self) -> None:
         faulty = self.link if isinstance(self.link, FaultyLink) else None
         while not self._stop.is_set():
+            try:
+                # first what arrived while the loop was busy or preempted, as firmware's receive
+                # interrupt has it queued before its timer tasks run (no watchdog over waiting frames)
+                while (pending := self.link.recv(0.0)) is not None:
+                    self._dispatch(pending)
+            except LabrunnerError as exc:
+                self.errors.append(exc)
+                return
             now = time.monotonic()
             if now >= self._die_at:
                 return  # the board lost power: silent from now on

@@ -27,7 +27,8 @@ from dataclasses import asdict, dataclass
 from labrunner.rigs.transports.protocol import BULK_KINDS, FIXED_PAYLOAD, End, Frame, Kind, senders
 
 
-_RECENT = 64  # frames remembered to tell this end's echoes from spoofed frames
+_RECENT = 4096  # frames remembered to tell this end's echoes from spoofed frames (a bulk burst is
+# up to 64 frames a block times the sender's window, and a loopback echo may lag that far behind)
 
 
 @dataclass
@@ -54,7 +55,8 @@ class Link(abc.ABC):
     def __init__(self, node_id: int, end: End) -> None:
         self.node_id, self.end = int(node_id), End(end)
         self.counters = LinkCounters()
-        self._recent: collections.deque[tuple[Kind, bytes]] = collections.deque(maxlen=_RECENT)
+        self._recent: collections.deque[tuple[Kind, bytes]] = collections.deque()  # send order
+        self._recent_count: collections.Counter[tuple[Kind, bytes]] = collections.Counter()  # O(1) membership
 
     @property
     @abc.abstractmethod
@@ -71,7 +73,17 @@ class Link(abc.ABC):
         payload = self._wire_payload(frame.payload)
         self._send(frame.kind, payload)
         self.counters.sent += 1
-        self._recent.append((frame.kind, payload))
+        self._remember((frame.kind, payload))
+
+    def _remember(self, key: tuple[Kind, bytes]) -> None:
+        """Keep ``key`` among the last :data:`_RECENT` frames sent (a multiset: deque + counts)."""
+        self._recent.append(key)
+        self._recent_count[key] += 1
+        if len(self._recent) > _RECENT:
+            old = self._recent.popleft()
+            self._recent_count[old] -= 1
+            if not self._recent_count[old]:
+                del self._recent_count[old]
 
     def _wire_payload(self, payload: bytes) -> bytes:
         """The payload as the transport carries it (CAN FD pads it to a valid length)."""
@@ -96,7 +108,7 @@ class Link(abc.ABC):
             self.counters.foreign += 1
             return None
         if sender != self.end.peer:
-            if (kind, payload) in self._recent:
+            if (kind, payload) in self._recent_count:
                 self.counters.echoes += 1
             else:
                 self.counters.spoofed += 1
