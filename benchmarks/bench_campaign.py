@@ -47,7 +47,8 @@ from pathlib import Path
 from labrunner import engine
 from labrunner.campaign import spec
 from labrunner.campaign.ledger import Ledger, RunRecord
-from labrunner.campaign.scheduler import InProcessExecutor, Scheduler, batch_size
+from labrunner.campaign.executors import InProcessExecutor
+from labrunner.campaign.scheduler import Scheduler, batch_size
 from labrunner.campaign.worker import BatchResult, BatchTask
 from labrunner.rigs.registry import load_rig
 

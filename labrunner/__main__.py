@@ -2,6 +2,10 @@
 
 import sys
 
-from labrunner.cli import main
+try:
+    from labrunner.cli import main
+except KeyboardInterrupt:  # Ctrl-C while the command is still loading
+    print("labrunner: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 sys.exit(main())

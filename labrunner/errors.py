@@ -42,6 +42,8 @@ def check_finite(field: str, value: float, allowed: str | None = None) -> float:
     message then reads "must be <allowed>", so a NaN is told the same range as any bad value.
     """
     try:
+        if isinstance(value, bool):  # float(True) == 1.0: a TOML `true` is not a number
+            raise TypeError
         v = float(value)
     except (TypeError, ValueError):
         raise InvalidParameter(field, f"must be {allowed or 'a number'}, got {value!r}") from None

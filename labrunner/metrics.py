@@ -27,6 +27,8 @@ import numpy as np
 from labrunner.errors import InvalidParameter
 from labrunner.oscillation import Detector
 
+DEFAULT_DETECTOR = Detector()  # the thresholds of labrunner.oscillation
+
 #: Metric columns every run gets (NaN where a run has no such channel).
 BASE_METRICS = ("rms_error", "rms_error_hat", "input_energy", "max_abs_input", "max_current", "n_samples")
 
@@ -91,7 +93,7 @@ def run_metrics(
     *,
     fs: float | None = None,
     windows: Mapping[str, tuple[float, float]] | None = None,
-    detector: Detector = Detector(),
+    detector: Detector = DEFAULT_DETECTOR,
 ) -> dict[str, float]:
     """:func:`base_metrics` of the whole run, then per named window (``<metric>@<name>``, needs
     ``fs``; NaN for a window the run ended before), and the detector's columns where the roles

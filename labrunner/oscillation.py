@@ -8,8 +8,8 @@ rig-specific knowledge beyond the input's limits [lo, hi]:
 
 - **pinned**: an input sits within ``tolerance`` of the span at a limit for at least
   ``pinned_share`` of the run (the loop has lost authority);
-- **saturated oscillation**: an input enters a limit band at least ``min_hits`` times and at least
-  ``hit_rate`` times per second (a limit cycle, e.g. paper 1's runs above the stability region);
+- **saturated oscillation**: an input enters a limit band at least ``min_hits`` (5) times and at
+  least ``hit_rate`` (2) times per second (a limit cycle, e.g. paper 1's runs above the stability region);
 - **growing oscillation**: the RMS of the input's sample-to-sample change Δu rises quarter by
   quarter of the run (r₂ < r₃ < r₄) to ``growth`` × its value in the second quarter (the first is
   left out: runs start at rest). A growing oscillation adds energy at high frequency, where
@@ -34,8 +34,9 @@ class Detector:
 
     tolerance: float = 0.01  # share of the input span [lo, hi] that counts as "at the limit"
     pinned_share: float = 0.5  # pinned: at a limit for at least this share of the samples
-    min_hits: int = 3  # saturated oscillation: at least this many entries into a limit band ...
-    hit_rate: float = 1.0  # ... and at least this many per second [1/s]
+    min_hits: int = 5  # saturated oscillation: at least this many entries into a limit band ...
+    hit_rate: float = 2.0  # ... and at least this many per second [1/s]: the plate's currents touch 0 A
+    # about once a second while it descends under gravity (paper 2's lift), a limit cycle 3-15 times
     growth: float = 2.0  # growing: RMS(Δu) of the last quarter ≥ growth × the second quarter's
 
     def detect(self, u: np.ndarray, lo: np.ndarray, hi: np.ndarray, fs: float) -> dict[str, float]:

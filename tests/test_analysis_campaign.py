@@ -141,8 +141,8 @@ def test_unfinished_campaign_and_cli_json(tmp_path, capsys):
 
 
 def test_cli_rejects_bad_arguments(tmp_path, capsys):
-    assert main(["analyse", str(tmp_path / "nothing-here")]) == 1
-    assert "ledger" in capsys.readouterr().err
+    assert main(["analyse", str(tmp_path / "nothing-here")]) == 2  # a bad DIR, like inspect's bad file (issue 18)
+    assert "nothing-here' does not exist" in capsys.readouterr().err
     d = tmp_path / "c"
     make_campaign(d, gammas=(1.0, 10.0), k_ps=(0.1, 1.0))
     assert main(["analyse", str(d), "--margin", "2"]) == 2

@@ -301,10 +301,10 @@ def test_dry_run_of_an_existing_campaign_says_run_would_refuse(project, capsys):
 
 
 def test_default_workers_are_all_cores():
-    from labrunner.campaign.scheduler import open_executor
+    from labrunner.campaign.executors import open_executor
 
-    with open_executor(real_rig=False, workers=None, url=None) as (executor, slots):
-        assert slots == len(os.sched_getaffinity(0)) == executor._max_workers
+    with open_executor(real_rig=False, workers=None, url=None) as handle:
+        assert handle.slots == len(os.sched_getaffinity(0)) == handle.executor._max_workers
 
 
 def test_each_log_is_written_fsynced_and_renamed_before_its_row_is_committed(project, monkeypatch):

@@ -41,9 +41,12 @@ def test_bang_bang_limit_cycle_between_a_floor_and_the_upper_limit():
     r = D.detect(u[None], [0.0], [1.01], FS)
     assert r["limit_hits_per_s"] == pytest.approx(7.0, rel=0.05)  # one entry per period
     assert r["pinned_share"] < 0.5 and r["oscillating"] == 1.0
-    # two entries in the whole run are a transient, not a limit cycle
+    # two entries in the whole run are a transient, not a limit cycle; nor is touching a limit once a
+    # second (the plate's currents reach 0 A as it descends under gravity)
     two = np.where((np.abs(T - 1.0) < 0.05) | (np.abs(T - 3.0) < 0.05), 1.01, 0.7)
     assert D.detect(two[None], [0.0], [1.01], FS)["oscillating"] == 0.0
+    slow = np.where(np.sin(2 * np.pi * 1.0 * T) > 0.9, 1.01, 0.7)  # 5 entries in 5 s
+    assert D.detect(slow[None], [0.0], [1.01], FS)["oscillating"] == 0.0
 
 
 def test_growing_oscillation_inside_the_limits():

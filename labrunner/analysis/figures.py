@@ -29,12 +29,34 @@ from labrunner.analysis.overlays import (
 from labrunner.errors import LabrunnerError
 
 
-def map_metrics(error: str) -> tuple[tuple[str, str, str], ...]:
-    """Metric columns drawn as maps: (column, title, colour-bar text); ``error`` is "e" or "ê"."""
-    return (
-        ("rms_error", f"RMS of the tracking error {error}", f"RMS({error})"),
-        ("input_energy", "input energy E(u) = Σ u[j]²", "E(u)"),
-    )
+def map_metrics(error: str, frame: pd.DataFrame | None = None) -> tuple[tuple[str, str, str], ...]:
+    """Metric columns drawn as maps: (column, title, colour-bar text); ``error`` is "e" or "ê".
+
+    With the table, also the largest current where the rig has currents (the valve, the plate:
+    paper 1 Fig. 5, paper 2 Fig. 7) and, for several controlled outputs (the plate's y1..y3), the
+    RMS of each output's error in dB re 1 µm (paper 2 reports µm and dB; columns ``*_db``, added
+    by :func:`with_db_columns`).
+    """
+    maps = [("rms_error", f"RMS of the tracking error {error}", f"RMS({error})"),
+            ("input_energy", "input energy E(u) = Σ u[j]²", "E(u)")]
+    if frame is None:
+        return tuple(maps)
+    if "max_current" in frame.columns and np.isfinite(frame["max_current"].to_numpy(dtype=float)).any():
+        maps.append(("max_current", "largest current max |i|", "max |i|"))
+    maps += [(c, f"RMS of {c.removeprefix('rms_').removesuffix('_db')} in dB re 1 µm", "dB re 1 µm")
+             for c in frame.columns if c.endswith("_db")]
+    return tuple(maps)
+
+
+def with_db_columns(frame: pd.DataFrame, units: Mapping[str, str]) -> pd.DataFrame:
+    """The table plus ``rms_e_<y>_db`` = 20 log10(RMS(e_y) / 1 µm) for each output error in metres,
+    when there are several (one map per plate sensor)."""
+    cols = [c for c in frame.columns if c.startswith("rms_e_") and "@" not in c and not c.startswith("rms_e_hat")
+            and units.get(c, units.get("rms_error")) == "m"]
+    if len(cols) < 2:
+        return frame
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return frame.assign(**{f"{c}_db": 20.0 * np.log10(frame[c].to_numpy(dtype=float) / 1e-6) for c in cols})
 MAX_FACETS = 12  # maps per metric when a grid has more than two axes
 #: Preferred (x, y) orientation of known axis pairs (thesis Figs. 3.10 and 3.14).
 PAIRS = (("controller.gamma", "controller.k_p"), ("controller.k_p", "controller.k_d"))
@@ -168,7 +190,8 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
         x, y = axis_of(rows, kx, units, forms.get(kx, "values")), axis_of(rows, ky, units, forms.get(ky, "values"))
         lines, note = map_overlays(rows, x, y, theories)
         lines = mark_outside(lines, x, y)
-        for column, title, label in map_metrics(ctx.error):
+        rows = with_db_columns(rows, units)
+        for column, title, label in map_metrics(ctx.error, rows):
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
             fig = map_figure(rows, x, y, column, title=f"{head}\n{sub}" if sub else head,

@@ -121,7 +121,12 @@ def grid_image(table: pd.DataFrame, x: Axis, y: Axis, column: str) -> np.ndarray
 
 
 def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
-    """Log colour scale when the finite positive values span more than two decades (or if asked)."""
+    """Log colour scale when the finite positive values span more than two decades (or if asked).
+
+    A linear scale is robust to outliers: when the values above the 95th percentile stretch the
+    range to more than three times the span of the rest, the scale ends at that percentile (the
+    colour bar then extends to the outliers), so that a few saturated runs do not wash out the map.
+    """
     finite = z[np.isfinite(z)]
     positive = finite[finite > 0]
     if log is None:
@@ -129,7 +134,9 @@ def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
     if log and positive.size:
         return colors.LogNorm(vmin=positive.min(), vmax=positive.max())
     if finite.size:
-        return colors.Normalize(vmin=finite.min(), vmax=finite.max())
+        lo, top = float(finite.min()), float(np.percentile(finite, 95))
+        hi = top if finite.size >= 20 and top > lo and finite.max() - lo > 3 * (top - lo) else float(finite.max())
+        return colors.Normalize(vmin=lo, vmax=hi)
     return colors.Normalize(vmin=0.0, vmax=1.0)
 
 
@@ -159,9 +166,11 @@ def draw_heatmap(
     """Draw ``column`` over the (x, y) grid with markers and overlay lines; return the mesh."""
     z = grid_image(table, x, y, column)
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="#d9d9d9")
+    norm = colour_norm(z, log_colour)
     mesh = ax.pcolormesh(cell_edges(x.values, x.log), cell_edges(y.values, y.log), np.ma.masked_invalid(z),
-                         cmap=cmap, norm=colour_norm(z, log_colour), shading="flat", zorder=1)
-    ax.figure.colorbar(mesh, ax=ax, label=colour_label)
+                         cmap=cmap, norm=norm, shading="flat", zorder=1)
+    clipped = bool(np.isfinite(z).any() and np.nanmax(z) > norm.vmax)  # the robust scale cut outliers off
+    ax.figure.colorbar(mesh, ax=ax, label=colour_label, extend="max" if clipped else "neither")
     if x.log:
         ax.set_xscale("log")
     if y.log:

@@ -44,7 +44,7 @@ CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 #: Integer columns (nullable where a point has no run).
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
-METRICS_VERSION = 3  # 2: windowed metrics and the oscillation detector; 3: aborted runs' in _until_abort columns
+METRICS_VERSION = 4  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort columns
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
 _LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)

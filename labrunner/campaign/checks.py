@@ -32,6 +32,7 @@ from labrunner.safety import SafetyMonitor
 from labrunner.safety_config import SafetyConfig
 
 MAX_SAMPLES = 10_000_000  # samples per run: beyond this a run's signals do not fit a worker's memory
+MAX_FIR_WORK = 2_000_000_000  # window taps × samples per run: beyond this one run's FIR alone takes minutes
 CHUNK = 256  # points validated by one batched build
 
 Item = tuple[int, dict[str, Any], dict[str, Any]]  # (seq, parameters, resolved config)
@@ -154,15 +155,26 @@ class StaticChecker:
             for group in groups.values():
                 yield from self._check_chunk(group)
             return
-        for item, row in zip(chunk, reference.trajectories):
+        taps = _window_taps(chunk, fs)
+        for item, row, n_s in zip(chunk, reference.trajectories, taps):
             duration = item[2]["campaign"]["duration"]
             if duration is None:  # default: the reference's own length
                 duration = max(tr.duration for tr in row)
             samples = round(float(duration) * fs)
-            if not 1 <= samples <= MAX_SAMPLES:
-                with _at(item[1]):
+            with _at(item[1]):
+                if not 1 <= samples <= MAX_SAMPLES:
                     raise InvalidParameter(
                         "campaign.duration", f"gives {samples} samples at {fs:g} Hz; allowed 1..{MAX_SAMPLES}"
+                    )
+                if n_s > samples:
+                    raise InvalidParameter(
+                        "differentiator.omega_c", f"gives a window of {n_s} samples, longer than the run "
+                        f"({samples} samples at {fs:g} Hz): no estimate would ever see a full window"
+                    )
+                if n_s * samples > MAX_FIR_WORK:
+                    raise InvalidParameter(
+                        "differentiator.omega_c", f"gives a window of {n_s} samples; × {samples} samples per run "
+                        f"that is more than the limit of {MAX_FIR_WORK:.0e} filter steps (raise omega_c or shorten the run)"
                     )
             yield item, float(duration)
 
@@ -172,6 +184,16 @@ class StaticChecker:
             config = SafetyConfig.from_sections(self.rig_info, self.rig.safety, section)
             SafetyMonitor([config], self.rig_info, fs)
             self._safety.add(key)
+
+
+def _window_taps(chunk: list[Item], fs: float) -> list[int]:
+    """The differentiator window n_s of each point (0 for a controller without that section)."""
+    from labrunner.control import factory
+
+    try:
+        return [d.n_s for d in factory.differentiators([c for _, _, c in chunk], fs, 0)]
+    except (InvalidParameter, KeyError, TypeError):
+        return [0] * len(chunk)
 
 
 class _at:

@@ -104,8 +104,8 @@ def _count(field: str, spec: Mapping[str, Any]) -> int:
     num = spec.get("num")
     if num is None:
         raise InvalidParameter(f"{field}.num", "is required with linspace/log10 (number of values, >= 1)")
-    if isinstance(num, bool) or not isinstance(num, int) or num < 1:
-        raise InvalidParameter(f"{field}.num", f"must be an integer >= 1, got {num!r}")
+    if isinstance(num, bool) or not isinstance(num, int) or not 1 <= num <= MAX_POINTS:
+        raise InvalidParameter(f"{field}.num", f"must be an integer in 1..{MAX_POINTS:,} (the grid's point limit), got {num!r}")
     return num
 
 
@@ -154,7 +154,11 @@ def parse_grid(
     """Validate ``[grid]``; ``check_key(field, key)`` refuses keys the campaign cannot set."""
     if not isinstance(table, Mapping):
         raise InvalidParameter("grid", f"must be a table of axes, got {table!r}")
-    entries = dict(_flatten({k: v for k, v in table.items() if k != "zip"}, ""))
+    entries: dict[str, Any] = {}
+    for key, spec in _flatten({k: v for k, v in table.items() if k != "zip"}, ""):
+        if key in entries:  # "a.b" = … and a.b = … (or [grid.a] b = …) name the same axis
+            raise InvalidParameter(f'grid."{key}"', "is given twice (quoted and dotted spellings name the same key)")
+        entries[key] = spec
     if not entries:
         raise InvalidParameter("grid", "is empty; add an axis or remove [grid] for a single run")
     axes: dict[str, Axis] = {}
@@ -174,6 +178,9 @@ def parse_grid(
         lengths = {len(axes[k].values) for k in group}
         if len(lengths) > 1:
             raise InvalidParameter("grid.zip", f"zipped axes {group} need equal lengths, got {sorted(lengths)}")
+    for key, axis in axes.items():
+        if key not in grouped:
+            _check_distinct(f'grid."{key}"', axis.values)
     groups: list[tuple[Axis, ...]] = []
     placed: set[int] = set()
     for key, axis in axes.items():
@@ -188,10 +195,34 @@ def parse_grid(
     return Grid(tuple(groups))
 
 
+def _same(value: Any) -> Any:
+    """A form in which numerically equal values agree (50 and 50.0), other values stay apart."""
+    if isinstance(value, bool) or isinstance(value, str):
+        return (type(value).__name__, value)
+    if isinstance(value, (int, float)):
+        return ("number", float(value))
+    if isinstance(value, (list, tuple)):
+        return ("list", tuple(_same(v) for v in value))
+    if isinstance(value, Mapping):
+        return ("table", tuple(sorted((k, _same(v)) for k, v in value.items())))
+    return ("other", repr(value))
+
+
+def _check_distinct(field: str, values: Sequence[Any]) -> None:
+    seen: dict[Any, Any] = {}
+    for v in values:
+        key = _same(v)
+        if key in seen:
+            raise InvalidParameter(field, f"has the value {v!r} twice ({seen[key]!r} and {v!r} are equal); each point runs once")
+        seen[key] = v
+
+
 def check_unique(ids: Sequence[str], params: Sequence[Mapping[str, Any]]) -> None:
-    """Refuse a grid in which two points coincide (same values twice in an axis)."""
-    seen: dict[str, int] = {}
+    """Refuse a grid in which two points coincide (equal values, e.g. 50 and 50.0, count as one)."""
+    seen: set[Any] = set()
     for i, pid in enumerate(ids):
-        if pid in seen:
+        key = _same(dict(params[i]))
+        if pid in seen or key in seen:
             raise InvalidParameter("grid", f"point {canonical_json(dict(params[i]))} appears more than once")
-        seen[pid] = i
+        seen.add(pid)
+        seen.add(key)

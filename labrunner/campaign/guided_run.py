@@ -11,6 +11,7 @@ written is proposed again, identically.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -79,15 +80,16 @@ def replay(campaign: Campaign, rows: Sequence[Mapping[str, Any]]) -> Advance:
     return advance(campaign.guided, campaign.name, observations(rows))
 
 
-def execute(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome]) -> Outcome:
+def execute(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome], signals: Any = None) -> Outcome:
     """Replay, append the next round's new points, run the planned rows; until the plan ends, Ctrl-C,
-    or a stop (rig failure). ``run_round`` is the scheduler's ``run``."""
-    from labrunner.campaign.scheduler import _Signals
+    or a stop (rig failure). ``run_round`` is the scheduler's ``run``; ``signals`` the scheduler's
+    :class:`~labrunner.campaign.scheduler.StopSignals` (one counter for rounds and batches)."""
+    from labrunner.campaign.scheduler import StopSignals
 
     total = Outcome()
     t0 = time.monotonic()
-    with _Signals() as signals:  # Ctrl-C between rounds: stop before the next (the scheduler handles one during a round)
-        _rounds(campaign, ledger, run_round, total, signals)
+    with contextlib.nullcontext(signals) if signals is not None else StopSignals() as signals:
+        _rounds(campaign, ledger, run_round, total, signals)  # Ctrl-C between rounds: stop before the next
     total.elapsed_s = time.monotonic() - t0
     total.counts = ledger.counts()
     return total

@@ -14,17 +14,20 @@ readers treat a missing column as "no metrics here" (the analysis then reads the
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
 import os
 import socket
 import sqlite3
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from labrunner.errors import CampaignError
+from labrunner.campaign import integrity
+from labrunner.errors import CampaignError, InvalidParameter
 
 LEDGER_NAME = "ledger.sqlite"
 SCHEMA_VERSION = "1"
@@ -97,6 +100,18 @@ class RunRecord:
     publish_s: float | None = None
 
 
+def ledger_path(directory: Path) -> Path:
+    """``DIR/ledger.sqlite``, or a one-line refusal (exit 2) when DIR is not a campaign directory."""
+    if not directory.is_dir():
+        raise InvalidParameter("DIR", f"{str(directory)!r} is not a directory" if directory.exists()
+                               else f"{str(directory)!r} does not exist")
+    path = directory / LEDGER_NAME
+    if not path.is_file():
+        raise InvalidParameter("DIR", f"{str(directory)!r} holds no campaign ledger ({LEDGER_NAME}); start one with "
+                               f"`labrunner run FILE`, or rebuild a lost one with `labrunner repair {directory}`")
+    return path
+
+
 def _connect(path: Path) -> sqlite3.Connection:
     db = sqlite3.connect(path, isolation_level=None, timeout=30.0, check_same_thread=False)
     db.row_factory = sqlite3.Row
@@ -139,49 +154,62 @@ class Ledger:
                 "INSERT INTO meta (key, value) VALUES (?, ?)",
                 [("schema_version", SCHEMA_VERSION), *sorted(meta.items())],
             )
-            db.executemany(
-                "INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)",
-                ((s, i, json.dumps(dict(p), sort_keys=True), k) for s, i, p, k in points),
-            )
+            ids = hashlib.sha256()
+
+            def rows() -> Iterator[tuple[int, str, str, str]]:
+                for s, i, p, k in points:
+                    ids.update(f"{i}\n".encode())
+                    yield s, i, json.dumps(dict(p), sort_keys=True), k
+
+            db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows())
+            db.execute("INSERT INTO meta (key, value) VALUES ('ids_checksum', ?)", (ids.hexdigest(),))
+            if "points" not in meta:  # the planned count the integrity checks compare with
+                db.execute("INSERT INTO meta (key, value) SELECT 'points', COUNT(*) FROM points")
             db.execute("COMMIT")
-        except BaseException:  # Ctrl-C or an error while planning: leave nothing half-written
+        except BaseException as exc:  # Ctrl-C or an error while planning: leave nothing half-written
             db.close()
             tmp.unlink(missing_ok=True)
+            if isinstance(exc, sqlite3.Error):
+                raise LedgerWriteError(f"{final}: cannot write the ledger: {exc}") from None
             raise
         db.close()
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, final)
         fsync_dir(directory)
-        return cls.open(directory)
+        return cls.open(directory, verify=False)  # just written
 
     @classmethod
-    def open(cls, directory: Path) -> Ledger:
-        path = directory / LEDGER_NAME
-        if not path.is_file():
-            raise CampaignError(f"{directory} holds no campaign ledger ({LEDGER_NAME}); start one with `labrunner run FILE`")
+    def open(cls, directory: Path, *, verify: bool = True) -> Ledger:
+        """Open for writing (``run``, ``resume``); ``verify`` first checks it (:mod:`.integrity`)."""
+        path = ledger_path(directory)
         db = _connect(path)
         try:
+            if verify:
+                integrity.verify(db, path)
             db.execute("PRAGMA journal_mode = WAL")
             db.execute("PRAGMA synchronous = NORMAL")
-            version = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
         except sqlite3.DatabaseError as exc:
             db.close()
-            raise CampaignError(f"{path} is not a readable ledger: {exc}") from None
-        if version is None or version[0] != SCHEMA_VERSION:
+            raise integrity.damaged(path, f"is not a readable ledger ({exc})") from None
+        except BaseException:
             db.close()
-            raise CampaignError(f"{path} has ledger schema {version and version[0]!r}, expected {SCHEMA_VERSION}")
+            raise
         _migrate(db)
         return cls(directory, db)
 
     @classmethod
-    def open_readonly(cls, directory: Path) -> Ledger:
-        """Open for reading (``status``): no journal-mode change, nothing written."""
-        path = directory / LEDGER_NAME
-        if not path.is_file():
-            raise CampaignError(f"{directory} holds no campaign ledger ({LEDGER_NAME})")
+    def open_readonly(cls, directory: Path, *, verify: bool = True) -> Ledger:
+        """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written."""
+        path = ledger_path(directory)
         db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None, timeout=30.0)
         db.row_factory = sqlite3.Row
+        try:
+            if verify:
+                integrity.verify(db, path)
+        except BaseException:
+            db.close()
+            raise
         return cls(directory, db)
 
     def close(self) -> None:
@@ -227,7 +255,7 @@ class Ledger:
 
     # -- writes --------------------------------------------------------------------------------
     def _txn(self):
-        return _Transaction(self.db)
+        return _Transaction(self.db, self.directory / LEDGER_NAME)
 
     def start_session(self, command: str) -> int:
         now = time.time()
@@ -309,6 +337,9 @@ class Ledger:
             last = self.db.execute("SELECT COALESCE(MAX(seq), -1) FROM points").fetchone()[0]
             rows = [(last + 1 + n, i, json.dumps(dict(p), sort_keys=True), k) for n, (i, p, k) in enumerate(points)]
             self.db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows)
+            # the planned count and ids the integrity checks compare with grow with the rounds
+            self.db.execute("UPDATE meta SET value = (SELECT COUNT(*) FROM points) WHERE key = 'points'")
+            self.db.execute("UPDATE meta SET value = ? WHERE key = 'ids_checksum'", (integrity.ids_checksum(self.db),))
         return len(rows)
 
     def record_quarantine(self, point_id: str | None, original: str, moved_to: str, reason: str, size: int) -> None:
@@ -319,17 +350,38 @@ class Ledger:
             )
 
 
-class _Transaction:
-    """``BEGIN IMMEDIATE`` … ``COMMIT`` (``ROLLBACK`` on error): one writer, no lost updates."""
+class LedgerWriteError(CampaignError):
+    """SQLite could not write the ledger (a full disk, a file-size limit, an I/O error): the
+    transaction was rolled back, so the ledger is as it was before it."""
 
-    def __init__(self, db: sqlite3.Connection) -> None:
-        self.db = db
+
+class _Transaction:
+    """``BEGIN IMMEDIATE`` … ``COMMIT`` (``ROLLBACK`` on error): one writer, no lost updates.
+    An SQLite failure becomes a :class:`LedgerWriteError` naming the ledger file."""
+
+    def __init__(self, db: sqlite3.Connection, path: Path) -> None:
+        self.db, self.path = db, path
 
     def __enter__(self) -> None:
-        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            self.db.execute("BEGIN IMMEDIATE")
+        except sqlite3.Error as exc:
+            raise self._error(exc) from None
 
-    def __exit__(self, exc_type, *rest) -> None:
-        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+        except sqlite3.Error as failed:
+            if exc_type is None:
+                with contextlib.suppress(sqlite3.Error):
+                    self.db.execute("ROLLBACK")
+                exc = failed
+        if isinstance(exc, sqlite3.Error):
+            raise self._error(exc) from None
+
+    def _error(self, exc: sqlite3.Error) -> LedgerWriteError:
+        hint = " (disk full or file-size limit?)" if "disk" in str(exc) or "full" in str(exc) else ""
+        return LedgerWriteError(f"{self.path}: cannot write the ledger: {exc}{hint}")
 
 
 def _plain(value: Any) -> Any:

@@ -69,7 +69,7 @@ def _tmp_point(name: str) -> str | None:
     return stem.split("-", 1)[0] or None
 
 
-def _verify(path: Path, point_id: str) -> tuple[dict | None, str]:
+def verify_log(path: Path, point_id: str) -> tuple[dict | None, str]:
     """(log summary, "") if ``path`` is a complete log of ``point_id``, else (None, reason)."""
     from labrunner.logs import read_run
 
@@ -80,6 +80,8 @@ def _verify(path: Path, point_id: str) -> tuple[dict | None, str]:
     run = log.metadata.get("run", {})
     if log.torn:
         return None, "torn (no footer)"
+    if log.damaged:
+        return None, f"damaged: {log.damaged}"
     if log.outcome is None:
         return None, "no outcome record"
     if run.get("point_id") != point_id:
@@ -99,7 +101,7 @@ def recover(ledger: Ledger) -> Recovery:
         pid, state = row["id"], row["state"]
         path = directory / final_path(pid)
         if path.exists():
-            found, reason = _verify(path, pid)
+            found, reason = verify_log(path, pid)
             if found is not None:
                 outcome = {**found["outcome"], "recovered": True}
                 outcome.pop("n_samples", None)

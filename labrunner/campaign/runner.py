@@ -9,9 +9,11 @@ refuses a campaign whose file changed what would run, settles what a crash left 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
+import sqlite3
 import sys
 import time
 from dataclasses import dataclass
@@ -19,21 +21,15 @@ from pathlib import Path
 from typing import TextIO
 
 from labrunner import __version__
-from labrunner.campaign import recovery, spec
-from labrunner.campaign.ledger import LEDGER_NAME, Ledger, fsync_dir
+from labrunner.campaign import integrity, recovery, spec
+from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir, ledger_path
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
-from labrunner.campaign.scheduler import (
-    Outcome,
-    Scheduler,
-    check_executor_url,
-    kill_pool_workers,
-    make_batches,
-    open_executor,
-)
+from labrunner.campaign.executors import check_executor_url, open_executor
+from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals, make_batches
 from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
-from labrunner.errors import CampaignError
+from labrunner.errors import CampaignError, LabrunnerError
 
 CAMPAIGN_COPY = "campaign.toml"
 
@@ -63,9 +59,9 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
     or other files."""
     if (directory / LEDGER_NAME).exists():
         try:
-            with Ledger.open_readonly(directory) as ledger:
+            with Ledger.open_readonly(directory, verify=False) as ledger:
                 meta = ledger.meta()
-        except CampaignError:
+        except (LabrunnerError, sqlite3.Error):
             meta = {}
         other = meta.get("campaign", "?")
         if other == name and meta.get("plan_checksum") != checksum:
@@ -144,7 +140,7 @@ def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slot
 
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
-    check_executor_url(opts.executor)
+    check_executor_url(opts.executor, reach=False)
     campaign = spec.load(file)
     points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
@@ -162,6 +158,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             text += f"\nnote: `labrunner run` would refuse: {exc}"
         return None, text
     _check_new_directory(directory, campaign.name, checksum)
+    check_executor_url(opts.executor)  # reached before the directory exists
     directory.mkdir(parents=True, exist_ok=True)
     with DirectoryLock(directory, "run") as lock:
         _check_new_directory(directory, campaign.name, checksum)  # again, now that nobody else can create it
@@ -187,9 +184,15 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
 def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     """The stored campaign, re-planned; refuse if it, or its original file, plans differently."""
     meta = ledger.meta()
+    lacking = [k for k in ("campaign_file", "campaign_path", "plan_checksum") if k not in meta]
+    if lacking:
+        raise integrity.damaged(ledger.directory / LEDGER_NAME, f"keeps no {', '.join(lacking)} to resume from")
     source_path = Path(meta["campaign_path"])
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
-    _, checksum = spec.plan(campaign)
+    points, checksum = spec.plan(campaign)
+    if campaign.guided is None:  # a guided campaign's rows are its rounds, not the plan's points
+        integrity.check_plan(ledger.directory / LEDGER_NAME, [r["id"] for r in ledger.rows()], [p.id for p in points])
+    del points
     if checksum != meta["plan_checksum"]:
         raise CampaignError(
             f"the campaign stored in {ledger.directory} no longer plans the same runs (rig file or labrunner "
@@ -213,9 +216,10 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
 def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) -> tuple[Outcome, str]:
     """``labrunner resume``: settle a crash, then run every point that is not terminal."""
     directory = Path(directory)
+    check_executor_url(opts.executor, reach=False)
+    with Ledger.open_readonly(directory):  # a missing, foreign or damaged ledger: exit 2 before the lock file is made
+        pass
     check_executor_url(opts.executor)
-    if not (directory / LEDGER_NAME).is_file():
-        raise CampaignError(f"{directory} holds no campaign ledger; start a campaign with `labrunner run FILE`")
     stream = opts.stream or sys.stderr
     with DirectoryLock(directory, "resume") as lock, Ledger.open(directory) as ledger:
         if lock.took_over:
@@ -243,21 +247,23 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
     out = Outcome()
     reason = "error"
     try:
-        with open_executor(real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd) as (ex, slots):
+        with StopSignals() as signals, open_executor(
+            real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd
+        ) as handle:
             scheduler = Scheduler(
-                campaign, ledger, executor=ex, slots=slots, batch_size=1 if real else opts.batch_size, progress=progress
+                campaign, ledger, executor=handle, batch_size=1 if real else opts.batch_size, progress=progress,
+                signals=signals,
             )
             if campaign.guided is None:
                 out = scheduler.run()
             else:  # rounds: the procedure proposes, the scheduler runs
                 from labrunner.campaign import guided_run
 
-                out = guided_run.execute(campaign, ledger, scheduler.run)
-            if out.abandoned:
-                kill_pool_workers()
+                out = guided_run.execute(campaign, ledger, scheduler.run, signals)
         reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
     finally:
         progress.close()
-        ledger.end_session(reason)
+        with contextlib.suppress(LedgerWriteError):  # a full disk: the session's end is not recorded
+            ledger.end_session(reason)
         fsync_dir(ledger.directory)
     return out

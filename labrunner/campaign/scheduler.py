@@ -2,45 +2,50 @@
 
 Points that can share a lockstep batch (same rig, f_s, duration and non-numeric choices such as
 the controller kind — see :mod:`labrunner.campaign.checks`) are cut into batches in grid order
-and submitted through the :class:`concurrent.futures.Executor` interface:
-
-- a local process pool (default; ``--workers N``, default all cores), workers forked, ignoring
-  SIGINT (the parent decides what Ctrl-C means) and killed if the parent dies (``PR_SET_PDEATHSIG``);
-- a Dask distributed cluster (``--executor tcp://HOST:PORT``: ``Client(address).get_executor()``);
-  its workers must see the campaign directory (shared file system);
-- in-process, one run at a time, for a real rig.
+and submitted to an executor (:mod:`labrunner.campaign.executors`: a local process pool, a Dask
+cluster, or in-process for a real rig).
 
 A batch's points are claimed in one transaction when it is submitted; each run's row is
-committed when its batch returns (the worker has published the logs by then). Ctrl-C (or
-SIGTERM) once: no new batches, batches not yet started are unclaimed, running ones finish and are
-committed. Twice: running batches are abandoned, their points stay claimed and ``resume`` settles
-them. Either way the ledger is consistent and the rig is left in its safe state.
+committed when its batch returns (the worker has published the logs by then).
+
+Supervision — the loop never blocks longer than :data:`POLL_S` and never hangs:
+
+- Ctrl-C (or SIGTERM) once: no new batches, batches not yet started are unclaimed, running ones
+  finish and are committed — within a bound it prints (twice their expected time + :data:`GRACE_S`),
+  after which they are abandoned. Twice: running batches are abandoned at once. The signal
+  handler only counts; nothing is raised into a lock or a transaction.
+- A dead worker (``BrokenProcessPool``), a lost Dask worker or scheduler, a worker that cannot
+  publish: stop submitting, the same bounded wait (a dead pool worker takes every running batch
+  with it: abandoned at once), then the session ends with the reason.
+
+Abandoned batches' points stay claimed; ``resume`` settles them (a log published before the
+abandonment is accepted). Either way the ledger is consistent and the rig is left in its safe state.
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import math
-import multiprocessing
-import os
 import signal
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
 from dataclasses import dataclass, field
 from typing import Any
 
-from labrunner.campaign.ledger import Ledger
+from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
+from labrunner.campaign.ledger import Ledger, LedgerWriteError
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
-from labrunner.errors import CampaignError, InvalidParameter
 
 BATCH_MEMORY_BYTES = 256 * 2**20  # a batch's signal buffers stay below this
 _BYTES_PER_SAMPLE = 8 * 32  # float64 × (generous) number of logged traces per run
+POLL_S = 0.25  # how often the loop looks at signals, deadlines and results [s]
+PROBE_S = 2.0  # how often the executor's health is probed [s]
+GRACE_S = 10.0  # beyond the running batches' own duration, before they are abandoned [s]
 # The engine's per-tick cost model, cost(B) ≈ TICK_OVERHEAD_S + B · RUN_TICK_S (motor velocity MFC
 # at 200 Hz, one CPU of a loaded 2-core machine: ~130 µs per tick plus ~0.5 µs per run and tick;
 # benchmarks/bench_engine.py). A batch is large enough once the fixed part is at most
@@ -48,8 +53,6 @@ _BYTES_PER_SAMPLE = 8 * 32  # float64 × (generous) number of logged traces per 
 TICK_OVERHEAD_S = 130e-6
 RUN_TICK_S = 0.5e-6
 TICK_OVERHEAD_SHARE = 0.1
-_PR_SET_PDEATHSIG = 1
-_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 @dataclass
@@ -102,95 +105,26 @@ def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> l
     return out
 
 
-class InProcessExecutor(Executor):
-    """Runs each call in the caller's process at submit time: a real rig, one run at a time."""
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
-        future: Future = Future()
-        future.set_running_or_notify_cancel()
-        try:
-            future.set_result(fn(*args, **kwargs))
-        except Exception as exc:
-            future.set_exception(exc)
-        return future
-
-
-def _init_worker(lock_fd: int | None) -> None:
-    """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it lets running batches finish or
-    kills the workers), die with the parent, drop the inherited lock descriptor."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)  # blocked by the parent while it forked us
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() == 1:  # the parent died before prctl took effect
-        os._exit(1)
-    if lock_fd is not None:
-        with contextlib.suppress(OSError):
-            os.close(lock_fd)
-
-
-def _preload_worker_modules() -> None:
-    """Import what every batch needs (the engine, the log writer) before the pool forks: the
-    workers inherit it instead of each importing it again (~0.1–0.2 s CPU per worker)."""
-    import labrunner.engine  # noqa: F401
-    import labrunner.logs.writer  # noqa: F401
-
-
-def check_executor_url(url: str | None) -> None:
-    """``--executor`` must be a Dask scheduler address."""
-    if url is not None and not url.startswith(("tcp://", "tls://", "inproc://")):
-        raise InvalidParameter("--executor", f"must be a Dask scheduler address tcp://HOST:PORT, got {url!r}")
-
-
-@contextlib.contextmanager
-def open_executor(
-    *, real_rig: bool, workers: int | None, url: str | None, lock_fd: int | None = None
-) -> Iterator[tuple[Executor, int]]:
-    """The executor for this campaign and its number of parallel slots."""
-    if real_rig:
-        yield InProcessExecutor(), 1
-        return
-    if url:
-        check_executor_url(url)
-        from distributed import Client
-
-        try:
-            client = Client(url, timeout=20)
-        except OSError as exc:
-            raise CampaignError(f"cannot reach the Dask scheduler at {url}: {exc}") from None
-        try:
-            slots = workers or max(1, sum(client.nthreads().values()))
-            yield client.get_executor(pure=False), slots
-        finally:
-            client.close()
-        return
-    n = workers or len(os.sched_getaffinity(0))
-    _preload_worker_modules()
-    pool = ProcessPoolExecutor(
-        max_workers=n, mp_context=multiprocessing.get_context("fork"), initializer=_init_worker, initargs=(lock_fd,)
-    )
-    try:
-        yield pool, n
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-
-
-class _Signals:
-    """SIGINT/SIGTERM → a counter; the second one raises KeyboardInterrupt (abandon)."""
+class StopSignals:
+    """SIGINT/SIGTERM → a counter the scheduler polls; nothing is raised, so no lock or transaction
+    is ever left half-way. Only while ``interruptible`` (a real rig's run in this process, which
+    nothing else can stop) does the second one raise KeyboardInterrupt; the rig's context then
+    puts it in its safe state."""
 
     def __init__(self) -> None:
         self.count = 0
+        self.interruptible = False
         self._old: dict[int, Any] = {}
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.count += 1
-        if self.count >= 2:
+        if self.count >= 2 and self.interruptible:
+            self.interruptible = False
             raise KeyboardInterrupt
 
-    def __enter__(self) -> _Signals:
+    def __enter__(self) -> StopSignals:
         with contextlib.suppress(ValueError):  # not the main thread: keep the default behaviour
-            for sig in (signal.SIGINT, signal.SIGTERM):
+            for sig in STOP_SIGNALS:
                 self._old[sig] = signal.signal(sig, self._handle)
         return self
 
@@ -200,25 +134,32 @@ class _Signals:
 
 
 class Scheduler:
-    """Runs the planned points of an open ledger."""
+    """Runs the planned points of an open ledger, supervising the executor (module docstring)."""
 
     def __init__(
         self,
         campaign: Campaign,
         ledger: Ledger,
         *,
-        executor: Executor,
-        slots: int,
+        executor: ExecutorHandle | Executor,
+        slots: int = 1,
         batch_size: int | None = None,
         progress: Progress | None = None,
         batch_fn: Callable[[BatchTask], BatchResult] = execute_batch,
+        signals: StopSignals | None = None,
     ) -> None:
         self.campaign, self.ledger = campaign, ledger
-        self.executor, self.slots = executor, slots
+        self.handle = executor if isinstance(executor, ExecutorHandle) else ExecutorHandle(executor, slots)
+        self.slots = self.handle.slots
         self.requested = batch_size
         self.progress = progress
         self.batch_fn = batch_fn
-        self.inflight: dict[Future, list[str]] = {}
+        self.signals = signals
+        self.inflight: dict[Future, _Batch] = {}
+        self.longest_s = 0.0  # longest submit-to-result time of a batch so far [s]
+        self.deadline: float | None = None  # once stopping: when running batches are abandoned
+        self.bound_s = 0.0
+        self._next_probe = 0.0
 
     def _task(self, key: str, rows: list[Any]) -> BatchTask:
         _, fs, duration, *_ = json.loads(key)
@@ -235,34 +176,45 @@ class Scheduler:
             runs=tuple(runs), samples_hz=c.logging.get("samples_hz"),
         )
 
-    def _submit(self, key: str, rows: list[Any]) -> None:
+    def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:
         task = self._task(key, rows)
         ids = [r.point_id for r in task.runs]
         self.ledger.claim(ids)
-        forks = isinstance(self.executor, ProcessPoolExecutor)  # its first submit forks the workers:
+        h = self.handle
         try:  # a Ctrl-C must not reach a worker before its initializer ignores it (it stays pending here)
-            if forks:
-                signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+            if h.forks:
+                signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+            signals.interruptible = h.in_process
             try:
-                future = self.executor.submit(self.batch_fn, task)
+                future = h.executor.submit(self.batch_fn, task)
             finally:
-                if forks:
-                    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
-        except BaseException:
-            if not isinstance(self.executor, InProcessExecutor):
-                self.ledger.unclaim(ids)
+                signals.interruptible = False
+                if h.forks:
+                    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+        except KeyboardInterrupt:  # a real rig's run, stopped by a second Ctrl-C: its points stay claimed
             raise
-        self.inflight[future] = ids
+        except Exception as exc:  # the executor refused the batch (broken pool, lost cluster): nothing ran
+            self.ledger.unclaim(ids)
+            out.stop_reason = out.stop_reason or f"the executor refused a batch: {type(exc).__name__}: {exc}"
+            return
+        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic())
         if self.progress:
             self.progress.started_runs(len(ids))
 
     def _collect(self, future: Future, out: Outcome) -> None:
-        ids = self.inflight.pop(future)
+        batch = self.inflight.pop(future)
         if future.cancelled():
-            self.ledger.unclaim(ids)
+            self.ledger.unclaim(batch.ids)
             return
+        self.longest_s = max(self.longest_s, time.monotonic() - batch.submitted)
         exc = future.exception()
-        if exc is not None:  # the worker itself broke (died, could not write): stop, points stay claimed
+        if isinstance(exc, BrokenExecutor):  # a worker process died: every running batch is lost with it
+            out.stop_reason = out.stop_reason or (
+                "a worker process died (killed, or out of memory?); the running batches were abandoned"
+            )
+            self._abandon(out)
+            return
+        if exc is not None:  # the worker itself broke (could not write): stop, points stay claimed
             out.stop_reason = out.stop_reason or f"a worker failed: {type(exc).__name__}: {exc}"
             return
         result: BatchResult = future.result()
@@ -274,40 +226,84 @@ class Scheduler:
         if result.stop:
             out.stop_reason = out.stop_reason or result.stop
 
+    def _abandon(self, out: Outcome) -> None:
+        """Give up on every running batch now: their points stay claimed for ``resume``."""
+        if self.inflight:
+            self.handle.abandon()
+            for future in self.inflight:
+                future.cancel()
+            self.inflight.clear()
+            out.abandoned = True
+
+    def _stopping(self, out: Outcome, pending: deque, why: str) -> None:
+        """Stop submitting: drop pending batches, unclaim queued ones, give running ones a deadline."""
+        pending.clear()
+        for future in list(self.inflight):
+            if future.cancel():
+                self._collect(future, out)
+        expected = max([self.longest_s, *(b.expected_s for b in self.inflight.values())], default=0.0)
+        self.bound_s = math.ceil(2.0 * expected + GRACE_S)  # a batch may wait behind one running on its slot
+        self.deadline = time.monotonic() + self.bound_s
+        if self.inflight:
+            self._say(f"{why}: finishing {len(self.inflight)} running batch(es), at most {self.bound_s:.0f} s"
+                      " (Ctrl-C again to abandon them now)")
+
+    def _supervise(self, signals: StopSignals, out: Outcome, pending: deque) -> None:
+        """Ctrl-C, a failure, a lost worker or a passed deadline: what the loop does next."""
+        now = time.monotonic()
+        if now >= self._next_probe:
+            self._next_probe = now + PROBE_S
+            reason = self.handle.probe()
+            if reason:
+                out.stop_reason = out.stop_reason or reason
+        if signals.count >= 2 and self.inflight:
+            out.interrupted = True
+            self._say("interrupted again: abandoning the running batches (their points stay claimed for resume)")
+            self._abandon(out)
+        elif signals.count and not out.interrupted:
+            out.interrupted = True
+            self._stopping(out, pending, "interrupted")
+        elif out.stop_reason and self.deadline is None:
+            self._stopping(out, pending, "stopping")
+        if self.deadline is not None and now > self.deadline and self.inflight:
+            self._say(f"the running batches did not finish within {self.bound_s:.0f} s: abandoned")
+            self._abandon(out)
+
     def run(self) -> Outcome:
         """Run every planned point; returns when done, stopped, or interrupted."""
         out = Outcome()
         t0 = time.monotonic()
+        self.deadline = None  # a guided campaign runs one session per round
         rows = self.ledger.rows(("planned",))
         pending = deque(make_batches(rows, self.slots, self.requested))
         del rows
-        in_process = isinstance(self.executor, InProcessExecutor)  # runs at submit: check stop/Ctrl-C after each
-        max_inflight = 1 if in_process else max(1, 2 * self.slots)
-        with _Signals() as signals:
+        max_inflight = 1 if self.handle.in_process else max(1, 2 * self.slots)  # in-process: runs at submit
+        own = self.signals is None
+        signals = self.signals or StopSignals()
+        with signals if own else contextlib.nullcontext():
             try:
                 while pending or self.inflight:
-                    if signals.count and not out.interrupted:
-                        out.interrupted = True
-                        self._say("interrupted: finishing the running batches (Ctrl-C again to abandon them)")
-                        for f in list(self.inflight):
-                            if f.cancel():
-                                self._collect(f, out)
-                    if out.interrupted or out.stop_reason:
-                        pending.clear()
-                    while pending and len(self.inflight) < max_inflight:
-                        self._submit(*pending.popleft())
+                    self._supervise(signals, out, pending)
+                    if out.abandoned:
+                        break
+                    while pending and len(self.inflight) < max_inflight and self.deadline is None:
+                        self._submit(*pending.popleft(), signals, out)
+                        if signals.count or out.stop_reason:
+                            break
                     if not self.inflight:
                         continue
-                    done, _ = wait(list(self.inflight), timeout=0.25, return_when=FIRST_COMPLETED)
+                    done, _ = wait(list(self.inflight), timeout=POLL_S, return_when=FIRST_COMPLETED)
                     for future in done:
-                        self._collect(future, out)
+                        if future in self.inflight:
+                            self._collect(future, out)
                     if self.progress:
                         self.progress.tick()
-            except KeyboardInterrupt:
+            except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
                 out.interrupted = out.abandoned = True
-                for future in self.inflight:
-                    future.cancel()
                 self.inflight.clear()
+            except LedgerWriteError as exc:  # a full disk: nothing more can be committed; resume accepts the logs
+                out.stop_reason = out.stop_reason or str(exc)
+                self._abandon(out)
             out.signals = signals.count
         out.elapsed_s = time.monotonic() - t0
         out.counts = self.ledger.by_outcome()
@@ -318,7 +314,17 @@ class Scheduler:
             self.progress.write(message)
 
 
-def kill_pool_workers() -> None:
-    """Abandon running batches: kill this process's pool workers (their points stay claimed)."""
-    for child in multiprocessing.active_children():
-        child.kill()
+@dataclass
+class _Batch:
+    """A submitted batch: its point ids, run duration [s], ticks and submit time (monotonic)."""
+
+    ids: list[str]
+    duration: float
+    ticks: int
+    submitted: float
+
+    @property
+    def expected_s(self) -> float:
+        """How long it may take [s]: a real rig its duration; a twin the tick cost model of
+        :func:`batch_size` with a margin of 10 for rigs heavier than the motor (the plate)."""
+        return max(self.duration, 10.0 * self.ticks * (TICK_OVERHEAD_S + len(self.ids) * RUN_TICK_S))

@@ -25,7 +25,7 @@ from typing import Any
 from labrunner.campaign import expressions, grid as gridmod
 from labrunner.campaign.checks import StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
-from labrunner.errors import InvalidParameter, check_number, check_positive
+from labrunner.errors import InvalidParameter, check_finite, check_number, check_positive
 from labrunner.rigs import config as rigconfig
 from labrunner.rigs.base import RigConfig, RigInfo
 from labrunner.rigs.kinds import rig_class
@@ -240,6 +240,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     if seed < 0:
         raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
     base = {s: doc.get(s, {}) for s in SECTIONS}
+    for section in SECTIONS:
+        _check_finite_leaves(section, base[section])
     if "metrics" in doc:  # named windows [t0, t1] of the metrics (labrunner.metrics)
         from labrunner.metrics import parse_windows
 
@@ -294,6 +296,18 @@ def _logging(table: Mapping[str, Any]) -> dict[str, Any]:
     if bad:
         raise InvalidParameter(f"logging.{bad[0]}", f"unknown key; allowed: {', '.join(LOGGING_KEYS)}")
     return {"samples_hz": check_positive("logging.samples_hz", table["samples_hz"], strict=True)} if "samples_hz" in table else {}
+
+
+def _check_finite_leaves(path: str, node: Any) -> None:
+    """Refuse NaN and ±inf anywhere in a section (TOML allows them; no setting means them)."""
+    if isinstance(node, Mapping):
+        for key, value in node.items():
+            _check_finite_leaves(f"{path}.{key}", value)
+    elif isinstance(node, list):
+        for value in node:
+            _check_finite_leaves(path, value)
+    elif isinstance(node, float):
+        check_finite(path, node, "a finite number")
 
 
 def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:

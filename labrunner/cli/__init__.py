@@ -5,19 +5,28 @@ Each sub-command lives in its own module below ``labrunner.cli`` (``check-rig`` 
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules import
 their heavy dependencies inside ``func`` so that ``labrunner --help`` stays fast.
 
-Errors: a usage error (argparse's own) or :class:`~labrunner.errors.InvalidParameter` → one line
-on stderr, exit 2 (``main`` returns it; only ``--help`` and ``--version`` exit through SystemExit);
-any other :class:`~labrunner.errors.LabrunnerError` → one line, exit 1. A reader that closes the
-pipe early (``labrunner analyse DIR --json | head``) ends the command quietly, as in other tools.
+One error boundary (:func:`main`): every failure is one line on stderr and an exit code — a usage
+error (argparse's own, returned rather than raised as SystemExit; only ``--help`` and
+``--version`` exit through it) or :class:`~labrunner.errors.InvalidParameter` (bad input: a file,
+a flag, a campaign directory that is not one) exit 2; any other
+:class:`~labrunner.errors.LabrunnerError` (a failed run or campaign) and an :class:`OSError` of the
+environment (permissions, a full disk, a read-only or special file system; the message names the
+path) exit 1; Ctrl-C exit 130. Anything else is a bug: one line
+saying where its full traceback was written, exit 1. A reader that closes the pipe early
+(``labrunner analyse DIR --json | head``) ends the command quietly, as in other tools.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
 import select
+import signal
 import sys
+import tempfile
+import traceback
 from collections.abc import Sequence
 
 from labrunner import __version__
@@ -28,6 +37,7 @@ COMMANDS = (
     "run",
     "resume",
     "status",
+    "repair",
     "analyse",
     "inspect",
     "plot",
@@ -66,7 +76,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupt_once(signum: int, frame: object) -> None:
+    """The program's SIGINT handler until a campaign installs its own: the first Ctrl-C stops the
+    command (KeyboardInterrupt), later ones are ignored while it winds down."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # the program itself
+        signal.signal(signal.SIGINT, _interrupt_once)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # while the parser was built (imports) or the arguments parsed
+        return _say("labrunner: interrupted", 130)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -76,24 +102,63 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    prefix = f"labrunner {args.command}: error:"
     try:
         code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit
         return code
     except InvalidParameter as exc:
-        print(f"labrunner {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return _say(f"{prefix} {_line(exc)}", 2)
     except LabrunnerError as exc:
-        print(f"labrunner {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return _say(f"{prefix} {_line(exc)}", 1)
     except KeyboardInterrupt:
-        print(f"labrunner {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return _say(f"labrunner {args.command}: interrupted", 130)
     except BrokenPipeError:
         if not _reader_gone(sys.stdout):
-            raise  # some other pipe broke: a real error
+            return _say(f"{prefix} {os_error(sys.exc_info()[1])}", 1)  # some other pipe broke
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no flush error at exit either
         return 141  # 128 + SIGPIPE, what a shell reports for a command killed by it
+    except OSError as exc:
+        return _say(f"{prefix} {os_error(exc)}", 1)
+    except MemoryError:
+        return _say(f"{prefix} out of memory", 1)
+    except Exception as exc:  # a bug: one line here, the traceback in a file
+        where = _write_traceback(args.command, sys.argv[1:] if argv is None else list(argv))
+        return _say(f"labrunner {args.command}: internal error: {_line(exc, type(exc).__name__)}; traceback in {where}", 1)
+
+
+def os_error(exc: OSError) -> str:
+    """One line for an environment failure, naming the path: "PATH: No space left on device"."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+        reason += " (disk full or file-size limit: free space, then continue with `labrunner resume DIR`)"
+    paths = [p for p in (exc.filename, exc.filename2) if p is not None]
+    return ": ".join([*map(str, paths), reason]) if paths else reason
+
+
+def _line(exc: BaseException, kind: str = "") -> str:
+    """The exception's message on one line (newlines folded), led by ``kind`` when given."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return f"{kind}: {text}" if kind else text
+
+
+def _say(line: str, code: int) -> int:
+    try:
+        print(line, file=sys.stderr)
+    except OSError:  # stderr itself is gone: the exit code still tells
+        pass
+    return code
+
+
+def _write_traceback(command: str, argv: list[str]) -> str:
+    """Write the current exception's traceback to a fresh file; return its path (or why not)."""
+    try:
+        fd, path = tempfile.mkstemp(prefix=f"labrunner-{command}-", suffix=".traceback.txt")
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(f"labrunner {' '.join(argv)}\n\n{traceback.format_exc()}")
+        return path
+    except OSError as exc:
+        return f"(not written: {exc.strerror})"
 
 
 def _reader_gone(stream) -> bool:

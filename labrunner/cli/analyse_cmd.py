@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+from pathlib import Path
 from typing import Any
 
 from labrunner.cli.argtypes import positive_int
@@ -53,8 +55,14 @@ def run(args: argparse.Namespace) -> int:
     from labrunner.analysis.analyse import analyse
     from labrunner.errors import InvalidParameter
 
+    if args.out is not None and os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise InvalidParameter("--out", f"{args.out!r} exists and is not a directory")
     if not (0.0 <= args.margin < 1.0):
         raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
+    from labrunner.campaign.ledger import Ledger
+
+    with Ledger.open_readonly(Path(args.directory)):  # a missing or damaged ledger: one line, before any progress
+        pass
     from labrunner.campaign.progress import format_counts
 
     plot = [word for item in args.plot for word in item.split(",") if word]

@@ -17,9 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "print its realised window, delays, cutoff and normalised FIR weights (newest sample first)."
         ),
     )
-    p.add_argument("--alpha", type=numeric(float, "> -1"), required=True, help="weight exponent alpha > -1 (alpha > n - 1)")
-    p.add_argument("--beta", type=numeric(float, "> -1"), required=True, help="weight exponent beta > -1 (beta > n - 1)")
-    p.add_argument("--N", type=numeric(int, ">= 0"), default=0, help="truncation order N >= 0 of the Jacobi expansion (default 0)")
+    p.add_argument("--alpha", type=numeric(float, "> -1"), required=True, help="weight exponent alpha in (-1, 200] (alpha > n - 1)")
+    p.add_argument("--beta", type=numeric(float, "> -1"), required=True, help="weight exponent beta in (-1, 200] (beta > n - 1)")
+    p.add_argument("--N", type=numeric(int, ">= 0"), default=0, help="truncation order N in 0..20 of the Jacobi expansion (default 0)")
     p.add_argument("--theta", type=numeric(float, "in [-1, 1]"), help="theta in [-1, 1] for N > 0 (default: largest root of P_{N+1})")
     p.add_argument("--omega-c", type=numeric(float, "> 0"), dest="omega_c", help="desired cutoff frequency [rad/s]")
     p.add_argument("--window", type=numeric(float, "> 0"), help="filter window length T [s]")
@@ -29,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--method", choices=("midpoint", "trapezoidal", "analytic"), default="midpoint",
         help="discretisation of the convolution integral (default midpoint)",
     )
-    p.add_argument("--cost", action="store_true", help="also compute the discretisation cost J_n [dB] up to Nyquist")
+    p.add_argument("--cost", action="store_true", help="also compute the discretisation cost J_n [dB] up to Nyquist (windows up to 10 000 taps)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     p.set_defaults(func=run)
 

@@ -1,5 +1,6 @@
 """``labrunner inspect RUN.mcap [--json]``: what a run log holds — outcome, samples, signals,
-metadata — also for a torn file (its writer was killed), which it says."""
+metadata — also for a torn file (its writer was killed) or a damaged one (a chunk unreadable, the
+summary intact), which it says."""
 
 from __future__ import annotations
 
@@ -26,7 +27,12 @@ def _short(value: Any, width: int = 100) -> str:
 
 def format_summary(summary: dict[str, Any], path: str) -> str:
     """The human-readable form of :meth:`labrunner.logs.RunLog.summary`."""
-    lines = [path + ("  [TORN: writer did not finish; complete blocks salvaged]" if summary["torn"] else "")]
+    if summary["torn"]:
+        lines = [path + "  [TORN: writer did not finish; complete blocks salvaged]"]
+    elif summary.get("damaged"):
+        lines = [path + f"  [DAMAGED: {summary['damaged']}; outcome and metadata read from the intact summary]"]
+    else:
+        lines = [path]
     outcome = summary["outcome"]
     if outcome is None:
         lines.append("outcome     none (run did not finish)")

@@ -18,6 +18,8 @@ from labrunner.errors import InvalidParameter, check_finite, check_positive
 
 METHODS = ("midpoint", "trapezoidal", "analytic")
 MAX_SAMPLES = 2**24  # longest window [samples]; guards against windows that cannot be held in memory
+MAX_N = 20  # highest truncation order N: the kernel costs O(N·n_s) and its Jacobi terms lose float64 accuracy beyond
+MAX_EXPONENT = 200.0  # largest α, β: the window (∝ √(αβ)/ω_c) and the kernel's dynamic range grow with them
 _INTEGER_TOL = 1e-6  # a window within this many samples of an integer is that integer (float rounding)
 
 
@@ -149,11 +151,11 @@ def design(
     a = check_finite("alpha", alpha, "a finite number > -1")
     b = check_finite("beta", beta, "a finite number > -1")
     for name, value in (("alpha", a), ("beta", b)):
-        if value <= -1.0:
-            raise InvalidParameter(name, f"must be > -1, got {value!r}")
+        if not -1.0 < value <= MAX_EXPONENT:
+            raise InvalidParameter(name, f"must be > -1 and <= {MAX_EXPONENT:g}, got {value!r}")
     f = check_positive("fs", fs)
-    if isinstance(N, bool) or not float(check_finite("N", N, "an integer >= 0")).is_integer() or N < 0:
-        raise InvalidParameter("N", f"must be an integer >= 0, got {N!r}")
+    if isinstance(N, bool) or not float(check_finite("N", N, "an integer >= 0")).is_integer() or not 0 <= N <= MAX_N:
+        raise InvalidParameter("N", f"must be an integer in 0..{MAX_N}, got {N!r}")
     n_poly = int(N)
     if method not in METHODS:
         raise InvalidParameter("method", f"must be one of {', '.join(METHODS)}, got {method!r}")

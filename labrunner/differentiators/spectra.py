@@ -17,6 +17,7 @@ from labrunner.differentiators.kernel import log_rho
 from labrunner.errors import InvalidParameter
 
 _CHUNK = 2_000_000  # nodes × frequencies evaluated at once (memory bound of ~32 MB)
+COST_MAX_WORK = 10_000_000  # taps × frequencies of one cost J_n (≈ 2 s; it grows with both)
 
 
 def _as_omega(omega: np.ndarray) -> np.ndarray:
@@ -80,6 +81,11 @@ def cost_db(d: Differentiator, order: int, omega_max: float | None = None, point
     Ω defaults to the Nyquist frequency π·f_s. The 20·log10 scale is the one of paper 2, Table 1
     (J_2 < −200 dB acceptable) and AlgDiff's examples; J_n itself is a ratio of energies.
     """
+    if d.n_s * int(points) > COST_MAX_WORK:
+        raise InvalidParameter(
+            "cost", f"needs n_s × points <= {COST_MAX_WORK:,}, got {d.n_s} taps × {int(points)} frequencies; "
+            "use a shorter window (or a higher omega_c) or a lower fs"
+        )
     omega = np.linspace(0.0, math.pi * d.fs if omega_max is None else float(omega_max), int(points))
     f = continuous_response(d, order, omega)
     fd = discrete_response(d, order, omega)

@@ -14,6 +14,7 @@ import json
 import math
 import os
 import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,6 +56,7 @@ class RunLog:
     fs: float  # sampling rate [Hz]
     channels: dict[str, dict[str, Any]] = field(default_factory=dict)  # signal → role, unit
     attachments: dict[str, bytes] = field(default_factory=dict)
+    damaged: str = ""  # non-empty: the summary is intact but some chunks could not be read (what and where)
 
     @property
     def n_samples(self) -> int:
@@ -75,6 +77,7 @@ class RunLog:
                 "metadata": self.metadata,
                 "attachments": {name: len(data) for name, data in self.attachments.items()},
                 "torn": self.torn,
+                "damaged": self.damaged,
             }
         )
 
@@ -204,7 +207,7 @@ class _ChunkReader:
         self.f.seek(index.chunk_start_offset)
         if self.f.readinto(raw) != index.chunk_length:
             raise McapError(f"chunk at offset {index.chunk_start_offset} is cut short")
-        opcode, _, _, _, size, _, name_length = _CHUNK_HEAD.unpack_from(raw)
+        opcode, _, _, _, size, crc, name_length = _CHUNK_HEAD.unpack_from(raw)
         if opcode != Opcode.CHUNK:
             raise McapError(f"no chunk at offset {index.chunk_start_offset}")
         start = _CHUNK_HEAD.size + name_length + 8
@@ -220,10 +223,12 @@ class _ChunkReader:
                 done += got
         if done != size:
             raise McapError(f"chunk at offset {index.chunk_start_offset} holds {done} bytes, not {size}")
+        if crc and zlib.crc32(out) != crc:  # zstd without a frame checksum decodes damage silently
+            raise McapError(f"chunk at offset {index.chunk_start_offset} fails its CRC")
         return out
 
 
-def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Frame]:
+def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Frame, str]:
     summary = reader.get_summary()
     assert summary is not None
     records = _decode_records({m.name: m.metadata for m in reader.iter_metadata()})
@@ -240,10 +245,15 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
     bound = sum(c.uncompressed_size for c in chunks) // (8 * max(1, len(names)))
     frame = _Frame(names, min(hint, bound) if isinstance(hint, int) and hint > 0 else 0)
     chunk_reader = _ChunkReader(f, chunks)
-    for index in chunks:
-        for payload in _block_payloads(chunk_reader.records(index), ids):
-            frame.add(schema.decode_block(payload))
-    return records, attachments, frame
+    bad = []
+    for index in chunks:  # a damaged chunk is skipped: its samples stay NaN, the others are read
+        try:
+            for payload in _block_payloads(chunk_reader.records(index), ids):
+                frame.add(schema.decode_block(payload))
+        except _TRUNCATED as exc:
+            bad.append(f"offset {index.chunk_start_offset}: {exc}")
+    damaged = f"{len(bad)} of {len(chunks)} data chunks unreadable ({bad[0]})" if bad else ""
+    return records, attachments, frame, damaged
 
 
 def _read_torn(f: BinaryIO) -> tuple[dict, dict, _Frame]:
@@ -278,17 +288,33 @@ def read_run(path: str | os.PathLike[str]) -> RunLog:
     with _open(path) as f:
         reader = _finished(f)
         torn = reader is None
+        damaged = ""
         try:
-            records, attachments, frame = _read_torn(f) if torn else _read_finished(f, reader)
-        except _TRUNCATED:  # footer present but the data is damaged: salvage what is readable
+            records, attachments, frame, damaged = (*_read_torn(f), "") if torn else _read_finished(f, reader)
+        except _TRUNCATED:  # footer present but the summary's records are damaged: salvage what is readable
             torn = True
             f.seek(0)
             records, attachments, frame = _read_torn(f)
-    if "channels" not in records:
-        raise InvalidParameter("path", f"not a labrunner run log (no 'channels' metadata): {str(path)!r}")
+    _check_records(records, path)
     outcome = records.pop("outcome", None)
-    fs = frame.fs if math.isfinite(frame.fs) else float(records.get("run", {}).get("fs", math.nan))
-    return RunLog(frame.frame(fs), records, outcome, torn, fs, records["channels"], attachments)
+    stated = records.get("run", {}).get("fs", math.nan)
+    fs = frame.fs if math.isfinite(frame.fs) else float(stated)
+    return RunLog(frame.frame(fs), records, outcome, torn, fs, records["channels"], attachments, damaged)
+
+
+def _check_records(records: dict[str, dict[str, Any]], path: str | os.PathLike[str]) -> None:
+    """Refuse a file whose records are not what labrunner writes (another tool's MCAP)."""
+    def foreign(why: str) -> InvalidParameter:
+        return InvalidParameter("path", f"not a labrunner run log ({why}): {str(path)!r}")
+
+    if "channels" not in records:
+        raise foreign("no 'channels' metadata")
+    for name, info in records["channels"].items():
+        if not isinstance(info, dict) or not all(isinstance(info.get(k, ""), str) for k in ("role", "unit")):
+            raise foreign(f"channel {name!r} is not described by a role and a unit")
+    fs = records.get("run", {}).get("fs", math.nan)
+    if isinstance(fs, bool) or not isinstance(fs, (int, float)):
+        raise foreign(f"run.fs is {fs!r}, not a number")
 
 
 def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:

@@ -14,14 +14,12 @@ from __future__ import annotations
 
 from typing import Any
 
+
+def reproduce(*args: Any, **kwargs: Any) -> dict[str, Any]:
+    """:func:`labrunner.reproduce.report.reproduce` (imported on use: the CLI reads the item list at start-up)."""
+    from labrunner.reproduce.report import reproduce as run
+
+    return run(*args, **kwargs)
+
+
 __all__ = ["reproduce"]
-
-
-def __getattr__(name: str) -> Any:
-    """``reproduce`` on first use: the report imports pandas, matplotlib and the stability solver,
-    which ``labrunner --help`` and ``labrunner run`` (whose parser lists the pack's items) do not need."""
-    if name == "reproduce":
-        from labrunner.reproduce.report import reproduce
-
-        return reproduce
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

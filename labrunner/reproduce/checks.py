@@ -24,8 +24,12 @@ Results = Mapping[str, CampaignResult]
 @dataclass(frozen=True)
 class Verdict:
     measured: str
-    agrees: bool | None
+    agrees: bool | None  # a plain bool (numpy's comparisons are converted)
     table: pd.DataFrame | None = None
+
+    def __post_init__(self) -> None:
+        if self.agrees is not None:
+            object.__setattr__(self, "agrees", bool(self.agrees))
 
 
 def _one(results: Results, part: str = "") -> CampaignResult:
@@ -130,6 +134,18 @@ def bound_agreement(results: Results) -> Verdict:
     return Verdict(f"{agree['case']} agrees on {agree['share']:.1%} of {agree['n_compared']} points "
                    f"({agree['false_stable']} unstable where predicted stable, {agree['false_unstable']} stable "
                    "where predicted unstable)", agree["share"] >= 0.85, table)
+
+
+def bound_conservative(results: Results) -> Verdict:
+    """The claim that the bound predicts instability where runs are stable (below k_d,min, Fig. 3.19)."""
+    verdict = bound_agreement(results)
+    agree = _one(results).summary["agreement"]
+    if agree["share"] is None:
+        return verdict
+    n = agree["n_compared"]
+    ok = agree["false_unstable"] > 0 and agree["false_stable"] <= 0.1 * n
+    return Verdict(f"{verdict.measured}: the bound is {'conservative' if ok else 'not conservative'} here",
+                   ok, verdict.table)
 
 
 def fine_kp_kd(results: Results) -> Verdict:

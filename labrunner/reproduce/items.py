@@ -76,7 +76,7 @@ ITEMS: tuple[Item, ...] = (
                                                      '"controller.k_d" = { log10 = [0.0, 2.5], num = 6 }'}),
     Item("3.19", "Angle MFC, k_p–k_d, γ_θ = 0.9 b (Fig. 3.19)", "thesis", (T + "fig3-19-angle-kp-kd-gamma-0.9b.toml",),
          "With γ_θ = 0.9 b the bound gives k_d,min = 4.33 1/s; points below it are predicted unstable but run "
-         "stably.", "bound_agreement",
+         "stably.", "bound_conservative",
          {T + "fig3-19-angle-kp-kd-gamma-0.9b.toml": '"controller.k_p" = { log10 = [0.0, 4.0], num = 9 }\n'
                                                      '"controller.k_d" = { log10 = [0.0, 2.5], num = 6 }'}),
     Item("3.21-3.23", "Polack et al. vs Guideline 2 (Figs. 3.21, 3.23, Sec. 3.5.3)", "thesis",

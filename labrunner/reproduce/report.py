@@ -101,7 +101,8 @@ def reproduce(
     report = write_report(out / "index.html", "labrunner reproduce",
                           f"The campaign pack on the simulated twins, {mode}, {seconds:.0f} s", sections)
     return {"report": str(report), "seconds": seconds, "guided": guided,
-            "items": {k: {"agrees": v.agrees, "measured": v.measured} for k, v in verdicts.items()}}
+            "items": {k: {"agrees": None if v.agrees is None else bool(v.agrees), "measured": v.measured}
+                      for k, v in verdicts.items()}}
 
 
 def _summary_section(items: Sequence[Item], verdicts: dict[str, Verdict], quick: bool) -> Section:

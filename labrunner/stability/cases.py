@@ -87,6 +87,24 @@ def resolve(case: str, *, gamma: float, delay: float, rho: float | None = None, 
     return Loop(case, order, 0.0, check_finite("a", _required("a", a, case)), b_val / gamma, delay)
 
 
+def check_scales(loop: Loop, k_d: float | None) -> None:
+    """Refuse parameters whose normalised forms (time in units of δ) leave the range in which the
+    closed forms and the solver are computed in floating point: r = gain/γ within 1e±9, δ within
+    1e-9…1e6 s, and |a₁δ|, a₀δ², |r(k_d − a₁)δ| at most 1e6 (the thesis's loops are O(1)–O(100))."""
+    names = ("rho" if loop.case.endswith("ultralocal") else "b", "a1" if loop.case == "mfc2-second-order" else "a")
+    checks = [
+        ("gamma", "gain/gamma", loop.ratio, 1e-9, 1e9),
+        ("delay", "delay [s]", loop.delay, 1e-9, 1e6),
+        (names[1], f"{names[1]}·delay", abs(loop.a1 * loop.delay), 0.0, 1e6),
+        ("a0", "a0·delay²", loop.a0 * loop.delay * loop.delay, 0.0, 1e6),
+    ]
+    if k_d is not None:
+        checks.append(("k_d", "gain/gamma·(k_d − a1)·delay", abs(loop.d_of(k_d)), 0.0, 1e6))
+    for field, what, value, lo, hi in checks:
+        if not (lo <= value <= hi) or not np.isfinite(value):
+            raise InvalidParameter(field, f"gives {what} = {value:.3g}, outside [{lo:g}, {hi:g}] (the range these bounds are computed in)")
+
+
 def _required(field: str, value: float | None, case: str) -> float:
     if value is None:
         raise InvalidParameter(field, f"is required for case {case}")
@@ -170,6 +188,7 @@ def bounds(case: str, *, gamma: float, delay: float, rho: float | None = None, a
     [lo, hi] pairs; so is a numeric range that comes out in pieces."""
     loop = resolve(case, gamma=gamma, delay=delay, rho=rho, a=a, b=b, a0=a0, a1=a1)
     k_d = _check_k_d(loop, k_d)
+    check_scales(loop, k_d)
     out = closed_form_bounds(loop, k_d)
     if numeric:
         out["numeric"] = numeric_bounds(loop, k_d)

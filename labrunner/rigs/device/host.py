@@ -50,7 +50,8 @@ def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict
 
     outcome = engine.Outcome(verdict.status, verdict.monitor or None, opt(verdict.time), opt(verdict.value),
                              opt(verdict.threshold), verdict.message)
-    metrics = run_metrics(signals, engine.roles_of(channels, rig_info), fs=float(fs), windows=parse_windows(point.get("metrics")))
+    metrics = run_metrics(signals, engine.roles_of(channels, rig_info), fs=float(fs),
+                          windows=parse_windows(point.get("metrics")))  # as the engine measures a twin run
     return engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
 
 

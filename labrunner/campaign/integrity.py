@@ -1,0 +1,114 @@
+"""Checking a campaign ledger before ``status``, ``resume`` or ``analyse`` trusts it.
+
+:func:`verify` says exactly what is wrong, in one line, or returns quietly:
+
+- not an SQLite database, or one that fails ``PRAGMA quick_check`` (truncated, overwritten);
+- not a labrunner ledger (tables or columns missing, another schema version, meta keys missing);
+- point rows missing or added: the row count against the planned count kept in ``meta``, the grid
+  order ``seq`` = 0…n−1, and the checksum of the point ids in grid order written at creation;
+- a row whose parameters are not a JSON object.
+
+Each problem names the file and ends with the way out: ``labrunner repair DIR`` rebuilds the
+ledger from the campaign copy and the published logs (:mod:`labrunner.campaign.repair`).
+``resume`` also compares the ids with the stored campaign re-planned (:func:`check_plan`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sqlite3
+from collections.abc import Sequence
+from pathlib import Path
+
+from labrunner.errors import InvalidParameter
+
+TABLES = ("meta", "points", "quarantine", "sessions")
+POINT_COLUMNS = ("seq", "id", "parameters", "batch_key", "state", "outcome", "outcome_json", "log_path", "attempts")
+META_KEYS = ("schema_version", "campaign", "points")  # resume also needs campaign_file and plan_checksum
+
+
+class LedgerDamaged(InvalidParameter):
+    """The ledger cannot be trusted; the message says why and how to rebuild it (exit 2)."""
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        return (type(self), (self.field, self.message))
+
+
+def damaged(path: Path, problem: str) -> LedgerDamaged:
+    directory = path.parent
+    return LedgerDamaged(str(path), f"{problem}; rebuild it from the campaign copy and the published logs with "
+                                    f"`labrunner repair {directory}`")
+
+
+def problem(db: sqlite3.Connection) -> str:
+    """What is wrong with the ledger open in ``db`` ("" if nothing)."""
+    from labrunner.campaign.ledger import SCHEMA_VERSION
+
+    try:
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        missing = [t for t in TABLES if t not in tables]
+        if missing:
+            return f"is not a labrunner ledger (no table {', '.join(missing)})"
+        columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
+        lacking = [c for c in POINT_COLUMNS if c not in columns]
+        if lacking:
+            return f"is not a labrunner ledger (table points lacks {', '.join(lacking)})"
+        check = [r[0] for r in db.execute("PRAGMA quick_check(3)")]
+        if check != ["ok"]:
+            return f"is damaged (SQLite quick_check: {'; '.join(check)})"
+        meta = {r[0]: r[1] for r in db.execute("SELECT key, value FROM meta")}
+        absent = [k for k in META_KEYS if k not in meta]
+        if absent:
+            return f"is not a labrunner ledger (meta lacks {', '.join(absent)})"
+        if meta["schema_version"] != SCHEMA_VERSION:
+            return f"has ledger schema {meta['schema_version']!r}, this labrunner reads {SCHEMA_VERSION!r}"
+        return _rows(db, meta)
+    except sqlite3.DatabaseError as exc:
+        return f"is not a readable ledger ({exc})"
+
+
+def _rows(db: sqlite3.Connection, meta: dict[str, str]) -> str:
+    try:
+        planned = int(meta["points"])
+    except ValueError:
+        return f"is damaged (meta points = {meta['points']!r} is not a count)"
+    n, lo, hi = db.execute("SELECT COUNT(*), MIN(seq), MAX(seq) FROM points").fetchone()
+    if n != planned:
+        gone = f", {planned - n} deleted" if n < planned else f", {n - planned} added"
+        return f"holds {n} point rows of the {planned} planned{gone}"
+    if n and (lo, hi) != (0, n - 1):
+        return f"has point rows out of grid order (seq {lo}…{hi}, expected 0…{n - 1})"
+    expected = meta.get("ids_checksum")
+    if expected is not None:  # ledgers written before it was kept are checked by count only
+        if ids_checksum(db) != expected:
+            return "has point rows that are not the planned ones (their ids changed)"
+    bad = db.execute(
+        "SELECT seq FROM points WHERE json_valid(parameters) = 0 OR json_type(parameters) != 'object' LIMIT 1"
+    ).fetchone()
+    if bad is not None:
+        return f"has a point row (seq {bad[0]}) whose parameters are not a JSON object"
+    return ""
+
+
+def ids_checksum(db: sqlite3.Connection) -> str:
+    """SHA-256 of the point ids in grid order, one per line (as :meth:`Ledger.create` writes it)."""
+    digest = hashlib.sha256()
+    for (pid,) in db.execute("SELECT id FROM points ORDER BY seq"):
+        digest.update(f"{pid}\n".encode())
+    return digest.hexdigest()
+
+
+def verify(db: sqlite3.Connection, path: Path) -> None:
+    """Raise :class:`LedgerDamaged` if the ledger open in ``db`` (the file ``path``) is not sound."""
+    found = problem(db)
+    if found:
+        raise damaged(path, found)
+
+
+def check_plan(path: Path, ledger_ids: Sequence[str], planned_ids: Sequence[str]) -> None:
+    """The ledger's point ids (grid order) must be the stored campaign's, re-planned."""
+    if list(ledger_ids) != list(planned_ids):
+        extra = len(set(ledger_ids) - set(planned_ids))
+        lost = len(set(planned_ids) - set(ledger_ids))
+        raise damaged(path, f"does not hold the stored campaign's points ({lost} planned point(s) missing, "
+                            f"{extra} foreign, or out of order)")
