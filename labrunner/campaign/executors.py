@@ -128,6 +128,7 @@ def _kill(processes: Any) -> None:
 
 def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
     n = workers or len(os.sched_getaffinity(0))
+    _preload_worker_modules()
     pool = ProcessPoolExecutor(
         max_workers=n, mp_context=multiprocessing.get_context("fork"), initializer=_init_worker, initargs=(lock_fd,)
     )
@@ -175,6 +176,13 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
     finally:
         with contextlib.suppress(Exception):
             client.close(timeout=5)
+
+
+def _preload_worker_modules() -> None:
+    """Import what every batch needs (the engine, the log writer) before the pool forks: the
+    workers inherit it instead of each importing it again (~0.1–0.2 s CPU per worker)."""
+    import labrunner.engine  # noqa: F401
+    import labrunner.logs.writer  # noqa: F401
 
 
 @contextlib.contextmanager

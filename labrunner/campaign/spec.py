@@ -89,8 +89,8 @@ class Campaign:
 
     def resolve(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
         """The full run configuration of one point: base sections with its parameters set."""
-        config: dict[str, Any] = {s: copy.deepcopy(dict(self.base.get(s, {}))) for s in SECTIONS}
-        config.update({s: copy.deepcopy(dict(self.base[s])) for s in OPTIONAL_SECTIONS if self.base.get(s)})
+        config: dict[str, Any] = {s: copy_tree(dict(self.base.get(s, {}))) for s in SECTIONS}
+        config.update({s: copy_tree(dict(self.base[s])) for s in OPTIONAL_SECTIONS if self.base.get(s)})
         config["campaign"] = {"name": self.name, "rig": self.rig, "fs": self.fs, "duration": self.duration, "seed": self.seed}
         for key, value in parameters.items():
             _set(config, key, value)
@@ -109,6 +109,22 @@ class Campaign:
         """(parameters, config) of every point in grid order, derived values evaluated."""
         for params in self.grid.points():
             yield self.expand(params)
+
+
+_ATOMS = (str, int, float, bool, type(None))
+
+
+def copy_tree(value: Any) -> Any:
+    """``copy.deepcopy`` of TOML data (dicts, lists, scalars), ~5× faster: a campaign resolves
+    every point two or three times (plan, batch keys, scheduler), 30 000 copies at 10 000 points.
+    Anything else is handed to ``copy.deepcopy``."""
+    if isinstance(value, _ATOMS):
+        return value
+    if type(value) is dict:
+        return {k: v if isinstance(v, _ATOMS) else copy_tree(v) for k, v in value.items()}
+    if type(value) is list:
+        return [v if isinstance(v, _ATOMS) else copy_tree(v) for v in value]
+    return copy.deepcopy(value)
 
 
 class _NameView(Mapping[str, Any]):
@@ -139,7 +155,7 @@ def _set(config: dict[str, Any], key: str, value: Any) -> None:
     *parents, leaf = key.split(".")
     for part in parents:
         node = node.setdefault(part, {})
-    node[leaf] = copy.deepcopy(value)
+    node[leaf] = copy_tree(value)
 
 
 def _keys(table: Mapping[str, Any], prefix: str) -> Iterator[str]:

@@ -19,7 +19,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import special
+
+# scipy.special (~0.3 s to import) is imported in the functions that evaluate the kernel: loading a
+# campaign (analyse, status) imports this module without designing a differentiator.
 
 
 def log_rho(alpha: float, beta: float, i: int) -> float:
@@ -41,6 +43,8 @@ def kernel_u(alpha: float, beta: float, N: int, theta: float, k: int, u: np.ndar
     window and 1 after it. At u ∈ {0, 1} the factor u^{α−k} follows x^0 = 1 and 0^{a<0} = inf
     (a kernel derivative that is singular at the window ends).
     """
+    from scipy import special
+
     u = np.asarray(u, dtype=float)
     inside = (u >= 0.0) & (u <= 1.0)
     uc = np.clip(u, 0.0, 1.0)
@@ -67,6 +71,8 @@ def default_theta(alpha: float, beta: float, N: int) -> float:
     """ϑ for N > 0: the largest root of P_{N+1}^{(α,β)}, which minimises the delay while keeping the
     higher degree of exactness (AlgDiff's default; Othmane et al. 2022, Sec. 4.1). For N = 0 the
     equivalent ϑ = (β−α)/(α+β+2) (root of P_1) makes δ_t = (1−ϑ)T/2 agree with (2.3)."""
+    from scipy import special
+
     if N == 0:
         return (beta - alpha) / (alpha + beta + 2.0)
     roots, _ = special.roots_jacobi(N + 1, alpha, beta)
@@ -81,6 +87,8 @@ def log_cutoff_product(alpha: float, beta: float, N: int, theta: float) -> float
     (as AlgDiff's ``computeTfromWc``), evaluated in log-gamma form relative to the i = 0 term.
     Returns −inf where ϑ makes the asymptote vanish (no cutoff is defined).
     """
+    from scipy import special
+
     mu = 1.0 + min(alpha, beta)
     kappa = abs(alpha - beta)
     sigma = 1.0 if beta >= alpha else -1.0

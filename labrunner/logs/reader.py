@@ -18,10 +18,9 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
-import pandas as pd
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -34,6 +33,9 @@ from mcap.writer import MCAP0_MAGIC
 from labrunner.errors import InvalidParameter
 from labrunner.logs import schema
 from labrunner.logs.writer import LOG_FORMAT, decode_record
+
+if TYPE_CHECKING:  # pandas only where a frame is built: a worker writing logs imports labrunner.logs without it
+    import pandas as pd
 
 # What a file cut short raises while being read: end of data, a truncated chunk, a bad record.
 _TRUNCATED = (McapError, struct.error, zstandard.ZstdError, ValueError, EOFError)
@@ -181,6 +183,8 @@ class _Frame:
 
     def frame(self, fs: float) -> pd.DataFrame:
         """Index ``t`` = k / fs [s], one column per signal (in order of first appearance)."""
+        import pandas as pd
+
         data = self.data[:, : self.n] if self.n == self.data.shape[1] else np.ascontiguousarray(self.data[:, : self.n])
         index = pd.Index(np.arange(self.n) / fs, name="t")
         return pd.DataFrame(data.T, index=index, columns=list(self.rows), copy=False)
