@@ -112,7 +112,8 @@ def parse_faults(raw: Mapping[str, Any], info: RigInfo, path: str = "faults") ->
         value = raw.get(key, 0.0)
         values = value if isinstance(value, (list, tuple)) else [value]
         if len(values) not in (1, n):
-            raise InvalidParameter(f"{path}.{key}", f"needs 1 or {n} values, got {len(values)}")
+            need = "1 value" if n == 1 else f"1 or {n} values"
+            raise InvalidParameter(f"{path}.{key}", f"needs {need}, got {len(values)}")
         out = tuple(check_finite(f"{path}.{key}", v) for v in values)
         if any(v <= lo for v in out):
             raise InvalidParameter(f"{path}.{key}", f"must be > {lo:g}, got {min(out):g}")
