@@ -63,8 +63,22 @@ def campaign(n: int, parent: Path, workers: int) -> Path:
         spec_file.write_text(CAMPAIGN.format(n=side * side, side=side), encoding="utf-8")
         try:
             t = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "labrunner", "run", str(spec_file), "--out", str(directory),
-                            "--workers", str(workers)], check=True, stderr=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+            subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "labrunner",
+                    "run",
+                    str(spec_file),
+                    "--out",
+                    str(directory),
+                    "--workers",
+                    str(workers),
+                ],
+                check=True,
+                stderr=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+            )
             print(f"  campaign of {side * side} points run (not part of the figures): {time.perf_counter() - t:.1f} s")
         finally:
             spec_file.unlink()
@@ -75,8 +89,23 @@ def cli_analyse(directory: Path, out: Path, workers: int, *extra: str) -> tuple[
     """(wall, CPU) seconds of ``labrunner analyse`` in a fresh process (its children included)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "labrunner", "analyse", str(directory), "--out", str(out),
-                    "--workers", str(workers), *extra], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "labrunner",
+            "analyse",
+            str(directory),
+            "--out",
+            str(out),
+            "--workers",
+            str(workers),
+            *extra,
+        ],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -113,16 +142,22 @@ def main() -> None:
         print(f"{points} runs:")
         print(f"  analyse, fresh process:         {cpu:6.2f} s CPU ({wall:6.2f} s wall)")
         print(f"  again (run plots kept):         {again_cpu:6.2f} s CPU ({again_wall:6.2f} s wall)")
-        print(f"  metrics table alone, in-process: {table_cpu * 1e3 / points:5.3f} ms CPU per run"
-              f" ({table_wall:.2f} s wall, {built.n_read} logs read)")
+        print(
+            f"  metrics table alone, in-process: {table_cpu * 1e3 / points:5.3f} ms CPU per run"
+            f" ({table_wall:.2f} s wall, {built.n_read} logs read)"
+        )
         if args.recompute:
             wall, cpu = cli_analyse(directory, tmp / f"recompute-{points}", args.workers, "--recompute")
-            print(f"  --recompute (every log read):   {cpu:6.2f} s CPU ({wall:6.2f} s wall), parent process and workers")
+            print(
+                f"  --recompute (every log read):   {cpu:6.2f} s CPU ({wall:6.2f} s wall), parent process and workers"
+            )
     if len(cold) >= 2:
         (n0, c0), (n1, c1) = sorted(cold.items())[0], sorted(cold.items())[-1]
         per_run = (c1 - c0) / (n1 - n0)
-        print(f"fit over {n0} and {n1} runs: {per_run * 1e3:.3f} ms per run + {c0 - per_run * n0:.2f} s fixed "
-              "(targets: 1 ms per run, 2 s fixed)")
+        print(
+            f"fit over {n0} and {n1} runs: {per_run * 1e3:.3f} ms per run + {c0 - per_run * n0:.2f} s fixed "
+            "(targets: 1 ms per run, 2 s fixed)"
+        )
     shutil.rmtree(tmp)
 
 

@@ -46,8 +46,8 @@ from pathlib import Path
 
 from labrunner import engine
 from labrunner.campaign import spec
-from labrunner.campaign.ledger import Ledger, RunRecord
 from labrunner.campaign.executors import InProcessExecutor
+from labrunner.campaign.ledger import Ledger, RunRecord
 from labrunner.campaign.scheduler import Scheduler, batch_size
 from labrunner.campaign.worker import BatchResult, BatchTask
 from labrunner.rigs.registry import load_rig
@@ -64,11 +64,21 @@ def campaign(name: str, n_gamma: int, n_kp: int) -> str:
 
 def _noop_batch(task: BatchTask) -> BatchResult:
     now = time.time()
-    return BatchResult([
-        RunRecord(r.point_id, "completed", {"status": "completed"}, {"rms_error": 0.1, "input_energy": 1.0,
-                  "max_abs_input": 1.0}, f"runs/{r.point_id}.mcap", "h", 0, now)
-        for r in task.runs
-    ])
+    return BatchResult(
+        [
+            RunRecord(
+                r.point_id,
+                "completed",
+                {"status": "completed"},
+                {"rms_error": 0.1, "input_energy": 1.0, "max_abs_input": 1.0},
+                f"runs/{r.point_id}.mcap",
+                "h",
+                0,
+                now,
+            )
+            for r in task.runs
+        ]
+    )
 
 
 def bench_commit_and_scheduling(work: Path) -> tuple[float, float]:
@@ -79,13 +89,19 @@ def bench_commit_and_scheduling(work: Path) -> tuple[float, float]:
     points, _ = spec.plan(c)
     d = work / "sched"
     d.mkdir()
-    ledger = Ledger.create(d, meta={"campaign": c.name}, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points))
+    ledger = Ledger.create(
+        d, meta={"campaign": c.name}, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points)
+    )
     ids = [p.id for p in points[:500]]
     ledger.claim(ids)
     times = []
     for pid in ids:
         t0 = time.perf_counter()
-        ledger.commit(RunRecord(pid, "completed", {"status": "completed"}, {"rms_error": 0.1}, f"runs/{pid}.mcap", "h", 0, time.time()))
+        ledger.commit(
+            RunRecord(
+                pid, "completed", {"status": "completed"}, {"rms_error": 0.1}, f"runs/{pid}.mcap", "h", 0, time.time()
+            )
+        )
         times.append(time.perf_counter() - t0)
     t0 = time.perf_counter()
     out = Scheduler(c, ledger, executor=InProcessExecutor(), slots=2, batch_size=25, batch_fn=_noop_batch).run()
@@ -154,8 +170,14 @@ def timed(args: list[str], cwd: Path, progress: Path | None = None, n: int = 0) 
     out, err = proc.communicate()
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(args[2:4])} failed: {err[-2000:]}")
-    return {"wall_s": wall, "cpu_s": _children_cpu() - cpu0, "peak_parent_kb": peak_parent,
-            "peak_total_kb": peak_total, "parent_at": at, "stdout": out}
+    return {
+        "wall_s": wall,
+        "cpu_s": _children_cpu() - cpu0,
+        "peak_parent_kb": peak_parent,
+        "peak_total_kb": peak_total,
+        "parent_at": at,
+        "stdout": out,
+    }
 
 
 def run_and_analyse(work: Path, name: str, n_gamma: int, n_kp: int) -> dict:
@@ -176,11 +198,16 @@ def run_and_analyse(work: Path, name: str, n_gamma: int, n_kp: int) -> dict:
     leftovers = [p.name for p in (out / "runs").iterdir() if p.name.startswith(".tmp-")]
     report = out / "report" / "index.html"
     if settled != n or published != n or leftovers or not report.is_file():
-        raise SystemExit(f"{name}: {settled}/{n} settled, {published}/{n} logs published, "
-                         f"{len(leftovers)} temporary files left, report written: {report.is_file()}")
+        raise SystemExit(
+            f"{name}: {settled}/{n} settled, {published}/{n} logs published, "
+            f"{len(leftovers)} temporary files left, report written: {report.is_file()}"
+        )
     return {
-        "run": run, "analyse": analysis, "n": n,
-        "publish_s": statistics.median(r[0] for r in rows), "write_s": statistics.median(r[1] for r in rows),
+        "run": run,
+        "analyse": analysis,
+        "n": n,
+        "publish_s": statistics.median(r[0] for r in rows),
+        "write_s": statistics.median(r[1] for r in rows),
         "engine_s": statistics.median(r[2] for r in rows),
         "states": {s: sum(r[3] == s for r in rows) for s in ("done", "aborted", "failed")},
     }
@@ -200,8 +227,9 @@ def bench_engine_batch(work: Path, n_gamma: int, n_kp: int, slots: int = 2) -> t
     best = float("inf")
     for _ in range(2):
         t0 = time.process_time()
-        engine.run_batch(configs, rig, fs=c.fs, duration=float(c.duration), seeds=[c.seed] * len(configs),
-                         rig_safety=c.rig_safety)
+        engine.run_batch(
+            configs, rig, fs=c.fs, duration=float(c.duration), seeds=[c.seed] * len(configs), rig_safety=c.rig_safety
+        )
         best = min(best, time.process_time() - t0)
     return len(configs), best / len(configs)
 
@@ -212,8 +240,13 @@ def naive(work: Path, n_gamma: int, n_kp: int) -> dict:
     path.write_text(campaign("naive", n_gamma, n_kp))
     r = timed([sys.executable, str(ROOT / "benchmarks" / "naive_reference.py"), str(path)], work)
     m = re.search(r"in ([\d.]+) s wall, ([\d.]+) s CPU", r["stdout"])
-    return {"wall_s": r["wall_s"], "cpu_s": r["cpu_s"], "loop_wall_s": float(m[1]), "loop_cpu_s": float(m[2]),
-            "line": r["stdout"].strip()}
+    return {
+        "wall_s": r["wall_s"],
+        "cpu_s": r["cpu_s"],
+        "loop_wall_s": float(m[1]),
+        "loop_cpu_s": float(m[2]),
+        "line": r["stdout"].strip(),
+    }
 
 
 def _mb(kb: int) -> str:
@@ -237,35 +270,51 @@ def main() -> None:
         print(f"  publish (fsync+rename)   {r1k['publish_s'] * 1e3:7.3f} ms")
         print(f"  scheduling + commit      {sched_s * 1e3:7.3f} ms   (claim, resolve, submit, collect)")
         print(f"  total                    {(sched_s + r1k['publish_s']) * 1e3:7.3f} ms   (target <= 5 ms)")
-        print(f"engine, one batch of the campaign's size (B = {B}, in this process): {engine_cpu * 1e3:.2f} ms CPU "
-              "per 5 s run (target <= 1.5 ms)")
+        print(
+            f"engine, one batch of the campaign's size (B = {B}, in this process): {engine_cpu * 1e3:.2f} ms CPU "
+            "per 5 s run (target <= 1.5 ms)"
+        )
         print(f"1000-point motor campaign ({r1k['states']}):")
-        print(f"  labrunner run      {run['wall_s']:6.2f} s wall, {run['cpu_s']:6.2f} s CPU (2 workers); "
-              f"per run in the workers (wall): engine {r1k['engine_s'] * 1e3:.2f} ms, log write {r1k['write_s'] * 1e3:.2f} ms")
-        print(f"  labrunner analyse  {analysis['wall_s']:6.2f} s wall, {analysis['cpu_s']:6.2f} s CPU "
-              f"({analysis['wall_s'] / r1k['n'] * 1e3:.2f} ms per run, all fixed costs included)")
+        print(
+            f"  labrunner run      {run['wall_s']:6.2f} s wall, {run['cpu_s']:6.2f} s CPU (2 workers); "
+            f"per run in the workers (wall): engine {r1k['engine_s'] * 1e3:.2f} ms, log write {r1k['write_s'] * 1e3:.2f} ms"
+        )
+        print(
+            f"  labrunner analyse  {analysis['wall_s']:6.2f} s wall, {analysis['cpu_s']:6.2f} s CPU "
+            f"({analysis['wall_s'] / r1k['n'] * 1e3:.2f} ms per run, all fixed costs included)"
+        )
         total_wall, total_cpu = run["wall_s"] + analysis["wall_s"], run["cpu_s"] + analysis["cpu_s"]
         print(f"  run + analyse      {total_wall:6.2f} s wall, {total_cpu:6.2f} s CPU")
         if not args.skip_naive:
             ref = naive(work, 40, 25)
             print(f"  {ref['line']} (process: {ref['wall_s']:.2f} s wall, {ref['cpu_s']:.2f} s CPU)")
-            print(f"  speed-up over the naive script: {ref['wall_s'] / total_wall:.1f}x wall, "
-                  f"{ref['cpu_s'] / total_cpu:.1f}x CPU (target >= 10x)")
+            print(
+                f"  speed-up over the naive script: {ref['wall_s'] / total_wall:.1f}x wall, "
+                f"{ref['cpu_s'] / total_cpu:.1f}x CPU (target >= 10x)"
+            )
         if not args.skip_10k:
             r10k = run_and_analyse(work, "bench10k", 100, 100)
             run, analysis = r10k["run"], r10k["analyse"]
             total = run["wall_s"] + analysis["wall_s"]
             at = run["parent_at"]
-            print(f"10 000-point campaign: run {run['wall_s']:.1f} s + analyse {analysis['wall_s']:.1f} s = {total:.1f} s "
-                  f"wall (target <= 60 s); CPU {run['cpu_s']:.1f} + {analysis['cpu_s']:.1f} s")
-            print(f"  peak RSS: runner {_mb(run['peak_parent_kb'])}, runner + workers {_mb(run['peak_total_kb'])}; "
-                  f"analyse {_mb(analysis['peak_parent_kb'])}, with its workers {_mb(analysis['peak_total_kb'])} "
-                  "(target: parent <= 300 MB)")
-            print("  runner RSS at 10 % / 50 % / 90 % of the runs: " + " / ".join(_mb(at.get(p, 0)) for p in (10, 50, 90)))
+            print(
+                f"10 000-point campaign: run {run['wall_s']:.1f} s + analyse {analysis['wall_s']:.1f} s = {total:.1f} s "
+                f"wall (target <= 60 s); CPU {run['cpu_s']:.1f} + {analysis['cpu_s']:.1f} s"
+            )
+            print(
+                f"  peak RSS: runner {_mb(run['peak_parent_kb'])}, runner + workers {_mb(run['peak_total_kb'])}; "
+                f"analyse {_mb(analysis['peak_parent_kb'])}, with its workers {_mb(analysis['peak_total_kb'])} "
+                "(target: parent <= 300 MB)"
+            )
+            print(
+                "  runner RSS at 10 % / 50 % / 90 % of the runs: " + " / ".join(_mb(at.get(p, 0)) for p in (10, 50, 90))
+            )
             per_run = (analysis["wall_s"] - r1k["analyse"]["wall_s"]) / (r10k["n"] - r1k["n"])
             fixed = r1k["analyse"]["wall_s"] - r1k["n"] * per_run
-            print(f"  analyse from 1000 and 10 000 runs: {per_run * 1e3:.2f} ms per run + {fixed:.1f} s fixed (wall; "
-                  "target <= 1 ms + <= 2 s)")
+            print(
+                f"  analyse from 1000 and 10 000 runs: {per_run * 1e3:.2f} ms per run + {fixed:.1f} s fixed (wall; "
+                "target <= 1 ms + <= 2 s)"
+            )
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -16,14 +16,16 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
-
 from bench_plate import FS as PLATE_FS, POINTS  # noqa: E402 - the plate's closed loops (paper 2), as bench_plate.py runs them
+
 from labrunner.control import factory  # noqa: E402
 from labrunner.rigs.base import RigInfo, Signal  # noqa: E402
 from labrunner.rigs.registry import load_rig  # noqa: E402
 
 FS = 1000.0
-MOTOR = RigInfo("motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 40000.0), FS, (0.0,))
+MOTOR = RigInfo(
+    "motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 40000.0), FS, (0.0,)
+)
 VALVE = RigInfo("valve", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"),), (1.0, 40000.0), FS, (0.0,))
 REF = {"kind": "setpoints", "levels": [0.0, 1.0, 0.0], "transition": 0.5, "hold": 0.5}
 # the other inputs of paper 2's MFC (eq. 17, 19, 21), at B = 1 only: "any controller"
@@ -46,7 +48,9 @@ def mixed(batch: int) -> list[dict]:
     return points
 
 
-def per_tick_us(points: list[dict], rig: RigInfo, ticks: int = 2000, blocks: int = 9, fs: float = FS, y0: float = 0.0) -> tuple[float, float]:
+def per_tick_us(
+    points: list[dict], rig: RigInfo, ticks: int = 2000, blocks: int = 9, fs: float = FS, y0: float = 0.0
+) -> tuple[float, float]:
     """Best CPU µs and median wall µs per tick; measurements ``y0`` plus 1e-3 × white noise."""
     controller, reference = factory.build(points, rig, fs)
     B = len(points)
@@ -71,7 +75,17 @@ def main() -> None:
         ("mfc1 n_s=14   B=1   ", mfc(1, 14, 1), MOTOR, 30.0),
         ("mfc2 n_s=261  B=1   ", mfc(2, 261, 1), MOTOR, 30.0),
         ("mfc2 n_s=261  B=100 mixed designs", mixed(100), MOTOR, 150.0),
-        ("open-loop     B=1   ", [{"controller": {"kind": "open-loop"}, "reference": {"kind": "sine", "amplitude": 6.0, "frequency": 1.0, "duration": 5.0}}], MOTOR, 30.0),
+        (
+            "open-loop     B=1   ",
+            [
+                {
+                    "controller": {"kind": "open-loop"},
+                    "reference": {"kind": "sine", "amplitude": 6.0, "frequency": 1.0, "duration": 5.0},
+                }
+            ],
+            MOTOR,
+            30.0,
+        ),
         ("valve-ffc     B=1   ", ffc, VALVE, 30.0),
     ]
     plate = load_rig("plate-sim").info

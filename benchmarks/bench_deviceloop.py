@@ -78,8 +78,11 @@ transition = 1.0
 hold = 1.5
 """
 
-CASES = {"plate-can": ("plate-can.toml", PLATE), "plate-serial": ("plate-serial.toml", PLATE),
-         "motor-can": ("dcmotor-can.toml", MOTOR)}
+CASES = {
+    "plate-can": ("plate-can.toml", PLATE),
+    "plate-serial": ("plate-serial.toml", PLATE),
+    "motor-can": ("dcmotor-can.toml", MOTOR),
+}
 
 
 def _local_rig(name: str, directory: Path) -> Path:
@@ -99,8 +102,12 @@ def run_case(case: str) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
         rig_path = _local_rig(rig_name, tmp_path)
-        emulator = subprocess.Popen([sys.executable, "-m", "labrunner", "emulate", str(rig_path), "--free-run"],
-                                    stdout=subprocess.PIPE, text=True, cwd=ROOT)
+        emulator = subprocess.Popen(
+            [sys.executable, "-m", "labrunner", "emulate", str(rig_path), "--free-run"],
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
         try:
             line = emulator.stdout.readline().strip()
             if line.startswith("port "):
@@ -108,8 +115,20 @@ def run_case(case: str) -> None:
                 emulator.stdout.readline()
             (tmp_path / "campaign.toml").write_text(campaign.format(rig=rig_path.name))
             t0 = time.perf_counter()
-            done = subprocess.run([sys.executable, "-m", "labrunner", "run", str(tmp_path / "campaign.toml"),
-                                   "--out", str(tmp_path / "out")], capture_output=True, text=True, cwd=ROOT)
+            done = subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "labrunner",
+                    "run",
+                    str(tmp_path / "campaign.toml"),
+                    "--out",
+                    str(tmp_path / "out"),
+                ],
+                capture_output=True,
+                text=True,
+                cwd=ROOT,
+            )
             wall = time.perf_counter() - t0
         finally:
             emulator.send_signal(signal.SIGINT)
@@ -127,13 +146,19 @@ def run_case(case: str) -> None:
         moved = dl["bytes_to_device"] + dl["bytes_to_host"]
         print(f"{case}: {dl['ticks']} ticks at {fs:g} Hz, outcome {log.outcome['status']}")
         print(f"  labrunner run → MCAP published: {wall:.1f} s wall (Python start-up, plan and publish included)")
-        print(f"  device compute {dl['device_compute_s']:.2f} s for {dl['device_run_s']:.2f} s of device time; "
-              f"description sent and checked in {dl['accept_s'] * 1e3:.0f} ms; ACCEPT → VERDICT {dl['run_s']:.1f} s")
-        print(f"  moved: {dl['bytes_to_device']} B to the device, {dl['bytes_to_host']} B to the host "
-              f"({moved / 1e6:.2f} MB; {d['link']['received']} frames received, {dl['blocks_resent']} host blocks resent, "
-              f"receiver {dl['received']})")
-        print(f"  on {linkload.describe(link)} the samples alone take ≈ "
-              f"{linkload.bulk_bytes_s(link, dl['bytes_to_host']):.1f} s after the run (streamed during it: {dl['streamed']})")
+        print(
+            f"  device compute {dl['device_compute_s']:.2f} s for {dl['device_run_s']:.2f} s of device time; "
+            f"description sent and checked in {dl['accept_s'] * 1e3:.0f} ms; ACCEPT → VERDICT {dl['run_s']:.1f} s"
+        )
+        print(
+            f"  moved: {dl['bytes_to_device']} B to the device, {dl['bytes_to_host']} B to the host "
+            f"({moved / 1e6:.2f} MB; {d['link']['received']} frames received, {dl['blocks_resent']} host blocks resent, "
+            f"receiver {dl['received']})"
+        )
+        print(
+            f"  on {linkload.describe(link)} the samples alone take ≈ "
+            f"{linkload.bulk_bytes_s(link, dl['bytes_to_host']):.1f} s after the run (streamed during it: {dl['streamed']})"
+        )
 
 
 def main() -> None:

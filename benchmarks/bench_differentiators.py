@@ -37,8 +37,14 @@ def bench_design() -> None:
     for n_s in (100, 261, 1000, 10_000):
         for method in ("midpoint", "trapezoidal", "analytic"):
             for alpha, beta, N in ((4, 4, 0), (2.5, 7, 2), (150, 150, 0)):
-                t = best_of(lambda: design(alpha=alpha, beta=beta, N=N, window=n_s / 32000, fs=32000, method=method).weights(1), 5, 5)
-                print(f"  n_s = {n_s:6d}  {method:11s}  alpha = {alpha:5g}, beta = {beta:5g}, N = {N}:  {t * 1e3:7.3f} ms")
+                t = best_of(
+                    lambda: design(alpha=alpha, beta=beta, N=N, window=n_s / 32000, fs=32000, method=method).weights(1),
+                    5,
+                    5,
+                )
+                print(
+                    f"  n_s = {n_s:6d}  {method:11s}  alpha = {alpha:5g}, beta = {beta:5g}, N = {N}:  {t * 1e3:7.3f} ms"
+                )
 
 
 def bench_streaming() -> None:
@@ -49,7 +55,11 @@ def bench_streaming() -> None:
     cases = [
         ("shared taps (L,)", taps, 1000),
         ("per-run taps (B, L)", taps[None, :] * rng.uniform(0.5, 1.5, (1000, 1)), 1000),
-        ("bank (B, 3, L) shared", np.broadcast_to(np.stack([d.weights(n) for n in range(3)]), (1000, 3, taps.size)), 1000),
+        (
+            "bank (B, 3, L) shared",
+            np.broadcast_to(np.stack([d.weights(n) for n in range(3)]), (1000, 3, taps.size)),
+            1000,
+        ),
         ("B = 1, L = 14", design(alpha=9, beta=9, omega_c=200, fs=200).weights(1), 1),
     ]
     for label, t, batch in cases:

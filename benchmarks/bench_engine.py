@@ -50,23 +50,37 @@ def measure(campaign: spec.Campaign, label: str, configs: list[dict], repeat: in
     best = {"engine": [math.inf, math.inf], "total": [math.inf, math.inf]}  # [wall, CPU] seconds
     for _ in range(repeat):
         w0, c0 = time.perf_counter(), time.process_time()
-        results = engine.run_batch(configs, rig, fs=fs, duration=duration, seeds=list(range(len(configs))),
-                                   rig_safety=campaign.rig_safety)
+        results = engine.run_batch(
+            configs, rig, fs=fs, duration=duration, seeds=list(range(len(configs))), rig_safety=campaign.rig_safety
+        )
         w1, c1 = time.perf_counter(), time.process_time()
         with tempfile.TemporaryDirectory() as tmp:
             for i, r in enumerate(results):
-                write_run(Path(tmp) / f"{i}.mcap", metadata={"run": {"i": i}}, fs=fs, signals=r.signals,
-                          outcome=r.outcome.as_dict(), channels=r.channels)
+                write_run(
+                    Path(tmp) / f"{i}.mcap",
+                    metadata={"run": {"i": i}},
+                    fs=fs,
+                    signals=r.signals,
+                    outcome=r.outcome.as_dict(),
+                    channels=r.channels,
+                )
             w2, c2 = time.perf_counter(), time.process_time()
         for key, wall, cpu in (("engine", w1 - w0, c1 - c0), ("total", w2 - w0, c2 - c0)):
             best[key] = [min(best[key][0], wall), min(best[key][1], cpu)]
     n = len(configs)
     samples = sum(r.n_samples for r in results) / n
-    statuses = ", ".join(f"{s} {sum(r.outcome.status == s for r in results)}" for s in ("completed", "aborted", "no-motion"))
+    statuses = ", ".join(
+        f"{s} {sum(r.outcome.status == s for r in results)}" for s in ("completed", "aborted", "no-motion")
+    )
     print(f"{label}: B = {n} ({statuses}; {samples:.0f} samples per run on average)")
-    for key, title, target in (("engine", "engine only:        ", ""), ("total", "engine + MCAP write:", "   target >= 200 runs/s")):
+    for key, title, target in (
+        ("engine", "engine only:        ", ""),
+        ("total", "engine + MCAP write:", "   target >= 200 runs/s"),
+    ):
         wall, cpu = best[key]
-        print(f"  {title} {n / cpu:5.0f} runs/s per core ({1e3 * cpu / n:.2f} ms/run CPU; wall {1e3 * wall / n:.2f} ms/run){target}")
+        print(
+            f"  {title} {n / cpu:5.0f} runs/s per core ({1e3 * cpu / n:.2f} ms/run CPU; wall {1e3 * wall / n:.2f} ms/run){target}"
+        )
 
 
 if __name__ == "__main__":

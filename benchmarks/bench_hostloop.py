@@ -69,9 +69,16 @@ def run(path: Path, fs: float, seconds: float, fifo: bool) -> dict[str, float]:
     rig.close()
     period = np.diff(stamps) * 1e3
     jitter = np.abs(period - 1e3 / fs)
-    return {"p50": np.percentile(period, 50), "p99": np.percentile(period, 99), "max": period.max(),
-            "jitter99": np.percentile(jitter, 99),
-            "missed": host["late_ticks"], "overruns": host["overruns"], "cpu_us": 1e6 * cpu / n, "ticks": n}
+    return {
+        "p50": np.percentile(period, 50),
+        "p99": np.percentile(period, 99),
+        "max": period.max(),
+        "jitter99": np.percentile(jitter, 99),
+        "missed": host["late_ticks"],
+        "overruns": host["overruns"],
+        "cpu_us": 1e6 * cpu / n,
+        "ticks": n,
+    }
 
 
 def main() -> None:
@@ -83,21 +90,28 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "motor-udp.toml"
         path.write_text(RIG.format(group=random.randint(10, 250), port=random.randint(20000, 60000)))
-        device = subprocess.Popen([sys.executable, "-m", "labrunner", "emulate", str(path), "--realtime"],
-                                  stdout=subprocess.PIPE, text=True)
+        device = subprocess.Popen(
+            [sys.executable, "-m", "labrunner", "emulate", str(path), "--realtime"], stdout=subprocess.PIPE, text=True
+        )
         assert device.stdout.readline().startswith("serving")
         try:
-            print(f"host loop over udp_multicast, paced device (emulate --realtime), {args.seconds:g} s per case; "
-                  f"SCHED_FIFO {'granted' if granted else 'not granted'}; load average "
-                  f"{open('/proc/loadavg').read().split()[0]} on {len(os.sched_getaffinity(0))} cores")
-            print(f"{'f_s':>6} {'host':>7} {'period p50':>11} {'p99':>8} {'max':>8} {'|jitter| p99':>13} {'missed':>7} "
-                  f"{'overruns':>9} {'CPU/tick':>9}")
+            print(
+                f"host loop over udp_multicast, paced device (emulate --realtime), {args.seconds:g} s per case; "
+                f"SCHED_FIFO {'granted' if granted else 'not granted'}; load average "
+                f"{open('/proc/loadavg').read().split()[0]} on {len(os.sched_getaffinity(0))} cores"
+            )
+            print(
+                f"{'f_s':>6} {'host':>7} {'period p50':>11} {'p99':>8} {'max':>8} {'|jitter| p99':>13} {'missed':>7} "
+                f"{'overruns':>9} {'CPU/tick':>9}"
+            )
             for fs in (200.0, 1000.0):
                 for fifo in (False, True) if granted else (False,):
                     r = run(path, fs, args.seconds, fifo)
-                    print(f"{fs:>6.0f} {'fifo' if fifo else 'normal':>7} {r['p50']:>8.3f} ms {r['p99']:>5.3f} ms "
-                          f"{r['max']:>5.2f} ms {r['jitter99']:>10.3f} ms {r['missed']:>7d} {r['overruns']:>9d} {r['cpu_us']:>6.0f} µs"
-                          f"   (of {r['ticks']} ticks, period {1e3 / fs:g} ms)")
+                    print(
+                        f"{fs:>6.0f} {'fifo' if fifo else 'normal':>7} {r['p50']:>8.3f} ms {r['p99']:>5.3f} ms "
+                        f"{r['max']:>5.2f} ms {r['jitter99']:>10.3f} ms {r['missed']:>7d} {r['overruns']:>9d} {r['cpu_us']:>6.0f} µs"
+                        f"   (of {r['ticks']} ticks, period {1e3 / fs:g} ms)"
+                    )
         finally:
             device.send_signal(signal.SIGTERM)
             device.wait(timeout=10)

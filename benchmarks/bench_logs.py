@@ -45,26 +45,51 @@ def motor_run(seed: int, fs: float = 200.0, duration: float = 5.0) -> dict[str, 
     omega = 40 * np.tanh(t) + 0.1 * rng.standard_normal(t.size)
     theta = np.round(np.cumsum(omega) / fs / (2 * np.pi / 2048)) * (2 * np.pi / 2048)
     return {
-        "theta": theta, "omega": omega, "ref_omega": 40 * np.tanh(t), "e_omega": omega - 40 * np.tanh(t),
-        "u": 3 + 0.2 * rng.standard_normal(t.size), "f_hat_omega": -39.44 * omega,
-        "e_hat_omega": 0.01 * rng.standard_normal(t.size), "de_hat_omega": 0.1 * rng.standard_normal(t.size),
+        "theta": theta,
+        "omega": omega,
+        "ref_omega": 40 * np.tanh(t),
+        "e_omega": omega - 40 * np.tanh(t),
+        "u": 3 + 0.2 * rng.standard_normal(t.size),
+        "f_hat_omega": -39.44 * omega,
+        "e_hat_omega": 0.01 * rng.standard_normal(t.size),
+        "de_hat_omega": 0.1 * rng.standard_normal(t.size),
     }
 
 
 def meta(i: int) -> dict:
     """The records a worker writes per run (run, config, parameters, metrics)."""
-    config = {"controller": {"kind": "mfc1", "output": "velocity", "k_p": 50.0, "gamma": 108.55},
-              "differentiator": {"alpha": 9, "beta": 9, "omega_c": 200.0},
-              "reference": {"kind": "setpoints", "levels": [0.0, 20.0, 0.0], "transition": 1.0, "hold": 1.0},
-              "campaign": {"name": "bench", "rig": "dcmotor-sim", "fs": 200.0, "duration": 5.0, "seed": 0}}
-    return {"run": {"campaign": "bench", "point_id": f"{i:016x}", "attempt": 1, "seed": i, "rig": "dcmotor-sim",
-                    "duration": 5.0, "host": "bench", "pid": 1, "start_time": 1.7e9},
-            "config": config, "parameters": {"controller.gamma": 108.55, "controller.k_p": 50.0},
-            "metrics": {"rms_error": 0.5, "input_energy": 12.0, "max_abs_input": 3.2, "n_samples": 1000}}
+    config = {
+        "controller": {"kind": "mfc1", "output": "velocity", "k_p": 50.0, "gamma": 108.55},
+        "differentiator": {"alpha": 9, "beta": 9, "omega_c": 200.0},
+        "reference": {"kind": "setpoints", "levels": [0.0, 20.0, 0.0], "transition": 1.0, "hold": 1.0},
+        "campaign": {"name": "bench", "rig": "dcmotor-sim", "fs": 200.0, "duration": 5.0, "seed": 0},
+    }
+    return {
+        "run": {
+            "campaign": "bench",
+            "point_id": f"{i:016x}",
+            "attempt": 1,
+            "seed": i,
+            "rig": "dcmotor-sim",
+            "duration": 5.0,
+            "host": "bench",
+            "pid": 1,
+            "start_time": 1.7e9,
+        },
+        "config": config,
+        "parameters": {"controller.gamma": 108.55, "controller.k_p": 50.0},
+        "metrics": {"rms_error": 0.5, "input_energy": 12.0, "max_abs_input": 3.2, "n_samples": 1000},
+    }
 
 
-RIG = {"kind": "dcmotor", "parameters": {"a": 39.44, "b": 108.55, "J": 1e-4}, "limits": {"u": [-12.0, 12.0]},
-       "noise": {"omega": 0.01}, "faults": {}, "safety": {"du_dt": 120.0}}
+RIG = {
+    "kind": "dcmotor",
+    "parameters": {"a": 39.44, "b": 108.55, "J": 1e-4},
+    "limits": {"u": [-12.0, 12.0]},
+    "noise": {"omega": 0.01},
+    "faults": {},
+    "safety": {"du_dt": 120.0},
+}
 CAMPAIGN_FILE = ("[campaign]\nname = 'bench'\n" + "# comment line of a campaign file\n" * 40).encode()
 
 
@@ -83,12 +108,24 @@ def figures(samples: list[tuple[float, float]]) -> str:
 def bench_plate(directory: Path, repeat: int) -> None:
     signals = plate_run()
     raw_mb = sum(v.nbytes for v in signals.values()) / 1e6
-    print(f"plate run: 3 s at 32 kHz, {len(signals)} signals, {raw_mb:.1f} MB of float64 (targets: write 60 ms, read 20 ms)")
+    print(
+        f"plate run: 3 s at 32 kHz, {len(signals)} signals, {raw_mb:.1f} MB of float64 (targets: write 60 ms, read 20 ms)"
+    )
     for samples_hz in (None, 500.0):
         writes, reads = [], []
         for i in range(repeat):
             path = directory / f"plate_{samples_hz}_{i}.mcap"
-            writes.append(timed(write_run, path, metadata=meta(i), fs=32000.0, signals=signals, outcome=OUTCOME, samples_hz=samples_hz))
+            writes.append(
+                timed(
+                    write_run,
+                    path,
+                    metadata=meta(i),
+                    fs=32000.0,
+                    signals=signals,
+                    outcome=OUTCOME,
+                    samples_hz=samples_hz,
+                )
+            )
             reads.append(timed(read_run, path))
         assert np.array_equal(read_run(path).frame["i3"].to_numpy(), signals["i3"])
         rate = "full rate (default)" if samples_hz is None else f"thinned to {samples_hz:g} Hz"
@@ -99,8 +136,10 @@ def bench_plate(directory: Path, repeat: int) -> None:
 
 def bench_motor(directory: Path, n_runs: int) -> None:
     runs = [motor_run(i) for i in range(n_runs)]
-    print(f"motor runs: {n_runs} × 1000 samples × {len(runs[0])} signals (200 Hz, 5 s), every sample in /run/samples "
-          "(target: write 1 ms per run)")
+    print(
+        f"motor runs: {n_runs} × 1000 samples × {len(runs[0])} signals (200 Hz, 5 s), every sample in /run/samples "
+        "(target: write 1 ms per run)"
+    )
     for batch in (64, 1):
         sub = directory / f"motor_{batch}"
         sub.mkdir()
@@ -109,8 +148,14 @@ def bench_motor(directory: Path, n_runs: int) -> None:
             for i, signals in enumerate(runs):
                 if i % batch == 0:  # a worker's batch: the shared part once
                     prefixes = BatchPrefixes(200.0, {"rig": RIG}, {"campaign.toml": CAMPAIGN_FILE})
-                write_run(sub / f"{i:05d}.mcap", metadata=meta(i), signals=signals, outcome=OUTCOME,
-                          prefix=prefixes.get(list(signals), None), start_time=1.7e9)
+                write_run(
+                    sub / f"{i:05d}.mcap",
+                    metadata=meta(i),
+                    signals=signals,
+                    outcome=OUTCOME,
+                    prefix=prefixes.get(list(signals), None),
+                    start_time=1.7e9,
+                )
 
         wall, cpu = timed(write_all)
         size = sum(p.stat().st_size for p in sub.iterdir()) / n_runs / 1e3
@@ -123,6 +168,8 @@ def bench_motor(directory: Path, n_runs: int) -> None:
     print(f"  read_metadata (outcome): {1e3 * wall / n_runs:5.2f} ms/file wall, {1e3 * cpu / n_runs:5.2f} ms/file CPU")
     wall, cpu = timed(lambda: [read_run(p) for p in paths[:200]])
     print(f"  read_run:                {1e3 * wall / 200:5.2f} ms/file wall, {1e3 * cpu / 200:5.2f} ms/file CPU")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20)

@@ -86,7 +86,9 @@ def campaign_batch(point: dict, batch: int, ticks: int) -> Callable[[], None]:
     points = [point] * batch
 
     def run() -> None:
-        results = engine.run_batch(points, rig, fs=FS, duration=ticks / FS, seeds=list(range(batch)), rig_safety=rig.config.safety)
+        results = engine.run_batch(
+            points, rig, fs=FS, duration=ticks / FS, seeds=list(range(batch)), rig_safety=rig.config.safety
+        )
         bad = [r.outcome.status for r in results if r.outcome.status != "completed"]
         assert not bad, f"benchmark runs must complete, got {bad[:3]}"
 

@@ -37,7 +37,10 @@ def main() -> None:
     for b in (1, 100):
         u = rng.uniform(-12, 12, (200, b, 1))
         report(f"dcmotor-sim, B = {b}, 200 Hz", bench(load_rig("dcmotor-sim"), b, 200.0, u))
-    report("dcmotor-frictionless, B = 100, 200 Hz", bench(load_rig("dcmotor-frictionless"), 100, 200.0, rng.uniform(-12, 12, (200, 100, 1))))
+    report(
+        "dcmotor-frictionless, B = 100, 200 Hz",
+        bench(load_rig("dcmotor-frictionless"), 100, 200.0, rng.uniform(-12, 12, (200, 100, 1))),
+    )
     for b in (1, 32, 100):
         i = rng.uniform(0.4, 0.8, (400, b, 1))
         report(f"valve-sim, B = {b}, 4 kHz", bench(load_rig("valve-sim"), b, 4000.0, i))
@@ -45,14 +48,23 @@ def main() -> None:
     from labrunner.rigs.transports.emulator import Emulator, device_link, serve_on_pty, twin_for
 
     for interface, channel in (("udp_multicast", "239.74.163.2"), ("virtual", "bench")):
-        config = config_from_dict({
-            "rig": {"kind": "can"},
-            "parameters": {"device": "dcmotor", "interface": interface, "channel": channel,
-                           "port": 47001 if interface == "udp_multicast" else 0, "node_id": 3},
-        })
+        config = config_from_dict(
+            {
+                "rig": {"kind": "can"},
+                "parameters": {
+                    "device": "dcmotor",
+                    "interface": interface,
+                    "channel": channel,
+                    "port": 47001 if interface == "udp_multicast" else 0,
+                    "node_id": 3,
+                },
+            }
+        )
         with Emulator(twin_for(config), device_link(config), paced=False):
             rig = load_rig(config)
-            report(f"can ({interface}) + emulator, B = 1, 200 Hz", bench(rig, 1, 200.0, rng.uniform(-12, 12, (200, 1, 1))))
+            report(
+                f"can ({interface}) + emulator, B = 1, 200 Hz", bench(rig, 1, 200.0, rng.uniform(-12, 12, (200, 1, 1)))
+            )
             rig.close()
     serial = {"rig": {"kind": "serial"}, "parameters": {"device": "dcmotor", "port": "", "baudrate": 115200}}
     name, emulator = serve_on_pty(twin_for(config_from_dict(serial)), paced=False)

@@ -28,16 +28,25 @@ def main() -> None:
     second = case_quasipolynomial("mfc2-motor", gamma=B, delay=DELAY, a=A, b=B, k_p=400.0, k_d=40.0)
     neutral = case_quasipolynomial("mfc1-motor", gamma=0.8 * B, delay=DELAY, a=A, b=B, k_p=60.0, neutral=True)
     for name, qp in (("first order (2.45)", first), ("second order (2.57)", second), ("neutral (A.11)", neutral)):
-        print(f"spectral abscissa, {name:20s}: {per_call_ms(lambda q=qp: spectral_abscissa(q), 300):6.3f} ms/eval (target 5 ms)")
+        print(
+            f"spectral abscissa, {name:20s}: {per_call_ms(lambda q=qp: spectral_abscissa(q), 300):6.3f} ms/eval (target 5 ms)"
+        )
 
     gammas = np.linspace(0.5 * B, 1.5 * B, 50)
-    for case, k_p, k_d in (("mfc1-motor", np.linspace(-20.0, 200.0, 50), None),
-                           ("mfc2-motor", np.linspace(-100.0, 1500.0, 50), 40.0)):
+    for case, k_p, k_d in (
+        ("mfc1-motor", np.linspace(-20.0, 200.0, 50), None),
+        ("mfc2-motor", np.linspace(-100.0, 1500.0, 50), 40.0),
+    ):
         start = time.perf_counter()
-        m = abscissa_map(lambda g, kp, c=case, kd=k_d: case_quasipolynomial(c, gamma=g, delay=DELAY, a=A, b=B,
-                                                                            k_p=kp, k_d=kd), gammas, k_p)
-        print(f"50 x 50 map, {case:10s}: {time.perf_counter() - start:6.2f} s (target 15 s), "
-              f"{np.mean(m < 0):.0%} stable cells")
+        m = abscissa_map(
+            lambda g, kp, c=case, kd=k_d: case_quasipolynomial(c, gamma=g, delay=DELAY, a=A, b=B, k_p=kp, k_d=kd),
+            gammas,
+            k_p,
+        )
+        print(
+            f"50 x 50 map, {case:10s}: {time.perf_counter() - start:6.2f} s (target 15 s), "
+            f"{np.mean(m < 0):.0%} stable cells"
+        )
 
     start = time.perf_counter()
     bounds("mfc2-motor", gamma=B, delay=DELAY, a=A, b=B, k_d=40.0, numeric=True)

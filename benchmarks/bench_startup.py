@@ -90,8 +90,13 @@ def first_batch(work: Path, path: Path, repeat: int) -> tuple[float, float]:
     for i in range(repeat):
         out = work / f"first{i}"
         t0 = time.time()
-        proc = subprocess.run([sys.executable, "-c", HOOK, "run", str(path), "--out", str(out), "--workers", "1"],
-                              cwd=work, capture_output=True, text=True, check=True)
+        proc = subprocess.run(
+            [sys.executable, "-c", HOOK, "run", str(path), "--out", str(out), "--workers", "1"],
+            cwd=work,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         line = next(line for line in proc.stderr.splitlines() if line.startswith("first batch at"))
         stamp, cpu = map(float, line.split()[-2:])
         best, best_cpu = min(best, stamp - t0), min(best_cpu, cpu)
@@ -136,13 +141,22 @@ def main() -> None:
             total, top, everything = imports(["-m", "labrunner", *argv], work)
             heavy = sorted(everything & set(HEAVY))
             listing = ", ".join(f"{name} {s * 1e3:.0f} ms" for name, s in top[:4])
-            print(f"labrunner {label:<10} {wall:5.3f} s (target <= 0.2 s); imports {total:.3f} s: {listing}"
-                  + (f"; HEAVY: {', '.join(heavy)}" if heavy else ""))
+            print(
+                f"labrunner {label:<10} {wall:5.3f} s (target <= 0.2 s); imports {total:.3f} s: {listing}"
+                + (f"; HEAVY: {', '.join(heavy)}" if heavy else "")
+            )
         first, cpu = first_batch(work, path, args.repeat)
-        print(f"labrunner run: first batch in the engine {first:.3f} s after launch, {cpu:.3f} s of CPU time on the way "
-              "(target <= 0.5 s)")
-        total, top, _ = imports(["-m", "labrunner", "run", str(path), "--out", str(work / "imports"), "--workers", "1"], work)
-        print(f"  run's imports (runner and worker) {total:.3f} s: " + ", ".join(f"{n} {s * 1e3:.0f} ms" for n, s in top[:6]))
+        print(
+            f"labrunner run: first batch in the engine {first:.3f} s after launch, {cpu:.3f} s of CPU time on the way "
+            "(target <= 0.5 s)"
+        )
+        total, top, _ = imports(
+            ["-m", "labrunner", "run", str(path), "--out", str(work / "imports"), "--workers", "1"], work
+        )
+        print(
+            f"  run's imports (runner and worker) {total:.3f} s: "
+            + ", ".join(f"{n} {s * 1e3:.0f} ms" for n, s in top[:6])
+        )
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -145,8 +145,13 @@ def load(campaign: Path) -> tuple[dict, np.ndarray, np.ndarray]:
     rate = design(alpha=safety["du_dt_alpha"], beta=safety["du_dt_beta"], omega_c=safety["du_dt_omega_c"], fs=fs)
     ref = c["reference"]
     cfg = {
-        "fs": fs, "duration": float(c["campaign"]["duration"]), "seed": int(c["campaign"]["seed"]), "plant": plant,
-        "w0": d.weights(0).tolist(), "w1": d.weights(1).tolist(), "w_rate": rate.weights(1).tolist(),
+        "fs": fs,
+        "duration": float(c["campaign"]["duration"]),
+        "seed": int(c["campaign"]["seed"]),
+        "plant": plant,
+        "w0": d.weights(0).tolist(),
+        "w1": d.weights(1).tolist(),
+        "w_rate": rate.weights(1).tolist(),
         "max_du_dt": float(safety["max_du_dt"]),
         "reference": {"levels": ref["levels"], "transition": float(ref["transition"]), "hold": float(ref["hold"])},
     }

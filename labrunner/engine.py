@@ -229,13 +229,18 @@ def run_batch(
 def roles_of(channels: Mapping[str, object], info: RigInfo | None = None) -> Roles:
     """The metrics' signal roles from a result's channel groups (:func:`channel_names`); with the
     rig's ``info``, its input limits for the oscillation detector."""
-    return Roles(errors=tuple(channels["errors"]), inputs=tuple(channels["inputs"]),  # type: ignore[arg-type]
-                 error_hats=tuple(n for n in channels["estimates"] if n.startswith("e_hat_")),  # type: ignore[union-attr]
-                 currents=tuple(n for n, unit in channels["units"].items() if unit == "A"),  # type: ignore[union-attr]
-                 input_limits=tuple((s.lo, s.hi) for s in info.inputs) if info is not None else ())
+    return Roles(
+        errors=tuple(channels["errors"]),
+        inputs=tuple(channels["inputs"]),  # type: ignore[arg-type]
+        error_hats=tuple(n for n in channels["estimates"] if n.startswith("e_hat_")),  # type: ignore[union-attr]
+        currents=tuple(n for n, unit in channels["units"].items() if unit == "A"),  # type: ignore[union-attr]
+        input_limits=tuple((s.lo, s.hi) for s in info.inputs) if info is not None else (),
+    )
 
 
-def _safety_configs(points: Sequence[Mapping[str, object]], info: RigInfo, rig_safety: Mapping[str, object]) -> list[SafetyConfig]:
+def _safety_configs(
+    points: Sequence[Mapping[str, object]], info: RigInfo, rig_safety: Mapping[str, object]
+) -> list[SafetyConfig]:
     """Each point's validated limits; points with equal ``safety`` sections share one (a campaign's
     points mostly do: validating each costs ~0.1 ms a run)."""
     by_section: dict[str, SafetyConfig] = {}
@@ -297,7 +302,10 @@ class _TickLog:
 
     def run_major(self, n: int) -> list[np.ndarray]:
         """Per part, a (B, columns, n) copy of the first n ticks with each run's signals contiguous."""
-        return [np.ascontiguousarray(part[:n].transpose(axes)).reshape(part.shape[axes[0]], -1, n) for part, axes in self._parts]
+        return [
+            np.ascontiguousarray(part[:n].transpose(axes)).reshape(part.shape[axes[0]], -1, n)
+            for part, axes in self._parts
+        ]
 
     def signals(self, parts: list[np.ndarray]) -> dict[str, np.ndarray]:
         """The named traces of one run from its rows per part (see docs/architecture.md for the

@@ -106,8 +106,9 @@ def identify_signals(theta: np.ndarray, u: np.ndarray, fs: float, **design: floa
     u_hat, dtheta, ddtheta, _ = filtered_signals(theta, u, fs, **design)
     if u_hat.size < 2:
         raise InvalidParameter("signals", f"need more than the differentiator window of samples, got {theta.size}")
-    (b, a), residual = _solve(np.column_stack([u_hat, -dtheta]), ddtheta,
-                              "input and velocity are not independent (no step in the input?)")
+    (b, a), residual = _solve(
+        np.column_stack([u_hat, -dtheta]), ddtheta, "input and velocity are not independent (no step in the input?)"
+    )
     return Estimate(float(a), float(b), int(u_hat.size), residual)
 
 
@@ -123,9 +124,12 @@ def identify_friction(runs: Sequence[tuple[np.ndarray, np.ndarray]], fs: float, 
         raise InvalidParameter("logs", "need at least one run")
     X = np.vstack(rows)
     u_hat, dtheta, ddtheta, s_hat = X.T
-    (b, a, c), residual = _solve(np.column_stack([u_hat, -dtheta, -s_hat]), ddtheta,
-                                 "input, velocity and sign of the velocity are not independent: "
-                                 "the friction fit needs steps of at least two heights")
+    (b, a, c), residual = _solve(
+        np.column_stack([u_hat, -dtheta, -s_hat]),
+        ddtheta,
+        "input, velocity and sign of the velocity are not independent: "
+        "the friction fit needs steps of at least two heights",
+    )
     return FrictionEstimate(float(a), float(b), float(c / b), int(X.shape[0]), residual)
 
 
@@ -173,8 +177,16 @@ def identify_logs(
         fs = float(log.fs)
         est = identify_signals(theta, level, fs)
         signals.append((theta, level))
-        per_run.append({"log": str(path), "input": u_name, "output": y_name,
-                        "u_final": float(level[-1]), "torn": bool(log.torn), **asdict(est)})
+        per_run.append(
+            {
+                "log": str(path),
+                "input": u_name,
+                "output": y_name,
+                "u_final": float(level[-1]),
+                "torn": bool(log.torn),
+                **asdict(est),
+            }
+        )
     result: dict[str, object] = {
         "a": float(np.mean([r["a"] for r in per_run])),
         "b": float(np.mean([r["b"] for r in per_run])),

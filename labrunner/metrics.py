@@ -57,8 +57,11 @@ def parse_windows(section: Mapping[str, object] | None, field: str = "metrics") 
         where = f"{field}.{name}"
         if not name.replace("_", "").replace("-", "").isalnum():
             raise InvalidParameter(where, "a window name may hold letters, digits, '_' and '-' only")
-        if (not isinstance(value, (list, tuple)) or len(value) != 2
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        if (
+            not isinstance(value, (list, tuple))
+            or len(value) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        ):
             raise InvalidParameter(where, f"must be a window [t0, t1] in seconds, got {value!r}")
         t0, t1 = float(value[0]), float(value[1])
         if not (math.isfinite(t0) and math.isfinite(t1) and 0.0 <= t0 < t1):

@@ -58,14 +58,20 @@ class Detector:
         at_limit = at_hi | at_lo
         pinned = float(at_limit.mean(axis=1).max())
         entries = (np.diff(at_hi.astype(np.int8), axis=1) == 1).sum(axis=1) + (
-            np.diff(at_lo.astype(np.int8), axis=1) == 1).sum(axis=1)
+            np.diff(at_lo.astype(np.int8), axis=1) == 1
+        ).sum(axis=1)
         hits = int(entries.max())
         rate = hits * fs / k
         growth = _growth(u)
-        oscillating = (pinned >= self.pinned_share or (hits >= self.min_hits and rate >= self.hit_rate)
-                       or growth >= self.growth)
-        return {"pinned_share": pinned, "limit_hits_per_s": float(rate), "du_growth": growth,
-                "oscillating": float(oscillating)}
+        oscillating = (
+            pinned >= self.pinned_share or (hits >= self.min_hits and rate >= self.hit_rate) or growth >= self.growth
+        )
+        return {
+            "pinned_share": pinned,
+            "limit_hits_per_s": float(rate),
+            "du_growth": growth,
+            "oscillating": float(oscillating),
+        }
 
 
 def _growth(u: np.ndarray) -> float:

@@ -29,8 +29,11 @@ def _labels(logs: Sequence[RunLog], names: Sequence[str]) -> list[str]:
     differ = [k for k in keys if len({repr(p.get(k)) for p in params}) > 1] or keys
     out = []
     for p, name in zip(params, names):
-        shown = ", ".join(f"{k.rsplit('.', 1)[-1]} = {p[k]:.4g}" if _number(p.get(k)) else f"{k.rsplit('.', 1)[-1]} = {p.get(k)}"
-                          for k in differ if k in p)
+        shown = ", ".join(
+            f"{k.rsplit('.', 1)[-1]} = {p[k]:.4g}" if _number(p.get(k)) else f"{k.rsplit('.', 1)[-1]} = {p.get(k)}"
+            for k in differ
+            if k in p
+        )
         out.append(shown or name)
     return out
 
@@ -42,8 +45,9 @@ def plot_overlay(paths: Sequence[str | os.PathLike[str]]) -> Figure:
     logs = [read_run(p) for p in paths]
     roles = [_roles(log) for log in logs]
     names = set(logs[0].signals)
-    outputs = ([r[4:] for r in roles[0].get("reference", []) if r[4:] in names]
-               or roles[0].get("controlled", roles[0].get("output", [])))
+    outputs = [r[4:] for r in roles[0].get("reference", []) if r[4:] in names] or roles[0].get(
+        "controlled", roles[0].get("output", [])
+    )
     inputs = roles[0].get("input", [])
     for path, r in zip(paths, roles[1:]):
         if r.get("input", []) != inputs:
@@ -56,8 +60,14 @@ def plot_overlay(paths: Sequence[str | os.PathLike[str]]) -> Figure:
         unit, scale = _unit(logs[0], [name])
         ref = f"ref_{name}"
         if kind == "outputs" and ref in logs[0].signals:
-            ax.plot(logs[0].frame.index, scale * logs[0].frame[ref].to_numpy(), "--", color="black", lw=1.3,
-                    label=f"{_label(ref)} ({labels[0]})")
+            ax.plot(
+                logs[0].frame.index,
+                scale * logs[0].frame[ref].to_numpy(),
+                "--",
+                color="black",
+                lw=1.3,
+                label=f"{_label(ref)} ({labels[0]})",
+            )
         for i, (log, label) in enumerate(zip(logs, labels)):
             if name not in log.signals:
                 continue

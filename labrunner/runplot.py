@@ -71,8 +71,10 @@ def _title(log: RunLog) -> str:
     head = str(run.get("point_id") or run.get("name") or "run")
     params = log.metadata.get("parameters") or {}
     if params:  # the grid values that make this run what it is, e.g. "(gamma = 108.6, k_p = 50)"
-        shown = ", ".join(f"{k.rsplit('.', 1)[-1]} = {v:.4g}" if _number(v) else f"{k.rsplit('.', 1)[-1]} = {v}"
-                          for k, v in params.items())
+        shown = ", ".join(
+            f"{k.rsplit('.', 1)[-1]} = {v:.4g}" if _number(v) else f"{k.rsplit('.', 1)[-1]} = {v}"
+            for k, v in params.items()
+        )
         head = f"{head} ({shown})"
     out: dict[str, Any] | None = log.outcome
     if out is None:
@@ -107,8 +109,14 @@ def _draw(ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray, sc
     for name, style in lines:
         base = name[4:] if style == "--" else name
         colour = colours.setdefault(base, f"C{len(colours) % 10}")
-        ax.plot(t, scale * log.frame[name].to_numpy(), style, color=colour, lw=lw if style == "-" else 1.3 * lw,
-                label=_label(name))
+        ax.plot(
+            t,
+            scale * log.frame[name].to_numpy(),
+            style,
+            color=colour,
+            lw=lw if style == "-" else 1.3 * lw,
+            label=_label(name),
+        )
 
 
 def _abort_window(log: RunLog, t: np.ndarray) -> tuple[float | None, float, float]:
@@ -132,8 +140,9 @@ def _abort_window(log: RunLog, t: np.ndarray) -> tuple[float | None, float, floa
     return float(t_abort), t_end, min(t_end, reached + max(0.1 * reached, 10 * step))
 
 
-def _context(ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray, t_abort: float, t_end: float,
-             zoom_end: float) -> None:
+def _context(
+    ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray, t_abort: float, t_end: float, zoom_end: float
+) -> None:
     """The whole planned run in one strip: the outputs, the part never reached greyed out, the
     abort, and the window the panels below show."""
     unit, scale = _unit(log, [n for n, _ in lines])
@@ -144,8 +153,11 @@ def _context(ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray,
     ax.set_xlim(0.0, t_end)
     ax.set_yticks([])
     ax.set_ylabel(f"[{unit}]" if unit else "")
-    ax.set_title(f"planned run, 0 – {t_end:.4g} s: aborted at {t_abort:.4g} s ({t_abort / t_end:.0%}); below: 0 – {zoom_end:.3g} s",
-                 fontsize="small", loc="left")
+    ax.set_title(
+        f"planned run, 0 – {t_end:.4g} s: aborted at {t_abort:.4g} s ({t_abort / t_end:.0%}); below: 0 – {zoom_end:.3g} s",
+        fontsize="small",
+        loc="left",
+    )
 
 
 def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | None = None) -> Figure | SubFigure:
@@ -178,8 +190,12 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
                 ax.plot([t[k]], [line.get_ydata()[k]], "x", color=_ABORT, ms=8, mew=2)
         ax.set_ylabel(f"{title} [{unit}]" if unit else title)
         ax.grid(True, lw=0.4, alpha=0.6)
-        ax.legend(loc="upper left" if t_abort is not None else "upper right",  # away from where an aborted run ends
-                  fontsize="small", ncols=min(4, len(lines)), framealpha=0.8)
+        ax.legend(
+            loc="upper left" if t_abort is not None else "upper right",  # away from where an aborted run ends
+            fontsize="small",
+            ncols=min(4, len(lines)),
+            framealpha=0.8,
+        )
         if t_abort is not None:
             ax.axvline(t_abort, color=_ABORT, ls=":", lw=1.5)
             ax.axvspan(t_abort, max(t_end, t_abort), color="0.9", zorder=0)
@@ -191,6 +207,11 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     fig.suptitle(_title(log), fontsize="medium")
     width, height = fig.get_size_inches() if isinstance(fig, Figure) else fig.figure.get_size_inches()
     # fixed margins (no layout engine: it measures every text box, the most of a plot's cost)
-    fig.subplots_adjust(left=0.9 / width, right=1 - 0.15 / width, top=1 - (0.9 if context else 0.7) / height, bottom=0.5 / height,
-                        hspace=0.3 if context else 0.12)
+    fig.subplots_adjust(
+        left=0.9 / width,
+        right=1 - 0.15 / width,
+        top=1 - (0.9 if context else 0.7) / height,
+        bottom=0.5 / height,
+        hspace=0.3 if context else 0.12,
+    )
     return fig

@@ -134,7 +134,9 @@ class SafetyMonitor:
             x = np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0) if odd else u
             rate = np.abs(self._rate.step(np.reshape(x, -1)), out=self._rate_abs)
             hit = np.greater_equal(rate, self._lim, out=self._rate_hit)
-            flagged = flagged or (count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active))
+            flagged = flagged or (
+                count_nonzero(hit) > 0 and self._active_hit(hit.reshape(self.B, self.n_inputs), active)
+            )
         if not (flagged or t >= self._next_time_limit):
             return np.zeros(self.B, dtype=bool)
         tripped = self._verdicts(t, u, y, active, None if rate is None else rate.reshape(self.B, self.n_inputs))
@@ -146,7 +148,9 @@ class SafetyMonitor:
         """Whether ``hit`` (B, n), known to hold some True, holds one for an active run."""
         return count_nonzero(active) == self.B or count_nonzero(hit & active[:, None]) > 0
 
-    def _verdicts(self, t: float, u: np.ndarray, y: np.ndarray, active: np.ndarray, rate: np.ndarray | None) -> np.ndarray:
+    def _verdicts(
+        self, t: float, u: np.ndarray, y: np.ndarray, active: np.ndarray, rate: np.ndarray | None
+    ) -> np.ndarray:
         """Every monitor by itself on a flagged tick: the active runs that trip now, with their verdicts."""
         lim = None if rate is None else np.broadcast_to(self._max_du_dt[:, None], rate.shape)
         duration = self._max_t[:, None]
@@ -156,15 +160,21 @@ class SafetyMonitor:
             ("non_finite_output", ~np.isfinite(y), y, 0.0, None),
         ]
         if self._has_output_bounds:
-            checks += [("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
-                       ("output_high", y > self._out_hi, y, self._out_hi, self._out_names)]
+            checks += [
+                ("output_low", y < self._out_lo, y, self._out_lo, self._out_names),
+                ("output_high", y > self._out_hi, y, self._out_hi, self._out_names),
+            ]
         if self._der_weights_T is not None:
             d = np.dot(y, self._der_weights_T)
-            checks += [("output_low", d < self._der_lo, d, self._der_lo, self._der_names),
-                       ("output_high", d > self._der_hi, d, self._der_hi, self._der_names)]
+            checks += [
+                ("output_low", d < self._der_lo, d, self._der_lo, self._der_names),
+                ("output_high", d > self._der_hi, d, self._der_hi, self._der_names),
+            ]
         if self._has_input_bounds:
-            checks += [("input_low", u < self._in_lo, u, self._in_lo, self._in_names),
-                       ("input_high", u > self._in_hi, u, self._in_hi, self._in_names)]
+            checks += [
+                ("input_low", u < self._in_lo, u, self._in_lo, self._in_names),
+                ("input_high", u > self._in_hi, u, self._in_hi, self._in_names),
+            ]
         if rate is not None:
             checks.append(("du_dt", rate >= lim, rate, lim, self._in_names))
         checks.append(("run_time", t >= duration, np.full((self.B, 1), t), duration, None))

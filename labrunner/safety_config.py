@@ -73,7 +73,10 @@ class SafetyConfig:
         if merged.get("motion_min_level") is not None:
             kw["motion_min_level"] = check_finite(f"{prefix}.motion_min_level", merged["motion_min_level"])
         outputs = [s.name for s in rig_info.outputs]
-        names = {"output_bounds": outputs + [d.name for d in rig_info.derived], "input_bounds": [s.name for s in rig_info.inputs]}
+        names = {
+            "output_bounds": outputs + [d.name for d in rig_info.derived],
+            "input_bounds": [s.name for s in rig_info.inputs],
+        }
         for key in _BOUNDS_KEYS:
             bounds = {}
             for name, pair in dict(merged.get(key, {})).items():

@@ -6,12 +6,12 @@ import shutil
 import numpy as np
 import pandas as pd
 import pytest
+from test_analysis_support import expected_metrics, make_campaign, outcome_of, tear
 
 from labrunner.analysis.analyse import analyse
 from labrunner.analysis.table import build_table
 from labrunner.campaign.ledger import Ledger
 from labrunner.cli import main
-from test_analysis_support import expected_metrics, make_campaign, outcome_of, tear
 
 
 @pytest.fixture(scope="module")
@@ -33,18 +33,28 @@ def test_metrics_table_matches_hand_values(analysed):
         assert row["outcome"] == outcome_of(g, kp)
         suffix = "_until_abort" if row["outcome"] == "aborted" else ""  # an aborted run's metrics cover part of it
         assert row["rms_error" + suffix] == pytest.approx(rms) and row["rms_e_omega" + suffix] == pytest.approx(rms)
-        assert row["input_energy" + suffix] == pytest.approx(energy) and row["max_abs_input" + suffix] == pytest.approx(umax)
+        assert row["input_energy" + suffix] == pytest.approx(energy) and row["max_abs_input" + suffix] == pytest.approx(
+            umax
+        )
         assert row["controller.gamma"] == g and row["controller.k_p"] == kp
         assert row["n_samples"] == (100 if suffix else 400)
     aborted = table[table["outcome"] == "aborted"]
     assert (aborted["monitor"] == "du_dt").all() and np.allclose(aborted["abort_time"], (400 // 4 - 1) / 200.0)
     assert aborted["rms_error"].isna().all() and aborted["input_energy"].isna().all()
     assert table["n_samples"].dtype == "Int64" and csv["n_samples"].dtype == np.int64 and csv["seq"].dtype == np.int64
-    expected = {s: sum(outcome_of(**{"gamma": p["params"]["controller.gamma"], "k_p": p["params"]["controller.k_p"]}) == s
-                       for p in points) for s in ("completed", "aborted", "no-motion")}
+    expected = {
+        s: sum(
+            outcome_of(**{"gamma": p["params"]["controller.gamma"], "k_p": p["params"]["controller.k_p"]}) == s
+            for p in points
+        )
+        for s in ("completed", "aborted", "no-motion")
+    }
     assert {k: summary["outcomes"][k] for k in expected} == expected
-    best = min((expected_metrics(p["params"]["controller.gamma"], p["params"]["controller.k_p"])[0], p["id"])
-               for p in points if outcome_of(p["params"]["controller.gamma"], p["params"]["controller.k_p"]) == "completed")
+    best = min(
+        (expected_metrics(p["params"]["controller.gamma"], p["params"]["controller.k_p"])[0], p["id"])
+        for p in points
+        if outcome_of(p["params"]["controller.gamma"], p["params"]["controller.k_p"]) == "completed"
+    )
     assert summary["best"]["id"] == best[1] and summary["best"]["rms"] == pytest.approx(best[0])
     assert len(summary["maps"]) == 2 and len(summary["run_plots"]) == 3
 
@@ -63,9 +73,13 @@ def test_recomputed_metrics_equal_the_ledgers(analysed, tmp_path):
     again = analyse(d, tmp_path / "r", workers=1, recompute=True)
     assert again["logs_read"] == 16 and again["best"] == first["best"]
     pd.testing.assert_frame_equal(
-        pd.read_parquet(d / "r" / "metrics.parquet").drop(columns=["log_path", "log_size", "log_mtime_ns"], errors="ignore"),
+        pd.read_parquet(d / "r" / "metrics.parquet").drop(
+            columns=["log_path", "log_size", "log_mtime_ns"], errors="ignore"
+        ),
         pd.read_parquet(tmp_path / "r" / "metrics.parquet").drop(columns=["log_path", "log_size", "log_mtime_ns"]),
-        check_like=True, check_dtype=False)
+        check_like=True,
+        check_dtype=False,
+    )
 
 
 def test_ledger_without_metrics_is_read_from_logs_once(tmp_path):
@@ -103,7 +117,9 @@ def test_torn_missing_unreadable_and_quarantined_files_are_reported(tmp_path):
     (d / "quarantine").mkdir()
     (d / "quarantine" / "p9999-torn.mcap").write_bytes(b"\x89MCAP0\r\n half a file")
     with Ledger.open(d) as ledger:
-        ledger.record_quarantine("p0003", "runs/p0003.mcap", "quarantine/p0003-1.mcap", "torn log of a claimed point", 123)
+        ledger.record_quarantine(
+            "p0003", "runs/p0003.mcap", "quarantine/p0003-1.mcap", "torn log of a claimed point", 123
+        )
     summary = analyse(d, workers=1)
     kinds = {(p["kind"], p["path"]) for p in summary["problems"]}
     assert ("torn", f"runs/{points[0]['id']}.mcap") in kinds
@@ -155,4 +171,6 @@ def test_one_axis_campaign_gives_a_sweep_plot(tmp_path):
     make_campaign(d, gammas=(1000.0,), k_ps=(0.1, 1.0, 10.0, 100.0, 1000.0))
     summary = analyse(d, workers=1)
     assert [p.rsplit("/", 1)[-1] for p in summary["maps"]] == ["sweep.png"]
-    assert summary["outcomes"]["aborted"] == 1 and summary["outcomes"]["no-motion"] == 1  # k_p = 1000 > γ/2; γ/k_p = 10⁴ > 1000
+    assert (
+        summary["outcomes"]["aborted"] == 1 and summary["outcomes"]["no-motion"] == 1
+    )  # k_p = 1000 > γ/2; γ/k_p = 10⁴ > 1000

@@ -17,8 +17,18 @@ def _table():
     status[0, -1] = "no-motion"
     status[-1, 0] = "aborted"
     status[-1, 1] = "failed"
-    return g, kp, pd.DataFrame({"controller.gamma": G.ravel(), "controller.k_p": K.ravel(),
-                                 "outcome": status.ravel(), "rms_error": (G / K).ravel()})
+    return (
+        g,
+        kp,
+        pd.DataFrame(
+            {
+                "controller.gamma": G.ravel(),
+                "controller.k_p": K.ravel(),
+                "outcome": status.ravel(),
+                "rms_error": (G / K).ravel(),
+            }
+        ),
+    )
 
 
 def test_cell_edges_are_geometric_midpoints_on_log_axes():
@@ -47,14 +57,21 @@ def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
     g, kp, t = _table()
     x, y = Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p")
     dense = np.geomspace(0.5, 2e4, 50)
-    lines = [OverlayLine("(2.46) max k_p", dense, 2 * dense, "red", "-", "bound:mfc1-motor:k_p_max"),
-             OverlayLine("nominal input gain ρ = 108.55", 108.55, None, "white", "-", "nominal-gain")]
+    lines = [
+        OverlayLine("(2.46) max k_p", dense, 2 * dense, "red", "-", "bound:mfc1-motor:k_p_max"),
+        OverlayLine("nominal input gain ρ = 108.55", 108.55, None, "white", "-", "nominal-gain"),
+    ]
     fig = map_figure(t, x, y, "rms_error", title="RMS", colour_label="RMS [rad/s]", overlays=lines)
     ax = fig.axes[0]
     assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
     assert any(isinstance(c, QuadMesh) for c in ax.collections)
     markers = {c.get_label(): c for c in ax.collections if isinstance(c, PathCollection)}
-    assert set(markers) == {"aborted by the safety routine", "no-motion (input too small)", "completed", "failed (error)"}
+    assert set(markers) == {
+        "aborted by the safety routine",
+        "no-motion (input too small)",
+        "completed",
+        "failed (error)",
+    }
     np.testing.assert_allclose(markers["aborted by the safety routine"].get_offsets(), [[g[0], kp[-1]]])
     assert markers["aborted by the safety routine"].get_facecolor()[0][:3] == pytest.approx((1, 0, 0))
     assert markers["no-motion (input too small)"].get_facecolor()[0][:3] == pytest.approx((1, 1, 1))
@@ -62,8 +79,11 @@ def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
     # the thesis's shapes (Figs. 3.10, 3.14): red triangle, white circle, black cross
     from matplotlib.markers import MarkerStyle
 
-    for label, shape, face in [("aborted by the safety routine", "^", (1, 0, 0)),
-                               ("no-motion (input too small)", "o", (1, 1, 1)), ("completed", "x", (0, 0, 0))]:
+    for label, shape, face in [
+        ("aborted by the safety routine", "^", (1, 0, 0)),
+        ("no-motion (input too small)", "o", (1, 1, 1)),
+        ("completed", "x", (0, 0, 0)),
+    ]:
         style = MarkerStyle(shape)
         expected = style.get_path().transformed(style.get_transform()).vertices
         np.testing.assert_allclose(markers[label].get_paths()[0].vertices, expected)
@@ -84,11 +104,22 @@ def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
 
 
 def test_sweep_plot_draws_markers_per_status():
-    t = pd.DataFrame({"controller.gamma": np.logspace(0, 3, 4), "outcome": ["aborted", "completed", "completed", "no-motion"],
-                      "rms_error": [5.0, 1.0, 2.0, 3.0], "input_energy": [1e4, 1e3, 5.0, 1.0]})
+    t = pd.DataFrame(
+        {
+            "controller.gamma": np.logspace(0, 3, 4),
+            "outcome": ["aborted", "completed", "completed", "no-motion"],
+            "rms_error": [5.0, 1.0, 2.0, 3.0],
+            "input_energy": [1e4, 1e3, 5.0, 1.0],
+        }
+    )
     x = Axis("controller.gamma", t["controller.gamma"].to_numpy(), True, "γ")
-    fig = sweep_figure(t, x, [("rms_error", "RMS"), ("input_energy", "E(u)")], title="sweep",
-                       overlays=[OverlayLine("limit", 3.0, None, "red", "--", "bound:x")])
+    fig = sweep_figure(
+        t,
+        x,
+        [("rms_error", "RMS"), ("input_energy", "E(u)")],
+        title="sweep",
+        overlays=[OverlayLine("limit", 3.0, None, "red", "--", "bound:x")],
+    )
     top, bottom = fig.axes
     labels = {c.get_label() for c in top.collections}
     assert labels == {"aborted by the safety routine", "no-motion (input too small)", "completed"}

@@ -23,10 +23,21 @@ def test_single_output_hand_values():
 def test_plate_per_output_and_currents():
     e1, e2, e3 = np.array([1.0, 1.0]), np.array([0.0, 2.0]), np.array([3.0, -1.0])
     i = {f"i{j}": np.array([0.5 * j, -1.0 * j]) for j in range(1, 5)}
-    signals = {"e_y1": e1, "e_y2": e2, "e_y3": e3, **i,
-               "e_hat_y1": np.array([2.0, 0.0]), "e_hat_y2": np.zeros(2), "e_hat_y3": np.zeros(2)}
-    roles = Roles(errors=("e_y1", "e_y2", "e_y3"), inputs=tuple(i), currents=tuple(i),
-                  error_hats=("e_hat_y1", "e_hat_y2", "e_hat_y3"))
+    signals = {
+        "e_y1": e1,
+        "e_y2": e2,
+        "e_y3": e3,
+        **i,
+        "e_hat_y1": np.array([2.0, 0.0]),
+        "e_hat_y2": np.zeros(2),
+        "e_hat_y3": np.zeros(2),
+    }
+    roles = Roles(
+        errors=("e_y1", "e_y2", "e_y3"),
+        inputs=tuple(i),
+        currents=tuple(i),
+        error_hats=("e_hat_y1", "e_hat_y2", "e_hat_y3"),
+    )
     m = run_metrics(signals, roles)
     assert m["rms_e_y1"] == pytest.approx(1.0)
     assert m["rms_e_y2"] == pytest.approx(math.sqrt(2.0))
@@ -50,9 +61,14 @@ def test_torn_run_cuts_to_shortest_channel():
 def test_roles_from_log_channels_with_rig_units_as_fallback():
     from labrunner.analysis.table import roles_of
 
-    channels = {"q": {"role": "output", "unit": "l/min"}, "i": {"role": "input", "unit": ""},
-                "e_q": {"role": "error", "unit": ""}, "e_hat_q": {"role": "estimate"}, "f_hat_q": {"role": "estimate"},
-                "ref_q": {"role": "reference"}}
+    channels = {
+        "q": {"role": "output", "unit": "l/min"},
+        "i": {"role": "input", "unit": ""},
+        "e_q": {"role": "error", "unit": ""},
+        "e_hat_q": {"role": "estimate"},
+        "f_hat_q": {"role": "estimate"},
+        "ref_q": {"role": "reference"},
+    }
     roles = roles_of(channels, {"i": "A", "q": "l/min"})
     assert roles == Roles(errors=("e_q",), inputs=("i",), error_hats=("e_hat_q",), currents=("i",))
     assert roles_of(channels).currents == ()  # no unit anywhere: not known to be a current

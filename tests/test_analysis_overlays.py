@@ -30,8 +30,12 @@ def test_gamma_kp_lines_follow_241_and_246():
     theory = Theory("mfc1", DELAY, MOTOR)
     gammas = np.geomspace(1.0, 1e4, 40)
     lines = {line.gid: line for line in gamma_kp_lines(theory, gammas)}
-    assert set(lines) == {"bound:mfc1-ultralocal:k_p_max", "bound:mfc1-motor:k_p_max", "bound:mfc1-motor:k_p_min",
-                          "nominal-gain"}
+    assert set(lines) == {
+        "bound:mfc1-ultralocal:k_p_max",
+        "bound:mfc1-motor:k_p_max",
+        "bound:mfc1-motor:k_p_min",
+        "nominal-gain",
+    }
     np.testing.assert_allclose(lines["bound:mfc1-ultralocal:k_p_max"].y, math.pi / 2 * gammas / (B * DELAY), rtol=1e-9)
     np.testing.assert_allclose(lines["bound:mfc1-motor:k_p_max"].y, [kp_246(g)[1] for g in gammas], rtol=1e-6)
     lo = lines["bound:mfc1-motor:k_p_min"].y
@@ -67,13 +71,22 @@ def test_overlays_drawn_on_the_map_axes():
     theory = Theory("mfc1", DELAY, MOTOR)
     g, kp = np.logspace(0, 4, 5), np.logspace(-1, 3, 5)
     G, K = np.meshgrid(g, kp)
-    table = pd.DataFrame({"controller.gamma": G.ravel(), "controller.k_p": K.ravel(), "outcome": "completed",
-                          "rms_error": 1.0})
-    fig = map_figure(table, Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p"),
-                     "rms_error", title="t", colour_label="c", overlays=gamma_kp_lines(theory, np.geomspace(0.5, 2e4, 50)))
+    table = pd.DataFrame(
+        {"controller.gamma": G.ravel(), "controller.k_p": K.ravel(), "outcome": "completed", "rms_error": 1.0}
+    )
+    fig = map_figure(
+        table,
+        Axis("controller.gamma", g, True, "γ"),
+        Axis("controller.k_p", kp, True, "k_p"),
+        "rms_error",
+        title="t",
+        colour_label="c",
+        overlays=gamma_kp_lines(theory, np.geomspace(0.5, 2e4, 50)),
+    )
     gids = [line.get_gid() for line in fig.axes[0].get_lines()]
-    assert sorted(gids) == sorted(["bound:mfc1-ultralocal:k_p_max", "bound:mfc1-motor:k_p_max",
-                                   "bound:mfc1-motor:k_p_min", "nominal-gain"])
+    assert sorted(gids) == sorted(
+        ["bound:mfc1-ultralocal:k_p_max", "bound:mfc1-motor:k_p_max", "bound:mfc1-motor:k_p_min", "nominal-gain"]
+    )
     assert isinstance(fig, Figure)
 
 
@@ -89,7 +102,9 @@ def test_sweep_lines_mark_the_246_limits():
     gamma_lines = sweep_lines(theory, "gamma", np.geomspace(1, 1e4, 400), {"k_p": 10.0})
     assert any(line.gid == "nominal-gain" for line in gamma_lines)
     g_lo = B * (1 - 10.0 / A)  # k_p > a(1 − γ/b) ⇔ γ > b(1 − k_p/a)
-    assert min(line.x for line in gamma_lines if line.gid.startswith("bound:mfc1-motor")) == pytest.approx(g_lo, rel=0.02)
+    assert min(line.x for line in gamma_lines if line.gid.startswith("bound:mfc1-motor")) == pytest.approx(
+        g_lo, rel=0.02
+    )
 
 
 def test_agreement_counts_and_margin():
@@ -108,7 +123,9 @@ def test_agreement_counts_and_margin():
         (lo * 2, "failed", None),
         (lo * 2, "planned", None),
     ]
-    table = pd.DataFrame({"controller.gamma": gamma, "controller.k_p": [r[0] for r in rows], "outcome": [r[1] for r in rows]})
+    table = pd.DataFrame(
+        {"controller.gamma": gamma, "controller.k_p": [r[0] for r in rows], "outcome": [r[1] for r in rows]}
+    )
     result = agreement(table, lambda row: theory, margin=0.1)
     assert result["case"] == "mfc1-motor"
     assert result["n_match"] == 4 and result["false_unstable"] == 1 and result["false_stable"] == 1
@@ -125,10 +142,18 @@ def test_agreement_of_a_kp_kd_grid_with_fixed_gamma():
     theory = Theory("mfc2", DELAY, MOTOR)
     k_d = 20.0
     interval = theory.bounds("mfc2-motor", B, k_d)["k_p"]
-    table = pd.DataFrame({"controller.k_p": [interval[1] / 3, interval[1] * 3], "controller.k_d": k_d,
-                          "outcome": ["completed", "aborted"]})
-    result = agreement(table, lambda row: theory, gains_of=lambda row: {"gamma": B, "k_p": row["controller.k_p"],
-                                                                         "k_d": row["controller.k_d"]})
+    table = pd.DataFrame(
+        {
+            "controller.k_p": [interval[1] / 3, interval[1] * 3],
+            "controller.k_d": k_d,
+            "outcome": ["completed", "aborted"],
+        }
+    )
+    result = agreement(
+        table,
+        lambda row: theory,
+        gains_of=lambda row: {"gamma": B, "k_p": row["controller.k_p"], "k_d": row["controller.k_d"]},
+    )
     assert result["case"] == "mfc2-motor" and result["share"] == 1.0 and result["n_compared"] == 2
     assert agreement(table, lambda row: theory)["n_compared"] == 0  # without γ nothing can be predicted
 
@@ -139,9 +164,12 @@ def test_lines_that_miss_the_map_say_so_in_the_legend():
 
     x = Axis("controller.gamma", np.logspace(-2, 1, 4), True, "γ")
     y = Axis("controller.k_p", np.logspace(0, 3, 4), True, "k_p")
-    lines = [OverlayLine("nominal", 8384.0, None, "white"), OverlayLine("inside", 1.0, None, "white"),
-             OverlayLine("curve", np.array([1e3, 1e4]), np.array([1e5, 1e6]), "red"),
-             OverlayLine("k_d", None, 50.0, "red")]
+    lines = [
+        OverlayLine("nominal", 8384.0, None, "white"),
+        OverlayLine("inside", 1.0, None, "white"),
+        OverlayLine("curve", np.array([1e3, 1e4]), np.array([1e5, 1e6]), "red"),
+        OverlayLine("k_d", None, 50.0, "red"),
+    ]
     labels = [line.label for line in mark_outside(lines, x, y)]
     assert labels == ["nominal (outside the map)", "inside", "curve (outside the map)", "k_d"]
 
@@ -184,8 +212,12 @@ def test_kp_kd_map_of_the_shipped_campaign_carries_the_corrected_bounds():
     lines, note = map_overlays(table, x, y, Theories(campaign))
     assert note == "δ_t = 35 ms, γ = 108.55"
     by_gid = {line.gid: line for line in lines}
-    assert set(by_gid) == {"bound:mfc2-ultralocal:k_p_max", "bound:mfc2-ultralocal:k_d_max",
-                           "bound:mfc2-motor:k_p_max", "bound:mfc2-motor:k_d_max"}
+    assert set(by_gid) == {
+        "bound:mfc2-ultralocal:k_p_max",
+        "bound:mfc2-ultralocal:k_d_max",
+        "bound:mfc2-motor:k_p_max",
+        "bound:mfc2-motor:k_d_max",
+    }
     kp_max = by_gid["bound:mfc2-motor:k_p_max"]
     assert np.isnan(kp_max.x[kp_max.y > 112.3]).all()  # no stable k_p above the k_d limit
     for i in (0, 60, 120, 150):  # k_d ≈ 0.75, 5.1, 34, 89 1/s
@@ -201,7 +233,9 @@ def test_kp_kd_map_of_the_shipped_campaign_carries_the_corrected_bounds():
     np.testing.assert_allclose(drawn["bound:mfc2-motor:k_p_max"].get_xdata(), kp_max.x)
     np.testing.assert_allclose(drawn["bound:mfc2-ultralocal:k_d_max"].get_ydata(), [math.pi / 2 / DELAY] * 2)
     assert {c.get_label() for c in ax.collections if c.get_label().startswith(("aborted", "completed"))} == {
-        "aborted by the safety routine", "completed"}
+        "aborted by the safety routine",
+        "completed",
+    }
 
 
 def test_map_axes_follow_the_grid_form():

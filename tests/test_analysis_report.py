@@ -14,10 +14,17 @@ PNG = base64.b64decode(
 
 def test_report_is_self_contained(tmp_path):
     sections = [
-        Section("Campaign", paragraphs=["γ–k_p sweep <of> MFC"], facts={"rig": "dcmotor-sim", "runs": 3},
-                pre="[campaign]\nname = \"q\""),
-        Section("Maps", images=[Image("RMS map", PNG, "markers as in the thesis")],
-                tables=[("Best runs", pd.DataFrame({"k_p": [1.0, 2.5], "rms_error": [0.1234567, float("nan")]}))]),
+        Section(
+            "Campaign",
+            paragraphs=["γ–k_p sweep <of> MFC"],
+            facts={"rig": "dcmotor-sim", "runs": 3},
+            pre='[campaign]\nname = "q"',
+        ),
+        Section(
+            "Maps",
+            images=[Image("RMS map", PNG, "markers as in the thesis")],
+            tables=[("Best runs", pd.DataFrame({"k_p": [1.0, 2.5], "rms_error": [0.1234567, float("nan")]}))],
+        ),
         Section("Damaged files", paragraphs=["a.mcap is torn"], warning=True),
     ]
     path = write_report(tmp_path / "report" / "index.html", "quickstart", "analysed", sections)

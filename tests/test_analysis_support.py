@@ -46,8 +46,14 @@ def expected_metrics(gamma: float, k_p: float) -> tuple[float, float, float]:
     return c, n * v * v, v
 
 
-def make_campaign(directory: Path, *, gammas=(1.0, 10.0, 100.0, 1000.0), k_ps=(0.1, 1.0, 10.0, 100.0),
-                  meta: dict[str, str] | None = None, legacy: bool = False) -> list[dict]:
+def make_campaign(
+    directory: Path,
+    *,
+    gammas=(1.0, 10.0, 100.0, 1000.0),
+    k_ps=(0.1, 1.0, 10.0, 100.0),
+    meta: dict[str, str] | None = None,
+    legacy: bool = False,
+) -> list[dict]:
     """Plan, run (synthetically) and commit every point with its metrics, as the engine does; return
     the points' parameters and ids. ``legacy``: commit only the three summary metrics, as ledgers
     did before every metric was committed (the analysis must then read the logs)."""
@@ -56,8 +62,11 @@ def make_campaign(directory: Path, *, gammas=(1.0, 10.0, 100.0, 1000.0), k_ps=(0
     points = []
     for i, (g, kp) in enumerate((g, kp) for g in gammas for kp in k_ps):
         points.append({"seq": i, "id": f"p{i:04d}", "params": {"controller.gamma": g, "controller.k_p": kp}})
-    ledger = Ledger.create(directory, meta=meta or {"campaign": "synthetic"},
-                           points=[(p["seq"], p["id"], p["params"], "b") for p in points])
+    ledger = Ledger.create(
+        directory,
+        meta=meta or {"campaign": "synthetic"},
+        points=[(p["seq"], p["id"], p["params"], "b") for p in points],
+    )
     with ledger:
         ledger.claim([p["id"] for p in points])
         for p in points:
@@ -66,14 +75,26 @@ def make_campaign(directory: Path, *, gammas=(1.0, 10.0, 100.0, 1000.0), k_ps=(0
             n = K // 4 if status == "aborted" else K
             c, _, v = expected_metrics(g, kp)
             u = v * np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
-            signals = {"omega": np.full(n, 1.0), "ref_omega": np.full(n, 1.0 - c), "e_omega": np.full(n, c),
-                       "u": u, "theta": np.cumsum(np.full(n, 1.0 / FS)), "f_hat_omega": np.zeros(n)}
+            signals = {
+                "omega": np.full(n, 1.0),
+                "ref_omega": np.full(n, 1.0 - c),
+                "e_omega": np.full(n, c),
+                "u": u,
+                "theta": np.cumsum(np.full(n, 1.0 / FS)),
+                "f_hat_omega": np.zeros(n),
+            }
             outcome = {"status": status}
             if status == "aborted":
                 outcome.update(monitor="du_dt", time=(n - 1) / FS, value=150.0, threshold=120.0)
             rel = f"runs/{p['id']}.mcap"
-            write_run(directory / rel, metadata={"run": {"point_id": p["id"]}, "config": {"controller": {"gamma": g, "k_p": kp}}},
-                      fs=FS, signals=signals, outcome=outcome, channels=CHANNELS)
+            write_run(
+                directory / rel,
+                metadata={"run": {"point_id": p["id"]}, "config": {"controller": {"gamma": g, "k_p": kp}}},
+                fs=FS,
+                signals=signals,
+                outcome=outcome,
+                channels=CHANNELS,
+            )
             metrics = run_metrics(signals, roles_of(CHANNELS))
             ledger.commit(RunRecord(p["id"], status, outcome, metrics, rel, "host", 1, time.time()))
     if legacy:

@@ -17,7 +17,11 @@ from labrunner.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = campaign_text(  # the rig file's safety routine; runs as long as the reference
-    "analysis-twin", rig="dcmotor-sim", duration=None, seed=0, hold=0.5,
+    "analysis-twin",
+    rig="dcmotor-sim",
+    duration=None,
+    seed=0,
+    hold=0.5,
     grid='"controller.gamma" = { log10 = [1.0, 4.0], num = 4 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 5 }',
 )
 
@@ -74,8 +78,12 @@ def test_map_overlays_of_the_campaign(analysed):
     lines, text = map_overlays(table, x, y, Theories(campaign))
     assert text == "δ_t = 35 ms"  # α = β = 9, ω_c = 200 rad/s, f_s = 200 Hz (thesis Sec. 3.4)
     gids = {line.gid: line for line in lines}
-    assert set(gids) == {"bound:mfc1-ultralocal:k_p_max", "bound:mfc1-motor:k_p_max", "bound:mfc1-motor:k_p_min",
-                         "nominal-gain"}
+    assert set(gids) == {
+        "bound:mfc1-ultralocal:k_p_max",
+        "bound:mfc1-motor:k_p_max",
+        "bound:mfc1-motor:k_p_min",
+        "nominal-gain",
+    }
     assert gids["nominal-gain"].x == pytest.approx(108.55)
     hi = gids["bound:mfc1-ultralocal:k_p_max"]
     np.testing.assert_allclose(hi.y, np.pi / 2 * hi.x / (108.55 * 0.035), rtol=1e-9)

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_campaign_support import campaign_text, ledger_rows, write
 
 from labrunner.campaign import recovery
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, RunRecord
@@ -19,7 +20,6 @@ from labrunner.campaign.lock import DirectoryLock, holder
 from labrunner.campaign.progress import Progress
 from labrunner.cli import main
 from labrunner.errors import CampaignError
-from test_campaign_support import campaign_text, ledger_rows, write
 
 
 def _ledger(tmp_path: Path, n: int = 3) -> Ledger:
@@ -156,7 +156,9 @@ def test_progress_bar_on_a_terminal_shows_counts_rate_and_eta():
     p.tick()
     bar = out.getvalue().split("\r")[-1]
     assert re.search(r"camp: +50%.*\| 5/10 \[", bar), bar  # tqdm: label, share, bar, count
-    assert "run/s" in bar and "<" in bar and "3 completed, 0 no-motion, 1 aborted, 1 failed" in bar  # rate, elapsed<ETA, counts
+    assert (
+        "run/s" in bar and "<" in bar and "3 completed, 0 no-motion, 1 aborted, 1 failed" in bar
+    )  # rate, elapsed<ETA, counts
     p.close()
     assert out.getvalue().splitlines()[-1].startswith("camp: 5/10 (3 completed, 0 no-motion, 1 aborted, 1 failed)")
 

@@ -37,8 +37,10 @@ def test_every_pack_file_names_its_figure_and_passes_the_static_checks(file):
 def test_quick_variants_are_smaller_grids_of_the_same_campaign(item):
     for file, grid in item.quick_grids.items():
         text = (ROOT / file).read_text(encoding="utf-8")
-        full, quick = spec.from_text(text, source_path=ROOT / file), spec.from_text(variant_text(text, grid),
-                                                                                     source_path=ROOT / file)
+        full, quick = (
+            spec.from_text(text, source_path=ROOT / file),
+            spec.from_text(variant_text(text, grid), source_path=ROOT / file),
+        )
         assert quick.name == full.name + "-quick"
         assert quick.size < full.size
         assert quick.base == full.base and quick.rig == full.rig  # only the grid differs
@@ -59,9 +61,11 @@ def test_fault_rigs_are_the_plate_twin_plus_their_fault(fault):
     faults = rig.pop("faults")
     assert rig["rig"].pop("description") != base["rig"].pop("description")
     assert rig == base
-    expected = {"actuator-offset": ("actuator_offset", [0.4, 0.0, 0.0, 0.0]),
-                "actuator-gain": ("actuator_gain", [0.4, 0.0, 0.0, 0.0]),
-                "sensor": ("sensor_step", [2e-4, 0.0, 0.0, 0.0])}[fault]
+    expected = {
+        "actuator-offset": ("actuator_offset", [0.4, 0.0, 0.0, 0.0]),
+        "actuator-gain": ("actuator_gain", [0.4, 0.0, 0.0, 0.0]),
+        "sensor": ("sensor_step", [2e-4, 0.0, 0.0, 0.0]),
+    }[fault]
     assert faults == {"t_start": 2.5, expected[0]: expected[1]}
 
 
@@ -85,16 +89,28 @@ def test_unknown_figure_is_refused_before_anything_runs(tmp_path, capsys):
 
 
 def _walk(gammas, k_p, statuses, rms):
-    frame = pd.DataFrame({"seq": range(len(gammas)), "controller.gamma": gammas, "controller.k_p": k_p,
-                          "outcome": statuses, "rms_error": rms, "oscillating": [0.0] * len(gammas)})
+    frame = pd.DataFrame(
+        {
+            "seq": range(len(gammas)),
+            "controller.gamma": gammas,
+            "controller.k_p": k_p,
+            "outcome": statuses,
+            "rms_error": rms,
+            "oscillating": [0.0] * len(gammas),
+        }
+    )
     return CampaignResult("f", Path("."), frame, {}, [])
 
 
 def test_tuning_walk_replay_against_a_hand_counted_walk():
     """Feed-forward: 5 runs down to the first abort (step 5), choice = smallest RMS before it (step 4);
     feedback: choice at step 3 of 5; Guideline 2 first reaches the feedback's RMS 0.5 at step 2."""
-    ff = _walk([1e4, 1e3, 1e2, 50.0, 20.0], [0.0] * 5, ["no-motion", "completed", "completed", "completed", "aborted"],
-               [9.0, 8.0, 6.0, 5.0, 1.0])
+    ff = _walk(
+        [1e4, 1e3, 1e2, 50.0, 20.0],
+        [0.0] * 5,
+        ["no-motion", "completed", "completed", "completed", "aborted"],
+        [9.0, 8.0, 6.0, 5.0, 1.0],
+    )
     fb = _walk([50.0] * 5, [0.1, 1.0, 10.0, 100.0, 1000.0], ["completed"] * 4 + ["aborted"], [3.0, 1.0, 0.5, 0.7, 0.2])
     g2 = _walk([1e4, 1e3, 1e2], [1.0, 10.0, 100.0], ["completed"] * 3, [0.9, 0.45, 0.3])
     verdict = checks_papers.tuning_walks({"a-polack-feedforward": ff, "b-polack-feedback": fb, "c-guideline2": g2})
@@ -103,7 +119,8 @@ def test_tuning_walk_replay_against_a_hand_counted_walk():
     assert twin["feedback: chosen k_p (γ_Ω = 74.98)"] == 10.0 and twin["feedback: runs to the choice"] == 3
     assert twin["Guideline 2: runs to Polack's RMS"] == 2 and twin["Polack: runs"] == 7
     assert verdict.agrees  # 7 / 2 = 3.5 ≥ 1.5
-    g2_slow = _walk([1e4, 1e3, 1e2, 50.0, 20.0], [1.0, 10.0, 100.0, 200.0, 500.0], ["completed"] * 5,
-                    [0.9, 0.8, 0.7, 0.6, 0.5])
+    g2_slow = _walk(
+        [1e4, 1e3, 1e2, 50.0, 20.0], [1.0, 10.0, 100.0, 200.0, 500.0], ["completed"] * 5, [0.9, 0.8, 0.7, 0.6, 0.5]
+    )
     slow = checks_papers.tuning_walks({"a-polack-feedforward": ff, "b-polack-feedback": fb, "c-guideline2": g2_slow})
     assert slow.table["twin"]["Guideline 2: runs to Polack's RMS"] == 5 and not slow.agrees  # 7 / 5 < 1.5

@@ -12,11 +12,11 @@ import signal
 import time
 
 import pytest
+from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_for, write
 
 from labrunner.campaign import spec
 from labrunner.cli import main
 from labrunner.logs import read_run
-from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_for, write
 
 TERMINAL = ("done", "aborted", "failed")
 GRID = '"controller.gamma" = { log10 = [1.0, 3.0], num = 10 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 12 }'
@@ -109,7 +109,11 @@ def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
     quarantined = db.execute("SELECT point_id, moved_to, original FROM quarantine").fetchall()
     sessions = db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]
     db.close()
-    on_disk = sorted(str(p.relative_to(directory)) for p in (directory / "quarantine").glob("*")) if (directory / "quarantine").exists() else []
+    on_disk = (
+        sorted(str(p.relative_to(directory)) for p in (directory / "quarantine").glob("*"))
+        if (directory / "quarantine").exists()
+        else []
+    )
     assert sorted(m for _, m, _ in quarantined) == on_disk  # every quarantined file recorded, every record on disk
     assert {p for p, _, _ in quarantined} <= set(planned)
     assert torn_left, "no kill landed while logs were being written: the quarantine path went untested"
@@ -118,8 +122,10 @@ def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
     assert all(attempts[p] >= 2 for p, _, o in quarantined if o.startswith("runs/.tmp-"))  # and its point rerun
     reruns = sum(r["attempts"] for r in rows) - len(rows)
     recovered = sum(bool(json.loads(r["outcome_json"]).get("recovered")) for r in rows)
-    print(f"{kills} kills in {cycles} cycles ({len(torn_left)} torn logs left), {sessions} sessions, {len(quarantined)} quarantined, "
-          f"{reruns} reruns, {recovered} published runs accepted on resume")
+    print(
+        f"{kills} kills in {cycles} cycles ({len(torn_left)} torn logs left), {sessions} sessions, {len(quarantined)} quarantined, "
+        f"{reruns} reruns, {recovered} published runs accepted on resume"
+    )
 
     # the interrupted campaign agrees with an uninterrupted one, point by point
     assert main(["run", str(path), "--out", "reference", "--workers", "2"]) == 0

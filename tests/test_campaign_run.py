@@ -9,11 +9,6 @@ import socket
 import tomllib
 
 import pytest
-
-from labrunner.cli import main
-from labrunner.logs import read_run
-from labrunner.rigs.registry import register_rig
-from labrunner.rigs.sim.dcmotor import DCMotorTwin
 from test_campaign_support import (
     MOTOR_RIG,
     campaign_text,
@@ -24,6 +19,11 @@ from test_campaign_support import (
     wait_for,
     write,
 )
+
+from labrunner.cli import main
+from labrunner.logs import read_run
+from labrunner.rigs.registry import register_rig
+from labrunner.rigs.sim.dcmotor import DCMotorTwin
 
 TERMINAL = ("done", "aborted", "failed")
 
@@ -54,7 +54,11 @@ def test_run_then_status_and_logs(project, capsys):
     st = json.loads(capsys.readouterr().out)
     o = st["outcomes"]
     assert st["campaign"] == "tiny" and st["total"] == 9 and o["planned"] == o["claimed"] == 0
-    assert o["completed"] + o["no-motion"] + o["aborted"] + o["failed"] == 9 and st["elapsed_s"] > 0 and st["running"] is None
+    assert (
+        o["completed"] + o["no-motion"] + o["aborted"] + o["failed"] == 9
+        and st["elapsed_s"] > 0
+        and st["running"] is None
+    )
     assert main(["status", str(directory)]) == 0
     assert "9 points" in capsys.readouterr().out
 
@@ -250,8 +254,12 @@ def test_issue_example_runs_and_its_ledger_rows_agree_with_the_logs(project, cap
         by_key[(params["controller.k_p"], params["campaign.seed"])] = row
         log = read_run(directory / row["log_path"])
         assert row["log_path"] == f"runs/{row['id']}.mcap" and log.metadata["parameters"] == params
-        assert log.metadata["config"]["reference"] == {"kind": "setpoints", "levels": [0.0, 20.0, 0.0],
-                                                       "transition": 1.0, "hold": 1.0}
+        assert log.metadata["config"]["reference"] == {
+            "kind": "setpoints",
+            "levels": [0.0, 20.0, 0.0],
+            "transition": 1.0,
+            "hold": 1.0,
+        }
         assert log.metadata["run"]["seed"] == params["campaign.seed"] and log.fs == 200.0
         e, u = log.frame["e_omega"].to_numpy(), log.frame["u"].to_numpy()
         assert row["rms_error"] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
@@ -283,7 +291,8 @@ def test_issue_example_runs_and_its_ledger_rows_agree_with_the_logs(project, cap
     assert {"campaign", "total", "outcomes", "elapsed_s", "estimate_s"} <= set(st)
     words = [r["outcome"] or r["state"] for r in rows]
     assert st["total"] == 4 and st["outcomes"] == {
-        w: words.count(w) for w in ("completed", "no-motion", "aborted", "failed", "claimed", "planned")}
+        w: words.count(w) for w in ("completed", "no-motion", "aborted", "failed", "claimed", "planned")
+    }
     assert st["campaign"] == "quickstart" and st["estimate_s"] == 0.0 and 0 < st["elapsed_s"] < time.time() - t0
 
 

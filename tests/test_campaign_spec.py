@@ -8,13 +8,12 @@ import math
 import re
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
+from test_campaign_support import campaign_text, write
 
 from labrunner.campaign import expressions, grid, spec
 from labrunner.cli import main
 from labrunner.errors import InvalidParameter
-from test_campaign_support import campaign_text, write
 
 pytestmark = pytest.mark.usefixtures("project")
 
@@ -35,7 +34,11 @@ def test_log10_axis_is_ten_to_the_exponents_like_thesis_fig_3_10():
 
 
 def test_linspace_values_and_product_order_first_axis_slowest():
-    c = load(campaign_text(grid='"controller.gamma" = { values = [50, 100] }\n"controller.k_p" = { linspace = [1.0, 3.0], num = 3 }'))
+    c = load(
+        campaign_text(
+            grid='"controller.gamma" = { values = [50, 100] }\n"controller.k_p" = { linspace = [1.0, 3.0], num = 3 }'
+        )
+    )
     pts = [(p["controller.gamma"], p["controller.k_p"]) for p in c.grid.points()]
     assert pts == [(50, 1.0), (50, 2.0), (50, 3.0), (100, 1.0), (100, 2.0), (100, 3.0)]
 
@@ -74,8 +77,10 @@ def test_plan_checksum_ignores_comments_but_not_settings():
 
 def test_derived_keys_follow_the_grid_and_use_rig_constants():
     g = '"controller.gamma" = { values = [108.55, 217.1] }'
-    extra = ('[derived]\n"controller.k_p" = "pi / (2 * 0.035) * controller.gamma / b"\n'
-             '"safety.max_du_dt" = "3 * a + controller.k_p / 100"\n')
+    extra = (
+        '[derived]\n"controller.k_p" = "pi / (2 * 0.035) * controller.gamma / b"\n'
+        '"safety.max_du_dt" = "3 * a + controller.k_p / 100"\n'
+    )
     c = load(campaign_text(grid=g, extra=extra))
     points, _ = spec.plan(c)
     for p in points:  # k_p,max of thesis (2.41) with ρ = b, δ_t = 35 ms; a, b of rigs/motor.toml
@@ -116,7 +121,9 @@ def test_batches_separate_durations_and_choices_but_not_gains(axis):
 # -- expressions --------------------------------------------------------------------------------
 _exprs = st.recursive(
     st.floats(0.1, 100.0).map(lambda x: f"{x!r}") | st.sampled_from(["k", "pi"]),
-    lambda inner: st.tuples(inner, st.sampled_from(["+", "-", "*", "/"]), inner).map(lambda t: f"({t[0]} {t[1]} {t[2]})"),
+    lambda inner: st.tuples(inner, st.sampled_from(["+", "-", "*", "/"]), inner).map(
+        lambda t: f"({t[0]} {t[1]} {t[2]})"
+    ),
     max_leaves=12,
 )
 
@@ -139,8 +146,20 @@ def test_expressions_agree_with_python_arithmetic(source, k):
 @pytest.mark.parametrize(
     "source",
     [
-        "__import__('os').system('true')", "().__class__.__bases__", "lambda: 1", "[1, 2]", "k if k else 1",
-        "k[0]", "'text'", "True", "open('x')", "k.__class__", "10 ** 10 ** 10", "(-8) ** 0.5", "1 / 0", "k and 1",
+        "__import__('os').system('true')",
+        "().__class__.__bases__",
+        "lambda: 1",
+        "[1, 2]",
+        "k if k else 1",
+        "k[0]",
+        "'text'",
+        "True",
+        "open('x')",
+        "k.__class__",
+        "10 ** 10 ** 10",
+        "(-8) ** 0.5",
+        "1 / 0",
+        "k and 1",
     ],
 )
 def test_expressions_refuse_everything_but_arithmetic(source):
@@ -164,31 +183,47 @@ MALFORMED = {
     "empty-grid": (campaign_text(grid=""), "grid"),
     "empty-values": (campaign_text(grid='"controller.k_p" = { values = [] }'), "controller.k_p"),
     "zero-num": (campaign_text(grid='"controller.k_p" = { log10 = [0, 2], num = 0 }'), "controller.k_p"),
-    "two-forms": (campaign_text(grid='"controller.k_p" = { values = [1], linspace = [0, 1], num = 2 }'), "controller.k_p"),
-    "unknown-axis-key": (campaign_text(grid='"controller.k_p" = { values = [1], step = 2 }'), "controller.k_p\".step"),
+    "two-forms": (
+        campaign_text(grid='"controller.k_p" = { values = [1], linspace = [0, 1], num = 2 }'),
+        "controller.k_p",
+    ),
+    "unknown-axis-key": (campaign_text(grid='"controller.k_p" = { values = [1], step = 2 }'), 'controller.k_p".step'),
     "axis-unknown-section": (campaign_text(grid='"controler.k_p" = { values = [1] }'), "controler.k_p"),
     "axis-campaign-name": (campaign_text(grid='"campaign.name" = { values = ["a"] }'), "campaign.name"),
     "zip-unequal": (
-        campaign_text(grid='"controller.k_p" = { values = [1, 2] }\n"controller.gamma" = { values = [1] }\nzip = ["controller.k_p", "controller.gamma"]'),
+        campaign_text(
+            grid='"controller.k_p" = { values = [1, 2] }\n"controller.gamma" = { values = [1] }\nzip = ["controller.k_p", "controller.gamma"]'
+        ),
         "grid.zip",
     ),
-    "zip-unknown-axis": (campaign_text(grid='"controller.k_p" = { values = [1, 2] }\nzip = ["controller.k_p", "controller.x"]'), "grid.zip"),
+    "zip-unknown-axis": (
+        campaign_text(grid='"controller.k_p" = { values = [1, 2] }\nzip = ["controller.k_p", "controller.x"]'),
+        "grid.zip",
+    ),
     "enormous-grid": (
-        campaign_text(grid='"controller.k_p" = { log10 = [0, 2], num = 1000 }\n"controller.gamma" = { log10 = [0, 2], num = 1000 }'),
+        campaign_text(
+            grid='"controller.k_p" = { log10 = [0, 2], num = 1000 }\n"controller.gamma" = { log10 = [0, 2], num = 1000 }'
+        ),
         "grid",
     ),
     "derived-call": (
-        campaign_text(grid='"controller.gamma" = { values = [1.0] }') + '\n[derived]\n"controller.k_p" = "__import__(\'os\').getcwd()"\n',
-        "derived.\"controller.k_p\": call of",
+        campaign_text(grid='"controller.gamma" = { values = [1.0] }')
+        + '\n[derived]\n"controller.k_p" = "__import__(\'os\').getcwd()"\n',
+        'derived."controller.k_p": call of',
     ),
     "derived-unknown-name": (
-        campaign_text(grid='"controller.gamma" = { values = [1.0] }') + '\n[derived]\n"controller.k_p" = "2 * controller.kp"\n',
-        "derived.\"controller.k_p\"",
+        campaign_text(grid='"controller.gamma" = { values = [1.0] }')
+        + '\n[derived]\n"controller.k_p" = "2 * controller.kp"\n',
+        'derived."controller.k_p"',
     ),
-    "derived-syntax": (campaign_text(grid='"controller.gamma" = { values = [1.0] }') + '\n[derived]\n"controller.k_p" = "2 *"\n', "derived"),
+    "derived-syntax": (
+        campaign_text(grid='"controller.gamma" = { values = [1.0] }') + '\n[derived]\n"controller.k_p" = "2 *"\n',
+        "derived",
+    ),
     "derived-division-by-zero": (
-        campaign_text(grid='"controller.gamma" = { values = [1.0] }') + '\n[derived]\n"controller.k_p" = "1 / (controller.gamma - 1)"\n',
-        "derived.\"controller.k_p\"",
+        campaign_text(grid='"controller.gamma" = { values = [1.0] }')
+        + '\n[derived]\n"controller.k_p" = "1 / (controller.gamma - 1)"\n',
+        'derived."controller.k_p"',
     ),
     "alpha-too-small-for-order": (
         campaign_text(grid='"controller.k_p" = { values = [100.0] }')
@@ -196,27 +231,35 @@ MALFORMED = {
         .replace("alpha = 9\nbeta = 9", "alpha = 1\nbeta = 1"),
         "differentiator.",
     ),
-    "omega-c-above-nyquist": (campaign_text(grid='"differentiator.omega_c" = { values = [100.0, 2000.0] }'), "differentiator.omega_c"),
+    "omega-c-above-nyquist": (
+        campaign_text(grid='"differentiator.omega_c" = { values = [100.0, 2000.0] }'),
+        "differentiator.omega_c",
+    ),
     "fs-outside-rig-range": (GOOD.replace("fs = 200.0", "fs = 1.0e6"), "campaign.fs"),
     "negative-gain": (campaign_text(grid='"controller.k_p" = { linspace = [-1.0, 1.0], num = 3 }'), "controller.k_p"),
     "nan-gain": (campaign_text(grid='"controller.k_p" = { values = [nan] }'), "controller.k_p"),
     "unknown-controller-key": (GOOD.replace("k_p = 50.0", "k_p = 50.0\nkp = 5.0"), "controller.kp"),
     "unknown-rig-parameter": (GOOD + "\n[rig_parameters]\nmass = 2.0\n", "rig_parameters.mass"),
     "unknown-safety-key": (GOOD.replace("max_du_dt = 120.0", "max_du_dt = 120.0\nmax_dudt = 1.0"), "safety.max_dudt"),
-    "derived-shadows-axis": (GOOD + '\n[derived]\n"controller.k_p" = "2.0"\n', "derived.\"controller.k_p\""),
+    "derived-shadows-axis": (GOOD + '\n[derived]\n"controller.k_p" = "2.0"\n', 'derived."controller.k_p"'),
     "not-toml": ("[campaign\nname = 'x'\n", "c.toml"),
     "gain-string-in-grid": (campaign_text(grid='"controller.k_p" = { values = ["fast"] }'), "controller.k_p"),
     "gain-boolean": (
-        campaign_text(grid='"controller.gamma" = { values = [1.0] }').replace("k_p = 50.0", "k_p = true"), "controller.k_p"
+        campaign_text(grid='"controller.gamma" = { values = [1.0] }').replace("k_p = 50.0", "k_p = true"),
+        "controller.k_p",
     ),
-    "num-not-integer": (campaign_text(grid='"controller.k_p" = { linspace = [1, 2], num = 2.5 }'), "controller.k_p\".num"),
+    "num-not-integer": (
+        campaign_text(grid='"controller.k_p" = { linspace = [1, 2], num = 2.5 }'),
+        'controller.k_p".num',
+    ),
     "levels-not-a-list": (GOOD.replace("levels = [0.0, 20.0, 0.0]", 'levels = "high"'), "reference.levels"),
     "unknown-controller-kind": (GOOD.replace('kind = "mfc1"', 'kind = "pid"'), "controller.kind"),
     "rig-not-a-toml-file": (GOOD.replace('rig = "rigs/motor.toml"', 'rig = "pyproject.tom"'), "campaign.rig"),
     "duplicate-grid-values": (campaign_text(grid='"controller.k_p" = { values = [1.0, 1.0] }'), "grid"),
     "input-limit-beyond-rig": (GOOD.replace("k_p = 50.0", "k_p = 50.0\nu_max = 100.0"), "controller.u_max"),
     "derived-above-nyquist": (
-        campaign_text(grid='"controller.k_p" = { values = [1.0] }') + '\n[derived]\n"differentiator.omega_c" = "1e3 * pi"\n',
+        campaign_text(grid='"controller.k_p" = { values = [1.0] }')
+        + '\n[derived]\n"differentiator.omega_c" = "1e3 * pi"\n',
         "differentiator.omega_c",
     ),
 }
@@ -277,22 +320,30 @@ kind = "lift"
 "controller.k_p" = { values = [4000.0, 5000.0] }
 """
     points, _ = spec.plan(load(text))
-    keys = {p.batch_key: {q.parameters["controller.notch_omega"] for q in points if q.batch_key == p.batch_key} for p in points}
+    keys = {
+        p.batch_key: {q.parameters["controller.notch_omega"] for q in points if q.batch_key == p.batch_key}
+        for p in points
+    }
     assert len(keys) == 2 and all(len(v) == 1 for v in keys.values())  # the plate MFC needs one notch per batch
 
 
 # -- [metrics] windows ----------------------------------------------------------------------------
 def test_metrics_windows_reach_every_point_and_leave_other_campaigns_unchanged():
-    with_windows = load(campaign_text(extra='[metrics]\nhold = [0.5, 1.0]\nfault = [1.0, 2.0]\n'), "w.toml")
+    with_windows = load(campaign_text(extra="[metrics]\nhold = [0.5, 1.0]\nfault = [1.0, 2.0]\n"), "w.toml")
     configs = [config for _, config in with_windows.points()]
     assert all(c["metrics"] == {"hold": [0.5, 1.0], "fault": [1.0, 2.0]} for c in configs)
     plain = load(campaign_text(), "p.toml")
     assert all("metrics" not in c for _, c in plain.points())  # plan checksums of older campaigns stay
 
 
-@pytest.mark.parametrize("body, field", [
-    ("fault = [2.0, 1.0]", "metrics.fault"), ("fault = 1.0", "metrics.fault"), ("'a b' = [0.0, 1.0]", "metrics.a b"),
-])
+@pytest.mark.parametrize(
+    "body, field",
+    [
+        ("fault = [2.0, 1.0]", "metrics.fault"),
+        ("fault = 1.0", "metrics.fault"),
+        ("'a b' = [0.0, 1.0]", "metrics.a b"),
+    ],
+)
 def test_bad_metrics_windows_name_the_key(body, field):
     with pytest.raises(InvalidParameter) as exc:
         load(campaign_text(extra=f"[metrics]\n{body}\n"), "bad.toml")

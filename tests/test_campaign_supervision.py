@@ -16,15 +16,14 @@ from concurrent.futures import Executor, Future
 from concurrent.futures.process import BrokenProcessPool
 
 import pytest
+from test_campaign_reliability import _alive, _children
+from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_for, write
 
-from labrunner.campaign import scheduler as scheduler_mod
-from labrunner.campaign import spec
+from labrunner.campaign import scheduler as scheduler_mod, spec
 from labrunner.campaign.executors import ExecutorHandle
 from labrunner.campaign.ledger import Ledger
 from labrunner.campaign.scheduler import Scheduler, StopSignals
 from labrunner.campaign.worker import BatchResult
-from test_campaign_reliability import _alive, _children
-from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_for, write
 
 TERMINAL = ("done", "aborted", "failed")
 GRID = '"controller.gamma" = { log10 = [1.0, 3.0], num = 8 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 8 }'
@@ -83,8 +82,13 @@ def test_one_ctrl_c_waits_a_stated_bound_then_abandons_stalled_batches(project, 
     ex = Scripted()
     abandoned, said = [], []
     signals = StopSignals()
-    sched = Scheduler(campaign, ledger, executor=ExecutorHandle(ex, 1, abandon=lambda: abandoned.append(1)),
-                      batch_size=2, signals=signals)
+    sched = Scheduler(
+        campaign,
+        ledger,
+        executor=ExecutorHandle(ex, 1, abandon=lambda: abandoned.append(1)),
+        batch_size=2,
+        signals=signals,
+    )
     sched._say = said.append
     monkeypatch.setattr(scheduler_mod.Scheduler, "_stopping", _short_bound(scheduler_mod.Scheduler._stopping))
     signals.count = 1  # Ctrl-C before the first poll: nothing new is submitted after it
@@ -94,8 +98,13 @@ def test_one_ctrl_c_waits_a_stated_bound_then_abandons_stalled_batches(project, 
     # a stalled batch (its worker hangs): one Ctrl-C, then abandoned after the stated bound
     ledger = Ledger.open(project / "d", verify=False)
     signals = StopSignals()
-    sched = Scheduler(campaign, ledger, executor=ExecutorHandle(ex, 1, abandon=lambda: abandoned.append(1)),
-                      batch_size=2, signals=signals)
+    sched = Scheduler(
+        campaign,
+        ledger,
+        executor=ExecutorHandle(ex, 1, abandon=lambda: abandoned.append(1)),
+        batch_size=2,
+        signals=signals,
+    )
     sched._say = said.append
     orig_wait = scheduler_mod.wait
 
@@ -197,8 +206,14 @@ def test_ctrl_c_at_random_moments_stops_within_the_bound_and_resumes(project):
     ledger = project / "data" / "c" / "ledger.sqlite"
     for trial in range(7):
         presses = 1 + trial % 2
-        proc = spawn(*(["resume", "data/c"] if ledger.exists() else ["run", "c.toml"]), "--workers", "2",
-                     "--batch-size", "4", cwd=project)
+        proc = spawn(
+            *(["resume", "data/c"] if ledger.exists() else ["run", "c.toml"]),
+            "--workers",
+            "2",
+            "--batch-size",
+            "4",
+            cwd=project,
+        )
         if trial == 0:  # while it plans: nothing is created
             time.sleep(0.3)
         else:

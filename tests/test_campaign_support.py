@@ -100,8 +100,12 @@ def cli(*args: str, cwd: Path, timeout: float = 120.0, **kw) -> subprocess.Compl
 def spawn(*args: str, cwd: Path) -> subprocess.Popen:
     """``labrunner`` in its own session (so a signal to its group reaches it like a terminal's Ctrl-C)."""
     return subprocess.Popen(
-        [sys.executable, "-m", "labrunner", *args], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True, start_new_session=True,
+        [sys.executable, "-m", "labrunner", *args],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
     )
 
 
@@ -132,8 +136,17 @@ def wait_for(predicate, timeout: float, interval: float = 0.05) -> bool:
 def comparable(rows: list[dict]) -> list[tuple]:
     """What must agree between two runs of one campaign: states, outcomes and metrics per point."""
     return [
-        (r["id"], r["parameters"], r["state"], r["outcome"], json.loads(r["outcome_json"] or "null"),
-         r["rms_error"], r["input_energy"], r["max_abs_input"], r["log_path"])
+        (
+            r["id"],
+            r["parameters"],
+            r["state"],
+            r["outcome"],
+            json.loads(r["outcome_json"] or "null"),
+            r["rms_error"],
+            r["input_energy"],
+            r["max_abs_input"],
+            r["log_path"],
+        )
         for r in rows
     ]
 

@@ -21,16 +21,18 @@ def run(capsys, *args: str) -> tuple[int, str, str]:
 
 
 def test_json_matches_library(capsys):
-    code, out, _ = run(capsys, "--case", "mfc2-motor", "--gamma", "119.405", "--delay", "0.035", *MOTOR,
-                       "--k-d", "20", "--json")
+    code, out, _ = run(
+        capsys, "--case", "mfc2-motor", "--gamma", "119.405", "--delay", "0.035", *MOTOR, "--k-d", "20", "--json"
+    )
     assert code == 0
     assert json.loads(out) == bounds("mfc2-motor", gamma=119.405, delay=0.035, a=39.44, b=108.55, k_d=20.0)
     assert set(json.loads(out)) == {"k_p", "k_d"}
 
 
 def test_json_numeric(capsys):
-    code, out, _ = run(capsys, "--case", "mfc1-motor", "--gamma", "108.55", "--delay", "0.01", *MOTOR,
-                       "--numeric", "--json")
+    code, out, _ = run(
+        capsys, "--case", "mfc1-motor", "--gamma", "108.55", "--delay", "0.01", *MOTOR, "--numeric", "--json"
+    )
     result = json.loads(out)
     assert code == 0 and set(result) == {"k_p", "numeric"}
     assert result["numeric"]["k_p"] == pytest.approx(result["k_p"], rel=1e-6, abs=1e-6 * result["k_p"][1])
@@ -38,17 +40,31 @@ def test_json_numeric(capsys):
 
 def test_null_when_nothing_is_stable(capsys):
     # k_d in the gap between the correct bound (π/2)γ/(ρδ) ≈ 44.9 and the printed (2.53) ≈ 52.0
-    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "108.55", "--delay", "0.035", "--b", "108.55",
-                       "--k-d", "48", "--json")
+    code, out, _ = run(
+        capsys,
+        "--case",
+        "mfc2-ultralocal",
+        "--gamma",
+        "108.55",
+        "--delay",
+        "0.035",
+        "--b",
+        "108.55",
+        "--k-d",
+        "48",
+        "--json",
+    )
     assert code == 0 and json.loads(out)["k_p"] is None
-    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "108.55", "--delay", "0.035", "--b", "108.55",
-                       "--k-d", "48")
+    code, out, _ = run(
+        capsys, "--case", "mfc2-ultralocal", "--gamma", "108.55", "--delay", "0.035", "--b", "108.55", "--k-d", "48"
+    )
     assert code == 0 and "k_p: none stable at k_d = 48" in out
 
 
 def test_human_output(capsys):
-    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.01", "--rho", "1",
-                       "--k-d", "50", "--numeric")
+    code, out, _ = run(
+        capsys, "--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.01", "--rho", "1", "--k-d", "50", "--numeric"
+    )
     assert code == 0
     assert "k_d in (0, 157.0796327)" in out and "k_p in (0, " in out and "numerical solver" in out
 
@@ -58,31 +74,68 @@ UL = ["--case", "mfc1-ultralocal"]
 
 @pytest.mark.parametrize(
     ("args", "message"),
-    [([*UL, "--gamma", "1", "--delay", "0", "--rho", "1"], "delay: must be > 0, got 0.0"),
-     ([*UL, "--gamma", "1", "--delay", "-0.1", "--rho", "1"], "delay: must be > 0, got -0.1"),
-     ([*UL, "--gamma", "1", "--delay", "nan", "--rho", "1"], "delay: must be a finite number > 0, got nan"),
-     ([*UL, "--gamma", "0", "--delay", "0.1", "--rho", "1"], "gamma: must be > 0, got 0.0"),
-     ([*UL, "--gamma", "nan", "--delay", "0.1", "--rho", "1"], "gamma: must be a finite number > 0, got nan"),
-     ([*UL, "--gamma", "1", "--delay", "0.1", "--rho", "-2"], "rho: must be > 0, got -2.0"),
-     ([*UL, "--gamma", "1", "--delay", "0.1", "--rho", "nan"], "rho: must be a finite number > 0, got nan"),
-     ([*UL, "--gamma", "1", "--delay", "0.1", "--b", "0"], "b: must be > 0, got 0.0"),  # --rho taken from --b
-     ([*UL, "--gamma", "1", "--delay", "0.1"], "rho: is required for case mfc1-ultralocal (or give b)"),
-     (["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR], "k_d: is required for the second-order case mfc2-motor"),
-     (["--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.1", "--rho", "1"], "k_d: is required for the second-order case"),
-     (["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR, "--k-d", "nan"], "k_d: must be finite, got nan"),
-     (["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--a", "nan", "--b", "2"], "a: must be finite, got nan"),
-     (["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--b", "2"], "a: is required for case mfc1-motor"),
-     (["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", *MOTOR, "--k-d", "3"], "k_d: is not used by the first-order case"),
-     (["--case", "mfc2-second-order", "--gamma", "1", "--delay", "0.1", "--a0", "-1", "--a1", "1", "--b", "1", "--k-d", "1"],
-      "a0: must be >= 0 (thesis A.6), got -1.0"),
-     ([*UL, "--gamma", "abc", "--delay", "0.1", "--rho", "1"], "argument --gamma: must be a number > 0, got 'abc'"),
-     (["--case", "mfc9", "--gamma", "1", "--delay", "0.1", "--rho", "1"], "argument --case: invalid choice: 'mfc9' (choose from")],
+    [
+        ([*UL, "--gamma", "1", "--delay", "0", "--rho", "1"], "delay: must be > 0, got 0.0"),
+        ([*UL, "--gamma", "1", "--delay", "-0.1", "--rho", "1"], "delay: must be > 0, got -0.1"),
+        ([*UL, "--gamma", "1", "--delay", "nan", "--rho", "1"], "delay: must be a finite number > 0, got nan"),
+        ([*UL, "--gamma", "0", "--delay", "0.1", "--rho", "1"], "gamma: must be > 0, got 0.0"),
+        ([*UL, "--gamma", "nan", "--delay", "0.1", "--rho", "1"], "gamma: must be a finite number > 0, got nan"),
+        ([*UL, "--gamma", "1", "--delay", "0.1", "--rho", "-2"], "rho: must be > 0, got -2.0"),
+        ([*UL, "--gamma", "1", "--delay", "0.1", "--rho", "nan"], "rho: must be a finite number > 0, got nan"),
+        ([*UL, "--gamma", "1", "--delay", "0.1", "--b", "0"], "b: must be > 0, got 0.0"),  # --rho taken from --b
+        ([*UL, "--gamma", "1", "--delay", "0.1"], "rho: is required for case mfc1-ultralocal (or give b)"),
+        (
+            ["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR],
+            "k_d: is required for the second-order case mfc2-motor",
+        ),
+        (
+            ["--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.1", "--rho", "1"],
+            "k_d: is required for the second-order case",
+        ),
+        (
+            ["--case", "mfc2-motor", "--gamma", "1", "--delay", "0.1", *MOTOR, "--k-d", "nan"],
+            "k_d: must be finite, got nan",
+        ),
+        (
+            ["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--a", "nan", "--b", "2"],
+            "a: must be finite, got nan",
+        ),
+        (["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", "--b", "2"], "a: is required for case mfc1-motor"),
+        (
+            ["--case", "mfc1-motor", "--gamma", "1", "--delay", "0.1", *MOTOR, "--k-d", "3"],
+            "k_d: is not used by the first-order case",
+        ),
+        (
+            [
+                "--case",
+                "mfc2-second-order",
+                "--gamma",
+                "1",
+                "--delay",
+                "0.1",
+                "--a0",
+                "-1",
+                "--a1",
+                "1",
+                "--b",
+                "1",
+                "--k-d",
+                "1",
+            ],
+            "a0: must be >= 0 (thesis A.6), got -1.0",
+        ),
+        ([*UL, "--gamma", "abc", "--delay", "0.1", "--rho", "1"], "argument --gamma: must be a number > 0, got 'abc'"),
+        (
+            ["--case", "mfc9", "--gamma", "1", "--delay", "0.1", "--rho", "1"],
+            "argument --case: invalid choice: 'mfc9' (choose from",
+        ),
+    ],
 )
 def test_bad_input_exits_2_with_one_line(capsys, args, message):
     """One line on stderr naming the parameter and what it accepts; nothing on stdout."""
     try:
         code = main(["bounds", *args])
-    except SystemExit as exc:   # argparse usage errors (not a number, unknown case)
+    except SystemExit as exc:  # argparse usage errors (not a number, unknown case)
         code = exc.code
     out, err = capsys.readouterr()
     assert code == 2 and out == ""
@@ -90,8 +143,21 @@ def test_bad_input_exits_2_with_one_line(capsys, args, message):
 
 
 def test_json_numeric_second_order(capsys):
-    code, out, _ = run(capsys, "--case", "mfc2-ultralocal", "--gamma", "1", "--delay", "0.01", "--b", "1",
-                       "--k-d", "50", "--numeric", "--json")
+    code, out, _ = run(
+        capsys,
+        "--case",
+        "mfc2-ultralocal",
+        "--gamma",
+        "1",
+        "--delay",
+        "0.01",
+        "--b",
+        "1",
+        "--k-d",
+        "50",
+        "--numeric",
+        "--json",
+    )
     result = json.loads(out)
     assert code == 0 and set(result) == {"k_p", "k_d", "numeric"} and set(result["numeric"]) == {"k_p", "k_d"}
     assert result == bounds("mfc2-ultralocal", gamma=1.0, delay=0.01, rho=1.0, k_d=50.0, numeric=True)  # rho = b
@@ -100,13 +166,50 @@ def test_json_numeric_second_order(capsys):
 
 
 def test_end_to_end_subprocess():
-    proc = subprocess.run([sys.executable, "-m", "labrunner", "bounds", "--case", "mfc1-ultralocal", "--gamma", "2",
-                           "--delay", "0.01", "--rho", "3", "--json"], capture_output=True, text=True, check=False)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "labrunner",
+            "bounds",
+            "--case",
+            "mfc1-ultralocal",
+            "--gamma",
+            "2",
+            "--delay",
+            "0.01",
+            "--rho",
+            "3",
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert proc.returncode == 0
     assert json.loads(proc.stdout)["k_p"] == pytest.approx([0.0, 3.141592653589793 / 2 * 2 / 0.03])
-    bad = subprocess.run([sys.executable, "-m", "labrunner", "bounds", "--case", "mfc2-motor", "--gamma", "1",
-                          "--delay", "0.01", *MOTOR], capture_output=True, text=True, check=False)
-    assert bad.returncode == 2 and bad.stderr.strip() == "labrunner bounds: error: k_d: is required for the second-order case mfc2-motor"
+    bad = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "labrunner",
+            "bounds",
+            "--case",
+            "mfc2-motor",
+            "--gamma",
+            "1",
+            "--delay",
+            "0.01",
+            *MOTOR,
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert (
+        bad.returncode == 2
+        and bad.stderr.strip() == "labrunner bounds: error: k_d: is required for the second-order case mfc2-motor"
+    )
 
 
 def test_numeric_round_off_at_a_zero_bound_prints_as_zero(capsys):

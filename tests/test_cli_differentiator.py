@@ -46,7 +46,21 @@ def test_json_with_cost_order_method_and_window(capsys):
     d = design(alpha=4, beta=4, omega_c=840, fs=32000, method="trapezoidal")
     assert info["cost_db"] == pytest.approx(cost_db(d, 2))
     info = run_json(
-        capsys, "--alpha", "2", "--beta", "3", "--N", "1", "--theta", "0.5", "--window", "0.145", "--fs", "200", "--order", "0"
+        capsys,
+        "--alpha",
+        "2",
+        "--beta",
+        "3",
+        "--N",
+        "1",
+        "--theta",
+        "0.5",
+        "--window",
+        "0.145",
+        "--fs",
+        "200",
+        "--order",
+        "0",
     )
     assert info["n_s"] == 29 and info["delay_s"] == pytest.approx(0.25 * 0.145)
     assert sum(info["weights"]) == pytest.approx(1.0)
@@ -63,28 +77,57 @@ def test_summary_is_readable(capsys):
     [
         (["--alpha", "nan", "--beta", "1", "--window", "0.1"], "alpha: must be a finite number > -1, got nan"),
         (["--alpha", "2", "--beta", "inf", "--window", "0.1"], "beta: must be a finite number > -1, got inf"),
-        (["--alpha", "0.5", "--beta", "2", "--window", "0.1", "--order", "2"], "alpha: must be > n - 1 = 1 for derivative order 2"),
-        (["--alpha", "2", "--beta", "1", "--window", "0.1", "--order", "2"], "beta: must be > n - 1 = 1 for derivative order 2"),
+        (
+            ["--alpha", "0.5", "--beta", "2", "--window", "0.1", "--order", "2"],
+            "alpha: must be > n - 1 = 1 for derivative order 2",
+        ),
+        (
+            ["--alpha", "2", "--beta", "1", "--window", "0.1", "--order", "2"],
+            "beta: must be > n - 1 = 1 for derivative order 2",
+        ),
         (["--alpha", "-2", "--beta", "2", "--window", "0.1"], "alpha: must be > -1 and <= 200, got -2.0"),
         (["--alpha", "2", "--beta", "2", "--window", "0.1", "--N", "-1"], "N: must be an integer in 0..20, got -1"),
         (["--alpha", "2", "--beta", "2", "--window", "0.1", "--N", "1.5"], "--N: must be an integer >= 0, got '1.5'"),
         (["--alpha", "2", "--beta", "2"], "omega_c: give exactly one of omega_c [rad/s] and window [s], got neither"),
-        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--omega-c", "50"], "exactly one of omega_c [rad/s] and window [s], got both"),
-        (["--alpha", "9", "--beta", "9", "--omega-c", "900"], "omega_c: must be <= 568.32 rad/s (n_s >= 5 at fs = 200 Hz: a realised cutoff <= Nyquist"),
-        (["--alpha", "9", "--beta", "9", "--window", "0.02"], "window: must be >= 0.025 s (n_s >= 5 at fs = 200 Hz: a realised cutoff <= Nyquist"),
+        (
+            ["--alpha", "2", "--beta", "2", "--window", "0.1", "--omega-c", "50"],
+            "exactly one of omega_c [rad/s] and window [s], got both",
+        ),
+        (
+            ["--alpha", "9", "--beta", "9", "--omega-c", "900"],
+            "omega_c: must be <= 568.32 rad/s (n_s >= 5 at fs = 200 Hz: a realised cutoff <= Nyquist",
+        ),
+        (
+            ["--alpha", "9", "--beta", "9", "--window", "0.02"],
+            "window: must be >= 0.025 s (n_s >= 5 at fs = 200 Hz: a realised cutoff <= Nyquist",
+        ),
         (["--alpha", "2", "--beta", "2", "--window", "0.005"], "window: must be >= 0.01 s (n_s >= 2 samples"),
         (["--alpha", "2", "--beta", "2", "--omega-c", "1000"], "omega_c: must be <= 391.487 rad/s (n_s >= 2 samples"),
         (["--alpha", "2", "--beta", "2", "--window", "-1"], "window: must be > 0, got -1.0"),
         (["--alpha", "2", "--beta", "2", "--window", "nan"], "window: must be a finite number > 0, got nan"),
         (["--alpha", "2", "--beta", "2", "--omega-c", "-5"], "omega_c: must be > 0, got -5.0"),
         (["--alpha", "2", "--beta", "2", "--window", "0.1", "--order", "-1"], "order: must be an integer >= 0, got -1"),
-        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--order", "x"], "--order: must be an integer >= 0, got 'x'"),
+        (
+            ["--alpha", "2", "--beta", "2", "--window", "0.1", "--order", "x"],
+            "--order: must be an integer >= 0, got 'x'",
+        ),
         (["--alpha", "2", "--beta", "2", "--window", "0.1", "--theta", "0.5"], "theta: is only a parameter for N > 0"),
-        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--N", "1", "--theta", "2"], "theta: must be in [-1, 1], got 2.0"),
-        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--N", "1", "--theta", "nan"], "theta: must be in [-1, 1], got nan"),
-        (["--alpha", "2", "--beta", "2", "--window", "0.1", "--method", "simpson"], "--method: invalid choice: 'simpson' (choose from"),
-        (["--alpha", "1.5", "--beta", "2", "--window", "0.1", "--order", "2", "--method", "trapezoidal"],
-         "method: trapezoidal samples the window ends, where g^(2) is infinite; needs min(alpha, beta) >= 2"),
+        (
+            ["--alpha", "2", "--beta", "2", "--window", "0.1", "--N", "1", "--theta", "2"],
+            "theta: must be in [-1, 1], got 2.0",
+        ),
+        (
+            ["--alpha", "2", "--beta", "2", "--window", "0.1", "--N", "1", "--theta", "nan"],
+            "theta: must be in [-1, 1], got nan",
+        ),
+        (
+            ["--alpha", "2", "--beta", "2", "--window", "0.1", "--method", "simpson"],
+            "--method: invalid choice: 'simpson' (choose from",
+        ),
+        (
+            ["--alpha", "1.5", "--beta", "2", "--window", "0.1", "--order", "2", "--method", "trapezoidal"],
+            "method: trapezoidal samples the window ends, where g^(2) is infinite; needs min(alpha, beta) >= 2",
+        ),
         (["--alpha", "x", "--beta", "2", "--window", "0.1"], "--alpha: must be a number > -1, got 'x'"),
     ],
 )
@@ -99,7 +142,9 @@ def test_bad_input_exits_2_with_one_line(capsys, argv, fragment):
     assert out == "" and err.count("\n") == 1 and fragment in err, err
 
 
-@pytest.mark.parametrize("fs, fragment", [("-200", "fs: must be > 0, got -200.0"), ("nan", "fs: must be a finite number > 0")])
+@pytest.mark.parametrize(
+    "fs, fragment", [("-200", "fs: must be > 0, got -200.0"), ("nan", "fs: must be a finite number > 0")]
+)
 def test_bad_sampling_rate_exits_2(capsys, fs, fragment):
     assert main(["differentiator", "--alpha", "2", "--beta", "2", "--window", "0.1", "--fs", fs]) == 2
     err = capsys.readouterr().err
@@ -108,14 +153,31 @@ def test_bad_sampling_rate_exits_2(capsys, fs, fragment):
 
 def test_real_command_end_to_end():
     ok = subprocess.run(
-        [sys.executable, "-m", "labrunner", "differentiator", "--alpha", "6", "--beta", "6", "--omega-c", "200", "--fs", "200"]
+        [
+            sys.executable,
+            "-m",
+            "labrunner",
+            "differentiator",
+            "--alpha",
+            "6",
+            "--beta",
+            "6",
+            "--omega-c",
+            "200",
+            "--fs",
+            "200",
+        ]
         + ["--json"],
-        capture_output=True, text=True, check=False,
+        capture_output=True,
+        text=True,
+        check=False,
     )
     assert ok.returncode == 0 and json.loads(ok.stdout)["n_s"] == 9
     bad = subprocess.run(
         [sys.executable, "-m", "labrunner", "differentiator", "--alpha", "6", "--beta", "6", "--fs", "200"],
-        capture_output=True, text=True, check=False,
+        capture_output=True,
+        text=True,
+        check=False,
     )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "omega_c" in bad.stderr
 
@@ -124,9 +186,27 @@ def test_output_into_a_closed_pipe_ends_quietly():
     """`labrunner … --json | head` must not print a traceback when the reader stops early."""
     read, write = os.pipe()
     os.close(read)  # the reader is gone before anything is written
-    done = subprocess.run([sys.executable, "-m", "labrunner", "differentiator", "--alpha", "9", "--beta", "9",
-                           "--omega-c", "200", "--fs", "200", "--json"], stdout=write, stderr=subprocess.PIPE,
-                          text=True, timeout=60)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "labrunner",
+            "differentiator",
+            "--alpha",
+            "9",
+            "--beta",
+            "9",
+            "--omega-c",
+            "200",
+            "--fs",
+            "200",
+            "--json",
+        ],
+        stdout=write,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=60,
+    )
     os.close(write)
     assert done.returncode == 141 and done.stderr == ""
 

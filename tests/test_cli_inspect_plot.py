@@ -22,8 +22,15 @@ PNG = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture
 def aborted_run(tmp_path):
     path = tmp_path / "run.mcap"
-    write_run(path, metadata=metadata(), fs=200.0, signals=motor_run(), outcome=ABORTED, channels=CHANNELS,
-              attachments={"campaign.toml": b"[campaign]\n"})
+    write_run(
+        path,
+        metadata=metadata(),
+        fs=200.0,
+        signals=motor_run(),
+        outcome=ABORTED,
+        channels=CHANNELS,
+        attachments={"campaign.toml": b"[campaign]\n"},
+    )
     return path
 
 
@@ -99,7 +106,10 @@ def test_plot_run_panels_and_abort_markers(aborted_run):
     fig = plot_run(aborted_run)
     assert isinstance(fig, Figure)
     outputs, inputs, estimates = fig.axes
-    assert [l.get_label() for l in outputs.get_lines() if not l.get_label().startswith("_")] == [r"$\Omega$", r"$\Omega_r$"]
+    assert [l.get_label() for l in outputs.get_lines() if not l.get_label().startswith("_")] == [
+        r"$\Omega$",
+        r"$\Omega_r$",
+    ]
     assert outputs.get_lines()[1].get_linestyle() == "--"
     assert outputs.get_lines()[0].get_color() == outputs.get_lines()[1].get_color()
     assert "[V]" in inputs.get_ylabel() and "[rad/s]" in outputs.get_ylabel()
@@ -131,14 +141,20 @@ def test_plot_into_given_figure_and_torn(torn_run):
 def test_real_command(aborted_run, tmp_path):
     done = subprocess.run(
         [sys.executable, "-m", "labrunner", "inspect", str(aborted_run), "--json"],
-        capture_output=True, text=True, timeout=120, check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
     )
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout)["outcome"]["monitor"] == "du_dt"
     png = tmp_path / "sub.png"
     done = subprocess.run(
         [sys.executable, "-m", "labrunner", "plot", str(aborted_run), "-o", str(png), "--dpi", "50"],
-        capture_output=True, text=True, timeout=120, check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
     )
     assert done.returncode == 0, done.stderr
     assert png.read_bytes()[:8] == PNG
@@ -147,8 +163,14 @@ def test_real_command(aborted_run, tmp_path):
 def test_plot_draws_small_lengths_in_mm(tmp_path):
     gap = 5.5e-3 - 3.5e-3 * np.linspace(0, 1, 50)
     path = tmp_path / "plate.mcap"
-    write_run(path, metadata={}, fs=100.0, signals={"h": gap, "ref_h": gap, "i": np.full(50, 3.0)}, outcome=COMPLETED,
-              channels={"h": {"role": "controlled", "unit": "m"}, "i": {"role": "input", "unit": "A"}})
+    write_run(
+        path,
+        metadata={},
+        fs=100.0,
+        signals={"h": gap, "ref_h": gap, "i": np.full(50, 3.0)},
+        outcome=COMPLETED,
+        channels={"h": {"role": "controlled", "unit": "m"}, "i": {"role": "input", "unit": "A"}},
+    )
     outputs, inputs = plot_run(path).axes
     assert outputs.get_ylabel() == "outputs [mm]" and inputs.get_ylabel() == "inputs [A]"
     assert np.allclose(outputs.get_lines()[0].get_ydata(), 1e3 * gap)
@@ -205,8 +227,11 @@ def test_early_abort_is_zoomed_with_the_planned_run_as_context(tmp_path):
 
 def test_inspect_into_a_closed_pipe_is_quiet(aborted_run):
     """``labrunner inspect RUN.mcap --json | head -1``: the reader leaves early; no traceback."""
-    done = subprocess.Popen([sys.executable, "-m", "labrunner", "inspect", str(aborted_run), "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    done = subprocess.Popen(
+        [sys.executable, "-m", "labrunner", "inspect", str(aborted_run), "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     done.stdout.close()  # the reader is gone before the first byte
     err = done.stderr.read().decode()
     assert done.wait(timeout=120) == 141 and "Traceback" not in err and "Exception ignored" not in err
@@ -219,7 +244,13 @@ def test_each_estimated_quantity_gets_its_own_panel(tmp_path):
                "f_hat_y1": np.full(n, 9.81), "e_hat_y1": np.full(n, 1e-6), "de_hat_y1": np.full(n, 1e-4),
                "f_hat_y2": np.full(n, 9.7)}  # fmt: skip
     path = tmp_path / "plate.mcap"
-    write_run(path, metadata={}, fs=100.0, signals=signals, outcome=COMPLETED,
-              channels={"y1": {"role": "controlled", "unit": "m"}, "i1": {"role": "input", "unit": "A"}})
+    write_run(
+        path,
+        metadata={},
+        fs=100.0,
+        signals=signals,
+        outcome=COMPLETED,
+        channels={"y1": {"role": "controlled", "unit": "m"}, "i1": {"role": "input", "unit": "A"}},
+    )
     panels = [[l.get_label() for l in ax.get_lines()] for ax in plot_run(path).axes]
     assert panels == [["y1", "ref_y1"], ["i1"], ["f_hat_y1", "f_hat_y2"], ["e_hat_y1"], ["de_hat_y1"]]

@@ -18,7 +18,9 @@ def classical_kernels(order: int, T: float, sigma: np.ndarray) -> tuple[np.ndarr
     """(y-kernel, u-kernel/γ) of (2.18) for order 1 and of (2.23) for order 2, at σ = t − τ − ε."""
     if order == 1:
         return 6.0 / T**3 * (T - 2.0 * sigma), 6.0 / T**3 * sigma * (T - sigma)
-    return 120.0 / (2 * T**5) * (T**2 - 6 * T * sigma + 6 * sigma**2), 120.0 / (2 * T**5) * sigma**2 * (T - sigma) ** 2 / 2
+    return 120.0 / (2 * T**5) * (T**2 - 6 * T * sigma + 6 * sigma**2), 120.0 / (2 * T**5) * sigma**2 * (
+        T - sigma
+    ) ** 2 / 2
 
 
 def normalised(w: np.ndarray, n: int) -> np.ndarray:

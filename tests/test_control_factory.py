@@ -12,10 +12,20 @@ from labrunner.control.trajectories import Setpoints
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo, Signal
 
-MOTOR = RigInfo("motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 2000.0), 200.0, (0.0,))
-VALVE = RigInfo("valve", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"),), (1.0, 4000.0), 4000.0, (0.0,))
+MOTOR = RigInfo(
+    "motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 2000.0), 200.0, (0.0,)
+)
+VALVE = RigInfo(
+    "valve", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"),), (1.0, 4000.0), 4000.0, (0.0,)
+)
 VALVE_DP = RigInfo(
-    "valve-dp", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"), Signal("dp", "Pa")), (1.0, 4000.0), 4000.0, (0.0,)
+    "valve-dp",
+    "valve",
+    (Signal("i", "A", 0.0, 1.01),),
+    (Signal("q", "l/min"), Signal("dp", "Pa")),
+    (1.0, 4000.0),
+    4000.0,
+    (0.0,),
 )
 
 QUICKSTART = {  # the campaign file of issue 6, one resolved point
@@ -123,8 +133,14 @@ def test_batch_level_errors():
 
 
 def test_open_loop_drives_the_input_trajectory_saturated():
-    steps = {"controller": {"kind": "open-loop"}, "reference": {"kind": "steps", "levels": [-12.0, -6.0, 6.0, 20.0], "durations": 1.0}}
-    sine = {"controller": {"kind": "open-loop", "u_max": 5.0}, "reference": {"kind": "sine", "amplitude": 6.0, "frequency": 1.0, "duration": 4.0}}
+    steps = {
+        "controller": {"kind": "open-loop"},
+        "reference": {"kind": "steps", "levels": [-12.0, -6.0, 6.0, 20.0], "durations": 1.0},
+    }
+    sine = {
+        "controller": {"kind": "open-loop", "u_max": 5.0},
+        "reference": {"kind": "sine", "amplitude": 6.0, "frequency": 1.0, "duration": 4.0},
+    }
     c, ref = factory.build([steps, sine], MOTOR, 100.0)
     assert c.output_names == ("u_cmd",)
     t = np.arange(400) / 100.0
@@ -141,7 +157,10 @@ def test_open_loop_drives_the_input_trajectory_saturated():
 
 def test_valve_feed_forward_paper1_eq11():
     """i = κ q_d/√Δp + i_0 with κ = 6.596·10⁵, i_0 = 0.53 A (paper 1 Sec. 5.3), Δp = 5 bar."""
-    p = {"controller": {"kind": "valve-ffc", "dp": 5e5}, "reference": {"kind": "setpoints", "levels": [1.0, 5.0, 1.0], "transition": 5.0, "hold": 5.0}}
+    p = {
+        "controller": {"kind": "valve-ffc", "dp": 5e5},
+        "reference": {"kind": "setpoints", "levels": [1.0, 5.0, 1.0], "transition": 5.0, "hold": 5.0},
+    }
     c, ref = factory.build([p], VALVE, 4000.0)
     c.reset(np.zeros((1, 1)))
     for t, q_d in ((0.0, 1.0), (10.0, 5.0)):
@@ -172,12 +191,25 @@ def test_valve_feed_forward_paper1_eq11():
 def test_reference_per_output_and_per_run_kinds():
     """Nested levels give one trajectory per output (plate tilt); flat lists are shared by all
     outputs even when a time list happens to have n_outputs entries."""
-    nested = {"reference": {"kind": "setpoints", "levels": [[0.0, 1.0], [0.0, 2.0, 0.0], [3.0]], "transition": [[0.5], [0.2, 0.3], []], "hold": 0.1}}
-    shared = {"reference": {"kind": "setpoints", "levels": [0.0, 1.0, 0.0, 2.0], "transition": [0.5, 0.2, 0.3], "hold": 0.1}}
+    nested = {
+        "reference": {
+            "kind": "setpoints",
+            "levels": [[0.0, 1.0], [0.0, 2.0, 0.0], [3.0]],
+            "transition": [[0.5], [0.2, 0.3], []],
+            "hold": 0.1,
+        }
+    }
+    shared = {
+        "reference": {"kind": "setpoints", "levels": [0.0, 1.0, 0.0, 2.0], "transition": [0.5, 0.2, 0.3], "hold": 0.1}
+    }
     ref = factory.reference([nested, shared], 3)
     t = np.linspace(0.0, 2.0, 81)
     R = ref.evaluate(t)
-    expected = [Setpoints.build([0.0, 1.0], [0.5], 0.1), Setpoints.build([0.0, 2.0, 0.0], [0.2, 0.3], 0.1), Setpoints.build([3.0], [], 0.1)]
+    expected = [
+        Setpoints.build([0.0, 1.0], [0.5], 0.1),
+        Setpoints.build([0.0, 2.0, 0.0], [0.2, 0.3], 0.1),
+        Setpoints.build([3.0], [], 0.1),
+    ]
     for o, tr in enumerate(expected):
         np.testing.assert_array_equal(R[:, 0, o], tr.evaluate(t))
     flat = Setpoints.build([0.0, 1.0, 0.0, 2.0], [0.5, 0.2, 0.3], 0.1).evaluate(t)

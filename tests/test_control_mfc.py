@@ -12,8 +12,12 @@ from labrunner.differentiators import design
 from labrunner.rigs.base import RigInfo, Signal
 
 ULTRA = RigInfo("ultra", "test", (Signal("u", "1", -1e6, 1e6),), (Signal("y", "m"),), (1.0, 1e5), 1000.0, (0.0,))
-MOTOR = RigInfo("motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 2000.0), 200.0, (0.0,))
-VALVE = RigInfo("valve", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"),), (1.0, 4000.0), 4000.0, (0.0,))
+MOTOR = RigInfo(
+    "motor", "dcmotor", (Signal("u", "V", -12.0, 12.0),), (Signal("theta", "rad"),), (1.0, 2000.0), 200.0, (0.0,)
+)
+VALVE = RigInfo(
+    "valve", "valve", (Signal("i", "A", 0.0, 1.01),), (Signal("q", "l/min"),), (1.0, 4000.0), 4000.0, (0.0,)
+)
 
 
 def point(kind="mfc1", ctl=None, diff=None, ref=None):
@@ -125,8 +129,12 @@ def test_difference_quotient_output_and_reference_delay():
     assert c.output_names == ("omega",)
     d = factory.differentiators([p], fs, 1)[0]
     t = np.arange(1000) / fs
-    undelayed = factory.reference([{**p, "reference": {**p["reference"], "delay": False}}]).evaluate(t - d.discrete_delay_s(0))
-    np.testing.assert_allclose(ref.evaluate(t)[t >= d.discrete_delay_s(0)], undelayed[t >= d.discrete_delay_s(0)], atol=1e-9)
+    undelayed = factory.reference([{**p, "reference": {**p["reference"], "delay": False}}]).evaluate(
+        t - d.discrete_delay_s(0)
+    )
+    np.testing.assert_allclose(
+        ref.evaluate(t)[t >= d.discrete_delay_s(0)], undelayed[t >= d.discrete_delay_s(0)], atol=1e-9
+    )
     theta = np.cumsum(np.random.default_rng(0).normal(size=50)) * 0.01
     c.reset(theta[:1, None])
     r = np.zeros((1, 1, 4))
@@ -189,9 +197,19 @@ def test_batch_equals_separate_runs():
     fs = 1000.0
     points = [
         point("mfc2", {"gamma": 1.0, "k_p": 100.0, "k_d": 20.0}, {"alpha": 2, "beta": 2, "omega_c": 150.0}),
-        point("mfc2", {"gamma": 2.0, "k_p": 50.0, "k_d": 10.0}, {"alpha": 5, "beta": 5, "omega_c": 80.0, "method": "analytic"}),
-        point("mfc2", {"gamma": 0.7, "k_p": 300.0, "k_d": 35.0, "u_max": 30.0}, {"alpha": 3, "beta": 4, "window": 0.031}),
-        point("mfc2", {"gamma": 1.3, "k_p": 10.0, "k_d": 5.0, "filter": "output"}, {"alpha": 2.5, "beta": 2.5, "N": 1, "omega_c": 200.0}),
+        point(
+            "mfc2",
+            {"gamma": 2.0, "k_p": 50.0, "k_d": 10.0},
+            {"alpha": 5, "beta": 5, "omega_c": 80.0, "method": "analytic"},
+        ),
+        point(
+            "mfc2", {"gamma": 0.7, "k_p": 300.0, "k_d": 35.0, "u_max": 30.0}, {"alpha": 3, "beta": 4, "window": 0.031}
+        ),
+        point(
+            "mfc2",
+            {"gamma": 1.3, "k_p": 10.0, "k_d": 5.0, "filter": "output"},
+            {"alpha": 2.5, "beta": 2.5, "N": 1, "omega_c": 200.0},
+        ),
     ]
     c, ref = factory.build(points, ULTRA, fs)
     logs, _ = simulate(c, ref, fs, 1500, f=-3.0, rho=1.0, order=2)
@@ -206,7 +224,14 @@ def test_shared_design_layout_equals_per_row_bank():
     """A large batch sharing one design uses one FIR per tap vector (a BLAS product); it matches
     the per-row bank of the B = 1 runs to 1e-12 of each signal's scale."""
     fs, B = 1000.0, 40
-    points = [point("mfc2", {"gamma": 0.5 + 0.05 * i, "k_p": 50.0 + 5 * i, "k_d": 10.0 + i}, {"alpha": 3, "beta": 3, "omega_c": 120.0}) for i in range(B)]
+    points = [
+        point(
+            "mfc2",
+            {"gamma": 0.5 + 0.05 * i, "k_p": 50.0 + 5 * i, "k_d": 10.0 + i},
+            {"alpha": 3, "beta": 3, "omega_c": 120.0},
+        )
+        for i in range(B)
+    ]
     c, ref = factory.build(points, ULTRA, fs)
     assert c.estimator._shared
     logs, _ = simulate(c, ref, fs, 800, f=2.0, rho=1.0, order=2)

@@ -27,7 +27,14 @@ def test_description_round_trip(name):
     rig = load_rig(rig_name)
     data = description.build(point, rig.info, fs=fs, duration=duration, seed=7, rig_safety=safety, watchdog_s=0.02)
     d = description.decode(data)
-    assert (d.fs, d.duration, d.ticks, d.seed, d.watchdog_s, d.kind) == (fs, duration, round(fs * duration), 7, 0.02, point["controller"]["kind"])
+    assert (d.fs, d.duration, d.ticks, d.seed, d.watchdog_s, d.kind) == (
+        fs,
+        duration,
+        round(fs * duration),
+        7,
+        0.02,
+        point["controller"]["kind"],
+    )
     # the point comes back as it went (numbers as numbers, lists as lists, bounds as tables)
     for section in ("controller", "differentiator", "reference", "safety"):
         assert d.point()[section] == dict(point.get(section, {}))
@@ -37,7 +44,9 @@ def test_description_round_trip(name):
 
 def test_description_refuses_a_flipped_bit_and_another_version():
     point, rig_name, fs, duration, safety = POINTS["motor-mfc1"]
-    data = bytearray(description.build(point, load_rig(rig_name).info, fs=fs, duration=duration, seed=0, rig_safety=safety))
+    data = bytearray(
+        description.build(point, load_rig(rig_name).info, fs=fs, duration=duration, seed=0, rig_safety=safety)
+    )
     rng = random.Random(0)
     for _ in range(20):
         bad = bytearray(data)
@@ -59,7 +68,9 @@ def test_what_cannot_be_expressed_is_refused_with_the_field():
     with pytest.raises(InvalidParameter, match=r"campaign\.duration"):
         description.build(point, info, fs=fs, duration=0.0, seed=0)
     with pytest.raises(InvalidParameter, match=r"controller\.k_p"):  # the engine's own checks run first
-        description.build({**point, "controller": {**point["controller"], "k_p": "fast"}}, info, fs=fs, duration=duration, seed=0)
+        description.build(
+            {**point, "controller": {**point["controller"], "k_p": "fast"}}, info, fs=fs, duration=duration, seed=0
+        )
 
 
 def test_executor_refuses_records_that_disagree_with_the_point():
@@ -76,7 +87,9 @@ def test_executor_refuses_records_that_disagree_with_the_point():
     with pytest.raises(DescriptionError, match="outputs"):
         executor.check(d, _plate())
     point, _, fs, duration, safety = POINTS["plate-mfc"]
-    plate = description.decode(description.build(point, _plate().info, fs=fs, duration=duration, seed=0, rig_safety=safety))
+    plate = description.decode(
+        description.build(point, _plate().info, fs=fs, duration=duration, seed=0, rig_safety=safety)
+    )
     notch = {"_notch": plate.filters["_notch"] * 1.001}
     with pytest.raises(DescriptionError, match="filter matrices"):
         executor.check(description.Description(**{**plate.__dict__, "filters": notch}), _plate())
@@ -132,7 +145,9 @@ def _serve(channel: _Channel, rig, stop: threading.Event):
             dev.on_message(*msg)
 
 
-@pytest.mark.parametrize("name, stream", [("motor-mfc2", False), ("motor-mfc2", True), ("motor-aborted", True), ("valve-mfc1", False)])
+@pytest.mark.parametrize(
+    "name, stream", [("motor-mfc2", False), ("motor-mfc2", True), ("motor-aborted", True), ("valve-mfc1", False)]
+)
 def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     point, rig_name, fs, duration, safety = POINTS[name]
     channel, stop = _Channel(fault=0.003, seed=5), threading.Event()
@@ -141,8 +156,18 @@ def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     try:
         send, recv = channel.end("host", "device")
         link = linkload.LinkSpec("can", 1e6) if stream else None  # 200 Hz × 6 columns fit: stream
-        [result] = host.run(send, recv, 8, [point], load_rig(rig_name).info, fs=fs, duration=duration, seeds=[11],
-                            rig_safety=safety, link=link)
+        [result] = host.run(
+            send,
+            recv,
+            8,
+            [point],
+            load_rig(rig_name).info,
+            fs=fs,
+            duration=duration,
+            seeds=[11],
+            rig_safety=safety,
+            link=link,
+        )
     finally:
         stop.set()
         device.join()
@@ -150,7 +175,9 @@ def test_session_over_a_lossy_channel_gives_the_twin_result(name, stream):
     twin = twin_run(name, seed=11)
     d = result.diagnostics
     assert d["streamed"] is stream and d["ticks"] == twin.n_samples and d["overruns"] == 0
-    assert d["received"]["crc_errors"] + d["received"]["broken"] > 0 and d["received"]["nacks"] > 0  # faults were healed
+    assert (
+        d["received"]["crc_errors"] + d["received"]["broken"] > 0 and d["received"]["nacks"] > 0
+    )  # faults were healed
 
 
 def test_lost_device_acks_never_run_a_description_twice():
@@ -163,7 +190,9 @@ def test_lost_device_acks_never_run_a_description_twice():
 
     def serve():
         send, recv = channel.end("device", "host")
-        dev = session.DeviceSession(send, recv, 8, lambda data, **kw: runs.append(1) or executor.execute(data, rig, **kw))
+        dev = session.DeviceSession(
+            send, recv, 8, lambda data, **kw: runs.append(1) or executor.execute(data, rig, **kw)
+        )
         while not stop.is_set():
             if (msg := recv(0.01)) is not None:
                 dev.on_message(*msg)
@@ -212,7 +241,9 @@ def _device_thread(rig):
 
     def serve():
         send, recv = channel.end("device", "host")
-        held["session"] = dev = session.DeviceSession(send, recv, 8, lambda data, **kw: executor.execute(data, rig, **kw))
+        held["session"] = dev = session.DeviceSession(
+            send, recv, 8, lambda data, **kw: executor.execute(data, rig, **kw)
+        )
         held["runs"] = runs = []
         original = dev.execute
 

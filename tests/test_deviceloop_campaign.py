@@ -51,7 +51,9 @@ hold = 0.02
 
 
 def _labrunner(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "labrunner", *args], capture_output=True, text=True, cwd=ROOT, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "labrunner", *args], capture_output=True, text=True, cwd=ROOT, timeout=600
+    )
 
 
 @pytest.mark.slow
@@ -67,8 +69,14 @@ def test_plate_campaign_runs_on_the_device(tmp_path: Path):
     for path in logs:
         log = read_run(str(path))
         point = log.metadata["config"]
-        twin = engine.run_batch([point], twin_rig, fs=32000.0, duration=point["campaign"]["duration"], seeds=[5],
-                                rig_safety=config["safety"])[0]
+        twin = engine.run_batch(
+            [point],
+            twin_rig,
+            fs=32000.0,
+            duration=point["campaign"]["duration"],
+            seeds=[5],
+            rig_safety=config["safety"],
+        )[0]
         assert log.outcome["status"] == twin.outcome.status == "completed"
         device = log.metadata["diagnostics"]
         assert device["loop"] == "device" and device["device_loop"]["ticks"] == twin.n_samples
@@ -92,7 +100,7 @@ def test_plan_refuses_the_plate_host_loop_on_a_1_mbit_bus(tmp_path: Path):
 
 def test_plan_refuses_what_the_device_cannot_run(tmp_path: Path):
     (tmp_path / "plate-fd.toml").write_text(rig_toml(rig_file("plate-mfc", "canfd")))
-    (tmp_path / "campaign.toml").write_text(CAMPAIGN + '\n[rig_parameters]\nm = 5.0\n')
+    (tmp_path / "campaign.toml").write_text(CAMPAIGN + "\n[rig_parameters]\nm = 5.0\n")
     done = _labrunner("run", str(tmp_path / "campaign.toml"), "--dry-run")
     assert done.returncode != 0 and "rig_parameters" in done.stderr
 

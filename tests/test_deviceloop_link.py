@@ -31,10 +31,19 @@ def rig_file(name: str, medium: str, port: str = "") -> dict:
     if medium == "serial":
         parameters.update(port=port, baudrate=3_000_000)
     else:
-        parameters.update(interface="udp_multicast", channel="239.74.163.2", port=random.randint(20000, 60000),
-                          bitrate=1_000_000, fd=medium == "canfd", data_bitrate=5_000_000)
-    return {"rig": {"kind": "serial" if medium == "serial" else "can", "name": f"{DEVICE[rig_name]}-{medium}"},
-            "parameters": parameters, "safety": dict(safety)}
+        parameters.update(
+            interface="udp_multicast",
+            channel="239.74.163.2",
+            port=random.randint(20000, 60000),
+            bitrate=1_000_000,
+            fd=medium == "canfd",
+            data_bitrate=5_000_000,
+        )
+    return {
+        "rig": {"kind": "serial" if medium == "serial" else "can", "name": f"{DEVICE[rig_name]}-{medium}"},
+        "parameters": parameters,
+        "safety": dict(safety),
+    }
 
 
 def rig_toml(config: dict) -> str:
@@ -57,8 +66,12 @@ def emulator_process(config: dict, faults: tuple[str, ...] = ()):
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"{config['rig']['name']}.toml"
         path.write_text(rig_toml(config))
-        proc = subprocess.Popen([sys.executable, "-m", "labrunner", "emulate", str(path), "--free-run", *faults],
-                                stdout=subprocess.PIPE, text=True, cwd=ROOT)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "labrunner", "emulate", str(path), "--free-run", *faults],
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
         try:
             line = proc.stdout.readline().strip()
             if line.startswith("port "):
@@ -79,8 +92,15 @@ def device_run(name: str, config: dict, seed: int = 11):
     return result
 
 
-CASES = [("motor-mfc2", "can"), ("motor-aborted", "can"), ("valve-mfc1", "can"), ("plate-mfc", "canfd"),
-         ("motor-mfc1", "serial"), ("valve-mfc1", "serial"), ("plate-mbc", "serial")]
+CASES = [
+    ("motor-mfc2", "can"),
+    ("motor-aborted", "can"),
+    ("valve-mfc1", "can"),
+    ("plate-mfc", "canfd"),
+    ("motor-mfc1", "serial"),
+    ("valve-mfc1", "serial"),
+    ("plate-mbc", "serial"),
+]
 
 
 @pytest.mark.slow
@@ -95,12 +115,16 @@ def test_device_loop_across_processes_gives_the_twin_result(name, medium):
     assert d["device_loop"]["bytes_to_host"] >= result.n_samples * 4 * len(result.channels["inputs"])
     link = linkload.from_rig(config["rig"]["kind"], config["parameters"])
     fits = linkload.device_loop_load(link, result.fs, d["device_loop"]["columns"]) <= linkload.MAX_LOAD
-    assert d["device_loop"]["streamed"] == fits and fits == (name.startswith("motor") or name == "valve-mfc1" and medium == "serial")
+    assert d["device_loop"]["streamed"] == fits and fits == (
+        name.startswith("motor") or name == "valve-mfc1" and medium == "serial"
+    )
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("medium, faults", [("can", ("--drop", "0.004", "--seed", "2")),
-                                            ("serial", ("--drop", "0.003", "--garbage", "0.01", "--seed", "3"))])
+@pytest.mark.parametrize(
+    "medium, faults",
+    [("can", ("--drop", "0.004", "--seed", "2")), ("serial", ("--drop", "0.003", "--garbage", "0.01", "--seed", "3"))],
+)
 def test_lost_and_corrupted_frames_are_detected_and_resent(medium, faults):
     with emulator_process(rig_file("valve-mfc1", medium), faults) as config:
         result = device_run("valve-mfc1", config)

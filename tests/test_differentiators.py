@@ -10,8 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 from scipy.integrate import quad
 
 from labrunner.differentiators import METHODS, Differentiator, design
@@ -132,8 +131,12 @@ def test_kernel_n0_is_b8_in_closed_form(alpha, beta):
     T = d.window_s
     tau = np.linspace(0.05, 0.95, 19) * T
     log_g = (
-        math.lgamma(alpha + beta + 2) - math.lgamma(alpha + 1) - math.lgamma(beta + 1)
-        + alpha * np.log(tau) + beta * np.log(T - tau) - (alpha + beta + 1) * math.log(T)
+        math.lgamma(alpha + beta + 2)
+        - math.lgamma(alpha + 1)
+        - math.lgamma(beta + 1)
+        + alpha * np.log(tau)
+        + beta * np.log(T - tau)
+        - (alpha + beta + 1) * math.log(T)
     )
     np.testing.assert_allclose(d.kernel(0, tau), np.exp(log_g), rtol=1e-10)
 
@@ -187,6 +190,7 @@ def test_midpoint_weights_are_kernel_at_midpoints():
 
 def test_analytic_weights_are_exact_interval_integrals():
     d = design(alpha=1.5, beta=3, window=0.012, fs=1000, method="analytic")
+
     def g1(t: float) -> float:
         return float(d.kernel(1, np.array([t]))[0])
 
@@ -225,8 +229,12 @@ def test_large_alpha_kernel_derivatives_in_closed_form(alpha, beta):
     T = d.window_s
     tau = np.linspace(0.3, 0.7, 21) * T
     g = np.exp(
-        math.lgamma(alpha + beta + 2) - math.lgamma(alpha + 1) - math.lgamma(beta + 1)
-        + alpha * np.log(tau) + beta * np.log(T - tau) - (alpha + beta + 1) * math.log(T)
+        math.lgamma(alpha + beta + 2)
+        - math.lgamma(alpha + 1)
+        - math.lgamma(beta + 1)
+        + alpha * np.log(tau)
+        + beta * np.log(T - tau)
+        - (alpha + beta + 1) * math.log(T)
     )
     v = alpha / tau - beta / (T - tau)
     for n, expected in ((1, g * v), (2, g * (v**2 - alpha / tau**2 - beta / (T - tau) ** 2))):
@@ -241,6 +249,7 @@ def test_large_alpha_kernel_derivatives_with_N_match_finite_differences():
     tau = np.linspace(0.3, 0.65, 15) * T
     h = 1e-4 * T
     for n in (1, 2):
+
         def diff(step, n=n):
             return (d.kernel(n - 1, tau + step) - d.kernel(n - 1, tau - step)) / (2 * step)
 
@@ -343,6 +352,7 @@ def test_order_limits():
 
 # --- properties over random designs --------------------------------------------------------------------
 
+
 @settings(max_examples=60, deadline=None)
 @given(
     alpha=st.floats(-0.9, 40),
@@ -362,7 +372,9 @@ def test_any_valid_design_is_consistent(alpha, beta, N, fs, n_s, method):
         return
     assert d.n_s == n_s and d.window_s == n_s / fs
     assert d.omega_c_actual <= np.pi * fs
-    assert d.omega_c_actual == pytest.approx(design(alpha=alpha, beta=beta, N=N, fs=fs, window=d.window_s).omega_c_actual)
+    assert d.omega_c_actual == pytest.approx(
+        design(alpha=alpha, beta=beta, N=N, fs=fs, window=d.window_s).omega_c_actual
+    )
     assert 0.0 <= d.delay_s <= d.window_s  # N > 0: the default ϑ is a root in (-1, 1)
     if method != "trapezoidal" or min(alpha, beta) >= 0:
         w = d.weights(0)
@@ -386,7 +398,8 @@ def test_rho_zero_for_alpha_plus_beta_at_most_minus_one():
 
     assert math.exp(log_rho(-0.5, -0.5, 0)) == pytest.approx(1.0 / math.pi, rel=1e-12)
     assert math.exp(log_rho(-0.7, -0.6, 0)) == pytest.approx(
-        math.gamma(0.7) / (math.gamma(0.3) * math.gamma(0.4)), rel=1e-12)
+        math.gamma(0.7) / (math.gamma(0.3) * math.gamma(0.4)), rel=1e-12
+    )
     for method in ("midpoint", "analytic"):
         w = design(alpha=-0.5, beta=-0.5, N=0, fs=20.0, window=0.1, method=method).weights(0)
         assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0, rel=1e-9)

@@ -119,8 +119,13 @@ def test_sweep_weights_match_algdiff():
 
 @pytest.mark.parametrize(
     "alpha, beta, N, theta, fs, n_s",
-    [(2, 2, 1, 0.3, 1000.0, 40), (1.5, 4, 1, -0.2, 4000.0, 64), (3, 2, 2, 0.6, 200.0, 17), (6, 6, 2, 1.0, 32000.0, 131),
-     (12.5, 9, 1, 0.0, 20.0, 64)],
+    [
+        (2, 2, 1, 0.3, 1000.0, 40),
+        (1.5, 4, 1, -0.2, 4000.0, 64),
+        (3, 2, 2, 0.6, 200.0, 17),
+        (6, 6, 2, 1.0, 32000.0, 131),
+        (12.5, 9, 1, 0.0, 20.0, 64),
+    ],
 )
 def test_non_default_theta_matches_algdiff(alpha, beta, N, theta, fs, n_s):
     """A chosen ϑ (set_theta; ϑ = 1 is the delay-free one): cutoff of the window (general-N rule),
@@ -133,11 +138,15 @@ def test_non_default_theta_matches_algdiff(alpha, beta, N, theta, fs, n_s):
     assert d.delay_s == pytest.approx(o.get_delay(), rel=1e-12, abs=1e-15)
     for n in range(3):
         ours = d.weights(n)
-        np.testing.assert_allclose(ours, o.discretize(n, "mid-point")[n]["mid-point"], rtol=0, atol=1e-10 * np.abs(ours).max())
+        np.testing.assert_allclose(
+            ours, o.discretize(n, "mid-point")[n]["mid-point"], rtol=0, atol=1e-10 * np.abs(ours).max()
+        )
     omega_c = 0.93 * d.omega_c_actual
     from_cutoff = AlgebraicDifferentiator(ts=1 / fs, alpha=alpha, beta=beta, N=N, T=None, wc=omega_c, display=False)
     from_cutoff.set_theta(theta, False)  # recomputes T from ω_c with this ϑ
-    assert design(alpha=alpha, beta=beta, N=N, theta=theta, omega_c=omega_c, fs=fs).n_s == round(from_cutoff.get_T() * fs)
+    assert design(alpha=alpha, beta=beta, N=N, theta=theta, omega_c=omega_c, fs=fs).n_s == round(
+        from_cutoff.get_T() * fs
+    )
 
 
 @pytest.mark.parametrize(

@@ -16,11 +16,17 @@ from labrunner.differentiators.spectra import amplitude_phase, continuous_respon
 def fourier_by_quad(d, order: int, omega: float) -> complex:
     """∫₀^T g⁽ⁿ⁾(τ) e^{−jωτ} dτ by adaptive quadrature (independent of the Gauss–Jacobi rule)."""
 
-    scale = d.window_s ** -order  # |g⁽ⁿ⁾| ~ 1/T^{n+1}, so the integral ~ 1/Tⁿ
+    scale = d.window_s**-order  # |g⁽ⁿ⁾| ~ 1/T^{n+1}, so the integral ~ 1/Tⁿ
 
     def part(fn):
-        return quad(lambda t: float(d.kernel(order, np.array([t]))[0]) * fn(omega * t), 0, d.window_s,
-                    limit=400, epsabs=1e-11 * scale, epsrel=1e-10)[0]
+        return quad(
+            lambda t: float(d.kernel(order, np.array([t]))[0]) * fn(omega * t),
+            0,
+            d.window_s,
+            limit=400,
+            epsabs=1e-11 * scale,
+            epsrel=1e-10,
+        )[0]
 
     return complex(part(math.cos), -part(math.sin))
 
@@ -65,8 +71,15 @@ def test_stopband_slope_is_20_mu_minus_n_db_per_decade():
 
 @pytest.mark.parametrize(
     "alpha, beta, N, theta",
-    [(1, 1, 0, None), (1, 2.5, 0, None), (2, 2, 1, None), (1.5, 3, 1, 0.2), (3, 1.5, 2, -0.3), (2, 2, 2, 0.5),
-     (2.5, 2.5, 1, 0.9)],
+    [
+        (1, 1, 0, None),
+        (1, 2.5, 0, None),
+        (2, 2, 1, None),
+        (1.5, 3, 1, 0.2),
+        (3, 1.5, 2, -0.3),
+        (2, 2, 2, 0.5),
+        (2.5, 2.5, 1, 0.9),
+    ],
 )
 def test_cutoff_rule_is_the_amplitude_asymptote(alpha, beta, N, theta):
     """The ω_c ↔ T rule (Othmane et al. 2022, Sec. 4.2.2; any N and ϑ) from the spectrum alone: far above
@@ -100,7 +113,8 @@ ALGDIFF_J2 = {2: (-64.80, -54.21), 3: (-123.10, -112.97), 4: (-210.38, -208.97)}
 @pytest.mark.parametrize("alpha", [2, 3, 4])
 def test_cost_j2_of_paper2_table1(alpha):
     costs = [
-        cost_db(design(alpha=alpha, beta=alpha, omega_c=840, fs=32000, method=m), 2) for m in ("midpoint", "trapezoidal")
+        cost_db(design(alpha=alpha, beta=alpha, omega_c=840, fs=32000, method=m), 2)
+        for m in ("midpoint", "trapezoidal")
     ]
     np.testing.assert_allclose(costs, ALGDIFF_J2[alpha], atol=0.01)
     assert costs[0] < costs[1]  # mid-point beats trapezoidal, as in the paper

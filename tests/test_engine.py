@@ -22,8 +22,15 @@ def point(**gains):
 
 def run(points, seeds=None, rig="dcmotor-sim", **kw):
     with registry.load_rig(rig, search=[ROOT / "rigs"]) as r:
-        return engine.run_batch(points, r, fs=CAMPAIGN.fs, duration=CAMPAIGN.duration,
-                                seeds=seeds or list(range(len(points))), rig_safety=CAMPAIGN.rig_safety, **kw)
+        return engine.run_batch(
+            points,
+            r,
+            fs=CAMPAIGN.fs,
+            duration=CAMPAIGN.duration,
+            seeds=seeds or list(range(len(points))),
+            rig_safety=CAMPAIGN.rig_safety,
+            **kw,
+        )
 
 
 @pytest.fixture(scope="module")
@@ -90,11 +97,16 @@ def test_runs_with_their_own_safety_and_reference_sections_keep_them_in_a_batch(
     batch = run(points, seeds=[0] * 4)
     assert batch[1].outcome.status == "aborted" and batch[1].outcome.threshold == 5.0
     assert batch[0].outcome.status == batch[3].outcome.status == "completed"
-    assert np.max(batch[2].signals["ref_omega"]) == pytest.approx(5.0) and np.max(batch[0].signals["ref_omega"]) == pytest.approx(20.0)
+    assert np.max(batch[2].signals["ref_omega"]) == pytest.approx(5.0) and np.max(
+        batch[0].signals["ref_omega"]
+    ) == pytest.approx(20.0)
     for p, result in zip(points, batch):
         (single,) = run([p], seeds=[0])
         assert (single.outcome.status, single.outcome.time, single.outcome.threshold) == (
-            result.outcome.status, result.outcome.time, result.outcome.threshold)
+            result.outcome.status,
+            result.outcome.time,
+            result.outcome.threshold,
+        )
         for name, trace in single.signals.items():
             np.testing.assert_array_equal(trace, result.signals[name], err_msg=name)
 
@@ -110,9 +122,17 @@ def test_channels_have_log_roles_and_si_units(thesis_points):
     assert ch["units"]["f_hat_omega"] == "rad/s²" and ch["units"]["e_hat_omega"] == "rad/s"
 
 
-@pytest.mark.parametrize(("unit", "n", "expected"), [
-    ("rad", 2, "rad/s²"), ("rad/s", 1, "rad/s²"), ("m/s²", 1, "m/s³"), ("m", 0, "m"), ("l/min", 1, "l/min/s"), ("", 2, ""),
-])
+@pytest.mark.parametrize(
+    ("unit", "n", "expected"),
+    [
+        ("rad", 2, "rad/s²"),
+        ("rad/s", 1, "rad/s²"),
+        ("m/s²", 1, "m/s³"),
+        ("m", 0, "m"),
+        ("l/min", 1, "l/min/s"),
+        ("", 2, ""),
+    ],
+)
 def test_per_second_is_the_unit_of_a_time_derivative(unit, n, expected):
     assert engine.per_second(unit, n) == expected
 
@@ -124,7 +144,9 @@ def test_plate_estimates_carry_second_order_units():
     with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as r:
         (result,) = engine.run_batch([p], r, fs=campaign.fs, duration=0.01, seeds=[0], rig_safety=campaign.rig_safety)
     units = result.channels["units"]
-    assert units["y1"] == "m" and units["f_hat_y1"] == "m/s²" and units["de_hat_y1"] == "m/s" and units["e_hat_y1"] == "m"
+    assert (
+        units["y1"] == "m" and units["f_hat_y1"] == "m/s²" and units["de_hat_y1"] == "m/s" and units["e_hat_y1"] == "m"
+    )
 
 
 def test_sink_streams_run_zero_in_blocks(thesis_points):
@@ -148,8 +170,14 @@ def test_a_crash_mid_run_fails_the_open_runs_and_leaves_the_rig_safe(monkeypatch
     monkeypatch.setattr(rig, "_step", flaky)
     original_safe = rig.safe_state
     monkeypatch.setattr(rig, "safe_state", lambda mask=None: (safe.append(mask), original_safe(mask)))
-    results = engine.run_batch([point(gamma=B, k_p=50.0)] * 2, rig, fs=CAMPAIGN.fs, duration=CAMPAIGN.duration,
-                               seeds=[0, 1], rig_safety=CAMPAIGN.rig_safety)
+    results = engine.run_batch(
+        [point(gamma=B, k_p=50.0)] * 2,
+        rig,
+        fs=CAMPAIGN.fs,
+        duration=CAMPAIGN.duration,
+        seeds=[0, 1],
+        rig_safety=CAMPAIGN.rig_safety,
+    )
     assert [r.outcome.status for r in results] == ["failed", "failed"]
     assert "RuntimeError: encoder lost" in results[0].outcome.message
     assert results[0].n_samples == 100
@@ -173,8 +201,9 @@ def test_a_tripped_run_is_safe_in_the_same_tick(thesis_points):
     rig = registry.load_rig("dcmotor-sim", search=[ROOT / "rigs"])
     step, applied = rig._step, []
     rig._step = lambda u: (applied.append(u.copy()), step(u))[1]
-    nominal, aborted = engine.run_batch(points, rig, fs=CAMPAIGN.fs, duration=CAMPAIGN.duration, seeds=[0, 1],
-                                        rig_safety=CAMPAIGN.rig_safety)
+    nominal, aborted = engine.run_batch(
+        points, rig, fs=CAMPAIGN.fs, duration=CAMPAIGN.duration, seeds=[0, 1], rig_safety=CAMPAIGN.rig_safety
+    )
     applied = np.array(applied)[:, :, 0]
     k = round(aborted.outcome.time * CAMPAIGN.fs)
     assert aborted.outcome.status == "aborted" and aborted.signals["u"][k] != 0.0  # the commanded input
@@ -196,8 +225,9 @@ def test_valve_run_whose_flow_never_rises_is_no_motion():
                 "reference": {"kind": "setpoints", "levels": [1.0, 5.0, 1.0], "transition": 0.3, "hold": 0.3}}  # fmt: skip
 
     with registry.load_rig(config) as rig:
-        tracked, tiny = engine.run_batch([point(0.4), point(1e4)], rig, fs=4000.0, duration=1.5, seeds=[0, 1],
-                                         rig_safety=config.safety)
+        tracked, tiny = engine.run_batch(
+            [point(0.4), point(1e4)], rig, fs=4000.0, duration=1.5, seeds=[0, 1], rig_safety=config.safety
+        )
     assert tracked.outcome.status == "completed" and tracked.signals["q"].max() > 3.0
     assert tiny.outcome.status == "no-motion" and tiny.signals["q"].max() <= 1.2
     assert tiny.signals["i"].max() < 0.5 * 1.01

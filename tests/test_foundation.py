@@ -45,7 +45,9 @@ def test_readme_has_exactly_two_commands_and_ci_runs_the_test_one_verbatim():
     main_job, tests = readme_commands()
     assert "labrunner run campaigns/" in main_job and main_job.startswith("python3 -m venv .venv && ")
     install = 'python3 -m venv .venv && .venv/bin/pip install -q -e ".[test]"'
-    assert tests == f"{install} && .venv/bin/ruff check . && .venv/bin/python -m pytest"
+    assert (
+        tests == f"{install} && .venv/bin/ruff check . && .venv/bin/ruff format --check . && .venv/bin/python -m pytest"
+    )
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
     assert ci[0] == "#!/usr/bin/env bash" and "set -euo pipefail" in ci  # a failing test fails CI
     assert [line for line in ci if line and not line.startswith(("#", "set ", "cd "))] == [tests]

@@ -11,13 +11,12 @@ from __future__ import annotations
 import math
 
 import pytest
+from test_guided_support import write_campaign
 
 from labrunner.campaign import guided, spec
 from labrunner.campaign.guided import Ladder, advance, drive
 from labrunner.campaign.guided_walks import GAMMA, KD, KP, Guideline2, Guideline3, Polack, ultralocal_start
 from labrunner.errors import InvalidParameter
-
-from test_guided_support import write_campaign
 
 
 def ratio_plant(trip: float, still: float = 0.005):
@@ -97,8 +96,10 @@ def test_a_failed_run_or_a_tripped_start_stops_the_procedure():
 
 def test_guideline2_case2_line_from_rho_and_kappa(tmp_path):
     # ρ = 10, κ = 10, δ = 0.01 s: γ̃ = κρ = 100, k̃_p = πκ/(2δ) = 1570.8, k_p(γ) = πκ²ρ/(2δγ); γ ∈ [ρ, κρ]
-    path = write_campaign(tmp_path, guided={"procedure": "guideline2", "case": 2, "rho": 10.0, "kappa": 10.0,
-                                            "delay": 0.01, "per_decade": 4})
+    path = write_campaign(
+        tmp_path,
+        guided={"procedure": "guideline2", "case": 2, "rho": 10.0, "kappa": 10.0, "delay": 0.01, "per_decade": 4},
+    )
     proc = spec.load(path).guided
     line = proc.line()
     assert [p[GAMMA] for p in line] == pytest.approx([10 ** (2 - i / 4) for i in range(5)])
@@ -118,14 +119,26 @@ def feed_forward_plant(points):
         if kp == 0.0:
             out.append({"status": "aborted" if g < 20.0 else "completed", "rms_error": 0.5 + g / 1000.0})
         else:
-            out.append({"status": "aborted" if kp / g > 1.5 else "completed",
-                        "rms_error": 0.2 + 0.1 * abs(math.log10(kp) - 1.0)})
+            out.append(
+                {
+                    "status": "aborted" if kp / g > 1.5 else "completed",
+                    "rms_error": 0.2 + 0.1 * abs(math.log10(kp) - 1.0),
+                }
+            )
     return out
 
 
 def polack(**kw) -> Polack:
-    args = dict(gamma_start=1000.0, gamma_stop=1.0, kp_start=0.1, kp_stop=1000.0, per_decade=4, back_off=0,
-                rms_target=None, patience=None)
+    args = dict(
+        gamma_start=1000.0,
+        gamma_stop=1.0,
+        kp_start=0.1,
+        kp_stop=1000.0,
+        per_decade=4,
+        back_off=0,
+        rms_target=None,
+        patience=None,
+    )
     return Polack(**(args | kw))
 
 
@@ -161,12 +174,22 @@ def test_guideline3_raises_k_d_backs_off_then_raises_k_p():
     # k_d,i = 10·10^(i/4) trips for k_d > 40 (i = 3): 4 runs; back off one: k_d = 10^1.5.
     # step 4 starts at (k̃_p, k_d,2), run in step 3 already; k_p,j = 40π·10^(j/4) trips for
     # k_p > 800 (j = 4): 5 steps, 4 new runs; RMS 1/(k_p k_d) → chosen j = 3. 8 runs.
-    proc = Guideline3(rho=5.0, kp_start=40.0 * math.pi, kd_start=10.0, kd_stop=1e4, kp_stop=1e5, per_decade=4,
-                      kd_back_off=1, rms_target=None)
+    proc = Guideline3(
+        rho=5.0,
+        kp_start=40.0 * math.pi,
+        kd_start=10.0,
+        kd_stop=1e4,
+        kp_stop=1e5,
+        per_decade=4,
+        kd_back_off=1,
+        rms_target=None,
+    )
 
     def plant(points):
-        return [{"status": "aborted" if p[KD] > 40.0 or p[KP] > 800.0 else "completed",
-                 "rms_error": 1.0 / (p[KP] * p[KD])} for p in points]
+        return [
+            {"status": "aborted" if p[KD] > 40.0 or p[KP] > 800.0 else "completed", "rms_error": 1.0 / (p[KP] * p[KD])}
+            for p in points
+        ]
 
     end = drive(proc, "t", plant)
     assert list(end.stage_counts().values()) == [{"steps": 4, "runs": 4}, {"steps": 5, "runs": 4}]
@@ -203,12 +226,16 @@ def test_guided_section_errors_name_the_key(tmp_path):
     with pytest.raises(InvalidParameter, match=r"guided\.procedure: must be one of guideline2"):
         spec.load(write_campaign(tmp_path, guided={"procedure": "simplex"}))
     with pytest.raises(InvalidParameter, match=r"controller\.kind: procedure guideline3 tunes mfc2"):
-        spec.load(write_campaign(tmp_path, guided={"procedure": "guideline3", "rho": 1.0, "kd_stop": 1e3,
-                                                   "kp_stop": 1e5}))
+        spec.load(
+            write_campaign(tmp_path, guided={"procedure": "guideline3", "rho": 1.0, "kd_stop": 1e3, "kp_stop": 1e5})
+        )
     with pytest.raises(InvalidParameter, match=r"guided: a campaign has either \[grid\]"):
-        spec.load(write_campaign(tmp_path, guided={"procedure": "guideline2"},
-                                 grid={"controller.k_p": {"values": [1.0]}}))
-    path = write_campaign(tmp_path, guided={"procedure": "polack", "gamma_start": 1e3, "gamma_stop": 1.0, "kp_stop": 10.0})
+        spec.load(
+            write_campaign(tmp_path, guided={"procedure": "guideline2"}, grid={"controller.k_p": {"values": [1.0]}})
+        )
+    path = write_campaign(
+        tmp_path, guided={"procedure": "polack", "gamma_start": 1e3, "gamma_stop": 1.0, "kp_stop": 10.0}
+    )
     path.write_text(path.read_text() + '\n[derived]\n"controller.k_p" = "0.1 * controller.gamma"\n')
     with pytest.raises(InvalidParameter, match=r'derived\."controller\.k_p": is set by the polack procedure'):
         spec.load(path)

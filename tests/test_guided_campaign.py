@@ -11,16 +11,22 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from test_campaign_support import cli, comparable, ledger_rows, spawn, wait_for
+from test_guided_support import write_campaign
 
 from labrunner.campaign import guided_run, runner, spec
 from labrunner.campaign.grid import point_id
 from labrunner.campaign.ledger import Ledger
 
-from test_campaign_support import cli, comparable, ledger_rows, spawn, wait_for
-from test_guided_support import write_campaign
-
 ROOT = Path(__file__).resolve().parents[1]
-POLACK = {"procedure": "polack", "gamma_start": 1e4, "gamma_stop": 1.0, "kp_start": 0.1, "kp_stop": 1e3, "per_decade": 2}
+POLACK = {
+    "procedure": "polack",
+    "gamma_start": 1e4,
+    "gamma_stop": 1.0,
+    "kp_start": 0.1,
+    "kp_stop": 1e3,
+    "per_decade": 2,
+}
 
 
 def quiet(**kw) -> runner.Options:
@@ -83,8 +89,15 @@ def test_resume_runs_a_round_that_was_written_but_not_run(tmp_path):
     first, checksum = spec.plan(campaign)
     directory = tmp_path / "cut"
     directory.mkdir()
-    meta = {"campaign": campaign.name, "campaign_file": campaign.source, "campaign_path": str(path.resolve()),
-            "plan_checksum": checksum, "points": "1", "rig": campaign.rig, "guided": "polack"}
+    meta = {
+        "campaign": campaign.name,
+        "campaign_file": campaign.source,
+        "campaign_path": str(path.resolve()),
+        "plan_checksum": checksum,
+        "points": "1",
+        "rig": campaign.rig,
+        "guided": "polack",
+    }
     Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in first)).close()
     (directory / "runs").mkdir()
     runner.resume(directory, quiet())
@@ -92,10 +105,18 @@ def test_resume_runs_a_round_that_was_written_but_not_run(tmp_path):
 
 
 def test_dry_run_says_guided_and_the_most_runs(tmp_path):
-    result = cli("run", str(ROOT / "campaigns" / "guided" / "guideline2-case1.toml"), "--dry-run", "--out",
-                 str(tmp_path / "g2"), cwd=ROOT)
+    result = cli(
+        "run",
+        str(ROOT / "campaigns" / "guided" / "guideline2-case1.toml"),
+        "--dry-run",
+        "--out",
+        str(tmp_path / "g2"),
+        cwd=ROOT,
+    )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.startswith("campaign guided-guideline2-case1: guided (guideline2) on rig 'dcmotor-sim', at most 97 runs")
+    assert result.stdout.startswith(
+        "campaign guided-guideline2-case1: guided (guideline2) on rig 'dcmotor-sim', at most 97 runs"
+    )
     for name, most in (("guideline2-bisect", 9), ("polack", 178), ("refine-gamma-kp", 4225)):
         _, text = runner.start(ROOT / "campaigns" / "guided" / f"{name}.toml", tmp_path / name, quiet(), dry=True)
         assert "guided (" in text.splitlines()[0] and f"at most {most} runs" in text.splitlines()[0]
@@ -103,8 +124,9 @@ def test_dry_run_says_guided_and_the_most_runs(tmp_path):
     assert not any(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("name", ["guideline2-case1", "guideline2-bisect", "guideline2-case2", "guideline3",
-                                  "polack", "refine-gamma-kp"])
+@pytest.mark.parametrize(
+    "name", ["guideline2-case1", "guideline2-bisect", "guideline2-case2", "guideline3", "polack", "refine-gamma-kp"]
+)
 def test_shipped_guided_campaigns_validate(name):
     campaign = spec.load(ROOT / "campaigns" / "guided" / f"{name}.toml")
     first, checksum = spec.plan(campaign)
@@ -164,8 +186,14 @@ def test_guideline2_against_polack_step_counts(tmp_path):
     assert p["runs"] == p["feed_forward"] + p["feedback"] == runner.status(tmp_path / "out" / "polack")["total"]
     assert g["runs"] == runner.status(tmp_path / "out" / "guideline2")["total"]
     rows = ledger_rows(tmp_path / "out" / "guideline2")  # a walk: its rows are its steps
-    first = next((n for n, row in enumerate(rows, 1)
-                  if row["outcome"] == "completed" and row["rms_error"] <= p["chosen"]["rms_error"]), None)
+    first = next(
+        (
+            n
+            for n, row in enumerate(rows, 1)
+            if row["outcome"] == "completed" and row["rms_error"] <= p["chosen"]["rms_error"]
+        ),
+        None,
+    )
     assert g["steps_to_polack_rms"] == first  # None here: 2 steps a decade jump past Polack's RMS
     assert result["ratio_runs"] == pytest.approx(p["runs"] / g["runs"])
     assert result["thesis"] == {"guideline2": 54, "polack": 107, "polack_feed_forward": 66, "polack_feedback": 41}

@@ -18,8 +18,9 @@ def test_refinement_of_a_straight_boundary_by_hand():
     x = spec.gridmod.parse_axis("x", "controller.gamma", {"linspace": [0.0, 8.0], "num": 9})
     y = spec.gridmod.parse_axis("y", "controller.k_p", {"linspace": [0.0, 8.0], "num": 9})
     proc = Refine(x, y, coarse=3, levels=2)
-    end = guided.drive(proc, "t", lambda pts: [{"status": "aborted" if p["controller.gamma"] > 4.5 else "completed"}
-                                               for p in pts])
+    end = guided.drive(
+        proc, "t", lambda pts: [{"status": "aborted" if p["controller.gamma"] > 4.5 else "completed"} for p in pts]
+    )
     cells = {tuple(c) for c in end.result.detail["boundary_cells"]}
     assert cells == {(4, j) for j in range(8)}  # the column of cells across x = 4.5, all 8 of them
     # coarse 9 runs; level 1: the two cells [4,8] × [0,4], [4,8] × [4,8] add x = 6 (3 points) and y = 2, 6
@@ -52,5 +53,8 @@ def test_refinement_draws_the_full_grids_boundary_on_the_motor_plane_with_5x_few
     assert len(reference) > 2 * n  # a real boundary, not a corner
     assert 5 * end.runs <= n * n
     for step in end.walk:  # the refined runs are the full grid's runs
-        i, j = proc.x.values.index(step.observation.params[proc.x.key]), proc.y.values.index(step.observation.params[proc.y.key])
+        i, j = (
+            proc.x.values.index(step.observation.params[proc.x.key]),
+            proc.y.values.index(step.observation.params[proc.y.key]),
+        )
         assert step.observation.status == classes[(i, j)]

@@ -16,8 +16,14 @@ def toml_value(value: Any) -> str:
     return json.dumps(value)
 
 
-def guided_text(guided: dict[str, Any], *, name: str = "tiny", grid: dict[str, Any] | None = None,
-                rig: str = "dcmotor-sim", duration: float = 2.0) -> str:
+def guided_text(
+    guided: dict[str, Any],
+    *,
+    name: str = "tiny",
+    grid: dict[str, Any] | None = None,
+    rig: str = "dcmotor-sim",
+    duration: float = 2.0,
+) -> str:
     """:func:`test_campaign_support.campaign_text` (first-order MFC of the motor's velocity) with
     ``[guided]`` instead of its grid (or both, with ``grid``)."""
     head = campaign_text(name, rig=rig, duration=duration).split("[grid]")[0]

@@ -28,14 +28,26 @@ def _run_on(rig_name: str, directory: Path) -> list[Path]:
     points = [config for _, config in campaign.points()]
     assert all(p["controller"]["kind"] == "open-loop" for p in points)
     with registry.load_rig(rig_name, search=[ROOT / "rigs"]) as rig:
-        results = engine.run_batch(points, rig, fs=campaign.fs, duration=campaign.duration, seeds=[0] * len(points),
-                                   rig_safety=campaign.rig_safety)
+        results = engine.run_batch(
+            points,
+            rig,
+            fs=campaign.fs,
+            duration=campaign.duration,
+            seeds=[0] * len(points),
+            rig_safety=campaign.rig_safety,
+        )
     paths = []
     for i, (point, result) in enumerate(zip(points, results)):
         assert result.outcome.status == "completed"
         path = directory / f"step{i}.mcap"
-        write_run(path, metadata={"run": {"rig": rig_name}, "config": point}, fs=result.fs, signals=result.signals,
-                  outcome=result.outcome.as_dict(), channels=result.channels)
+        write_run(
+            path,
+            metadata={"run": {"rig": rig_name}, "config": point},
+            fs=result.fs,
+            signals=result.signals,
+            outcome=result.outcome.as_dict(),
+            channels=result.channels,
+        )
         paths.append(path)
     return paths
 
@@ -60,8 +72,13 @@ def test_calibrated_twin_identification_within_3_percent_of_the_thesis(tmp_path,
     monkeypatch.chdir(ROOT)
     out = tmp_path / "ident"
     assert main(["run", str(CAMPAIGN), "--out", str(out), "--workers", "1"]) == 0
-    done = subprocess.run([sys.executable, "-m", "labrunner", "identify", str(out), "--json", "--friction"],
-                          capture_output=True, text=True, cwd=ROOT, timeout=120)  # the real command, end to end
+    done = subprocess.run(
+        [sys.executable, "-m", "labrunner", "identify", str(out), "--json", "--friction"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )  # the real command, end to end
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert len(result["per_run"]) == 4
@@ -85,8 +102,14 @@ def test_calibration_holds_over_noise_seeds(tmp_path):
     points = [config for _, config in campaign.points()]
     with registry.load_rig("dcmotor-sim", search=[ROOT / "rigs"]) as rig:
         for seed in (1, 2, 3):
-            results = engine.run_batch(points, rig, fs=campaign.fs, duration=campaign.duration,
-                                       seeds=[seed] * len(points), rig_safety=campaign.rig_safety)
+            results = engine.run_batch(
+                points,
+                rig,
+                fs=campaign.fs,
+                duration=campaign.duration,
+                seeds=[seed] * len(points),
+                rig_safety=campaign.rig_safety,
+            )
             est = [identify_signals(r.signals["theta"], r.signals["u"], r.fs) for r in results]
             assert sum(e.a for e in est) / 4 == pytest.approx(A, rel=0.03)
             assert sum(e.b for e in est) / 4 == pytest.approx(B, rel=0.03)

@@ -10,10 +10,10 @@ import shutil
 import sqlite3
 
 import pytest
+from test_campaign_support import campaign_text, ledger_rows, write
 
 from labrunner.cli import main
 from labrunner.logs import read_run
-from test_campaign_support import campaign_text, ledger_rows, write
 
 # what a rebuilt ledger cannot know: when the parent claimed and committed, and its timings
 LOCAL = ("claimed_at", "finished_at", "engine_s", "write_s", "publish_s")
@@ -67,8 +67,10 @@ def test_a_rebuilt_ledger_equals_the_original_on_every_published_point(finished,
 def test_repair_keeps_failed_points_and_reruns_what_has_no_log(finished, capsys):
     db = sqlite3.connect(finished / "ledger.sqlite")
     first, second = (r[0] for r in db.execute("SELECT id FROM points ORDER BY seq LIMIT 2"))
-    db.execute("UPDATE points SET state = 'failed', outcome = 'failed', outcome_json = ?, log_path = NULL WHERE id = ?",
-               (json.dumps({"status": "failed", "message": "boom"}), first))
+    db.execute(
+        "UPDATE points SET state = 'failed', outcome = 'failed', outcome_json = ?, log_path = NULL WHERE id = ?",
+        (json.dumps({"status": "failed", "message": "boom"}), first),
+    )
     db.commit()
     db.close()
     os.unlink(finished / "runs" / f"{first}.mcap")

@@ -12,8 +12,7 @@ import time
 import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 from mcap.reader import make_reader
 from test_logs_support import ABORTED, CHANNELS, COMPLETED, metadata, motor_run
 
@@ -26,9 +25,9 @@ from labrunner.logs import (
     read_metadata,
     read_outcome,
     read_run,
+    schema as log_schema,
     write_run,
 )
-from labrunner.logs import schema as log_schema
 
 
 def bits(x: np.ndarray) -> np.ndarray:
@@ -58,8 +57,16 @@ def motor_log(tmp_path):
     signals = motor_run()
     path = tmp_path / "run.mcap"
     attachments = {"campaign.toml": b"[campaign]\nname = 'motor-demo'\n"}
-    write_run(path, metadata=metadata(), fs=200.0, signals=signals, outcome=ABORTED, attachments=attachments,
-              channels=CHANNELS, start_time=START)
+    write_run(
+        path,
+        metadata=metadata(),
+        fs=200.0,
+        signals=signals,
+        outcome=ABORTED,
+        attachments=attachments,
+        channels=CHANNELS,
+        start_time=START,
+    )
     return path, signals, attachments
 
 
@@ -74,8 +81,13 @@ def test_round_trip_is_exact(motor_log):
     assert log.frame.index.name == "t"
     assert np.array_equal(log.frame.index.to_numpy(), np.arange(1000) / 200.0)
     assert log.outcome == {**ABORTED, "n_samples": 1000}
-    assert log.metadata["run"] == {**metadata()["run"], "fs": 200.0, "labrunner_version": log.metadata["run"]["labrunner_version"],
-                                   "log_format": "labrunner-2", "samples": "every sample (200 Hz)"}
+    assert log.metadata["run"] == {
+        **metadata()["run"],
+        "fs": 200.0,
+        "labrunner_version": log.metadata["run"]["labrunner_version"],
+        "log_format": "labrunner-2",
+        "samples": "every sample (200 Hz)",
+    }
     assert log.metadata["config"] == metadata()["config"]
     assert log.channels == CHANNELS and log.metadata["channels"] == CHANNELS
     assert log.attachments == attachments
@@ -123,7 +135,14 @@ def test_file_decodes_with_mcap_reader_and_generated_protobuf_classes(motor_log)
     # every sample is a message whose fields name their units; the channel's metadata repeats them
     assert len(samples) == 1000
     assert [f.name for f in samples[0].DESCRIPTOR.fields] == [
-        "t__s", "theta__rad", "omega__rad_per_s", "ref_omega__rad_per_s", "e_omega__rad_per_s", "u__V", "f_hat_omega__rad_per_s2"]
+        "t__s",
+        "theta__rad",
+        "omega__rad_per_s",
+        "ref_omega__rad_per_s",
+        "e_omega__rad_per_s",
+        "u__V",
+        "f_hat_omega__rad_per_s2",
+    ]
     assert channel_meta["unit.omega__rad_per_s"] == "rad/s" and channel_meta["decimation"] == "1"
     assert all(math.isclose(m.t__s, k / 200.0) for k, m in enumerate(samples))
     assert np.array_equal(bits([m.omega__rad_per_s for m in samples]), bits(signals["omega"]))
@@ -137,9 +156,17 @@ def test_full_rate_samples_match_the_blocks_and_log_time_is_wall_clock(tmp_path)
     fs, n = 32000.0, 4321
     rng = np.random.default_rng(5)
     t = np.arange(n) / fs
-    signals = {"h1": 2e-3 + 2e-5 * np.sin(942.0 * t), "i1": 3 + 0.1 * rng.standard_normal(n), "x": rng.standard_normal(n)}
+    signals = {
+        "h1": 2e-3 + 2e-5 * np.sin(942.0 * t),
+        "i1": 3 + 0.1 * rng.standard_normal(n),
+        "x": rng.standard_normal(n),
+    }
     signals["x"][[3, 99]] = [np.nan, -0.0]
-    channels = {"h1": {"role": "controlled", "unit": "m"}, "i1": {"role": "input", "unit": "A"}, "x": {"role": "signal", "unit": ""}}
+    channels = {
+        "h1": {"role": "controlled", "unit": "m"},
+        "i1": {"role": "input", "unit": "A"},
+        "x": {"role": "signal", "unit": ""},
+    }
     path = tmp_path / "plate.mcap"
     before = time.time()
     write_run(path, metadata={"run": {"point_id": "p"}}, fs=fs, signals=signals, outcome=COMPLETED, channels=channels)
@@ -177,8 +204,15 @@ def test_long_run_blocks_and_samples_thinned_when_asked(tmp_path):
 def test_streaming_writer_with_uneven_blocks_matches_write_run(tmp_path):
     signals = motor_run(fs=1000.0, duration=1.0)
     path = tmp_path / "stream.mcap"
-    with RunLogWriter(path, metadata=metadata(), fs=1000.0, channels=CHANNELS, flush_interval_s=0.0, samples_hz=300.0,
-                      start_time=START) as w:
+    with RunLogWriter(
+        path,
+        metadata=metadata(),
+        fs=1000.0,
+        channels=CHANNELS,
+        flush_interval_s=0.0,
+        samples_hz=300.0,
+        start_time=START,
+    ) as w:
         assert w.decimation == 4  # ceil(1000 / 300)
         for start in range(0, 1000, 137):
             w.write_block(start, {k: v[start : start + 137] for k, v in signals.items()})
@@ -223,8 +257,14 @@ def test_metadata_is_plain_text_and_reads_back_typed(tmp_path):
     write_run(path, metadata={"run": run, "config": config}, fs=100.0, signals={"u": np.zeros(3)}, outcome=outcome)
     with open(path, "rb") as f:  # what a viewer shows: plain strings, one JSON text for a structured record
         raw = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
-    assert raw["outcome"] == {"status": "aborted", "monitor": '"nan"', "time": "0.01", "value": "nan", "threshold": "inf",
-                              "n_samples": "3"}
+    assert raw["outcome"] == {
+        "status": "aborted",
+        "monitor": '"nan"',
+        "time": "0.01",
+        "value": "nan",
+        "threshold": "inf",
+        "n_samples": "3",
+    }
     assert raw["run"]["seed"] == "7" and raw["run"]["flag"] == "true" and "none" not in raw["run"]
     assert raw["run"]["id"] == '"0042"' and raw["run"]["name"] == "p-1" and raw["run"]["quoted"] == '"\\"x\\""'
     assert list(raw["config"]) == ["json"]
@@ -251,7 +291,12 @@ def test_logs_of_the_earlier_format_still_read(tmp_path):
         w.add_metadata("channels", {"y": '{"role": "signal", "unit": "m"}'})
         sid = w.register_schema(log_schema.BLOCK_SCHEMA_NAME, "protobuf", log_schema.BLOCK_SCHEMA)
         cid = w.register_channel(BLOCK_TOPIC, "protobuf", sid)
-        w.add_message(cid, log_time=0, data=log_schema.encode_block(0, 10.0, log_schema.signal_prefixes(["y"]), [np.ones(4)]), publish_time=0)
+        w.add_message(
+            cid,
+            log_time=0,
+            data=log_schema.encode_block(0, 10.0, log_schema.signal_prefixes(["y"]), [np.ones(4)]),
+            publish_time=0,
+        )
         w.add_metadata("outcome", {"status": '"completed"', "monitor": "null", "n_samples": "4"})
         w.finish()
     log = read_run(path)
@@ -263,8 +308,15 @@ def test_logs_of_the_earlier_format_still_read(tmp_path):
 def test_identical_inputs_give_identical_files(tmp_path):
     signals = motor_run(duration=1.0)
     for name in ("a.mcap", "b.mcap"):
-        write_run(tmp_path / name, metadata=metadata(), fs=200.0, signals=signals, outcome=COMPLETED, channels=CHANNELS,
-                  start_time=START)
+        write_run(
+            tmp_path / name,
+            metadata=metadata(),
+            fs=200.0,
+            signals=signals,
+            outcome=COMPLETED,
+            channels=CHANNELS,
+            start_time=START,
+        )
     assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
 
 
@@ -272,9 +324,7 @@ def test_identical_inputs_give_identical_files(tmp_path):
 @given(
     first=st.integers(0, 2**40),
     fs=st.floats(1e-3, 1e6),
-    columns=st.lists(
-        st.lists(st.floats(allow_nan=False, width=64), min_size=0, max_size=40), min_size=1, max_size=5
-    ),
+    columns=st.lists(st.lists(st.floats(allow_nan=False, width=64), min_size=0, max_size=40), min_size=1, max_size=5),
 )
 def test_block_codec_agrees_with_protobuf(first, fs, columns):
     names = [f"s{j}" for j in range(len(columns))]
@@ -297,13 +347,24 @@ def test_decoder_accepts_unpacked_doubles():
     cls = log_schema.message_class(fdp, log_schema.BLOCK_SCHEMA_NAME)
     msg = cls(first_index=3, fs=10.0, signals=[{"name": "y", "values": [1.5, -2.0, 4.0]}])
     data = msg.SerializeToString()
-    assert data != log_schema.SignalBlock(first_index=3, fs=10.0, signals=[{"name": "y", "values": [1.5, -2.0, 4.0]}]).SerializeToString()
+    assert (
+        data
+        != log_schema.SignalBlock(
+            first_index=3, fs=10.0, signals=[{"name": "y", "values": [1.5, -2.0, 4.0]}]
+        ).SerializeToString()
+    )
     first, fs, signals = log_schema.decode_block(data)
     assert first == 3 and fs == 10.0 and signals["y"].tolist() == [1.5, -2.0, 4.0]
 
 
 def test_channels_forms():
-    grouped = {"outputs": ["theta"], "controlled": ["omega"], "references": ["ref_omega"], "inputs": ["u"], "units": {"u": "V"}}
+    grouped = {
+        "outputs": ["theta"],
+        "controlled": ["omega"],
+        "references": ["ref_omega"],
+        "inputs": ["u"],
+        "units": {"u": "V"},
+    }
     assert normalise_channels(grouped, ["theta", "omega", "ref_omega", "u", "f_hat_omega"]) == {
         "theta": {"role": "output", "unit": ""},
         "omega": {"role": "controlled", "unit": ""},

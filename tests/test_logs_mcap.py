@@ -14,8 +14,7 @@ import zlib
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
@@ -24,8 +23,7 @@ from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 from test_logs_support import COMPLETED, motor_run
 
-from labrunner.logs import read_run, write_run
-from labrunner.logs import schema as log_schema
+from labrunner.logs import read_run, schema as log_schema, write_run
 from labrunner.logs.mcap_writer import BulkWriter
 from labrunner.logs.writer import encode_record
 
@@ -59,9 +57,20 @@ def content(data: bytes):
     metadata = [(m.name, m.metadata) for m in reader.iter_metadata()]
     attachments = [(a.name, a.media_type, a.log_time, a.data) for a in reader.iter_attachments()]
     s = summary.statistics
-    stats = (s.message_count, dict(s.channel_message_counts), s.message_start_time, s.message_end_time,
-             s.schema_count, s.channel_count, s.metadata_count, s.attachment_count)
-    channels = {c.id: (c.topic, c.message_encoding, c.metadata, summary.schemas[c.schema_id].data) for c in summary.channels.values()}
+    stats = (
+        s.message_count,
+        dict(s.channel_message_counts),
+        s.message_start_time,
+        s.message_end_time,
+        s.schema_count,
+        s.channel_count,
+        s.metadata_count,
+        s.attachment_count,
+    )
+    channels = {
+        c.id: (c.topic, c.message_encoding, c.metadata, summary.schemas[c.schema_id].data)
+        for c in summary.channels.values()
+    }
     return messages, in_time_order, metadata, attachments, stats, channels
 
 
@@ -191,7 +200,9 @@ def test_frame_ignores_a_wrong_size_hint(tmp_path, n_samples):
         cid = w.register_channel(log_schema.BLOCK_TOPIC, "protobuf", sid)
         y, z = np.arange(30.0), -np.arange(30.0)
         for k in (0, 20):
-            data = log_schema.encode_block(k, 10.0, log_schema.signal_prefixes(["y", "z"]), [y[k : k + 10], z[k : k + 10]])
+            data = log_schema.encode_block(
+                k, 10.0, log_schema.signal_prefixes(["y", "z"]), [y[k : k + 10], z[k : k + 10]]
+            )
             w.add_message(cid, log_time=k * 100_000_000, data=data, publish_time=k * 100_000_000)
         w.add_metadata("outcome", encode_record("outcome", {**COMPLETED, "n_samples": n_samples}))
         w.finish()

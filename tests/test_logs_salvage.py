@@ -29,15 +29,23 @@ def streamed(tmp_path_factory):
     """A finished file written in blocks of 250 with a flush after each (one chunk of blocks and
     one of per-sample messages per block)."""
     path = tmp_path_factory.mktemp("torn") / "full.mcap"
-    with RunLogWriter(path, metadata=metadata(), fs=1000.0, channels=["y", "u", "ref_y"],
-                      attachments={"c.toml": b"x = 1"}, flush_interval_s=0.0) as w:
+    with RunLogWriter(
+        path,
+        metadata=metadata(),
+        fs=1000.0,
+        channels=["y", "u", "ref_y"],
+        attachments={"c.toml": b"x = 1"},
+        flush_interval_s=0.0,
+    ) as w:
         for b in range(8):
             w.write_block(b * BLOCK, ramp(b * BLOCK, BLOCK))
         w.finish(COMPLETED)
     with open(path, "rb") as f:
         summary = make_reader(f).get_summary()
     blocks = {i for i, c in summary.channels.items() if c.topic == BLOCK_TOPIC}
-    chunk_ends = sorted(c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes if blocks & c.message_index_offsets.keys())
+    chunk_ends = sorted(
+        c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes if blocks & c.message_index_offsets.keys()
+    )
     outcome = next(m for m in summary.metadata_indexes if m.name == "outcome")
     assert len(chunk_ends) == 8 and len(summary.chunk_indexes) == 16
     assert outcome.offset > max(c.chunk_start_offset for c in summary.chunk_indexes)  # the outcome follows the data
@@ -47,7 +55,9 @@ def streamed(tmp_path_factory):
 def test_every_cut_keeps_exactly_the_complete_chunks(streamed, tmp_path):
     path, data, chunk_ends, outcome_end = streamed
     first_chunk = chunk_ends[0] - 1
-    cuts = sorted({*range(first_chunk - 50, len(data) - 1, 997), *(e for e in chunk_ends), *(e - 1 for e in chunk_ends)})
+    cuts = sorted(
+        {*range(first_chunk - 50, len(data) - 1, 997), *(e for e in chunk_ends), *(e - 1 for e in chunk_ends)}
+    )
     expected = ramp(0, 8 * BLOCK)
     for cut in cuts:
         torn = tmp_path / "cut.mcap"

@@ -27,8 +27,19 @@ from labrunner.cli import main
 
 TABLE = Path(__file__).parent / "data" / "malformed_inputs.toml"
 ROOT = Path(__file__).resolve().parents[1]
-DAMAGES = ("garbage", "truncated", "foreign", "empty", "deleted-rows", "added-row", "bad-parameters", "bad-count",
-           "ids-changed", "no-meta-keys", "schema-version")
+DAMAGES = (
+    "garbage",
+    "truncated",
+    "foreign",
+    "empty",
+    "deleted-rows",
+    "added-row",
+    "bad-parameters",
+    "bad-count",
+    "ids-changed",
+    "no-meta-keys",
+    "schema-version",
+)
 
 
 def load_table() -> dict:
@@ -143,8 +154,9 @@ def run_case(world: dict, args: list[str], *, program: bool = False) -> tuple[in
 def _run(world: dict, args: list[str], program: bool) -> tuple[int, str]:
     project = world["project"]
     if program:
-        done = subprocess.run([sys.executable, "-m", "labrunner", *args], cwd=project, capture_output=True,
-                              text=True, timeout=120)
+        done = subprocess.run(
+            [sys.executable, "-m", "labrunner", *args], cwd=project, capture_output=True, text=True, timeout=120
+        )
         return done.returncode, done.stderr
     cwd = os.getcwd()
     os.chdir(project)

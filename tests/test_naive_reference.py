@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from naive_reference import naive
 
 from labrunner import engine
 from labrunner.campaign import spec
 from labrunner.rigs.registry import load_rig
-from naive_reference import naive
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,8 +25,14 @@ def test_naive_loops_equal_the_engine_for_completed_and_aborted_points(batch):
     chosen = (chosen * batch)[:batch]
     points = [campaign.resolve({"controller.gamma": float(g), "controller.k_p": float(k)}) for g, k in chosen]
     rig = load_rig(campaign.rig_ref, search=campaign.rig_search)
-    results = engine.run_batch(points, rig, fs=campaign.fs, duration=campaign.duration,
-                               seeds=[campaign.seed] * batch, rig_safety=campaign.rig_safety)
+    results = engine.run_batch(
+        points,
+        rig,
+        fs=campaign.fs,
+        duration=campaign.duration,
+        seeds=[campaign.seed] * batch,
+        rig_safety=campaign.rig_safety,
+    )
     statuses = set()
     for (gamma, k_p), result in zip(chosen[:3], results):
         run = naive.closed_loop(float(gamma), float(k_p), cfg)

@@ -81,11 +81,17 @@ def test_metrics_over_named_windows_match_the_slices():
     assert math.isnan(short["rms_error@fault"])  # the run ended (aborted) before the window
 
 
-@pytest.mark.parametrize("section, field", [
-    ({"w": [2.0, 1.0]}, "metrics.w"), ({"w": [0.0]}, "metrics.w"), ({"w": "0-1"}, "metrics.w"),
-    ({"w": [-1.0, 1.0]}, "metrics.w"), ({"bad name": [0.0, 1.0]}, "metrics.bad name"),
-    ({"w": [0.0, float("inf")]}, "metrics.w"),
-])
+@pytest.mark.parametrize(
+    "section, field",
+    [
+        ({"w": [2.0, 1.0]}, "metrics.w"),
+        ({"w": [0.0]}, "metrics.w"),
+        ({"w": "0-1"}, "metrics.w"),
+        ({"w": [-1.0, 1.0]}, "metrics.w"),
+        ({"bad name": [0.0, 1.0]}, "metrics.bad name"),
+        ({"w": [0.0, float("inf")]}, "metrics.w"),
+    ],
+)
 def test_bad_windows_name_the_key(section, field):
     with pytest.raises(InvalidParameter) as exc:
         parse_windows(section)
@@ -93,10 +99,12 @@ def test_bad_windows_name_the_key(section, field):
 
 
 def _valve_points():
-    base = {"controller": {"kind": "mfc1", "output": "flow", "k_p": 30.0, "i_min": 0.5},
-            "differentiator": {"alpha": 2, "beta": 2, "N": 0, "omega_c": 250.0, "method": "midpoint"},
-            "reference": {"kind": "setpoints", "levels": [1.0, 3.0], "transition": 1.0, "hold": 1.0},
-            "metrics": {"hold": [2.0, 3.0]}}
+    base = {
+        "controller": {"kind": "mfc1", "output": "flow", "k_p": 30.0, "i_min": 0.5},
+        "differentiator": {"alpha": 2, "beta": 2, "N": 0, "omega_c": 250.0, "method": "midpoint"},
+        "reference": {"kind": "setpoints", "levels": [1.0, 3.0], "transition": 1.0, "hold": 1.0},
+        "metrics": {"hold": [2.0, 3.0]},
+    }
     unstable = {**base, "controller": {**base["controller"], "gamma": 0.0268, "k_p": 7.2}}  # far above Fig. 5's region
     stable = {**base, "controller": {**base["controller"], "gamma": 0.4}}  # paper 1 Sec. 5.3's choice
     return [unstable, stable]
@@ -113,9 +121,17 @@ def test_saturated_valve_run_completes_but_is_flagged(tmp_path):
     assert stable.outcome.status == "completed" and stable.metrics["oscillating"] == 0.0
     assert stable.metrics["rms_error@hold"] < 0.5 < unstable.metrics["rms_error@hold"]  # l/min
     # the analysis counts the flagged run as observed unstable
-    table = pd.DataFrame([{"outcome": r.outcome.status, "oscillating": r.metrics["oscillating"],
-                           "controller.gamma": p["controller"]["gamma"], "controller.k_p": p["controller"]["k_p"]}
-                          for p, r in zip(points, results)])
+    table = pd.DataFrame(
+        [
+            {
+                "outcome": r.outcome.status,
+                "oscillating": r.metrics["oscillating"],
+                "controller.gamma": p["controller"]["gamma"],
+                "controller.k_p": p["controller"]["k_p"],
+            }
+            for p, r in zip(points, results)
+        ]
+    )
     assert list(observed_outcome(table)) == ["oscillating", "completed"]
 
     class Always:  # a theory that predicts every point stable, far from any bound

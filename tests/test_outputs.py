@@ -37,9 +37,11 @@ def campaign(tmp_path_factory):
     directory = root / "data" / "words"
     printed = {}
     started = time.time()
-    for name, args in (("run", ["run", str(path), "--out", str(directory), "--workers", "1"]),
-                       ("status", ["status", str(directory)]),
-                       ("analyse", ["analyse", str(directory), "--workers", "1", "--plot", "aborted"])):
+    for name, args in (
+        ("run", ["run", str(path), "--out", str(directory), "--workers", "1"]),
+        ("status", ["status", str(directory)]),
+        ("analyse", ["analyse", str(directory), "--workers", "1", "--plot", "aborted"]),
+    ):
         out, err = io.StringIO(), io.StringIO()
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             assert main(args) == 0, err.getvalue()
@@ -51,13 +53,22 @@ def campaign(tmp_path_factory):
 def test_words_are_the_same_in_run_status_analyse_and_report(campaign):
     directory, printed, _ = campaign
     report = (directory / "report" / "index.html").read_text(encoding="utf-8")
-    found = {name: COUNTS.findall(text) for name, text in
-             (("run", printed["run"]), ("status", printed["status"]), ("analyse", printed["analyse"]), ("report", report))}
+    found = {
+        name: COUNTS.findall(text)
+        for name, text in (
+            ("run", printed["run"]),
+            ("status", printed["status"]),
+            ("analyse", printed["analyse"]),
+            ("report", report),
+        )
+    }
     assert all(found.values()), found
     assert len({hits[0] for hits in found.values()}) == 1, found  # one count, in one wording
     table = pd.read_csv(directory / "report" / "metrics.csv")
     counts = table["outcome"].value_counts()
-    assert found["run"][0] == ", ".join(f"{counts.get(w, 0)} {w}" for w in ("completed", "no-motion", "aborted", "failed"))
+    assert found["run"][0] == ", ".join(
+        f"{counts.get(w, 0)} {w}" for w in ("completed", "no-motion", "aborted", "failed")
+    )
     for text in (printed["run"], printed["status"], printed["analyse"], printed["run progress"]):
         assert not re.search(r"\bdone\b", text), text  # the ledger's internal state is no outcome word
     assert set(table["outcome"]) <= {"completed", "no-motion", "aborted", "failed", "claimed", "planned"}
@@ -100,7 +111,9 @@ def test_every_link_in_the_report_resolves_to_a_file(campaign):
     parser = _Links()
     parser.feed((report / "index.html").read_text(encoding="utf-8"))
     assert parser.links
-    assert all((report / link).is_file() for link in parser.links), [l for l in parser.links if not (report / l).is_file()]
+    assert all((report / link).is_file() for link in parser.links), [
+        l for l in parser.links if not (report / l).is_file()
+    ]
     table = pd.read_csv(report / "metrics.csv")
     names = {Path(link).name for link in parser.links}
     assert {"metrics.csv", "metrics.parquet", "campaign.toml"} <= names
@@ -115,7 +128,7 @@ def test_report_table_lists_every_run_and_sorts_offline(campaign):
     assert 'class="sortable"' in text and "<script>" in text and "http" not in text.split("<script>")[1]
     assert all(f"<td>{i}</td>" in text for i in table["id"])
     assert "Stability bounds used" in text and "(2.46)" in text and "k_p interval" in text
-    assert "[campaign]" in text and 'name = &quot;words&quot;' in text  # the campaign file, shown
+    assert "[campaign]" in text and "name = &quot;words&quot;" in text  # the campaign file, shown
 
 
 def test_campaign_logs_decode_with_their_own_schemas(campaign):
@@ -142,7 +155,9 @@ def test_campaign_logs_decode_with_their_own_schemas(campaign):
     assert "omega__rad_per_s" in fields and "u__V" in fields and fields[0] == "t__s"
     for name in log.channels:
         field = next(f for f in fields if f == name or f.startswith(name + "__"))
-        assert np.array_equal(np.array([getattr(m, field) for m in samples]), log.frame[name].to_numpy(), equal_nan=True)
+        assert np.array_equal(
+            np.array([getattr(m, field) for m in samples]), log.frame[name].to_numpy(), equal_nan=True
+        )
     assert np.all(np.diff(times) > 0) and started - 5 < times[0] / 1e9 < time.time()
     channel = next(c for c in summary.channels.values() if c.topic == SAMPLES_TOPIC)
     assert channel.metadata["unit.omega__rad_per_s"] == "rad/s" and channel.metadata["rate_hz"] == "200.0"
@@ -155,7 +170,9 @@ def test_logging_section_thins_the_samples_and_says_so(tmp_path):
     (tmp_path / "pyproject.toml").write_text("[project]\nname = 'lab'\n")
     write(tmp_path / "rigs" / "motor.toml", MOTOR_RIG)
     grid = '"controller.k_p" = { values = [10.0] }'
-    path = write(tmp_path / "c.toml", campaign_text("thin", duration=1.0, grid=grid, extra="\n[logging]\nsamples_hz = 50.0\n"))
+    path = write(
+        tmp_path / "c.toml", campaign_text("thin", duration=1.0, grid=grid, extra="\n[logging]\nsamples_hz = 50.0\n")
+    )
     assert main(["run", str(path), "--out", str(tmp_path / "d")]) == 0
     (log,) = (tmp_path / "d" / "runs").glob("*.mcap")
     with open(log, "rb") as f:

@@ -17,25 +17,42 @@ from labrunner.overlay import _labels, plot_overlay
 from labrunner.rigs import registry
 
 ROOT = Path(__file__).resolve().parents[1]
-POINT = {"controller": {"kind": "mfc1", "output": "velocity", "gamma": 108.55, "k_p": 50.0},
-         "differentiator": {"alpha": 9, "beta": 9, "N": 0, "omega_c": 200.0, "method": "midpoint"},
-         "reference": {"kind": "setpoints", "levels": [0.0, 20.0, 0.0], "transition": 0.5, "hold": 0.2},
-         "safety": {"max_du_dt": 120.0}}
+POINT = {
+    "controller": {"kind": "mfc1", "output": "velocity", "gamma": 108.55, "k_p": 50.0},
+    "differentiator": {"alpha": 9, "beta": 9, "N": 0, "omega_c": 200.0, "method": "midpoint"},
+    "reference": {"kind": "setpoints", "levels": [0.0, 20.0, 0.0], "transition": 0.5, "hold": 0.2},
+    "safety": {"max_du_dt": 120.0},
+}
 
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("overlay")
-    points = [{**POINT, "controller": {**POINT["controller"], "gamma": g, "k_p": k}} for g, k in ((108.55, 50.0), (10.0, 1000.0))]
+    points = [
+        {**POINT, "controller": {**POINT["controller"], "gamma": g, "k_p": k}}
+        for g, k in ((108.55, 50.0), (10.0, 1000.0))
+    ]
     with registry.load_rig("dcmotor-sim", search=[ROOT / "rigs"]) as rig:
         results = engine.run_batch(points, rig, fs=200.0, duration=1.6, seeds=[0, 0])
     paths = []
     for i, (p, r) in enumerate(zip(points, results)):
         path = folder / f"run{i}.mcap"
-        write_run(path, metadata={"run": {"rig": "dcmotor-sim"}, "config": p,
-                                  "parameters": {"controller.gamma": p["controller"]["gamma"],
-                                                 "controller.k_p": p["controller"]["k_p"], "campaign.fs": 200.0}},
-                  fs=r.fs, signals=r.signals, outcome=r.outcome.as_dict(), channels=r.channels)
+        write_run(
+            path,
+            metadata={
+                "run": {"rig": "dcmotor-sim"},
+                "config": p,
+                "parameters": {
+                    "controller.gamma": p["controller"]["gamma"],
+                    "controller.k_p": p["controller"]["k_p"],
+                    "campaign.fs": 200.0,
+                },
+            },
+            fs=r.fs,
+            signals=r.signals,
+            outcome=r.outcome.as_dict(),
+            channels=r.channels,
+        )
         paths.append(path)
     assert [r.outcome.status for r in results] == ["completed", "aborted"]  # the second trips |du/dt|
     return paths
@@ -88,10 +105,13 @@ def test_robust_colour_scale_ends_below_outliers_but_not_otherwise():
 
 
 def test_max_current_and_db_maps_only_where_they_mean_something():
-    plate = pd.DataFrame({"rms_error": [1e-5], "rms_e_y1": [1e-6], "rms_e_y2": [1e-5], "rms_e_y3": [np.nan],
-                          "max_current": [3.0]})
+    plate = pd.DataFrame(
+        {"rms_error": [1e-5], "rms_e_y1": [1e-6], "rms_e_y2": [1e-5], "rms_e_y3": [np.nan], "max_current": [3.0]}
+    )
     with_db = with_db_columns(plate, {"rms_error": "m"})
-    assert with_db["rms_e_y1_db"].iloc[0] == pytest.approx(0.0) and with_db["rms_e_y2_db"].iloc[0] == pytest.approx(20.0)
+    assert with_db["rms_e_y1_db"].iloc[0] == pytest.approx(0.0) and with_db["rms_e_y2_db"].iloc[0] == pytest.approx(
+        20.0
+    )
     columns = [c for c, *_ in map_metrics("ê", with_db)]
     assert columns == ["rms_error", "input_energy", "max_current", "rms_e_y1_db", "rms_e_y2_db", "rms_e_y3_db"]
     motor = pd.DataFrame({"rms_error": [0.4], "rms_e_omega": [0.4], "max_current": [np.nan]})

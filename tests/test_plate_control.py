@@ -8,6 +8,7 @@ suppressed; Table 3: tracking errors of a few µm).
 
 import numpy as np
 import pytest
+from plate_loop import FS, closed_loop
 from scipy import signal
 
 from labrunner.control.factory import build, differentiators
@@ -15,7 +16,6 @@ from labrunner.control.plate import PlateMFC
 from labrunner.errors import InvalidParameter
 from labrunner.plate_geometry import PlateGeometry
 from labrunner.rigs.sim.plate import PlateTwin
-from plate_loop import FS, closed_loop
 
 SHORT = {"kind": "setpoints", "levels": [5.5e-3, 2e-3], "transition": 0.6, "hold": [0.0, 0.4]}
 MFC = {"kind": "plate-mfc", "input": "v", "gamma": 1.0, "k_p": 5000.0, "k_d": 195.0}
@@ -63,7 +63,9 @@ def test_mfc_lifts_and_hovers():
 
 def test_mfc_without_notch_is_unstable():
     """Paper 2 Remark 9: without the notch the resonance destabilises the loop (the plate hits a stop)."""
-    out = closed_loop({"controller": {**MFC, "notch_omega": 0.0}, "differentiator": DIFF, "reference": SHORT}, seconds=0.5)
+    out = closed_loop(
+        {"controller": {**MFC, "notch_omega": 0.0}, "differentiator": DIFF, "reference": SHORT}, seconds=0.5
+    )
     assert out["y"][:, 0, :3].min() < 0.8e-3
 
 
@@ -86,7 +88,9 @@ def test_mfc_input_variants_lift_and_hover(controller):
 @pytest.mark.parametrize("kind", ["plate-mbc", "plate-mfc"])
 def test_paper_lift_trajectory(kind):
     """Sec. 4.1 / 4.3.1: 5.5 → 2 mm in 2 s, then 2 → 5 → 2 mm (0.5 s transitions, 0.2 s holds)."""
-    point = {"controller": {"kind": "plate-mbc"}} if kind == "plate-mbc" else {"controller": MFC, "differentiator": DIFF}
+    point = (
+        {"controller": {"kind": "plate-mbc"}} if kind == "plate-mbc" else {"controller": MFC, "differentiator": DIFF}
+    )
     out = closed_loop({**point, "reference": {"kind": "lift"}}, seconds=4.2)
     e = out["y"][:, 0, :3] - out["r"][:, 0]
     moving = out["t"] > 2.5
@@ -100,7 +104,9 @@ def test_tilt_with_force_input_decouples():
     """Sec. 4.3.2, Fig. 12: the force-input MFC (17) tilts the plate with three individually timed
     transitions, decoupled only through f̂; at rest f̂_F,k = γ_F F̃_k carries a quarter of the weight."""
     controller = {**MFC, "input": "force", "gamma": 1.0}
-    out = closed_loop({"controller": controller, "differentiator": DIFF, "reference": {"kind": "tilt", "lift": 0.8, "settle": 0.3}})
+    out = closed_loop(
+        {"controller": controller, "differentiator": DIFF, "reference": {"kind": "tilt", "lift": 0.8, "settle": 0.3}}
+    )
     e = out["y"][:, 0, :3] - out["r"][:, 0]
     after_lift = out["t"] > 1.1
     assert np.sqrt(np.mean(e[after_lift] ** 2, axis=0)).max() < 10e-6
@@ -111,7 +117,10 @@ def test_tilt_with_force_input_decouples():
 
 def test_batch_gains_and_validation():
     info = PlateTwin.nominal_info("plate-sim", "", {})
-    points = [{"controller": {**MFC, "k_p": kp}, "differentiator": DIFF, "reference": {"kind": "lift", "delay": True}} for kp in (4000.0, 5000.0)]
+    points = [
+        {"controller": {**MFC, "k_p": kp}, "differentiator": DIFF, "reference": {"kind": "lift", "delay": True}}
+        for kp in (4000.0, 5000.0)
+    ]
     controller, ref = build(points, info, FS)
     assert isinstance(controller, PlateMFC) and controller.k_p[:, 0].tolist() == [4000.0, 5000.0]
     r = ref.evaluate(np.array([0.0]))[0]
@@ -128,7 +137,11 @@ def test_batch_gains_and_validation():
         with pytest.raises(InvalidParameter, match=field):
             build([{"controller": controller_section, "differentiator": DIFF, "reference": {"kind": "lift"}}], info, FS)
     with pytest.raises(InvalidParameter, match="reference.targets"):
-        build([{"controller": MFC, "differentiator": DIFF, "reference": {"kind": "tilt", "targets": [2e-3, 3e-3]}}], info, FS)
+        build(
+            [{"controller": MFC, "differentiator": DIFF, "reference": {"kind": "tilt", "targets": [2e-3, 3e-3]}}],
+            info,
+            FS,
+        )
 
 
 def _drive(points, ticks=60, seed=3):
@@ -154,7 +167,11 @@ def _drive(points, ticks=60, seed=3):
 def test_law_reconstructed_from_estimates(variant):
     """u from the controller equals eqs. (14)/(17)/(19)/(21) with (11)/(18) and (12), rebuilt from f̂, ê, ê̇."""
     gamma = {"v": 1.0, "force": 0.9, "u": 1.5e-5, "current": 0.04}[variant]
-    point = {"controller": {**MFC, "input": variant, "gamma": gamma}, "differentiator": DIFF, "reference": {"kind": "lift"}}
+    point = {
+        "controller": {**MFC, "input": variant, "gamma": gamma},
+        "differentiator": DIFF,
+        "reference": {"kind": "lift"},
+    }
     controller, r, log = _drive([point])
     checked = 0
     for y, u, est in log:
@@ -200,7 +217,11 @@ def test_estimator_uses_the_applied_saturated_currents():
     Σ ŵ₂ y[k−1−j] − γ_v Σ ŵ₀ v[k−1−j], v[k] = P⁻¹B f(i_sat[k], h[k]) (eqs. (2), (4), (5)), rebuilt
     from the logged measurements and the saturated currents; with the law's unsaturated currents
     the same sum misses the controller's f̂. Notch off, so f̂ sees the raw measurement."""
-    point = {"controller": {**MFC, "notch_omega": 0.0, "i_max": 2.7}, "differentiator": DIFF, "reference": {"kind": "lift"}}
+    point = {
+        "controller": {**MFC, "notch_omega": 0.0, "i_max": 2.7},
+        "differentiator": DIFF,
+        "reference": {"kind": "lift"},
+    }
     _, r, log = _drive([point], ticks=120)
     d = differentiators([point], FS, 2)[0]
     w2, w0, n = d.weights(2), d.weights(0), d.n_s
@@ -211,7 +232,9 @@ def test_estimator_uses_the_applied_saturated_currents():
     def v_of(currents, y):
         return GEO.input_from_forces((currents / (250 * GEO.gaps_from_sensors(y))) ** 2)
 
-    unsat = [GEO.forces_pinv(r[0, :, 2] - 5000 * e["e_hat"][0] - 195 * e["de_hat"][0] - e["f_hat"][0]) for _, _, e in log]
+    unsat = [
+        GEO.forces_pinv(r[0, :, 2] - 5000 * e["e_hat"][0] - 195 * e["de_hat"][0] - e["f_hat"][0]) for _, _, e in log
+    ]
     unsat = np.array([250 * GEO.gaps_from_sensors(y) * np.sqrt(np.maximum(f, 0.0)) for y, f in zip(Y, unsat)])
     y_h = np.vstack([np.full((n + 1, 3), 3e-3), Y])  # the stationary past of reset
     for currents, expect_match in ((U, True), (unsat, False)):

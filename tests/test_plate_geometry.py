@@ -36,7 +36,9 @@ def test_eq4_equals_plane_through_three_sensors():
 
 
 def test_pose_round_trip_and_redundant_sensor():
-    pose = np.column_stack([2e-3 + 3e-3 * RNG.random(20), 4e-3 * RNG.standard_normal(20), 4e-3 * RNG.standard_normal(20)])
+    pose = np.column_stack(
+        [2e-3 + 3e-3 * RNG.random(20), 4e-3 * RNG.standard_normal(20), 4e-3 * RNG.standard_normal(20)]
+    )
     y = GEO.sensors_from_pose(pose)
     np.testing.assert_allclose(GEO.pose_from_sensors(y), pose, rtol=1e-10, atol=1e-15)
     # a rigid plate: opposite corners of the sensor rectangle sum alike (Remark 2's redundancy)
@@ -73,7 +75,9 @@ def test_eq11_pseudo_inverse_matches_printed_matrix_and_realises_v():
 
 def test_eq18_fourth_input():
     x = np.array([[1.0, 2.0, 4.0]])
-    np.testing.assert_allclose(complete_over_actuated(x, over_actuation_weights()), [[1.0, 2.0, 4.0, 3.0]])  # (F2 + F3)/2
+    np.testing.assert_allclose(
+        complete_over_actuated(x, over_actuation_weights()), [[1.0, 2.0, 4.0, 3.0]]
+    )  # (F2 + F3)/2
     np.testing.assert_allclose(complete_over_actuated(x, over_actuation_weights((1.0, 0.0, 0.0)))[:, 3], 1.0)
     for bad in [(0.5, 0.5, 0.5), (-0.5, 1.0, 0.5), (1.0, 0.0), "abc", (np.nan, 0.5, 0.5)]:
         with pytest.raises(InvalidParameter, match="weights"):

@@ -59,7 +59,9 @@ def test_tustin_prewarp_exact_at_its_frequency(part):
     # discrete poles are the bilinear images z = (1 + s T/2)/(1 − s T/2), T prewarped
     T = 2 * np.tan(warp / (2 * FS)) / warp
     s = np.linalg.eigvals(ss[0])
-    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(disc[0])), np.sort_complex((1 + s * T / 2) / (1 - s * T / 2)), rtol=1e-8)
+    np.testing.assert_allclose(
+        np.sort_complex(np.linalg.eigvals(disc[0])), np.sort_complex((1 + s * T / 2) / (1 - s * T / 2)), rtol=1e-8
+    )
 
 
 def test_notch_depth_and_width():

@@ -40,7 +40,10 @@ def test_tilt_transition_times():
 
 
 def test_reference_from_points_delay_and_defaults():
-    points = [{"reference": {"kind": "lift", "delay": True}}, {"reference": {"kind": "lift", "delay": True, "hover": 3e-3}}]
+    points = [
+        {"reference": {"kind": "lift", "delay": True}},
+        {"reference": {"kind": "lift", "delay": True, "hover": 3e-3}},
+    ]
     delays = np.array([0.004, 0.002])
     ref = reference_from_points(points, INFO, delays_s=delays)
     assert ref.batch == 2 and ref.n_outputs == 3
@@ -61,7 +64,16 @@ def test_reference_validation():
         reference_from_points([{"reference": {"kind": "lift", "speed": 1.0}}], INFO, delays_s=None)
     # the generic kinds still work, nested per output
     ref = reference_from_points(
-        [{"reference": {"kind": "setpoints", "levels": [[2e-3, 3e-3], [2e-3, 2e-3], [2e-3, 1e-3]], "transition": 0.5, "hold": 0.1}}],
+        [
+            {
+                "reference": {
+                    "kind": "setpoints",
+                    "levels": [[2e-3, 3e-3], [2e-3, 2e-3], [2e-3, 1e-3]],
+                    "transition": 0.5,
+                    "hold": 0.1,
+                }
+            }
+        ],
         INFO,
         delays_s=None,
     )

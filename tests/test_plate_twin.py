@@ -15,7 +15,9 @@ QUIET = {"sensor_std": 0.0, "current_std": 0.0}
 
 
 def twin(parameters=None, noise=None):
-    return load_rig({"rig": {"kind": "plate"}, "parameters": parameters or {}, "noise": QUIET if noise is None else noise})
+    return load_rig(
+        {"rig": {"kind": "plate"}, "parameters": parameters or {}, "noise": QUIET if noise is None else noise}
+    )
 
 
 def run(rig, currents, seconds, batch=1, seeds=None, overrides=None):
@@ -152,7 +154,9 @@ def test_integration_stable_for_every_allowed_parameter():
     """Spectral radius of one integration step with all four stops engaged ≤ 1 at the parameter extremes."""
     worst = 0.0
     for m, J, mm, w, z, cw in itertools.product([0.5, 50], [1e-3, 5], [0.05, 100], [100, 5000], [0, 1], [1e3, 2e4]):
-        rig = twin({"m": m, "J_x": J, "J_y": J, "mode_mass": mm, "mode_omega": w, "contact_zeta": z, "contact_omega": cw})
+        rig = twin(
+            {"m": m, "J_x": J, "J_y": J, "mode_mass": mm, "mode_omega": w, "contact_zeta": z, "contact_omega": cw}
+        )
         rig.reset(1, [0], FS)
         step = step_matrix(*linearised_on_the_stops(rig), 1.0 / (FS * rig.substeps))
         worst = max(worst, np.abs(np.linalg.eigvals(step)).max())
@@ -160,7 +164,9 @@ def test_integration_stable_for_every_allowed_parameter():
 
 
 def test_faults_from_the_base_class():
-    rig = load_rig({"rig": {"kind": "plate"}, "noise": QUIET, "faults": {"t_start": 0.0, "sensor_step": [2e-4, 0, 0, 0]}})
+    rig = load_rig(
+        {"rig": {"kind": "plate"}, "noise": QUIET, "faults": {"t_start": 0.0, "sensor_step": [2e-4, 0, 0, 0]}}
+    )
     y0 = rig.reset(1, [0], FS)
     assert y0[0, 0] - y0[0, 1] == pytest.approx(2e-4, abs=1e-6)
 

@@ -26,11 +26,15 @@ CASES = [
     (m.Error(int(m.ErrorCode.WATCHDOG), 999, -F32), {"code": "WATCHDOG", "seq": 999, "detail": -F32}),
     (m.Input(65535, 3, m.FLAG_COMMIT, F32), {"seq": 65535, "channel": 3, "flags": 1, "value": F32}),
     (m.Measurement(12, 2, 0, -2 * F32), {"seq": 12, "channel": 2, "flags": 0, "value": -2 * F32}),
-    (m.TickEnd(12, m.TICK_CHANNEL, m.FLAG_LATE | m.FLAG_OVERRUN, 4_000_000_000),
-     {"seq": 12, "channel": 255, "flags": 3, "timestamp_us": 4_000_000_000}),
+    (
+        m.TickEnd(12, m.TICK_CHANNEL, m.FLAG_LATE | m.FLAG_OVERRUN, 4_000_000_000),
+        {"seq": 12, "channel": 255, "flags": 3, "timestamp_us": 4_000_000_000},
+    ),
     (m.Heartbeat(2**32 - 1), {"counter": 2**32 - 1}),
-    (m.Status(int(m.DeviceState.SAFE), int(m.ErrorCode.SEQUENCE), 40000, 17, 300),
-     {"state": "SAFE", "last_error": 5, "rejected": 40000, "late": 17, "seq": 300}),
+    (
+        m.Status(int(m.DeviceState.SAFE), int(m.ErrorCode.SEQUENCE), 40000, 17, 300),
+        {"state": "SAFE", "last_error": 5, "rejected": 40000, "late": 17, "seq": 300},
+    ),
     (m.Hello(1), {"version": 1}),
 ]
 
@@ -60,8 +64,9 @@ def test_setup_and_identity_records(db):
     assert [d["index"] for d in decoded] == [0, 1, 2]
     assert decoded[0]["fs"] == 200.0 and decoded[1]["watchdog"] == pytest.approx(0.015, rel=1e-7)
     assert decoded[2]["seed"] == 123456
-    ident = m.Identity(1, int(m.DeviceKind.PLATE), 4, 4, int(m.Capability.HOST_LOOP | m.Capability.DEVICE_LOOP),
-                       32000.0, 0xDEADBEEF)
+    ident = m.Identity(
+        1, int(m.DeviceKind.PLATE), 4, 4, int(m.Capability.HOST_LOOP | m.Capability.DEVICE_LOOP), 32000.0, 0xDEADBEEF
+    )
     records = {}
     for f in m.identity_frames(ident):
         d = db.decode_message(frame_id(f), f.payload, decode_choices=False)

@@ -93,9 +93,19 @@ def twin(kind: str) -> Callable:
 
 
 def over_can(extra: dict, monkeypatch):
-    config = {"rig": {"kind": "can", "name": "motor-can"}, **extra,
-              "parameters": {"device": "dcmotor", "interface": "virtual", "channel": f"contract-{uuid.uuid4().hex}",
-                             "node_id": 3, "timeout_s": 0.5, "watchdog_periods": 400, "model": MOTOR_MODEL}}
+    config = {
+        "rig": {"kind": "can", "name": "motor-can"},
+        **extra,
+        "parameters": {
+            "device": "dcmotor",
+            "interface": "virtual",
+            "channel": f"contract-{uuid.uuid4().hex}",
+            "node_id": 3,
+            "timeout_s": 0.5,
+            "watchdog_periods": 400,
+            "model": MOTOR_MODEL,
+        },
+    }
     emulator = Emulator(twin_for(config_from_dict(config)), device_link(config_from_dict(config)), paced=False).start()
     rig = load_rig(config)
     return rig, lambda: (rig.close(), emulator.stop())
@@ -103,8 +113,11 @@ def over_can(extra: dict, monkeypatch):
 
 def over_serial(device: str, model: dict) -> Callable:
     def build(extra: dict, monkeypatch):
-        config = {"rig": {"kind": "serial", "name": f"{device}-serial"}, **extra,
-                  "parameters": {"device": device, "timeout_s": 0.5, "watchdog_periods": 400, "model": model}}
+        config = {
+            "rig": {"kind": "serial", "name": f"{device}-serial"},
+            **extra,
+            "parameters": {"device": device, "timeout_s": 0.5, "watchdog_periods": 400, "model": model},
+        }
         port, emulator = serve_on_pty(twin_for(config_from_dict(config)), paced=False)
         config["parameters"]["port"] = port
         rig = load_rig(config)
@@ -228,7 +241,9 @@ def test_faults_act_from_t_start_on(case, make):
     faults = {"t_start": k0 / case.fs, "actuator_offset": offset.tolist(), "actuator_gain": gain}
     _, faulty_u = drive(make(faults=faults), case, mid, ticks)
     np.testing.assert_array_equal(faulty_u[:k0], clean_u[:k0])
-    np.testing.assert_allclose(faulty_u[k0:], np.broadcast_to((1 + gain) * mid + offset, faulty_u[k0:].shape), rtol=1e-15)
+    np.testing.assert_allclose(
+        faulty_u[k0:], np.broadcast_to((1 + gain) * mid + offset, faulty_u[k0:].shape), rtol=1e-15
+    )
     stepped_y, _ = drive(make(faults={"t_start": k0 / case.fs, "sensor_step": case.sensor_step}), case, mid, ticks)
     np.testing.assert_array_equal(stepped_y[:k0], clean_y[:k0])  # y[k] is the measurement at t = k/fs
     scale = np.abs(clean_y).max() + case.sensor_step
@@ -329,8 +344,13 @@ def test_a_remote_device_is_any_registered_kind_that_is_not_remote(doc):
 def test_the_docs_heater_follows_the_analytic_step_response(doc):
     """τ Ṫ = −(T − T_amb) + K P under a held step P: T(t) = T_amb + K P (1 − e^(−t/τ))."""
     tau, gain, ambient, power, fs = 90.0, 0.48, 20.0, 50.0, 2.0
-    rig = load_rig({"rig": {"kind": "heater"}, "parameters": {"tau": tau, "gain": gain, "ambient": ambient},
-                    "noise": {"sensor_std": 0.0}})
+    rig = load_rig(
+        {
+            "rig": {"kind": "heater"},
+            "parameters": {"tau": tau, "gain": gain, "ambient": ambient},
+            "noise": {"sensor_std": 0.0},
+        }
+    )
     ys, _ = drive(rig, Case("heater", twin("heater"), fs, batch=1), np.array([power]), 400)
     t = np.arange(401) / fs
     np.testing.assert_allclose(ys[:, 0, 0], ambient + gain * power * (1.0 - np.exp(-t / tau)), rtol=1e-12)
@@ -342,13 +362,17 @@ def test_the_docs_heater_follows_the_analytic_step_response(doc):
     [
         ("\n[rig_parameters]\nstatic_friction = -1.0\n", "rig_parameters.static_friction: must be >= 0, got -1"),
         ("\n[rig_parameters]\nencoder_counts = 0.5\n", "rig_parameters.encoder_counts: must be an integer, got 0.5"),
-        ("\n[rig_parameters]\ncoulomb_friction = 2.0\n",
-         "rig_parameters.coulomb_friction: must be <= static_friction = 0.8 V, got 2"),
+        (
+            "\n[rig_parameters]\ncoulomb_friction = 2.0\n",
+            "rig_parameters.coulomb_friction: must be <= static_friction = 0.8 V, got 2",
+        ),
         ("", 'rig_parameters.b: must be > 0, got -5 (at grid point {"rig_parameters.b":-5.0})'),
     ],
 )
 def test_rig_parameters_and_grid_values_are_checked_before_anything_is_created(project, capsys, extra, message):
-    grid = '"rig_parameters.b" = { values = [100.0, -5.0] }' if not extra else '"controller.k_p" = { values = [1.0, 2.0] }'
+    grid = (
+        '"rig_parameters.b" = { values = [100.0, -5.0] }' if not extra else '"controller.k_p" = { values = [1.0, 2.0] }'
+    )
     path = write(project / "c.toml", campaign_text(grid=grid, extra=extra))
     assert main(["run", str(path), "--out", "data/c"]) == 2
     err = capsys.readouterr().err.strip()
@@ -360,8 +384,10 @@ def test_rig_parameters_and_grid_values_are_checked_before_anything_is_created(p
     ("rig_file", "message"),
     [
         ('[rig]\nkind = "dcmotor"\n[parameters]\na = -1\n', "rigs/bad.toml: parameters.a: must be > 0, got -1"),
-        ('[rig]\nkind = "plate"\n[faults]\nt_start = 0.1\nsensor_step = [1e-4, 0.0, 0.0]\n',
-         "rigs/bad.toml: faults.sensor_step: needs 1 or 4 values, got 3"),
+        (
+            '[rig]\nkind = "plate"\n[faults]\nt_start = 0.1\nsensor_step = [1e-4, 0.0, 0.0]\n',
+            "rigs/bad.toml: faults.sensor_step: needs 1 or 4 values, got 3",
+        ),
     ],
 )
 def test_rig_file_errors_reach_the_user_with_the_loaders_context(project, capsys, rig_file, message):

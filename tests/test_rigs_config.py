@@ -67,7 +67,11 @@ def test_error_names_file_and_key(tmp_path, monkeypatch):
         ('[rig]\nkind = "dcmotor"\n[limits]\nfs = [100, 50]\n', "limits.fs", "lo < hi"),
         ('[rig]\nkind = "dcmotor"\n[limits]\nfs_default = 5e5\n', "limits.fs_default", "must lie in"),
         ('[rig]\nkind = "dcmotor"\n[faults]\nactuator_offset = 1.0\n', "faults.t_start", "required"),
-        ('[rig]\nkind = "dcmotor"\n[faults]\nt_start = 1\nsensor_step = [1, 2]\n', "faults.sensor_step", "1 or 1 values"),
+        (
+            '[rig]\nkind = "dcmotor"\n[faults]\nt_start = 1\nsensor_step = [1, 2]\n',
+            "faults.sensor_step",
+            "1 or 1 values",
+        ),
         ('[rig]\nkind = "dcmotor"\n[faults]\nt_start = 1\nactuator_gain = -1.5\n', "faults.actuator_gain", "> -1"),
         ('[rig]\nkind = "dcmotor"\n[safety]\nmax_du_dt = -5\n', "safety.max_du_dt", "must be > 0"),
         ('[rig]\nkind = "dcmotor"\n[safety]\nbogus = 1\n', "safety.bogus", "unknown key"),
@@ -121,13 +125,22 @@ def test_overrides_are_validated_per_run():
 
 def test_faults_section_maps_onto_base_faults():
     """Paper 2 Sec. 4.4 faults from a rig file: additive actuator fault from t_start on."""
-    config = config_from_dict({
-        "rig": {"kind": "dcmotor"},
-        "parameters": {"a": 39.44, "b": 108.55, "static_friction": 0.0, "coulomb_friction": 0.0, "backlash": 0.0,
-                       "electrical_tau": 0.0, "encoder_counts": 0},
-        "noise": {"input_v": 0.0},
-        "faults": {"t_start": 0.5, "actuator_offset": 2.0, "sensor_step": [0.25]},
-    })
+    config = config_from_dict(
+        {
+            "rig": {"kind": "dcmotor"},
+            "parameters": {
+                "a": 39.44,
+                "b": 108.55,
+                "static_friction": 0.0,
+                "coulomb_friction": 0.0,
+                "backlash": 0.0,
+                "electrical_tau": 0.0,
+                "encoder_counts": 0,
+            },
+            "noise": {"input_v": 0.0},
+            "faults": {"t_start": 0.5, "actuator_offset": 2.0, "sensor_step": [0.25]},
+        }
+    )
     assert config.faults == Faults(0.5, (2.0,), (0.0,), (0.25,))
     rig = load_rig(config)
     ys = [rig.reset(1, [0], 100.0)[0, 0]] + [rig.step(np.zeros((1, 1)))[0, 0] for _ in range(100)]
@@ -186,9 +199,9 @@ def test_entry_point_extends_registry(monkeypatch, tmp_path):
     rig = load_rig(path)
     rig.reset(1, [0], 10.0)
     assert rig.step(np.array([[1.0]]))[0, 0] == pytest.approx(0.5)
-    assert error_of(load_rig, write_rig(tmp_path, "toy2", '[rig]\nkind = "toy"\n[parameters]\ngain = -1\n')).field.endswith(
-        "parameters.gain"
-    )
+    assert error_of(
+        load_rig, write_rig(tmp_path, "toy2", '[rig]\nkind = "toy"\n[parameters]\ngain = -1\n')
+    ).field.endswith("parameters.gain")
 
 
 def test_register_rig_at_run_time(monkeypatch):
@@ -202,8 +215,13 @@ def test_register_rig_at_run_time(monkeypatch):
     [
         ("dcmotor", 200.0, [3.0], {"actuator_offset": 1.5, "actuator_gain": -0.5}, {"sensor_step": 0.1}),
         ("valve", 4000.0, [0.6], {"actuator_offset": 0.05, "actuator_gain": -0.5}, {"sensor_step": 2.0}),
-        ("plate", 32000.0, [2.0, 2.0, 2.0, 2.0], {"actuator_offset": [0.0, 0.3, 0.0, 0.0], "actuator_gain": [-0.5, 0.0, 0.0, 0.2]},
-         {"sensor_step": [2e-4, 0.0, 0.0, -1e-4]}),
+        (
+            "plate",
+            32000.0,
+            [2.0, 2.0, 2.0, 2.0],
+            {"actuator_offset": [0.0, 0.3, 0.0, 0.0], "actuator_gain": [-0.5, 0.0, 0.0, 0.2]},
+            {"sensor_step": [2e-4, 0.0, 0.0, -1e-4]},
+        ),
     ],
 )
 def test_faults_from_a_given_time_on_every_twin(kind, fs, u, actuator, sensor):

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from naive_reference import naive
 from scipy.integrate import solve_ivp
 
 from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.sim.valve import ValveTwin, static_flow
-from naive_reference import naive
 
 A, B_GAIN = 39.44, 108.55
 DTHETA = 2 * np.pi / 2048
@@ -138,14 +138,25 @@ def test_fused_motor_substep_equals_the_plain_reference():
     """Stick, breakaway, reversals, saturation, backlash, no lag / no friction in some runs, noise."""
     rig = load_rig("dcmotor-sim")
     t = np.arange(400) / 200.0
-    u = np.stack([0.5 + 0 * t, 3.0 * np.sin(4 * t), 20.0 * np.sign(np.sin(3 * t)), 1.2 * np.sin(9 * t),
-                  6.0 * np.sin(2 * t), np.where(t < 1.0, 8.0, 0.0)], axis=1)
+    u = np.stack(
+        [
+            0.5 + 0 * t,
+            3.0 * np.sin(4 * t),
+            20.0 * np.sign(np.sin(3 * t)),
+            1.2 * np.sin(9 * t),
+            6.0 * np.sin(2 * t),
+            np.where(t < 1.0, 8.0, 0.0),
+        ],
+        axis=1,
+    )
     seeds = (1, 2, 3, 4, 5, 6)
-    over = {"electrical_tau": np.array([5e-4, 0.0, 5e-4, 1e-3, 0.0, 5e-4]),
-            "coulomb_friction": np.array([0.6, 0.0, 0.3, 0.6, 0.6, 0.0]),
-            "static_friction": np.array([0.8, 0.0, 0.8, 1.0, 0.6, 0.8]),
-            "backlash": np.array([0.02, 0.0, 0.05, 0.02, 0.02, 0.0]),
-            "input_v": np.array([0.02, 0.0, 0.5, 0.02, 0.0, 0.1])}
+    over = {
+        "electrical_tau": np.array([5e-4, 0.0, 5e-4, 1e-3, 0.0, 5e-4]),
+        "coulomb_friction": np.array([0.6, 0.0, 0.3, 0.6, 0.6, 0.0]),
+        "static_friction": np.array([0.8, 0.0, 0.8, 1.0, 0.6, 0.8]),
+        "backlash": np.array([0.02, 0.0, 0.05, 0.02, 0.02, 0.0]),
+        "input_v": np.array([0.02, 0.0, 0.5, 0.02, 0.0, 0.1]),
+    }
     fused = run(rig, u, seeds=seeds, overrides=over)
     reference = _motor_reference(rig, u, seeds, over)
     np.testing.assert_array_equal(fused, reference)
@@ -328,7 +339,7 @@ def test_paper1_campaign_is_feasible_and_gains_matter():
     k_p far above oscillates (above the stability region, Fig. 5); k_p far below gives no flow."""
     gamma = np.full(3, 0.4 * 60_000)
     e = _mfc_valve(gamma, np.array([30.0, 300.0, 1.0]))
-    rms = np.sqrt(np.mean(e[int(4 * 4000):] ** 2, axis=0))
+    rms = np.sqrt(np.mean(e[int(4 * 4000) :] ** 2, axis=0))
     assert rms[0] < 0.4
     assert rms[1] > 3.0
     assert rms[2] > 1.0

@@ -77,8 +77,9 @@ def test_rate_estimator_window_is_the_thesis_nine_samples_at_200_hz():
 
 
 def test_bounds_nan_and_run_time_verdicts():
-    m = monitor({"output_bounds": {"theta": [-1.0, 2.0]}, "input_bounds": {"u": [-5.0, 5.0]}, "max_duration": 1.0},
-                batch=4)
+    m = monitor(
+        {"output_bounds": {"theta": [-1.0, 2.0]}, "input_bounds": {"u": [-5.0, 5.0]}, "max_duration": 1.0}, batch=4
+    )
     u = lambda k: np.array([0.0, 6.0 if k >= 10 else 0.0, np.nan if k >= 20 else 0.0, 0.0])  # noqa: E731
     y = lambda k: np.array([0.01 * k, 0.0, 0.0, -2.0 if k >= 30 else 0.0])  # noqa: E731
     first = feed(m, u, y, ticks=400, batch=4)
@@ -143,8 +144,12 @@ def test_every_tick_screen_misses_no_trip():
     rng = np.random.default_rng(7)
     B, K = 24, 300
     sections = [
-        {"max_du_dt": float(rng.choice([None, 60.0, 120.0, 500.0]) or 0) or None, "max_duration": float(rng.choice([0.7, 9.0, 9.0])),
-         "input_bounds": {"u": [-float(rng.uniform(3, 9)), float(rng.uniform(3, 9))]}, "output_bounds": {"theta": [-2.0, float(rng.uniform(1, 3))]}}
+        {
+            "max_du_dt": float(rng.choice([None, 60.0, 120.0, 500.0]) or 0) or None,
+            "max_duration": float(rng.choice([0.7, 9.0, 9.0])),
+            "input_bounds": {"u": [-float(rng.uniform(3, 9)), float(rng.uniform(3, 9))]},
+            "output_bounds": {"theta": [-2.0, float(rng.uniform(1, 3))]},
+        }
         for _ in range(B)
     ]
     for sec in sections[::5]:
@@ -190,8 +195,9 @@ def test_every_tick_screen_misses_no_trip():
 
 
 def test_campaign_section_overrides_the_rig_file():
-    config = SafetyConfig.from_sections(INFO, {"max_du_dt": 120.0, "input_bounds": {"u": [-12, 12]}},
-                                        {"max_du_dt": 60.0})
+    config = SafetyConfig.from_sections(
+        INFO, {"max_du_dt": 120.0, "input_bounds": {"u": [-12, 12]}}, {"max_du_dt": 60.0}
+    )
     assert config.max_du_dt == 60.0 and config.input_bounds == {"u": (-12.0, 12.0)}
 
 
@@ -240,8 +246,12 @@ def test_plate_air_gaps_are_bounded_at_the_magnets_not_at_the_sensors():
 
 def test_output_bounds_may_name_the_rigs_derived_signals_only():
     plate = load_rig("plate-sim")
-    assert SafetyConfig.from_sections(plate.info, {"output_bounds": {"h3": [1e-3, 5e-3]}}).output_bounds == {"h3": (1e-3, 5e-3)}
-    with pytest.raises(InvalidParameter, match=r"safety\.output_bounds\.h5: unknown signal; rig 'plate-sim' has .*'h4'"):
+    assert SafetyConfig.from_sections(plate.info, {"output_bounds": {"h3": [1e-3, 5e-3]}}).output_bounds == {
+        "h3": (1e-3, 5e-3)
+    }
+    with pytest.raises(
+        InvalidParameter, match=r"safety\.output_bounds\.h5: unknown signal; rig 'plate-sim' has .*'h4'"
+    ):
         SafetyConfig.from_sections(plate.info, {"output_bounds": {"h5": [1e-3, 5e-3]}})
     with pytest.raises(InvalidParameter, match=r"safety\.motion_output"):  # motion is measured, not derived
         SafetyConfig.from_sections(plate.info, {"motion_output": "h1"})

@@ -9,8 +9,13 @@ from labrunner.campaign.spec import copy_tree
 
 
 def test_copy_tree_is_deepcopy_of_toml_data():
-    data = {"a": 1, "b": [1.5, {"c": "x", "d": [True, None]}], "e": {"f": {"g": [[1, 2], [3]]}},
-            "t": datetime.date(2026, 1, 2), "h": (1, [2])}
+    data = {
+        "a": 1,
+        "b": [1.5, {"c": "x", "d": [True, None]}],
+        "e": {"f": {"g": [[1, 2], [3]]}},
+        "t": datetime.date(2026, 1, 2),
+        "h": (1, [2]),
+    }
     copied = copy_tree(data)
     assert copied == copy.deepcopy(data)
     copied["b"][1]["d"].append(1)

@@ -18,11 +18,11 @@ def error_matrices(case: str, kw: dict, k_p: float, k_d: float | None) -> tuple[
     """x = (e, ė): x'(t) = A0 x(t) + A1 x(t − δ), the error equations as printed in the thesis."""
     r = (kw.get("rho") or kw.get("b")) / kw["gamma"]
     a0m, a1m = np.zeros((2, 2)), np.zeros((2, 2))
-    if case == "mfc1-ultralocal":                          # (2.40)
+    if case == "mfc1-ultralocal":  # (2.40)
         a1m[0, 0] = -r * k_p
-    elif case == "mfc1-motor":                             # (2.45)
+    elif case == "mfc1-motor":  # (2.45)
         a0m[0, 0], a1m[0, 0] = -kw["a"], -r * (k_p - kw["a"])
-    else:                                                  # (2.52), (2.57), (A.18)
+    else:  # (2.52), (2.57), (A.18)
         p0, p1 = (kw.get("a0", 0.0), kw.get("a1", kw.get("a", 0.0)))
         a0m[0, 1] = 1.0
         a0m[1] = [-p0, -p1]
@@ -41,8 +41,8 @@ def grows(a0m: np.ndarray, a1m: np.ndarray, a2m: np.ndarray | None = None) -> np
     batch = a0m.shape[0]
     a2m = np.zeros_like(a0m) if a2m is None else a2m
     x = np.zeros((n_steps + m + 1, batch, 2))
-    f = np.zeros_like(x)                                   # x' (0 on the constant history)
-    x[: m + 1, :, 0] = 1.0                                 # history on [−δ, 0] at indices 0..m
+    f = np.zeros_like(x)  # x' (0 on the constant history)
+    x[: m + 1, :, 0] = 1.0  # history on [−δ, 0] at indices 0..m
 
     def rhs(now, late, late_rate):
         return sum(np.einsum("bij,bj->bi", mat, v) for mat, v in ((a0m, now), (a1m, late), (a2m, late_rate)))
@@ -59,14 +59,15 @@ def grows(a0m: np.ndarray, a1m: np.ndarray, a2m: np.ndarray | None = None) -> np
         x[k + 1] = x[k] + h * (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
         f[k + 1] = rhs(x[k + 1], x[k + 1 - m], f[k + 1 - m])
     e = np.abs(x[m:, :, 0])
-    early = e[int(0.25 * n_steps): int(0.35 * n_steps)].max(axis=0)
-    late = e[int(0.9 * n_steps):].max(axis=0)
+    early = e[int(0.25 * n_steps) : int(0.35 * n_steps)].max(axis=0)
+    late = e[int(0.9 * n_steps) :].max(axis=0)
     return late > early
 
 
 def boundary_points(case: str, kw: dict) -> list[tuple[float, float | None, bool]]:
     """(k_p, k_d, stable?) 2 % inside and outside each boundary; 2 % of the interval's width for
     a bound at 0. k_d boundaries at the middle of the k_p interval 2 % inside."""
+
     def nudge(edge, inward, width):
         step = 0.02 * max(abs(edge), width)
         return edge + inward * step, edge - inward * step
@@ -94,7 +95,7 @@ def boundary_points(case: str, kw: dict) -> list[tuple[float, float | None, bool
 SETUPS = [
     ("mfc1-ultralocal", {"gamma": B, "rho": B}),
     ("mfc1-motor", {"gamma": 0.9 * B, "a": A, "b": B}),
-    ("mfc1-motor", {"gamma": 1.1 * B, "a": -20.0, "b": B}),     # remark 2.8: unstable plant
+    ("mfc1-motor", {"gamma": 1.1 * B, "a": -20.0, "b": B}),  # remark 2.8: unstable plant
     ("mfc2-ultralocal", {"gamma": B, "rho": B}),
     ("mfc2-motor", {"gamma": 1.1 * B, "a": A, "b": B}),
     ("mfc2-second-order", {"gamma": B, "a0": 300.0, "a1": A, "b": B}),
@@ -131,11 +132,12 @@ def test_neutral_a11_decays_inside_and_grows_outside_the_solver_boundaries():
     come from the neutral spectral abscissa alone, and the method of steps confirms them (±2 %)."""
     mats, expected, labels = [], [], []
     for gamma in (0.7 * B, 1.1 * B):
+
         def family(k_p, gamma=gamma):
             return case_quasipolynomial("mfc1-motor", gamma=gamma, delay=DELAY, a=A, b=B, k_p=k_p, neutral=True)
 
         ((lo, hi),) = stable_intervals(family, -50.0, 400.0, n_scan=81)
-        neutral = (gamma - B) / gamma                      # coefficient of ė(t − δ) in (A.11)
+        neutral = (gamma - B) / gamma  # coefficient of ė(t − δ) in (A.11)
         for edge, inward in ((lo, 1), (hi, -1)):
             step = 0.02 * max(abs(edge), hi - lo)
             for k_p, stable in ((edge + inward * step, True), (edge - inward * step, False)):

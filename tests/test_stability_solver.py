@@ -31,7 +31,9 @@ def test_scalar_rightmost_root_is_principal_lambert_w(k_delta, delay):
     expected = complex(lambertw(-k_delta, 0)) / delay
     root = rightmost_roots(scalar(k_delta / delay, delay), 1)[0]
     assert abs(root - complex(expected.real, abs(expected.imag))) <= 1e-10 * abs(expected)
-    assert spectral_abscissa(scalar(k_delta / delay, delay)) == pytest.approx(expected.real, rel=1e-10, abs=1e-12 / delay)
+    assert spectral_abscissa(scalar(k_delta / delay, delay)) == pytest.approx(
+        expected.real, rel=1e-10, abs=1e-12 / delay
+    )
 
 
 def test_further_roots_are_the_other_lambert_branches():
@@ -45,10 +47,14 @@ def test_scalar_boundary_is_pi_over_two():
     # thesis (2.41) with ρ/γ = 1, δ = 1: stable iff 0 < k < π/2
     b = gain_boundaries(lambda k: scalar(k, 1.0), -1.0, 3.0, n_scan=41)
     np.testing.assert_allclose(b, [0.0, np.pi / 2], atol=1e-12)
-    np.testing.assert_allclose(stable_intervals(lambda k: scalar(k, 1.0), -1.0, 3.0, n_scan=41), [(0.0, np.pi / 2)], atol=1e-12)
+    np.testing.assert_allclose(
+        stable_intervals(lambda k: scalar(k, 1.0), -1.0, 3.0, n_scan=41), [(0.0, np.pi / 2)], atol=1e-12
+    )
 
 
-@pytest.mark.parametrize(("b", "c", "tau"), [(0.5, 1.0, 1.0), (0.5, 0.3, 1.0), (2.0, 1.0, 0.05), (-0.5, 0.3, 2.0), (0.9, 5.0, 1.0)])
+@pytest.mark.parametrize(
+    ("b", "c", "tau"), [(0.5, 1.0, 1.0), (0.5, 0.3, 1.0), (2.0, 1.0, 0.05), (-0.5, 0.3, 2.0), (0.9, 5.0, 1.0)]
+)
 def test_neutral_factorised_abscissa(b, c, tau):
     # (1 − b e^{−sτ})(s + c): roots −c and (ln|b| + i(2πk + arg b))/τ, so α = max(−c, ln|b|/τ)
     qp = QuasiPolynomial.from_terms({0.0: [1.0, c], tau: [-b, -b * c]})
@@ -93,11 +99,13 @@ def test_from_terms_pads_rows():
 
 @pytest.mark.parametrize(
     ("coeffs", "delays"),
-    [([[0.0, 1.0], [0.0, 1.0]], [0.0, 1.0]),         # no undelayed s^n term
-     ([[1.0, 1.0], [0.0, 1.0]], [0.1, 1.0]),         # first delay not 0
-     ([[1.0, 1.0], [0.0, 1.0]], [0.0, 0.0]),         # repeated delay
-     ([[1.0, np.nan], [0.0, 1.0]], [0.0, 1.0]),
-     ([[1.0], [1.0]], [0.0, 1.0])],                  # degree 0
+    [
+        ([[0.0, 1.0], [0.0, 1.0]], [0.0, 1.0]),  # no undelayed s^n term
+        ([[1.0, 1.0], [0.0, 1.0]], [0.1, 1.0]),  # first delay not 0
+        ([[1.0, 1.0], [0.0, 1.0]], [0.0, 0.0]),  # repeated delay
+        ([[1.0, np.nan], [0.0, 1.0]], [0.0, 1.0]),
+        ([[1.0], [1.0]], [0.0, 1.0]),
+    ],  # degree 0
 )
 def test_invalid_quasipolynomial(coeffs, delays):
     with pytest.raises(InvalidParameter):
@@ -124,8 +132,8 @@ def test_gain_window_is_validated():
 
 
 def test_abscissa_map_orientation():
-    x = np.array([0.5, 2.0, 3.0])   # k
-    y = np.array([1.0, 0.5])        # delay
+    x = np.array([0.5, 2.0, 3.0])  # k
+    y = np.array([1.0, 0.5])  # delay
     m = abscissa_map(lambda k, d: scalar(k, d), x, y)
     assert m.shape == (2, 3)
     expected = [[complex(lambertw(-k * d)).real / d for k in x] for d in y]
@@ -136,6 +144,6 @@ def test_abscissa_falls_back_to_collocation_when_newton_rejects_all(monkeypatch)
     from labrunner.stability import spectrum
 
     monkeypatch.setattr(spectrum, "_newton", lambda q, start: start[:0])
-    expected = complex(lambertw(-2.0)).real     # unstable: must not turn into −inf
+    expected = complex(lambertw(-2.0)).real  # unstable: must not turn into −inf
     assert spectral_abscissa(scalar(2.0, 1.0)) == pytest.approx(expected, rel=1e-6)
     assert rightmost_roots(scalar(2.0, 1.0)).size == 0

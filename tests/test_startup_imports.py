@@ -18,10 +18,13 @@ def _loaded(code: str) -> list[str]:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("code", [
-    "from labrunner.cli import build_parser; build_parser()",  # every command's parser (reproduce lists its items)
-    "from labrunner.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass",
-])
+@pytest.mark.parametrize(
+    "code",
+    [
+        "from labrunner.cli import build_parser; build_parser()",  # every command's parser (reproduce lists its items)
+        "from labrunner.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass",
+    ],
+)
 def test_the_parser_imports_no_heavy_package(code):
     assert _loaded(code) == []
 
@@ -29,7 +32,8 @@ def test_the_parser_imports_no_heavy_package(code):
 def test_a_worker_writes_logs_without_pandas_or_matplotlib():
     """The pool worker's modules: the engine, the batch executor and the log writer (through
     ``labrunner.logs``, whose reader builds a pandas frame only when asked)."""
-    code = ("import labrunner.campaign.scheduler, labrunner.campaign.worker, labrunner.engine\n"
-            "from labrunner.logs import BatchPrefixes, write_run, read_metadata")
+    code = (
+        "import labrunner.campaign.scheduler, labrunner.campaign.worker, labrunner.engine\n"
+        "from labrunner.logs import BatchPrefixes, write_run, read_metadata"
+    )
     assert _loaded(code) == []
-

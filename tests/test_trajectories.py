@@ -31,7 +31,9 @@ def test_holds_and_duration_of_the_papers_shapes():
     np.testing.assert_allclose(valve.evaluate([0.0, 4.9, 10.0, 14.9, 20.0, 25.0, 30.0])[:, 0], [1, 1, 5, 5, 1, 1, 1])
     plate = Setpoints.build([5.5e-3, 2e-3, 5e-3, 2e-3], transition=[2.0, 0.5, 0.5], hold=[0.0, 0.2, 0.2, 0.2])
     assert plate.duration == pytest.approx(3.6)  # paper 2 Sec. 4.1: lift in 2 s, then 2 → 5 → 2 mm
-    np.testing.assert_allclose(plate.evaluate([0.0, 2.0, 2.2, 2.7, 2.9, 3.4, 3.6])[:, 0], [5.5e-3, 2e-3, 2e-3, 5e-3, 5e-3, 2e-3, 2e-3])
+    np.testing.assert_allclose(
+        plate.evaluate([0.0, 2.0, 2.2, 2.7, 2.9, 3.4, 3.6])[:, 0], [5.5e-3, 2e-3, 2e-3, 5e-3, 5e-3, 2e-3, 2e-3]
+    )
     thesis = Setpoints.build([0.0, 20.0, 0.0], transition=1.0, hold=1.0)  # Ω_r 0 → level → 0 (ch. 3)
     assert thesis.evaluate([2.0])[0, 0] == pytest.approx(20.0) and thesis.duration == pytest.approx(5.0)
 
@@ -63,14 +65,22 @@ def test_steps_and_sine():
     sn = Sine.build(amplitude=6.0, frequency=1.0, duration=3.0)  # thesis Fig. 3.1
     t = np.linspace(0.0, 2.99, 300)
     w = 2 * np.pi
-    expected = np.stack([6 * np.sin(w * t), 6 * w * np.cos(w * t), -6 * w**2 * np.sin(w * t), -6 * w**3 * np.cos(w * t)], axis=1)
+    expected = np.stack(
+        [6 * np.sin(w * t), 6 * w * np.cos(w * t), -6 * w**2 * np.sin(w * t), -6 * w**3 * np.cos(w * t)], axis=1
+    )
     np.testing.assert_allclose(sn.evaluate(t), expected, atol=1e-9)
     assert np.all(sn.evaluate([3.0, 4.0]) == 0.0)
 
 
 def test_batched_reference_equals_each_trajectory():
     sp = Setpoints.build([0.0, 20.0, 0.0], transition=1.0, hold=1.0)
-    rows = [[sp], [sp.delayed(0.01)], [Setpoints.build([1.0, 2.0, 3.0, 4.0], [0.1, 0.2, 0.3], 0.05)], [Steps.build([1.0, 2.0], 0.5)], [Sine.build(2.0, 3.0, 1.0)]]
+    rows = [
+        [sp],
+        [sp.delayed(0.01)],
+        [Setpoints.build([1.0, 2.0, 3.0, 4.0], [0.1, 0.2, 0.3], 0.05)],
+        [Steps.build([1.0, 2.0], 0.5)],
+        [Sine.build(2.0, 3.0, 1.0)],
+    ]
     ref = Reference(rows)
     t = np.linspace(0.0, 6.0, 1201)
     got = ref.evaluate(t)

@@ -39,7 +39,9 @@ def test_can_ids_are_legal_and_safety_first():
             except ValueError:
                 continue
             assert split_can_id(ident) == (9, kind, end)
-    safety = max(can_id(127, k, End.HOST if k != Kind.ERROR else End.DEVICE) for k in (Kind.SAFE, Kind.STOP, Kind.ERROR))
+    safety = max(
+        can_id(127, k, End.HOST if k != Kind.ERROR else End.DEVICE) for k in (Kind.SAFE, Kind.STOP, Kind.ERROR)
+    )
     assert safety < can_id(1, Kind.INPUT, End.HOST)  # any node's safety frame beats every data frame
     for bad in (0, 128):
         with pytest.raises(ValueError):
@@ -66,13 +68,23 @@ def can_config(interface: str, timeout_s: float = 0.2, device: str = "dcmotor", 
     channel = "239.74.163.2" if interface == "udp_multicast" else f"labrunner-{uuid.uuid4().hex}"
     port = random.randint(20000, 60000) if interface == "udp_multicast" else 0
     motor = device == "dcmotor"
-    return config_from_dict({
-        "rig": {"kind": "can", "name": f"{device}-can"},
-        "parameters": {"device": device, "interface": interface, "channel": channel, "loop": "host",
-                       "port": port, "node_id": 7, "timeout_s": timeout_s, "model": MODEL if motor else {},
-                       **parameters},
-        "safety": {"max_du_dt": 120.0} if motor else {},
-    })
+    return config_from_dict(
+        {
+            "rig": {"kind": "can", "name": f"{device}-can"},
+            "parameters": {
+                "device": device,
+                "interface": interface,
+                "channel": channel,
+                "loop": "host",
+                "port": port,
+                "node_id": 7,
+                "timeout_s": timeout_s,
+                "model": MODEL if motor else {},
+                **parameters,
+            },
+            "safety": {"max_du_dt": 120.0} if motor else {},
+        }
+    )
 
 
 @pytest.fixture(params=["udp_multicast", "virtual"])
@@ -161,19 +173,32 @@ def test_watchdog_trips_when_the_host_falls_silent():
 
 def test_unopenable_bus_is_a_rig_error():
     config = can_config("virtual")
-    bad = config_from_dict({**config.to_dict(), "rig": {"kind": "can"},
-                            "parameters": {**config.parameters, "interface": "no-such-interface"}})
+    bad = config_from_dict(
+        {
+            **config.to_dict(),
+            "rig": {"kind": "can"},
+            "parameters": {**config.parameters, "interface": "no-such-interface"},
+        }
+    )
     with pytest.raises(RigError, match="cannot open CAN bus"):
         load_rig(bad)
 
 
 # -- a serial rig over a pty pair -----------------------------------------------------------------
 def serial_config(port: str) -> dict:
-    return config_from_dict({
-        "rig": {"kind": "serial", "name": "motor-serial"},
-        "parameters": {"device": "dcmotor", "port": port, "baudrate": 115200, "node_id": 1, "timeout_s": 0.2,
-                       "model": MODEL},
-    })
+    return config_from_dict(
+        {
+            "rig": {"kind": "serial", "name": "motor-serial"},
+            "parameters": {
+                "device": "dcmotor",
+                "port": port,
+                "baudrate": 115200,
+                "node_id": 1,
+                "timeout_s": 0.2,
+                "model": MODEL,
+            },
+        }
+    )
 
 
 def test_serial_rig_over_a_pty_pair():
@@ -248,10 +273,17 @@ def test_rig_files_name_legal_node_ids_and_a_loop_placement():
         assert err.value.field.endswith("parameters.node_id") and "[1, 127]" in str(err.value)
     with pytest.raises(InvalidParameter, match="parameters.loop"):
         config_from_dict({**base, "parameters": {**base["parameters"], "loop": "both"}})
-    defaults = {d: config_from_dict({**base, "parameters": {**base["parameters"], "device": d}}).parameters["loop"]
-                for d in ("dcmotor", "valve", "plate")}
+    defaults = {
+        d: config_from_dict({**base, "parameters": {**base["parameters"], "device": d}}).parameters["loop"]
+        for d in ("dcmotor", "valve", "plate")
+    }
     assert defaults == {"dcmotor": "host", "valve": "device", "plate": "device"}
     rigs = Path(__file__).resolve().parents[1] / "rigs"
-    shipped = {p.name: load_rig_config(p).parameters["loop"] for p in [*rigs.glob("*-can.toml"), *rigs.glob("*-serial.toml")]}
-    assert shipped == {f"{d}-{t}.toml": "host" if d == "dcmotor" else "device"
-                       for d in ("dcmotor", "valve", "plate") for t in ("can", "serial")}
+    shipped = {
+        p.name: load_rig_config(p).parameters["loop"] for p in [*rigs.glob("*-can.toml"), *rigs.glob("*-serial.toml")]
+    }
+    assert shipped == {
+        f"{d}-{t}.toml": "host" if d == "dcmotor" else "device"
+        for d in ("dcmotor", "valve", "plate")
+        for t in ("can", "serial")
+    }

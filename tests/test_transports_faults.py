@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from test_transports import U, can_config, direct_run, serial_config
 
 from labrunner.errors import RigError
 from labrunner.rigs.registry import load_rig
@@ -17,7 +18,6 @@ from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.emulator import Emulator, device_link, serve_on_pty, twin_for
 from labrunner.rigs.transports.faults import LinkFaults
 from labrunner.rigs.transports.protocol import Kind
-from test_transports import U, can_config, direct_run, serial_config
 
 
 def run_until_failure(rig, u: np.ndarray, seed: int = 3) -> tuple[np.ndarray, RigError | None]:
@@ -39,13 +39,16 @@ def serve(faults: LinkFaults, interface: str = "virtual", paced: bool = False, *
     return load_rig(config), emulator
 
 
-@pytest.mark.parametrize("fault, counter", [
-    ({"duplicate": 0.5}, lambda d: d["host"]["duplicate"] + d["host"]["stale"]),
-    ({"stale": 0.3}, lambda d: d["host"]["stale"]),
-    ({"spoof": 0.3}, lambda d: d["link"]["spoofed"]),
-    ({"garbage": 0.3}, lambda d: d["link"]["malformed"]),
-    ({"error_frame": 0.3}, lambda d: d["link"]["error_frames"]),
-])
+@pytest.mark.parametrize(
+    "fault, counter",
+    [
+        ({"duplicate": 0.5}, lambda d: d["host"]["duplicate"] + d["host"]["stale"]),
+        ({"stale": 0.3}, lambda d: d["host"]["stale"]),
+        ({"spoof": 0.3}, lambda d: d["link"]["spoofed"]),
+        ({"garbage": 0.3}, lambda d: d["link"]["malformed"]),
+        ({"error_frame": 0.3}, lambda d: d["link"]["error_frames"]),
+    ],
+)
 def test_extra_frames_are_counted_and_ignored(fault, counter):
     rig, emulator = serve(LinkFaults(seed=1, **fault))
     try:

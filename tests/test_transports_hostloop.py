@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_campaign_support import campaign_text, ledger_rows, write
 
 from labrunner.cli import main
 from labrunner.rigs.config import load_rig_config
@@ -25,7 +26,6 @@ from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports.emulator import Emulator, device_link, twin_for
 from labrunner.rigs.transports.messages import DeviceState, ErrorCode
 from labrunner.rigs.transports.realtime import realtime
-from test_campaign_support import campaign_text, ledger_rows, write
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 def can_rig_file(path: Path, watchdog_periods: float = 3, **extra: object) -> Path:
     """A host-loop motor rig file on a fresh udp_multicast group and port."""
     lines = "\n".join(f"{k} = {json.dumps(v)}" for k, v in extra.items())
-    return write(path, textwrap.dedent(f"""\
+    return write(
+        path,
+        textwrap.dedent(f"""\
         [rig]
         kind = "can"
         [parameters]
@@ -52,13 +54,19 @@ def can_rig_file(path: Path, watchdog_periods: float = 3, **extra: object) -> Pa
         [safety]
         max_du_dt = 120.0
         motion_output = "theta"
-        """))
+        """),
+    )
 
 
 def emulate(rig: Path, *options: str) -> subprocess.Popen:
     """``labrunner emulate RIG --realtime`` in a subprocess, returned once it serves."""
-    proc = subprocess.Popen([sys.executable, "-m", "labrunner", "emulate", str(rig), "--realtime", *options],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "labrunner", "emulate", str(rig), "--realtime", *options],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     line = proc.stdout.readline()
     assert line.startswith("serving"), (line, proc.stderr.read() if proc.poll() is not None else "")
     return proc
@@ -107,8 +115,13 @@ def test_a_sigkilled_host_puts_the_device_safe_within_three_periods(tmp_path):
     path = can_rig_file(tmp_path / "motor.toml", watchdog_periods=3, max_late_ticks=1000, realtime=True)
     config = load_rig_config(path)
     with Emulator(twin_for(config), device_link(config), realtime=True) as device:
-        host = subprocess.Popen([sys.executable, "-c", HOST_SCRIPT, str(path)], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        host = subprocess.Popen(
+            [sys.executable, "-c", HOST_SCRIPT, str(path)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
         assert host.stdout.readline() == "running\n", host.stderr.read()
         time.sleep(0.2)
         assert device.state == DeviceState.RUNNING
@@ -125,8 +138,15 @@ def test_a_sigkilled_host_puts_the_device_safe_within_three_periods(tmp_path):
 
 def test_a_dying_device_stops_the_campaign_keeps_the_log_and_resume_retries(project, capsys):
     path = can_rig_file(project / "rigs" / "motor-can.toml", watchdog_periods=10, realtime=True)
-    campaign = write(project / "c.toml", campaign_text(name="can", rig="rigs/motor-can.toml", duration=1.0,
-                                                      grid="\"controller.k_p\" = { values = [10.0, 20.0, 30.0] }"))
+    campaign = write(
+        project / "c.toml",
+        campaign_text(
+            name="can",
+            rig="rigs/motor-can.toml",
+            duration=1.0,
+            grid='"controller.k_p" = { values = [10.0, 20.0, 30.0] }',
+        ),
+    )
     device = emulate(path, "--die-after", "1.6")
     try:
         assert main(["run", str(campaign)]) == 1
@@ -161,15 +181,26 @@ def test_check_rig_reports_the_handshake_round_trips_and_link_load(tmp_path):
     path = can_rig_file(tmp_path / "motor.toml")
     device = emulate(path)
     try:
-        out = subprocess.run([sys.executable, "-m", "labrunner", "check-rig", str(path), "--json", "--pings", "50"],
-                             capture_output=True, text=True, cwd=ROOT, timeout=60)
+        out = subprocess.run(
+            [sys.executable, "-m", "labrunner", "check-rig", str(path), "--json", "--pings", "50"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=60,
+        )
     finally:
         stop(device)
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
-    assert report["identity"] == {"protocol_version": 1, "device_kind": "dcmotor", "inputs": 1, "outputs": 1,
-                                  "max_fs": 10000.0, "capabilities": ["HOST_LOOP", "DEVICE_LOOP"],
-                                  "firmware_id": "0x4c520001"}
+    assert report["identity"] == {
+        "protocol_version": 1,
+        "device_kind": "dcmotor",
+        "inputs": 1,
+        "outputs": 1,
+        "max_fs": 10000.0,
+        "capabilities": ["HOST_LOOP", "DEVICE_LOOP"],
+        "firmware_id": "0x4c520001",
+    }
     rtt = report["rtt_ms"]
     assert rtt["pings"] == 50 and 0 < rtt["p50"] <= rtt["p99"] <= rtt["max"]
     # at 200 Hz: 3 frames of 8 bytes per tick, 135 bit times each (worst-case stuffing) on 500 kbit/s
@@ -180,32 +211,54 @@ def test_check_rig_reports_the_handshake_round_trips_and_link_load(tmp_path):
 
 def test_emulate_serves_a_serial_rig_on_a_pty_it_names(tmp_path):
     rig = (ROOT / "rigs" / "dcmotor-serial.toml").read_text()
-    proc = subprocess.Popen([sys.executable, "-m", "labrunner", "emulate", str(ROOT / "rigs" / "dcmotor-serial.toml")],
-                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "labrunner", "emulate", str(ROOT / "rigs" / "dcmotor-serial.toml")],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     try:
         port = proc.stdout.readline().split()
         assert port[0] == "port" and port[1].startswith("/dev/")
         assert proc.stdout.readline().startswith("serving")
         path = write(tmp_path / "motor-serial.toml", rig.replace('port = "/dev/ttyACM0"', f'port = "{port[1]}"'))
-        out = subprocess.run([sys.executable, "-m", "labrunner", "check-rig", str(path), "--pings", "20"],
-                             capture_output=True, text=True, cwd=ROOT, timeout=60)
+        out = subprocess.run(
+            [sys.executable, "-m", "labrunner", "check-rig", str(path), "--pings", "20"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=60,
+        )
     finally:
         stop(proc)
     assert out.returncode == 0, out.stderr
     assert "dcmotor protocol v1, 1 in / 1 out" in out.stdout and "on serial at 921.6 kbit/s" in out.stdout
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--drop", "1.5"], "--drop: must be in [0, 1], got 1.5"),
-    (["--delay", "x"], "argument --delay: must be a number >= 0, got 'x'"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--drop", "1.5"], "--drop: must be in [0, 1], got 1.5"),
+        (["--delay", "x"], "argument --delay: must be a number >= 0, got 'x'"),
+    ],
+)
 def test_emulate_refuses_bad_options_in_one_line(args, message):
-    out = subprocess.run([sys.executable, "-m", "labrunner", "emulate", str(ROOT / "rigs" / "dcmotor-can.toml"), *args],
-                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "labrunner", "emulate", str(ROOT / "rigs" / "dcmotor-can.toml"), *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
     assert out.returncode == 2 and message in out.stderr and len(out.stderr.strip().splitlines()) == 1
 
 
 def test_check_rig_refuses_a_simulated_rig_file():
-    out = subprocess.run([sys.executable, "-m", "labrunner", "check-rig", str(ROOT / "rigs" / "dcmotor-sim.toml")],
-                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "labrunner", "check-rig", str(ROOT / "rigs" / "dcmotor-sim.toml")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
     assert out.returncode == 2 and "rig.kind: check-rig checks can or serial rig files, got 'dcmotor'" in out.stderr

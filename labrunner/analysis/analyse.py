@@ -18,8 +18,7 @@ from typing import Any, TextIO
 import numpy as np
 import pandas as pd
 
-from labrunner.analysis import agreement as agreement_mod
-from labrunner.analysis import campaign_report, figures, table as table_mod
+from labrunner.analysis import agreement as agreement_mod, campaign_report, figures, table as table_mod
 from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.maps import gain_units
 from labrunner.campaign import spec
@@ -83,8 +82,12 @@ def _units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> d
         inputs = [c for c, i in channels.items() if i.get("role") == "input"]
         e_unit = _signal_unit(errors[0][2:], channels, campaign) if errors else ""
         u_unit = _signal_unit(inputs[0], channels, campaign) if inputs else ""
-        units = {"rms_error": e_unit, "max_abs_input": u_unit, "input_energy": f"{u_unit}²" if u_unit else "",
-                 "max_current": "A"}
+        units = {
+            "rms_error": e_unit,
+            "max_abs_input": u_unit,
+            "input_energy": f"{u_unit}²" if u_unit else "",
+            "max_current": "A",
+        }
         kind = campaign.base.get("controller", {}).get("kind") if campaign is not None else None
         order = {"mfc1": 1, "mfc1-ff": 1, "mfc2": 2}.get(str(kind))
         if order and e_unit and u_unit:
@@ -100,8 +103,12 @@ def counts(frame: pd.DataFrame) -> dict[str, Any]:
     and ``oscillating``: completed runs the oscillation detector flags (observed unstable)."""
     found = frame["outcome"].value_counts()
     outcomes = {w: int(found.get(w, 0)) for w in OUTCOMES}
-    return {"points": int(len(frame)), "runs": sum(outcomes[w] for w in FINISHED), "outcomes": outcomes,
-            "oscillating": int((agreement_mod.observed_outcome(frame) == "oscillating").sum())}
+    return {
+        "points": int(len(frame)),
+        "runs": sum(outcomes[w] for w in FINISHED),
+        "outcomes": outcomes,
+        "oscillating": int((agreement_mod.observed_outcome(frame) == "oscillating").sum()),
+    }
 
 
 def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
@@ -129,7 +136,9 @@ def plot_selection(frame: pd.DataFrame, plot: Sequence[str]) -> list[str]:
         elif word in known:
             chosen = [word]
         else:
-            raise InvalidParameter("--plot", f"must be 'all', an outcome ({', '.join(FINISHED)}) or a point id, got {word!r}")
+            raise InvalidParameter(
+                "--plot", f"must be 'all', an outcome ({', '.join(FINISHED)}) or a point id, got {word!r}"
+            )
         ids += [i for i in chosen if i not in ids]
     return ids
 
@@ -177,13 +186,24 @@ def analyse(
         meta = ledger.meta()
         quarantine = [dict(r) for r in ledger.quarantined()]
     campaign, note = load_campaign(meta, directory)
-    rig_units = ({s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
-                 if campaign is not None else {})
+    rig_units = (
+        {s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
+        if campaign is not None
+        else {}
+    )
     rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
     advance()
     step("metrics table")
-    built = table_mod.build_table(rows, directory, cache=table_mod.read_cache(out), workers=workers, units=rig_units,
-                                  limits=rig_limits, recompute=recompute, tick=advance)
+    built = table_mod.build_table(
+        rows,
+        directory,
+        cache=table_mod.read_cache(out),
+        workers=workers,
+        units=rig_units,
+        limits=rig_limits,
+        recompute=recompute,
+        tick=advance,
+    )
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     csv, parquet = table_mod.write_table(frame, out, directory)
@@ -193,8 +213,15 @@ def analyse(
         frame = frame.assign(rms_error=frame["rms_error_hat"])
     advance()
     step("maps")
-    ctx = Context(directory, out, campaign, note, varying_axes(frame, campaign), _units(frame, directory, campaign),
-                  "ê" if error == "e_hat" else "e")
+    ctx = Context(
+        directory,
+        out,
+        campaign,
+        note,
+        varying_axes(frame, campaign),
+        _units(frame, directory, campaign),
+        "ê" if error == "e_hat" else "e",
+    )
     theories = Theories(campaign)
     maps = figures.draw_maps(frame, ctx, theories)
     advance()
@@ -209,13 +236,21 @@ def analyse(
 
         sections, guided = guided_report.sections(campaign, rows, out)
     step("report")
-    summary = {**counts(frame), "best": _best(frame), "maps": [str(p) for p, _ in maps],
-               "run_plots": [str(p) for p in plots.values()], "agreement": agree,
-               "problems": problems, "metrics": [str(csv), str(parquet)], "logs_read": built.n_read}
+    summary = {
+        **counts(frame),
+        "best": _best(frame),
+        "maps": [str(p) for p, _ in maps],
+        "run_plots": [str(p) for p in plots.values()],
+        "agreement": agree,
+        "problems": problems,
+        "metrics": [str(csv), str(parquet)],
+        "logs_read": built.n_read,
+    }
     if guided is not None:
         summary["guided"] = guided
-    summary["report"] = str(campaign_report.campaign_report(frame, ctx, summary, maps, chosen, plots, theories,
-                                                            extra=sections))
+    summary["report"] = str(
+        campaign_report.campaign_report(frame, ctx, summary, maps, chosen, plots, theories, extra=sections)
+    )
     advance()
     if steps is not None:
         steps.close()
@@ -227,8 +262,12 @@ def _best(frame: pd.DataFrame) -> dict[str, Any] | None:
     if best is None:
         return None
     params = {k: _plain(best[k]) for k in frame.columns if "." in k and pd.notna(best[k])}
-    return {"id": best["id"], "params": params, "rms": float(best["rms_error"]),
-            "input_energy": float(best["input_energy"])}
+    return {
+        "id": best["id"],
+        "params": params,
+        "rms": float(best["rms_error"]),
+        "input_energy": float(best["input_energy"]),
+    }
 
 
 def _plain(value: Any) -> Any:

@@ -47,7 +47,8 @@ def _campaign_section(ctx) -> Section:
     if campaign is None:
         return Section("Campaign", paragraphs=[f"Directory {ctx.directory}. {ctx.note}."], warning=True)
     facts: dict[str, object] = {
-        "name": campaign.name, "rig": f"{campaign.rig} ({campaign.rig_info.description or campaign.rig_info.kind})",
+        "name": campaign.name,
+        "rig": f"{campaign.rig} ({campaign.rig_info.description or campaign.rig_info.kind})",
         "sampling frequency f_s": f"{campaign.fs:g} Hz",
         "duration": f"{campaign.duration:g} s" if campaign.duration else "the reference's length",
         "controller": _section_text(campaign, "controller"),
@@ -65,12 +66,20 @@ def _campaign_section(ctx) -> Section:
     if constants:
         facts["rig constants (nominal)"] = constants
     if campaign.logging.get("samples_hz"):
-        facts["logging"] = (f"/run/samples thinned to ≈ {campaign.logging['samples_hz']:g} Hz ([logging] samples_hz); "
-                            "/run/blocks keep every sample")
+        facts["logging"] = (
+            f"/run/samples thinned to ≈ {campaign.logging['samples_hz']:g} Hz ([logging] samples_hz); "
+            "/run/blocks keep every sample"
+        )
     paragraphs = [campaign.description] if campaign.description else []
-    return Section("Campaign", paragraphs=paragraphs, facts=facts, pre=campaign.source,
-                   html=f"<p>The campaign file above is kept as {copy} in the campaign directory.</p>"
-                   if copy.startswith("<a") else "")
+    return Section(
+        "Campaign",
+        paragraphs=paragraphs,
+        facts=facts,
+        pre=campaign.source,
+        html=f"<p>The campaign file above is kept as {copy} in the campaign directory.</p>"
+        if copy.startswith("<a")
+        else "",
+    )
 
 
 def _section_text(campaign, section: str) -> str:
@@ -89,7 +98,8 @@ def _outcome_section(summary: Mapping[str, Any]) -> Section:
             f"(completed or no-motion ⇔ predicted stable, aborted or oscillating ⇔ predicted unstable); "
             f"{agree['n_excluded']} points within ±{agree['margin']:.0%} of a predicted bound are left out; "
             f"{agree['false_stable']} aborted although predicted stable, {agree['false_unstable']} completed "
-            "although predicted unstable.")
+            "although predicted unstable."
+        )
     else:
         paragraphs.append("No stability case applies to this campaign (or no run finished), so no agreement is given.")
     facts: dict[str, object] = dict(summary["outcomes"])
@@ -125,16 +135,25 @@ def _theory_section(frame: pd.DataFrame, theories) -> Section | None:
     for case in theory.cases():
         for gamma in gammas:
             b = theory.bounds(case, gamma, k_d if case.startswith("mfc2") else None)
-            row = {"case": case, "thesis equations": EQUATIONS[case], "γ": f"{gamma:.5g}", "k_p interval": _interval(b, "k_p")}
+            row = {
+                "case": case,
+                "thesis equations": EQUATIONS[case],
+                "γ": f"{gamma:.5g}",
+                "k_p interval": _interval(b, "k_p"),
+            }
             if case.startswith("mfc2"):
                 row.update({"k_d interval": _interval(b, "k_d"), "k_p at k_d": f"{k_d:.5g}"})
             rows.append(row)
     constants = ", ".join(f"{k} = {v:g}" for k, v in theory.constants.items() if isinstance(v, (int, float)))
-    return Section("Stability bounds used", paragraphs=[
-        f"Controller {theory.kind}; loop delay {theory.delay_note()}; rig constants {constants}. Open intervals of the "
-        "gains for which the closed loop is predicted stable (thesis section 2.4 and appendix A, corrected), at γ values "
-        "of the grid; these are the lines on the maps and the prediction the agreement counts."],
-        tables=[("", pd.DataFrame(rows))])
+    return Section(
+        "Stability bounds used",
+        paragraphs=[
+            f"Controller {theory.kind}; loop delay {theory.delay_note()}; rig constants {constants}. Open intervals of the "
+            "gains for which the closed loop is predicted stable (thesis section 2.4 and appendix A, corrected), at γ values "
+            "of the grid; these are the lines on the maps and the prediction the agreement counts."
+        ],
+        tables=[("", pd.DataFrame(rows))],
+    )
 
 
 def _cell(value: Any) -> str:
@@ -153,7 +172,9 @@ def _cell(value: Any) -> str:
 def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[str, Path]) -> str:
     """Every point in one sortable table: outcome, parameters, metrics, abort, log and plot links."""
     metrics = [c for c in METRICS if c in frame.columns and frame[c].notna().any()]
-    until = [c + UNTIL_ABORT for c in metrics if c + UNTIL_ABORT in frame.columns and frame[c + UNTIL_ABORT].notna().any()]
+    until = [
+        c + UNTIL_ABORT for c in metrics if c + UNTIL_ABORT in frame.columns and frame[c + UNTIL_ABORT].notna().any()
+    ]
     abort = [c for c in ("monitor", "abort_time") if c in frame.columns and frame[c].notna().any()]
     columns = ["seq", "id", "outcome", *params, *metrics, *until, *abort, "n_samples"]
     columns = [c for c in columns if c in frame.columns]
@@ -166,13 +187,22 @@ def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[s
         plot = plots.get(rec["id"])
         plot_link = _link(ctx.out, plot, "plot") if plot is not None else "–"
         rows.append(f"<tr>{cells}<td>{log_link}</td><td>{plot_link}</td></tr>")
-    return (f'<div class="scroll"><table class="sortable"><thead><tr>{head}<th>log</th><th>plot</th></tr></thead>'
-            f"<tbody>{''.join(rows)}</tbody></table></div>")
+    return (
+        f'<div class="scroll"><table class="sortable"><thead><tr>{head}<th>log</th><th>plot</th></tr></thead>'
+        f"<tbody>{''.join(rows)}</tbody></table></div>"
+    )
 
 
-def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, Any], maps: Sequence[tuple[Path, str]],
-                    chosen: Mapping[str, pd.Series], plots: Mapping[str, Path], theories,
-                    extra: Sequence[Section] = ()) -> Path:
+def campaign_report(
+    frame: pd.DataFrame,
+    ctx,
+    summary: Mapping[str, Any],
+    maps: Sequence[tuple[Path, str]],
+    chosen: Mapping[str, pd.Series],
+    plots: Mapping[str, Path],
+    theories,
+    extra: Sequence[Section] = (),
+) -> Path:
     """Compose and write ``index.html`` of a campaign analysis into ``ctx.out``.
 
     ``ctx`` is the analysis context (campaign, directory, axes, units); ``maps`` (PNG, title)
@@ -186,39 +216,70 @@ def campaign_report(frame: pd.DataFrame, ctx, summary: Mapping[str, Any], maps: 
     if theory is not None:
         sections.append(theory)
     if maps:
-        sections.append(Section("Maps", paragraphs=[
-            "Markers: red triangle = aborted by the safety routine, white circle = no-motion (input too small to "
-            "move the load), black cross = completed, grey square = failed, orange diamond = completed but oscillating or "
-            "pinned at an input limit (detector). Grey cells: no metric for the whole run. "
-            "Lines: stability bounds of the theory for the loop delay: the differentiator's δ_t plus the rig's sensor delay, if any."],
-            images=[Image(title, path.read_bytes()) for path, title in maps]))
+        sections.append(
+            Section(
+                "Maps",
+                paragraphs=[
+                    "Markers: red triangle = aborted by the safety routine, white circle = no-motion (input too small to "
+                    "move the load), black cross = completed, grey square = failed, orange diamond = completed but oscillating or "
+                    "pinned at an input limit (detector). Grey cells: no metric for the whole run. "
+                    "Lines: stability bounds of the theory for the loop delay: the differentiator's δ_t plus the rig's sensor delay, if any."
+                ],
+                images=[Image(title, path.read_bytes()) for path, title in maps],
+            )
+        )
     images, links = [], []
     for label, row in chosen.items():
         plot = plots.get(row["id"])
         if plot is not None:
             images.append(Image(f"{label} run", plot.read_bytes(), _run_caption(row, params, ctx.error)))
             log = _link(ctx.out, ctx.directory / row["log_path"], "log")
-            links.append(f"{html.escape(label)}: point {html.escape(str(row['id']))} ({log}, {_link(ctx.out, plot, 'plot')})")
+            links.append(
+                f"{html.escape(label)}: point {html.escape(str(row['id']))} ({log}, {_link(ctx.out, plot, 'plot')})"
+            )
     if images:
         sections.append(Section("Selected runs", images=images, html="<p>" + "; ".join(links) + ".</p>"))
-    sections.append(Section("All runs", paragraphs=[
-        f"All {len(frame)} points; click a column's name to sort by it. rms_error, input_energy, … describe whole runs; "
-        f"an aborted run's metrics cover the run up to its abort and are in the columns ending in {UNTIL_ABORT}. "
-        f"Plot any run with `labrunner analyse {ctx.directory} --plot ID` (or --plot aborted, --plot all), which "
-        f"adds it here, or with `labrunner plot {ctx.directory}/runs/ID.mcap`."],
-        html=runs_table(frame, ctx, params, plots)))
+    sections.append(
+        Section(
+            "All runs",
+            paragraphs=[
+                f"All {len(frame)} points; click a column's name to sort by it. rms_error, input_energy, … describe whole runs; "
+                f"an aborted run's metrics cover the run up to its abort and are in the columns ending in {UNTIL_ABORT}. "
+                f"Plot any run with `labrunner analyse {ctx.directory} --plot ID` (or --plot aborted, --plot all), which "
+                f"adds it here, or with `labrunner plot {ctx.directory}/runs/ID.mcap`."
+            ],
+            html=runs_table(frame, ctx, params, plots),
+        )
+    )
     problems = summary.get("problems") or []
     if problems:
-        sections.append(Section("Damaged and quarantined files", warning=True, paragraphs=[
-            f"{len(problems)} file(s) could not be used as they are; metrics of unreadable logs fall back to the "
-            "ledger's."], tables=[("", pd.DataFrame(problems, columns=["kind", "path", "detail"]))]))
-    files = [_link(ctx.out, ctx.out / "metrics.csv", "metrics.csv"), _link(ctx.out, ctx.out / "metrics.parquet", "metrics.parquet")]
-    sections.append(Section("Files", html=(
-        f"<p>{files[0]} and {files[1]} hold one row per grid point: parameters, outcome, every metric of its run "
-        "(aborted runs' in the _until_abort columns) and the path of its log relative to the table; the logs "
-        f"are MCAP files (Foxglove plots /run/samples.&lt;signal&gt;__&lt;unit&gt;). Campaign file: "
-        f"{_link(ctx.out, ctx.directory / 'campaign.toml', 'campaign.toml')}; ledger: "
-        f"{_link(ctx.out, ctx.directory / 'ledger.sqlite', 'ledger.sqlite')}.</p>")))
+        sections.append(
+            Section(
+                "Damaged and quarantined files",
+                warning=True,
+                paragraphs=[
+                    f"{len(problems)} file(s) could not be used as they are; metrics of unreadable logs fall back to the "
+                    "ledger's."
+                ],
+                tables=[("", pd.DataFrame(problems, columns=["kind", "path", "detail"]))],
+            )
+        )
+    files = [
+        _link(ctx.out, ctx.out / "metrics.csv", "metrics.csv"),
+        _link(ctx.out, ctx.out / "metrics.parquet", "metrics.parquet"),
+    ]
+    sections.append(
+        Section(
+            "Files",
+            html=(
+                f"<p>{files[0]} and {files[1]} hold one row per grid point: parameters, outcome, every metric of its run "
+                "(aborted runs' in the _until_abort columns) and the path of its log relative to the table; the logs "
+                f"are MCAP files (Foxglove plots /run/samples.&lt;signal&gt;__&lt;unit&gt;). Campaign file: "
+                f"{_link(ctx.out, ctx.directory / 'campaign.toml', 'campaign.toml')}; ledger: "
+                f"{_link(ctx.out, ctx.directory / 'ledger.sqlite', 'ledger.sqlite')}.</p>"
+            ),
+        )
+    )
     name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
     subtitle = f"labrunner analysis of {ctx.directory} — {summary['runs']} runs of {summary['points']} points"
     return write_report(ctx.out / "index.html", f"Campaign {name}", subtitle, sections)

@@ -60,8 +60,13 @@ class Theories:
 
     def _setting(self, row: Mapping[str, Any]) -> tuple[dict[str, Any], Theory | None]:
         """(resolved configuration without the row's gains, theory) of the row's setting."""
-        params = tuple(sorted((k, v) for k, v in row.items()
-                              if "." in k and k not in GAIN_KEYS and isinstance(v, (int, float, str, bool)) and pd.notna(v)))
+        params = tuple(
+            sorted(
+                (k, v)
+                for k, v in row.items()
+                if "." in k and k not in GAIN_KEYS and isinstance(v, (int, float, str, bool)) and pd.notna(v)
+            )
+        )
         hit = self._settings.get(params)
         if hit is None:
             config = self.campaign.resolve(dict(params))

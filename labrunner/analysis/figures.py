@@ -9,8 +9,8 @@ one γ). Run plots reuse :func:`labrunner.runplot.plot_run`.
 from __future__ import annotations
 
 import itertools
-from dataclasses import replace
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,26 +37,39 @@ def map_metrics(error: str, frame: pd.DataFrame | None = None) -> tuple[tuple[st
     RMS of each output's error in dB re 1 µm (paper 2 reports µm and dB; columns ``*_db``, added
     by :func:`with_db_columns`).
     """
-    maps = [("rms_error", f"RMS of the tracking error {error}", f"RMS({error})"),
-            ("input_energy", "input energy E(u) = Σ u[j]²", "E(u)")]
+    maps = [
+        ("rms_error", f"RMS of the tracking error {error}", f"RMS({error})"),
+        ("input_energy", "input energy E(u) = Σ u[j]²", "E(u)"),
+    ]
     if frame is None:
         return tuple(maps)
     if "max_current" in frame.columns and np.isfinite(frame["max_current"].to_numpy(dtype=float)).any():
         maps.append(("max_current", "largest current max |i|", "max |i|"))
-    maps += [(c, f"RMS of {c.removeprefix('rms_').removesuffix('_db')} in dB re 1 µm", "dB re 1 µm")
-             for c in frame.columns if c.endswith("_db")]
+    maps += [
+        (c, f"RMS of {c.removeprefix('rms_').removesuffix('_db')} in dB re 1 µm", "dB re 1 µm")
+        for c in frame.columns
+        if c.endswith("_db")
+    ]
     return tuple(maps)
 
 
 def with_db_columns(frame: pd.DataFrame, units: Mapping[str, str]) -> pd.DataFrame:
     """The table plus ``rms_e_<y>_db`` = 20 log10(RMS(e_y) / 1 µm) for each output error in metres,
     when there are several (one map per plate sensor)."""
-    cols = [c for c in frame.columns if c.startswith("rms_e_") and "@" not in c and not c.startswith("rms_e_hat")
-            and units.get(c, units.get("rms_error")) == "m"]
+    cols = [
+        c
+        for c in frame.columns
+        if c.startswith("rms_e_")
+        and "@" not in c
+        and not c.startswith("rms_e_hat")
+        and units.get(c, units.get("rms_error")) == "m"
+    ]
     if len(cols) < 2:
         return frame
     with np.errstate(divide="ignore", invalid="ignore"):
         return frame.assign(**{f"{c}_db": 20.0 * np.log10(frame[c].to_numpy(dtype=float) / 1e-6) for c in cols})
+
+
 MAX_FACETS = 12  # maps per metric when a grid has more than two axes
 #: Preferred (x, y) orientation of known axis pairs (thesis Figs. 3.10 and 3.14).
 PAIRS = (("controller.gamma", "controller.k_p"), ("controller.k_p", "controller.k_d"))
@@ -133,7 +146,9 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
         gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for r in rows.to_dict("records")}
         if len(gammas) == 1:
             gamma = gammas.pop()
-            return kp_kd_lines(theory, gamma, dense_axis(cell_edges(y.values, y.log), y.log)), f"{note}, γ = {gamma:.5g}"
+            return kp_kd_lines(
+                theory, gamma, dense_axis(cell_edges(y.values, y.log), y.log)
+            ), f"{note}, γ = {gamma:.5g}"
     return [], ""
 
 
@@ -178,8 +193,9 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
             others = ", ".join(f"{_SYMBOLS[k]} = {v:.5g}" for k, v in fixed.items() if k != GAINS[key])
             note = f"\n{theory.delay_note()}" + (f", {others}" if others else "")
         columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in map_metrics(ctx.error)]
-        fig = sweep_figure(frame, x, columns, title=f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}",
-                           overlays=lines)
+        fig = sweep_figure(
+            frame, x, columns, title=f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}", overlays=lines
+        )
         paths.append((_save(fig, ctx.out / "sweep.png"), f"RMS of {ctx.error} and input energy over {x.label}"))
         return paths
     if len(ctx.axes) < 2:
@@ -194,8 +210,15 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
         for column, title, label in map_metrics(ctx.error, rows):
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
-            fig = map_figure(rows, x, y, column, title=f"{head}\n{sub}" if sub else head,
-                             colour_label=_with_unit(label, units.get(column, "")), overlays=lines)
+            fig = map_figure(
+                rows,
+                x,
+                y,
+                column,
+                title=f"{head}\n{sub}" if sub else head,
+                colour_label=_with_unit(label, units.get(column, "")),
+                overlays=lines,
+            )
             tag = f"_{i + 1}" if extra else ""
             caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
             paths.append((_save(fig, ctx.out / f"map_{column}{tag}.png"), caption))
@@ -209,8 +232,9 @@ def plot_path(out: Path, point_id: str) -> Path:
     return out / PLOTS_DIR / f"{point_id}.png"
 
 
-def draw_runs(frame: pd.DataFrame, ids: Sequence[str], ctx: Context,
-              tick: Callable[[int], None] | None = None) -> dict[str, Path]:
+def draw_runs(
+    frame: pd.DataFrame, ids: Sequence[str], ctx: Context, tick: Callable[[int], None] | None = None
+) -> dict[str, Path]:
     """Time-series plot of each run in ``ids`` (thesis Figs. 3.12, 3.20) as ``plots/<id>.png``;
     a plot newer than its log is kept as it is; unreadable logs are skipped."""
     from labrunner.runplot import plot_run

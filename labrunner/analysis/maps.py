@@ -167,8 +167,15 @@ def draw_heatmap(
     z = grid_image(table, x, y, column)
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="#d9d9d9")
     norm = colour_norm(z, log_colour)
-    mesh = ax.pcolormesh(cell_edges(x.values, x.log), cell_edges(y.values, y.log), np.ma.masked_invalid(z),
-                         cmap=cmap, norm=norm, shading="flat", zorder=1)
+    mesh = ax.pcolormesh(
+        cell_edges(x.values, x.log),
+        cell_edges(y.values, y.log),
+        np.ma.masked_invalid(z),
+        cmap=cmap,
+        norm=norm,
+        shading="flat",
+        zorder=1,
+    )
     clipped = bool(np.isfinite(z).any() and np.nanmax(z) > norm.vmax)  # the robust scale cut outliers off
     ax.figure.colorbar(mesh, ax=ax, label=colour_label, extend="max" if clipped else "neither")
     if x.log:
@@ -217,8 +224,9 @@ def _frame(fig: Figure, title: str, entries: int, ncols: int) -> None:
     rows = -(-entries // ncols)
     top = 0.25 + 0.22 * (title.count("\n") + 1)  # [in] title lines
     bottom = 0.55 + (0.22 * rows + 0.15 if rows else 0.0)  # [in] tick labels and axis label, legend rows
-    fig.subplots_adjust(left=0.85 / width, right=1 - 0.2 / width, top=1 - top / height, bottom=bottom / height,
-                        hspace=0.12)
+    fig.subplots_adjust(
+        left=0.85 / width, right=1 - 0.2 / width, top=1 - top / height, bottom=bottom / height, hspace=0.12
+    )
 
 
 def sweep_figure(

@@ -45,8 +45,15 @@ class OverlayLine:
     style: Mapping[str, object] = field(default_factory=dict)
 
     def draw(self, ax) -> None:
-        kw = {"color": self.color, "linestyle": self.linestyle, "label": self.label, "gid": self.gid,
-              "linewidth": 1.8, "zorder": 3, **self.style}
+        kw = {
+            "color": self.color,
+            "linestyle": self.linestyle,
+            "label": self.label,
+            "gid": self.gid,
+            "linewidth": 1.8,
+            "zorder": 3,
+            **self.style,
+        }
         if self.y is None:
             ax.axvline(float(self.x), **kw)
         elif self.x is None:
@@ -93,7 +100,9 @@ class Theory:
         """:func:`labrunner.stability.bounds` of ``case`` at this γ (and k_d); cached, since a grid
         repeats each (γ, k_d) along its other axis."""
         gains = {"rho": self.rho} if case.endswith("ultralocal") else {k: float(self.constants[k]) for k in ("a", "b")}
-        return _bounds(case, float(gamma), self.delay, tuple(sorted(gains.items())), None if k_d is None else float(k_d))
+        return _bounds(
+            case, float(gamma), self.delay, tuple(sorted(gains.items())), None if k_d is None else float(k_d)
+        )
 
     def predict(self, case: str, params: Mapping[str, float]) -> tuple[bool, float]:
         """Whether ``case`` predicts a stable loop at ``params`` (gamma, k_p, k_d) and the relative
@@ -137,11 +146,23 @@ def gamma_kp_lines(theory: Theory, gammas: np.ndarray) -> list[OverlayLine]:
         eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
         lines.append(OverlayLine(f"{eq} max k_p", gammas, hi, colour, "-", f"bound:{case}:k_p_max"))
         if np.any(lo > 0):
-            lines.append(OverlayLine(f"{eq} min k_p", gammas, np.where(lo > 0, lo, np.nan), colour, "--",
-                                     f"bound:{case}:k_p_min"))
+            lines.append(
+                OverlayLine(
+                    f"{eq} min k_p", gammas, np.where(lo > 0, lo, np.nan), colour, "--", f"bound:{case}:k_p_min"
+                )
+            )
     if theory.rho is not None:
-        lines.append(OverlayLine(f"nominal input gain ρ = {theory.rho:g}", theory.rho, None, "white", "-",
-                                 "nominal-gain", {"path_effects": _OUTLINE}))
+        lines.append(
+            OverlayLine(
+                f"nominal input gain ρ = {theory.rho:g}",
+                theory.rho,
+                None,
+                "white",
+                "-",
+                "nominal-gain",
+                {"path_effects": _OUTLINE},
+            )
+        )
     return lines
 
 
@@ -155,8 +176,9 @@ def kp_kd_lines(theory: Theory, gamma: float, k_ds: np.ndarray) -> list[OverlayL
         lo, hi = np.array([_interval(theory.bounds(case, gamma, float(kd)), "k_p") for kd in k_ds]).T
         lines.append(OverlayLine(f"{eq} max k_p", hi, k_ds, colour, "-", f"bound:{case}:k_p_max"))
         if np.any(lo > 0):
-            lines.append(OverlayLine(f"{eq} min k_p", np.where(lo > 0, lo, np.nan), k_ds, colour, "--",
-                                     f"bound:{case}:k_p_min"))
+            lines.append(
+                OverlayLine(f"{eq} min k_p", np.where(lo > 0, lo, np.nan), k_ds, colour, "--", f"bound:{case}:k_p_min")
+            )
         if np.isfinite(kd_hi):
             lines.append(OverlayLine(f"{eq} max k_d", None, kd_hi, colour, ":", f"bound:{case}:k_d_max"))
         if np.isfinite(kd_lo) and kd_lo > 0:
@@ -177,10 +199,14 @@ def sweep_lines(theory: Theory, key: str, dense: np.ndarray, fixed: Mapping[str,
     for case in theory.cases():
         eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
         found = transitions(dense, lambda v: theory.predict(case, {**fixed, key: v})[0])
-        lines += [OverlayLine(f"{eq} stability limit" if i == 0 else "_", x, None, colour, "--", f"bound:{case}:{key}")
-                  for i, x in enumerate(found)]
+        lines += [
+            OverlayLine(f"{eq} stability limit" if i == 0 else "_", x, None, colour, "--", f"bound:{case}:{key}")
+            for i, x in enumerate(found)
+        ]
     if key == "gamma" and theory.rho is not None:
-        lines.append(OverlayLine(f"nominal input gain ρ = {theory.rho:g}", theory.rho, None, "grey", "-", "nominal-gain"))
+        lines.append(
+            OverlayLine(f"nominal input gain ρ = {theory.rho:g}", theory.rho, None, "grey", "-", "nominal-gain")
+        )
     return lines
 
 

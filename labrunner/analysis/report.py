@@ -81,8 +81,10 @@ def _table(title: str, frame: pd.DataFrame) -> str:
 
 def _image(image: Image) -> str:
     data = base64.b64encode(image.png).decode("ascii")
-    return (f'<figure><img alt="{html.escape(image.title)}" src="data:image/png;base64,{data}">'
-            f"<figcaption><b>{html.escape(image.title)}.</b> {html.escape(image.caption)}</figcaption></figure>")
+    return (
+        f'<figure><img alt="{html.escape(image.title)}" src="data:image/png;base64,{data}">'
+        f"<figcaption><b>{html.escape(image.title)}.</b> {html.escape(image.caption)}</figcaption></figure>"
+    )
 
 
 def _section(section: Section) -> str:
@@ -105,9 +107,9 @@ def render_html(title: str, subtitle: str, sections: Sequence[Section]) -> str:
     """The whole report as one HTML string (UTF-8, no external resources)."""
     body = "\n".join(_section(s) for s in sections)
     return (
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>\n"
-        f"<body><h1>{html.escape(title)}</h1><p class=\"sub\">{html.escape(subtitle)}</p>\n{body}\n"
+        f'<body><h1>{html.escape(title)}</h1><p class="sub">{html.escape(subtitle)}</p>\n{body}\n'
         f"<script>{_SORT_JS}</script></body></html>\n"
     )
 
@@ -120,5 +122,3 @@ def write_report(path: str | Path, title: str, subtitle: str, sections: Sequence
     tmp.write_text(render_html(title, subtitle, sections), encoding="utf-8")
     tmp.replace(path)
     return path
-
-

@@ -44,7 +44,9 @@ CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 #: Integer columns (nullable where a point has no run).
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
-METRICS_VERSION = 4  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort columns
+METRICS_VERSION = (
+    4  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort columns
+)
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
 _LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)
@@ -59,8 +61,11 @@ class CampaignTable:
     n_read: int = 0  # logs read now (the rest came from the ledger or the cache)
 
 
-def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str] | None = None,
-             limits: Mapping[str, tuple[float, float]] | None = None) -> Roles:
+def roles_of(
+    channels: Mapping[str, Mapping[str, Any]],
+    units: Mapping[str, str] | None = None,
+    limits: Mapping[str, tuple[float, float]] | None = None,
+) -> Roles:
     """Metric roles from a log's ``channels`` record (signal → {"role", "unit"}); ``units`` (the
     rig's signal units) stands in where the log records no unit; ``limits`` (the rig's input
     limits) enable the oscillation detector."""
@@ -72,12 +77,18 @@ def roles_of(channels: Mapping[str, Mapping[str, Any]], units: Mapping[str, str]
     error_hats = tuple(n for n in by_role.get("estimate", []) if n.startswith("e_hat_"))
     inputs = tuple(by_role.get("input", []))
     input_limits = tuple(limits[n] for n in inputs) if limits and all(n in limits for n in inputs) else ()
-    return Roles(errors=tuple(by_role.get("error", [])), inputs=inputs,
-                 error_hats=error_hats, currents=currents, input_limits=input_limits)
+    return Roles(
+        errors=tuple(by_role.get("error", [])),
+        inputs=inputs,
+        error_hats=error_hats,
+        currents=currents,
+        input_limits=input_limits,
+    )
 
 
-def log_metrics(path: str, units: Mapping[str, str] | None = None,
-                limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
+def log_metrics(
+    path: str, units: Mapping[str, str] | None = None, limits: Mapping[str, tuple[float, float]] | None = None
+) -> dict[str, Any]:
     """Metrics and torn flag of one MCAP; ``{"error": ...}`` if it cannot be read.
 
     ``units``: the rig's signal units, for logs that record none; ``limits``: its input limits
@@ -90,16 +101,22 @@ def log_metrics(path: str, units: Mapping[str, str] | None = None,
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
         windows = parse_windows((log.metadata.get("config") or {}).get("metrics"))
-        out: dict[str, Any] = run_metrics(signals, roles_of(log.channels, units, limits), fs=float(log.fs), windows=windows)
+        out: dict[str, Any] = run_metrics(
+            signals, roles_of(log.channels, units, limits), fs=float(log.fs), windows=windows
+        )
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     out["torn"] = bool(log.torn)
     return out
 
 
-def _read_many(paths: Sequence[str], workers: int, units: Mapping[str, str] | None,
-               limits: Mapping[str, tuple[float, float]] | None = None,
-               tick: Callable[[int], None] | None = None) -> list[dict[str, Any]]:
+def _read_many(
+    paths: Sequence[str],
+    workers: int,
+    units: Mapping[str, str] | None,
+    limits: Mapping[str, tuple[float, float]] | None = None,
+    tick: Callable[[int], None] | None = None,
+) -> list[dict[str, Any]]:
     read = functools.partial(log_metrics, units=dict(units or {}), limits=dict(limits or {}))
     out: list[dict[str, Any]] = []
     if workers <= 1 or len(paths) < _PARALLEL_MIN:
@@ -162,15 +179,21 @@ def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[
             metrics = {k: _float(r.get(k)) for k in _LEDGER_METRICS}
             if r.get("log_path"):
                 missing.append(i)
-        records.append({
-            "seq": r["seq"], "id": r["id"], "outcome": r["outcome"] or r["state"],
-            "monitor": outcome.get("monitor"),
-            "abort_time": _float(outcome.get("time")) if aborted else np.nan,
-            "abort_value": _float(outcome.get("value")) if aborted else np.nan,
-            "attempts": r["attempts"], "log_path": r["log_path"], "torn": False,
-            **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
-            **metrics,
-        })
+        records.append(
+            {
+                "seq": r["seq"],
+                "id": r["id"],
+                "outcome": r["outcome"] or r["state"],
+                "monitor": outcome.get("monitor"),
+                "abort_time": _float(outcome.get("time")) if aborted else np.nan,
+                "abort_value": _float(outcome.get("value")) if aborted else np.nan,
+                "attempts": r["attempts"],
+                "log_path": r["log_path"],
+                "torn": False,
+                **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
+                **metrics,
+            }
+        )
     frame = pd.DataFrame.from_records(records) if records else pd.DataFrame(columns=list(ID_COLUMNS))
     return frame, missing
 
@@ -183,8 +206,13 @@ def metric_columns(frame: pd.DataFrame) -> list[str]:
     def base(column: str) -> str:
         return column.split("@", 1)[0]
 
-    return [c for c in frame.columns if (base(c) in BASE_METRICS or base(c).startswith(prefixes))
-            and base(c) != "n_samples" and not c.endswith(UNTIL_ABORT)]
+    return [
+        c
+        for c in frame.columns
+        if (base(c) in BASE_METRICS or base(c).startswith(prefixes))
+        and base(c) != "n_samples"
+        and not c.endswith(UNTIL_ABORT)
+    ]
 
 
 def split_aborted(frame: pd.DataFrame) -> pd.DataFrame:
@@ -244,7 +272,9 @@ def build_table(
             continue
         st = _stat(directory / rel)
         if st is None:
-            problems.append({"path": rel, "kind": "missing", "detail": f"point {frame.at[i, 'id']}: log file not found"})
+            problems.append(
+                {"path": rel, "kind": "missing", "detail": f"point {frame.at[i, 'id']}: log file not found"}
+            )
             continue
         stats[i] = st[:2]
         if not st[2]:
@@ -287,15 +317,22 @@ def build_table(
 
 def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory: Path) -> list[dict[str, str]]:
     """Files moved to ``quarantine/``: those the ledger recorded, and any other file lying there."""
-    out = [{"path": str(r["moved_to"]), "kind": "quarantined",
-            "detail": f"point {r['point_id']}: {r['reason']} (was {r['original']}, {r['bytes']} bytes)"}
-           for r in quarantine_rows]
+    out = [
+        {
+            "path": str(r["moved_to"]),
+            "kind": "quarantined",
+            "detail": f"point {r['point_id']}: {r['reason']} (was {r['original']}, {r['bytes']} bytes)",
+        }
+        for r in quarantine_rows
+    ]
     known = {Path(o["path"]).name for o in out}
     qdir = directory / "quarantine"
     if qdir.is_dir():
         for f in sorted(qdir.iterdir()):
             if f.is_file() and f.name not in known:
-                out.append({"path": str(f.relative_to(directory)), "kind": "quarantined", "detail": "not in the ledger"})
+                out.append(
+                    {"path": str(f.relative_to(directory)), "kind": "quarantined", "detail": "not in the ledger"}
+                )
     return out
 
 

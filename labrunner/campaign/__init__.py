@@ -16,7 +16,14 @@ from typing import Any
 
 # loaded on first use, so that importing one submodule (``status`` reads only the ledger) does not
 # load campaign validation with its controllers and numerics
-_EXPORTS = {"Ledger": "ledger", "RunRecord": "ledger", "Campaign": "spec", "PlannedPoint": "spec", "load": "spec", "plan": "spec"}
+_EXPORTS = {
+    "Ledger": "ledger",
+    "RunRecord": "ledger",
+    "Campaign": "spec",
+    "PlannedPoint": "spec",
+    "load": "spec",
+    "plan": "spec",
+}
 
 __all__ = sorted(_EXPORTS)
 

@@ -168,13 +168,15 @@ class StaticChecker:
                     )
                 if n_s > samples:
                     raise InvalidParameter(
-                        "differentiator.omega_c", f"gives a window of {n_s} samples, longer than the run "
-                        f"({samples} samples at {fs:g} Hz): no estimate would ever see a full window"
+                        "differentiator.omega_c",
+                        f"gives a window of {n_s} samples, longer than the run "
+                        f"({samples} samples at {fs:g} Hz): no estimate would ever see a full window",
                     )
                 if n_s * samples > MAX_FIR_WORK:
                     raise InvalidParameter(
-                        "differentiator.omega_c", f"gives a window of {n_s} samples; × {samples} samples per run "
-                        f"that is more than the limit of {MAX_FIR_WORK:.0e} filter steps (raise omega_c or shorten the run)"
+                        "differentiator.omega_c",
+                        f"gives a window of {n_s} samples; × {samples} samples per run "
+                        f"that is more than the limit of {MAX_FIR_WORK:.0e} filter steps (raise omega_c or shorten the run)",
                     )
             yield item, float(duration)
 
@@ -208,4 +210,3 @@ class _at:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None and issubclass(exc_type, InvalidParameter) and self.params:
             raise InvalidParameter(exc.field, f"{exc.message} (at grid point {canonical_json(self.params)})") from None
-

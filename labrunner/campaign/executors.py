@@ -93,7 +93,9 @@ def parse_executor_url(url: str) -> tuple[str, int]:
     what = "must be a Dask scheduler address tcp://HOST:PORT"
     if not url.startswith(("tcp://", "tls://")):
         if url.startswith("inproc://"):
-            raise InvalidParameter("--executor", f"{what}: inproc:// addresses exist only inside one process, got {url!r}")
+            raise InvalidParameter(
+                "--executor", f"{what}: inproc:// addresses exist only inside one process, got {url!r}"
+            )
         raise InvalidParameter("--executor", f"{what}, got {url!r}")
     try:
         parts = urlsplit(url)

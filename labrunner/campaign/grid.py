@@ -105,7 +105,9 @@ def _count(field: str, spec: Mapping[str, Any]) -> int:
     if num is None:
         raise InvalidParameter(f"{field}.num", "is required with linspace/log10 (number of values, >= 1)")
     if isinstance(num, bool) or not isinstance(num, int) or not 1 <= num <= MAX_POINTS:
-        raise InvalidParameter(f"{field}.num", f"must be an integer in 1..{MAX_POINTS:,} (the grid's point limit), got {num!r}")
+        raise InvalidParameter(
+            f"{field}.num", f"must be an integer in 1..{MAX_POINTS:,} (the grid's point limit), got {num!r}"
+        )
     return num
 
 
@@ -191,7 +193,9 @@ def parse_grid(
             groups.append(tuple(axes[k] for k in zipped[grouped[key]]))
     size = math.prod(len(g[0].values) for g in groups)
     if size > max_points:
-        raise InvalidParameter("grid", f"has {size:,} points, more than the limit of {max_points:,}; split the campaign")
+        raise InvalidParameter(
+            "grid", f"has {size:,} points, more than the limit of {max_points:,}; split the campaign"
+        )
     return Grid(tuple(groups))
 
 
@@ -213,7 +217,9 @@ def _check_distinct(field: str, values: Sequence[Any]) -> None:
     for v in values:
         key = _same(v)
         if key in seen:
-            raise InvalidParameter(field, f"has the value {v!r} twice ({seen[key]!r} and {v!r} are equal); each point runs once")
+            raise InvalidParameter(
+                field, f"has the value {v!r} twice ({seen[key]!r} and {v!r} are equal); each point runs once"
+            )
         seen[key] = v
 
 

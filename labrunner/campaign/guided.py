@@ -213,8 +213,9 @@ class Table:
             return default
         return self.table[key]
 
-    def number(self, key: str, default: Any = None, *, lo: float | None = None, lo_open: bool = True,
-               hi: float | None = None) -> float | None:
+    def number(
+        self, key: str, default: Any = None, *, lo: float | None = None, lo_open: bool = True, hi: float | None = None
+    ) -> float | None:
         """A number, or an expression over the rig's constants (``rho = "b"``), within (lo, hi]."""
         value = self._get(key, default)
         if value is None:
@@ -268,14 +269,18 @@ def parse(table: Any, campaign: Any) -> Procedure:
     tuned = {key for point in procedure.corners() for key in point}
     for key, _ in campaign.derived:
         if key in tuned:
-            raise InvalidParameter(f'derived."{key}"', f"is set by the {name} procedure; a key is either tuned or derived")
+            raise InvalidParameter(
+                f'derived."{key}"', f"is set by the {name} procedure; a key is either tuned or derived"
+            )
     return procedure
 
 
 Oracle = Callable[[list[Mapping[str, Any]]], list[Mapping[str, Any]]]
 
 
-def drive(procedure: Procedure, campaign: str, oracle: Oracle, known: Mapping[str, Observation] | None = None) -> Advance:
+def drive(
+    procedure: Procedure, campaign: str, oracle: Oracle, known: Mapping[str, Observation] | None = None
+) -> Advance:
     """Run a plan to its end in-process: ``oracle(points)`` gives each point's outcome as a mapping
     with ``status`` (and ``rms_error``, ``input_energy``). For tests (a fake plant) and for quick
     studies with :func:`engine_oracle`; campaigns go through the ledger instead."""
@@ -286,7 +291,9 @@ def drive(procedure: Procedure, campaign: str, oracle: Oracle, known: Mapping[st
             return step
         for point, out in zip(step.next, oracle(list(step.next)), strict=True):
             pid = point_id(campaign, point)
-            outcomes[pid] = Observation(pid, dict(point), str(out["status"]), out.get("rms_error"), out.get("input_energy"))
+            outcomes[pid] = Observation(
+                pid, dict(point), str(out["status"]), out.get("rms_error"), out.get("input_energy")
+            )
 
 
 def engine_oracle(campaign: Any, batch: int = 64) -> Oracle:
@@ -299,8 +306,13 @@ def engine_oracle(campaign: Any, batch: int = 64) -> Oracle:
     def oracle(points: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
         configs = [campaign.expand(dict(p))[1] for p in points]
         checker = static_checker(campaign)
-        durations = {seq: d for (seq, _, _), d in (*(x for i, c in enumerate(configs)
-                     for x in checker.add(i, dict(points[i]), c)), *checker.flush())}
+        durations = {
+            seq: d
+            for (seq, _, _), d in (
+                *(x for i, c in enumerate(configs) for x in checker.add(i, dict(points[i]), c)),
+                *checker.flush(),
+            )
+        }
         groups: dict[float, list[int]] = {}  # runs of one lockstep batch share their length
         for i, duration in sorted(durations.items()):
             configs[i]["campaign"]["duration"] = duration
@@ -310,10 +322,25 @@ def engine_oracle(campaign: Any, batch: int = 64) -> Oracle:
             for duration, members in groups.items():
                 for lo in range(0, len(members), batch):
                     idx = members[lo : lo + batch]
-                    results = engine.run_batch([configs[i] for i in idx], rig, fs=float(campaign.fs), duration=duration,
-                                               seeds=[campaign.seed] * len(idx), rig_safety=campaign.rig_safety)
-                    out.update((i, {"status": r.outcome.status, "rms_error": r.metrics.get("rms_error"),
-                                    "input_energy": r.metrics.get("input_energy")}) for i, r in zip(idx, results))
+                    results = engine.run_batch(
+                        [configs[i] for i in idx],
+                        rig,
+                        fs=float(campaign.fs),
+                        duration=duration,
+                        seeds=[campaign.seed] * len(idx),
+                        rig_safety=campaign.rig_safety,
+                    )
+                    out.update(
+                        (
+                            i,
+                            {
+                                "status": r.outcome.status,
+                                "rms_error": r.metrics.get("rms_error"),
+                                "input_energy": r.metrics.get("input_energy"),
+                            },
+                        )
+                        for i, r in zip(idx, results)
+                    )
         return [out[i] for i in range(len(points))]
 
     return oracle

@@ -55,8 +55,10 @@ class Refine(Procedure):
         levels = t.integer("levels", 2, 1, 10)
         table = t.raw("axes")
         if not isinstance(table, Mapping) or len(table) != 2:
-            raise InvalidParameter("guided.axes", f"must be a table of two axes, e.g. "
-                                   f'"controller.gamma" = {{ log10 = [0.0, 4.0] }}, got {table!r}')
+            raise InvalidParameter(
+                "guided.axes",
+                f'must be a table of two axes, e.g. "controller.gamma" = {{ log10 = [0.0, 4.0] }}, got {table!r}',
+            )
         n = (coarse - 1) * 2**levels + 1
         if n * n > 1_000_000:
             raise InvalidParameter("guided.levels", f"gives a {n} × {n} lattice; at most 1000 × 1000")
@@ -66,7 +68,9 @@ class Refine(Procedure):
             if "." not in key or key.split(".", 1)[0] not in ("controller", "differentiator", "reference", "safety"):
                 raise InvalidParameter(field, "must be a dotted key of a run section, e.g. controller.k_p")
             if not isinstance(spec, Mapping) or set(spec) - {"log10", "linspace"} or len(spec) != 1:
-                raise InvalidParameter(field, "must be { log10 = [a, b] } or { linspace = [a, b] } (num follows from coarse and levels)")
+                raise InvalidParameter(
+                    field, "must be { log10 = [a, b] } or { linspace = [a, b] } (num follows from coarse and levels)"
+                )
             axes.append(parse_axis(field, key, {**spec, "num": n}))
         return cls(axes[0], axes[1], coarse, levels)
 
@@ -88,7 +92,9 @@ class Refine(Procedure):
                 answers = yield ask(stage, *(self.point(c) for c in todo))
                 classes.update((c, o.status) for c, o in zip(todo, answers))
 
-        yield from run(f"coarse {self.coarse} × {self.coarse}", [(i, j) for i in range(0, n, stride) for j in range(0, n, stride)])
+        yield from run(
+            f"coarse {self.coarse} × {self.coarse}", [(i, j) for i in range(0, n, stride) for j in range(0, n, stride)]
+        )
         cells = [(i, j) for i in range(0, n - 1, stride) for j in range(0, n - 1, stride)]
         runs = {"coarse": len(classes)}
         for level in range(1, self.levels + 1):
@@ -96,13 +102,22 @@ class Refine(Procedure):
             stride //= 2
             cells = [(i + a * stride, j + b * stride) for i, j in split for a in (0, 1) for b in (0, 1)]
             before = len(classes)
-            yield from run(f"level {level}: {len(split)} mixed cells", [
-                (i + a * stride, j + b * stride) for i, j in split for a in (0, 1, 2) for b in (0, 1, 2)])
+            yield from run(
+                f"level {level}: {len(split)} mixed cells",
+                [(i + a * stride, j + b * stride) for i, j in split for a in (0, 1, 2) for b in (0, 1, 2)],
+            )
             runs[f"level {level}"] = len(classes) - before
         found = sorted(c for c in cells if mixed(c, 1, classes))
-        detail = {"boundary_cells": [list(c) for c in found], "resolution": [n, n], "full_grid_runs": n * n,
-                  "runs": len(classes), "runs_per_level": runs}
-        return Result(None, f"{len(found)} boundary cells at {n} × {n} from {len(classes)} runs (full grid: {n * n})", detail)
+        detail = {
+            "boundary_cells": [list(c) for c in found],
+            "resolution": [n, n],
+            "full_grid_runs": n * n,
+            "runs": len(classes),
+            "runs_per_level": runs,
+        }
+        return Result(
+            None, f"{len(found)} boundary cells at {n} × {n} from {len(classes)} runs (full grid: {n * n})", detail
+        )
 
     def max_runs(self) -> int:
         return self.size**2
@@ -116,5 +131,7 @@ class Refine(Procedure):
 
     def describe(self) -> str:
         n = self.size
-        return (f"boundary refinement of {self.x.key} × {self.y.key}: coarse {self.coarse} × {self.coarse}, "
-                f"{self.levels} levels → {n} × {n} (a full grid: {n * n} runs)")
+        return (
+            f"boundary refinement of {self.x.key} × {self.y.key}: coarse {self.coarse} × {self.coarse}, "
+            f"{self.levels} levels → {n} × {n} (a full grid: {n * n} runs)"
+        )

@@ -32,18 +32,31 @@ def walk_table(state: Advance) -> pd.DataFrame:
     rows = []
     for n, step in enumerate(state.walk, start=1):
         o = step.observation
-        rows.append({"step": n, "stage": step.stage, "id": o.id, **{k: v for k, v in o.params.items()},
-                     "status": o.status, "rms_error": o.rms_error, "input_energy": o.input_energy,
-                     "new": step.new, "chosen": o.id == chosen})
-    return pd.DataFrame(rows, columns=None if rows else ["step", "stage", "id", "status", "rms_error", "input_energy",
-                                                         "new", "chosen"])
+        rows.append(
+            {
+                "step": n,
+                "stage": step.stage,
+                "id": o.id,
+                **{k: v for k, v in o.params.items()},
+                "status": o.status,
+                "rms_error": o.rms_error,
+                "input_energy": o.input_energy,
+                "new": step.new,
+                "chosen": o.id == chosen,
+            }
+        )
+    return pd.DataFrame(
+        rows, columns=None if rows else ["step", "stage", "id", "status", "rms_error", "input_energy", "new", "chosen"]
+    )
 
 
 def walk_figure(table: pd.DataFrame, title: str):
     """RMS(e) over the steps (top) and the varied gains (bottom, log scale), stage boundaries dashed."""
     from matplotlib.figure import Figure
 
-    gains = [c for c in table.columns if "." in c and pd.api.types.is_numeric_dtype(table[c]) and table[c].nunique() > 1]
+    gains = [
+        c for c in table.columns if "." in c and pd.api.types.is_numeric_dtype(table[c]) and table[c].nunique() > 1
+    ]
     fig = Figure(figsize=(9, 6), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
     for status, (marker, colour) in _MARKERS.items():
@@ -57,7 +70,15 @@ def walk_figure(table: pd.DataFrame, title: str):
     top.plot(table["step"], table["rms_error"], color="0.7", zorder=1)
     picked = table[table["chosen"]]
     if not picked.empty:
-        top.scatter(picked["step"], picked["rms_error"], s=180, facecolors="none", edgecolors="tab:blue", label="chosen", zorder=4)
+        top.scatter(
+            picked["step"],
+            picked["rms_error"],
+            s=180,
+            facecolors="none",
+            edgecolors="tab:blue",
+            label="chosen",
+            zorder=4,
+        )
     top.set_yscale("log")
     top.set_ylabel("RMS(e) (aborted: drawn at the top)")
     top.legend(loc="best", fontsize="small")
@@ -86,9 +107,12 @@ def sections(campaign: Any, rows: list[dict[str, Any]], out: Path) -> tuple[list
     state, summary = guided_run.replay(campaign, rows), guided_run.summary(campaign, rows)
     table = walk_table(state)
     table.to_csv(out / "walk.csv", index=False)
-    facts: dict[str, object] = {"procedure": campaign.guided.describe(), "runs": state.runs,
-                                "at most": campaign.guided.max_runs(),
-                                "state": summary.get("reason", f"running: waits on {len(state.next)} point(s)")}
+    facts: dict[str, object] = {
+        "procedure": campaign.guided.describe(),
+        "runs": state.runs,
+        "at most": campaign.guided.max_runs(),
+        "state": summary.get("reason", f"running: waits on {len(state.next)} point(s)"),
+    }
     for stage, counts in state.stage_counts().items():
         facts[f"stage: {stage}"] = f"{counts['runs']} runs ({counts['steps']} steps)"
     chosen = summary.get("chosen")
@@ -98,16 +122,21 @@ def sections(campaign: Any, rows: list[dict[str, Any]], out: Path) -> tuple[list
     detail = summary.get("detail", {})
     if "boundary_cells" in detail:
         n = detail["resolution"][0]
-        facts["boundary"] = (f"{len(detail['boundary_cells'])} mixed cells at {n} × {n}; {detail['runs']} runs instead of "
-                             f"{detail['full_grid_runs']} ({detail['full_grid_runs'] / max(detail['runs'], 1):.1f}× fewer)")
+        facts["boundary"] = (
+            f"{len(detail['boundary_cells'])} mixed cells at {n} × {n}; {detail['runs']} runs instead of "
+            f"{detail['full_grid_runs']} ({detail['full_grid_runs'] / max(detail['runs'], 1):.1f}× fewer)"
+        )
     paragraphs = [
         "A guided campaign's procedure chose each point from the outcomes before it (thesis Sec. 3.5); the walk "
         "lists the points in the order the procedure asked for them. A point asked for again is not run again "
         "(new = false). Step counts compare with the thesis's: Guideline 2 took 54 steps, Polack et al. 66 + 41 "
-        "= 107 (Sec. 3.5.3)."]
+        "= 107 (Sec. 3.5.3)."
+    ]
     if "boundary_cells" in detail:
-        paragraphs.append("The refined points lie on the fine lattice and show on the ordinary maps; lattice cells "
-                          "the refinement did not need are not run and stay grey there.")
+        paragraphs.append(
+            "The refined points lie on the fine lattice and show on the ordinary maps; lattice cells "
+            "the refinement did not need are not run and stay grey there."
+        )
     images = []
     if len(table) and "boundary_cells" not in detail:
         fig = walk_figure(table, f"{campaign.name}: the walk")
@@ -120,8 +149,9 @@ def sections(campaign: Any, rows: list[dict[str, Any]], out: Path) -> tuple[list
     return [Section("Guided procedure", paragraphs=paragraphs, facts=facts, tables=tables, images=images)], summary
 
 
-def compare_guideline2_polack(out: str | Path, *, workers: int | None = None, stream: TextIO | None = None,
-                              campaigns: str | Path | None = None) -> dict[str, Any]:
+def compare_guideline2_polack(
+    out: str | Path, *, workers: int | None = None, stream: TextIO | None = None, campaigns: str | Path | None = None
+) -> dict[str, Any]:
     """Run Guideline 2 case 1 and Polack et al.'s procedure on the motor twin; return their step counts.
 
     Signature for ``labrunner reproduce``::
@@ -171,15 +201,29 @@ def step_counts(guideline2: Advance, polack: Advance) -> dict[str, Any]:
     """The comparison of thesis Sec. 3.5.3 from two finished walks (see :func:`compare_guideline2_polack`)."""
     g_choice, p_choice = _choice(guideline2), _choice(polack)
     target = p_choice["rms_error"] if p_choice else None
-    match = next((n for n, s in enumerate(guideline2.walk, 1) if target is not None and s.observation.completed
-                  and s.observation.rms_error <= target), None)
+    match = next(
+        (
+            n
+            for n, s in enumerate(guideline2.walk, 1)
+            if target is not None and s.observation.completed and s.observation.rms_error <= target
+        ),
+        None,
+    )
     stages = list(polack.stage_counts().values())
     return {
-        "guideline2": {"runs": guideline2.runs, "reason": _reason(guideline2), "chosen": g_choice,
-                       "steps_to_polack_rms": match},
-        "polack": {"runs": polack.runs, "feed_forward": stages[0]["runs"] if stages else 0,
-                   "feedback": stages[1]["runs"] if len(stages) > 1 else 0, "reason": _reason(polack),
-                   "chosen": p_choice},
+        "guideline2": {
+            "runs": guideline2.runs,
+            "reason": _reason(guideline2),
+            "chosen": g_choice,
+            "steps_to_polack_rms": match,
+        },
+        "polack": {
+            "runs": polack.runs,
+            "feed_forward": stages[0]["runs"] if stages else 0,
+            "feedback": stages[1]["runs"] if len(stages) > 1 else 0,
+            "reason": _reason(polack),
+            "chosen": p_choice,
+        },
         "ratio": polack.runs / match if match else math.nan,
         "ratio_runs": polack.runs / guideline2.runs if guideline2.runs else math.nan,
         "thesis": dict(THESIS_STEPS),

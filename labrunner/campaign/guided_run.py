@@ -42,8 +42,11 @@ def check_points(campaign: Campaign, points: Sequence[Mapping[str, Any]], first_
     for n, point in enumerate(points):
         params, config, duration = checked[n]
         config["campaign"]["duration"] = duration
-        out.append(PlannedPoint(first_seq + n, point_id(campaign.name, point), params,
-                                batch_key(campaign.rig, config, checker.split)))
+        out.append(
+            PlannedPoint(
+                first_seq + n, point_id(campaign.name, point), params, batch_key(campaign.rig, config, checker.split)
+            )
+        )
     return out
 
 
@@ -60,10 +63,17 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     procedure = campaign.guided
     corners = check_points(campaign, procedure.corners())
     first = check_points(campaign, list(advance(procedure, campaign.name, {}).next))
-    digest = hashlib.sha256(canonical_json({
-        "name": campaign.name, "rig": campaign.rig, "procedure": procedure.identity(), "base": campaign.resolve({}),
-        "points": [[p.parameters, p.batch_key] for p in (*corners, *first)],
-    }).encode())
+    digest = hashlib.sha256(
+        canonical_json(
+            {
+                "name": campaign.name,
+                "rig": campaign.rig,
+                "procedure": procedure.identity(),
+                "base": campaign.resolve({}),
+                "points": [[p.parameters, p.batch_key] for p in (*corners, *first)],
+            }
+        ).encode()
+    )
     return first, digest.hexdigest()
 
 
@@ -71,8 +81,11 @@ def observations(rows: Sequence[Mapping[str, Any]]) -> dict[str, Observation]:
     """Terminal ledger rows as the observations a plan is sent (point id → observation)."""
     import json
 
-    return {r["id"]: Observation(r["id"], json.loads(r["parameters"]), r["outcome"], r["rms_error"], r["input_energy"])
-            for r in rows if r["state"] in TERMINAL}
+    return {
+        r["id"]: Observation(r["id"], json.loads(r["parameters"]), r["outcome"], r["rms_error"], r["input_energy"])
+        for r in rows
+        if r["state"] in TERMINAL
+    }
 
 
 def replay(campaign: Campaign, rows: Sequence[Mapping[str, Any]]) -> Advance:
@@ -124,15 +137,30 @@ def summary(campaign: Campaign, rows: Sequence[Mapping[str, Any]]) -> dict[str, 
     procedure = campaign.guided
     state = replay(campaign, rows)
     out: dict[str, Any] = {
-        "procedure": procedure.name, "description": procedure.describe(), "max_runs": procedure.max_runs(),
-        "runs": state.runs, "finished": state.result is not None, "stages": state.stage_counts(),
-        "waiting_on": len(state.next), "stage": state.stage or None,
+        "procedure": procedure.name,
+        "description": procedure.describe(),
+        "max_runs": procedure.max_runs(),
+        "runs": state.runs,
+        "finished": state.result is not None,
+        "stages": state.stage_counts(),
+        "waiting_on": len(state.next),
+        "stage": state.stage or None,
     }
     if state.result is not None:
         chosen = state.result.chosen
-        out.update(reason=state.result.reason, detail=dict(state.result.detail), chosen=None if chosen is None else {
-            "id": chosen.id, "params": dict(chosen.params), "status": chosen.status, "rms_error": chosen.rms_error,
-            "step": next(n for n, s in enumerate(state.walk) if s.observation.id == chosen.id) + 1})
+        out.update(
+            reason=state.result.reason,
+            detail=dict(state.result.detail),
+            chosen=None
+            if chosen is None
+            else {
+                "id": chosen.id,
+                "params": dict(chosen.params),
+                "status": chosen.status,
+                "rms_error": chosen.rms_error,
+                "step": next(n for n, s in enumerate(state.walk) if s.observation.id == chosen.id) + 1,
+            },
+        )
     return out
 
 
@@ -141,13 +169,18 @@ def status_lines(summary: dict[str, Any]) -> list[str]:
     if "note" in summary:
         return [f"  guided ({summary['procedure']}): {summary['note']}"]
     stages = "; ".join(f"{k}: {v['runs']} runs" for k, v in summary["stages"].items()) or "no run yet"
-    lines = [f"  guided: {summary['description']}", f"  {summary['runs']} of at most {summary['max_runs']} runs ({stages})"]
+    lines = [
+        f"  guided: {summary['description']}",
+        f"  {summary['runs']} of at most {summary['max_runs']} runs ({stages})",
+    ]
     if summary["finished"]:
         chosen = summary.get("chosen")
         if not chosen:
             lines.append(f"  finished: {summary['reason']}")
         else:
-            values = ", ".join(f"{k.split('.')[-1]} = {v:.5g}" for k, v in chosen["params"].items() if isinstance(v, float))
+            values = ", ".join(
+                f"{k.split('.')[-1]} = {v:.5g}" for k, v in chosen["params"].items() if isinstance(v, float)
+            )
             rms = f", RMS(e) = {chosen['rms_error']:.4g}" if chosen["rms_error"] is not None else ""
             lines.append(f"  finished ({summary['reason']}): chose step {chosen['step']}: {values}{rms}")
     else:
@@ -198,15 +231,19 @@ def dry_run(campaign: Campaign, first: list[PlannedPoint], slots: int) -> str:
     procedure = campaign.guided
     n = procedure.max_runs()
     _, fs, duration, *_ = json.loads(first[0].batch_key)
-    lines = [f"campaign {campaign.name}: guided ({procedure.name}) on rig {campaign.rig!r}, at most {n} runs",
-             f"  {procedure.describe()}",
-             f"  first round: {len(first)} point(s) × {duration:g} s at {fs:g} Hz; later rounds follow from the outcomes"]
+    lines = [
+        f"campaign {campaign.name}: guided ({procedure.name}) on rig {campaign.rig!r}, at most {n} runs",
+        f"  {procedure.describe()}",
+        f"  first round: {len(first)} point(s) × {duration:g} s at {fs:g} Hz; later rounds follow from the outcomes",
+    ]
     if campaign.rig_info.simulated:
         parallel = slots if len(first) > 1 else 1  # a walk runs one point per round
         per_run = _estimate_sim(campaign, first, 1, len(first)) / len(first)
         rounds = n if len(first) == 1 else -(-n // len(first))  # each round costs a start-up of ~0.2 s
-        lines.append(f"  estimated time ≤ {per_run * n / parallel + 0.2 * rounds:.0f} s for {n} runs on {parallel} worker(s) "
-                     f"(≤ {n * duration:g} s of simulated time)")
+        lines.append(
+            f"  estimated time ≤ {per_run * n / parallel + 0.2 * rounds:.0f} s for {n} runs on {parallel} worker(s) "
+            f"(≤ {n * duration:g} s of simulated time)"
+        )
     else:
         lines.append(f"  estimated time ≤ {n * (duration + 2.0):.0f} s on the real rig (one run at a time)")
     return "\n".join(lines)

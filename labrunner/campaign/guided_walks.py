@@ -28,8 +28,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from labrunner.campaign.guided import REQUIRED, Ladder, Observation, Plan, Procedure, Result, Table, ask, best
 from labrunner.campaign.grid import Axis
+from labrunner.campaign.guided import REQUIRED, Ladder, Observation, Plan, Procedure, Result, Table, ask, best
 from labrunner.errors import InvalidParameter
 
 GAMMA, KP, KD = "controller.gamma", "controller.k_p", "controller.k_d"
@@ -104,8 +104,9 @@ def bisect(stage: str, points: list[dict[str, Any]], *, target: float | None = N
 
 
 def _stages(*ends: StageEnd) -> dict[str, Any]:
-    return {"stages": [{"stage": e.stage, "reason": e.reason, "chosen": e.chosen.id if e.chosen else None}
-                       for e in ends]}
+    return {
+        "stages": [{"stage": e.stage, "reason": e.reason, "chosen": e.chosen.id if e.chosen else None} for e in ends]
+    }
 
 
 def loop_delay(campaign: Any) -> float:
@@ -117,7 +118,9 @@ def loop_delay(campaign: Any) -> float:
     try:
         design = factory.differentiators([config], float(campaign.fs), 0)[0]
     except (InvalidParameter, KeyError, IndexError) as exc:
-        raise InvalidParameter("guided.delay", f"cannot derive δ_t from [differentiator] ({exc}); give delay [s]") from None
+        raise InvalidParameter(
+            "guided.delay", f"cannot derive δ_t from [differentiator] ({exc}); give delay [s]"
+        ) from None
     return design.delay_s + float(campaign.rig_info.constants.get("sensor_delay", 0.0))
 
 
@@ -191,8 +194,10 @@ class Guideline2(Procedure):
 
     def describe(self) -> str:
         stop = f"a trip or RMS(e) ≤ {self.rms_target:g}" if self.rms_target is not None else "a trip"
-        return (f"Guideline 2 case {self.case} ({self.method}): γ {self.gamma_start:.6g} → {self.gamma_stop:.6g}, "
-                f"k_p = {self.kp_start:.6g}·{self.gamma_start:.6g}/γ, {self.per_decade}/decade, until {stop}")
+        return (
+            f"Guideline 2 case {self.case} ({self.method}): γ {self.gamma_start:.6g} → {self.gamma_stop:.6g}, "
+            f"k_p = {self.kp_start:.6g}·{self.gamma_start:.6g}/γ, {self.per_decade}/decade, until {stop}"
+        )
 
 
 @dataclass(frozen=True)
@@ -237,8 +242,12 @@ class Polack(Procedure):
             return Result(None, f"feed-forward stage: {ff.reason}, no completed run", _stages(ff))
         i = max(0, gammas.index(ff.chosen.params[GAMMA]) - self.back_off)
         gamma = gammas[i]
-        fb = yield from walk(f"feedback (γ = {gamma:.5g})", [{GAMMA: gamma, KP: k} for k in self.gains()],
-                             target=self.rms_target, patience=self.patience)
+        fb = yield from walk(
+            f"feedback (γ = {gamma:.5g})",
+            [{GAMMA: gamma, KP: k} for k in self.gains()],
+            target=self.rms_target,
+            patience=self.patience,
+        )
         return Result(fb.chosen, fb.reason, {**_stages(ff, fb), "gamma": gamma})
 
     def max_runs(self) -> int:
@@ -250,8 +259,10 @@ class Polack(Procedure):
 
     def describe(self) -> str:
         stop = f"RMS(e) ≤ {self.rms_target:g}, " if self.rms_target is not None else ""
-        return (f"Polack et al.: feed-forward k_p = 0, γ {self.gamma_start:.6g} → {self.gamma_stop:.6g} until a trip; "
-                f"feedback k_p {self.kp_start:.6g} → {self.kp_stop:.6g} until {stop}a trip, {self.per_decade}/decade")
+        return (
+            f"Polack et al.: feed-forward k_p = 0, γ {self.gamma_start:.6g} → {self.gamma_stop:.6g} until a trip; "
+            f"feedback k_p {self.kp_start:.6g} → {self.kp_stop:.6g} until {stop}a trip, {self.per_decade}/decade"
+        )
 
 
 @dataclass(frozen=True)
@@ -296,21 +307,28 @@ class Guideline3(Procedure):
             kd = kds[i] if i >= 0 else None
         if kd is None:
             return Result(s3.chosen, f"step 3: {s3.reason}", _stages(s3))
-        s4 = yield from walk(f"step 4: raise k_p (k_d = {kd:.5g})", [{**base, KP: kp, KD: kd} for kp in kps],
-                             target=self.rms_target)
+        s4 = yield from walk(
+            f"step 4: raise k_p (k_d = {kd:.5g})", [{**base, KP: kp, KD: kd} for kp in kps], target=self.rms_target
+        )
         return Result(s4.chosen, s4.reason, {**_stages(s3, s4), "k_d": kd})
 
     def max_runs(self) -> int:
         return len(Ladder(self.kd_start, self.kd_stop, self.per_decade).values()) + len(
-            Ladder(self.kp_start, self.kp_stop, self.per_decade).values())
+            Ladder(self.kp_start, self.kp_stop, self.per_decade).values()
+        )
 
     def corners(self) -> list[dict[str, Any]]:
-        return [{GAMMA: self.rho, KP: kp, KD: kd} for kp in (self.kp_start, self.kp_stop)
-                for kd in (self.kd_start, self.kd_stop)]
+        return [
+            {GAMMA: self.rho, KP: kp, KD: kd}
+            for kp in (self.kp_start, self.kp_stop)
+            for kd in (self.kd_start, self.kd_stop)
+        ]
 
     def describe(self) -> str:
-        return (f"Guideline 3: γ = ρ = {self.rho:.6g}; k_d {self.kd_start:.4g} → {self.kd_stop:.4g} at k_p = "
-                f"{self.kp_start:.5g} until a trip, back {self.kd_back_off}; then k_p → {self.kp_stop:.5g}")
+        return (
+            f"Guideline 3: γ = ρ = {self.rho:.6g}; k_d {self.kd_start:.4g} → {self.kd_stop:.4g} at k_p = "
+            f"{self.kp_start:.5g} until a trip, back {self.kd_back_off}; then k_p → {self.kp_stop:.5g}"
+        )
 
 
 def ultralocal_start(rho: float, delay: float, n: int = 400) -> tuple[float, float]:

@@ -36,8 +36,10 @@ class LedgerDamaged(InvalidParameter):
 
 def damaged(path: Path, problem: str) -> LedgerDamaged:
     directory = path.parent
-    return LedgerDamaged(str(path), f"{problem}; rebuild it from the campaign copy and the published logs with "
-                                    f"`labrunner repair {directory}`")
+    return LedgerDamaged(
+        str(path),
+        f"{problem}; rebuild it from the campaign copy and the published logs with `labrunner repair {directory}`",
+    )
 
 
 def problem(db: sqlite3.Connection) -> str:
@@ -110,5 +112,8 @@ def check_plan(path: Path, ledger_ids: Sequence[str], planned_ids: Sequence[str]
     if list(ledger_ids) != list(planned_ids):
         extra = len(set(ledger_ids) - set(planned_ids))
         lost = len(set(planned_ids) - set(ledger_ids))
-        raise damaged(path, f"does not hold the stored campaign's points ({lost} planned point(s) missing, "
-                            f"{extra} foreign, or out of order)")
+        raise damaged(
+            path,
+            f"does not hold the stored campaign's points ({lost} planned point(s) missing, "
+            f"{extra} foreign, or out of order)",
+        )

@@ -103,12 +103,17 @@ class RunRecord:
 def ledger_path(directory: Path) -> Path:
     """``DIR/ledger.sqlite``, or a one-line refusal (exit 2) when DIR is not a campaign directory."""
     if not directory.is_dir():
-        raise InvalidParameter("DIR", f"{str(directory)!r} is not a directory" if directory.exists()
-                               else f"{str(directory)!r} does not exist")
+        raise InvalidParameter(
+            "DIR",
+            f"{str(directory)!r} is not a directory" if directory.exists() else f"{str(directory)!r} does not exist",
+        )
     path = directory / LEDGER_NAME
     if not path.is_file():
-        raise InvalidParameter("DIR", f"{str(directory)!r} holds no campaign ledger ({LEDGER_NAME}); start one with "
-                               f"`labrunner run FILE`, or rebuild a lost one with `labrunner repair {directory}`")
+        raise InvalidParameter(
+            "DIR",
+            f"{str(directory)!r} holds no campaign ledger ({LEDGER_NAME}); start one with "
+            f"`labrunner run FILE`, or rebuild a lost one with `labrunner repair {directory}`",
+        )
     return path
 
 
@@ -237,7 +242,9 @@ class Ledger:
     def by_outcome(self) -> dict[str, int]:
         """Points per outcome word (completed, no-motion, aborted, failed; claimed and planned for
         points without a finished run): what every command counts with."""
-        rows = self.db.execute("SELECT COALESCE(outcome, state), COUNT(*) FROM points GROUP BY COALESCE(outcome, state)")
+        rows = self.db.execute(
+            "SELECT COALESCE(outcome, state), COUNT(*) FROM points GROUP BY COALESCE(outcome, state)"
+        )
         return {r[0]: r[1] for r in rows}
 
     def rows(self, states: Sequence[str] | None = None) -> list[sqlite3.Row]:
@@ -318,15 +325,28 @@ class Ledger:
                 " max_abs_input = ?, metrics_json = ?, log_path = ?, host = ?, pid = ?, finished_at = ?, engine_s = ?,"
                 f" write_s = ?, publish_s = ? WHERE id = ? AND state IN ({marks})",
                 (
-                    state, record.outcome, json.dumps(dict(record.outcome_record), sort_keys=True),
-                    m.get("rms_error"), m.get("input_energy"), m.get("max_abs_input"),
-                    json.dumps({k: _plain(v) for k, v in m.items()}) if m else None, record.log_path,
-                    record.host, record.pid, record.finished_at, record.engine_s, record.write_s,
-                    record.publish_s, record.point_id, *from_states,
+                    state,
+                    record.outcome,
+                    json.dumps(dict(record.outcome_record), sort_keys=True),
+                    m.get("rms_error"),
+                    m.get("input_energy"),
+                    m.get("max_abs_input"),
+                    json.dumps({k: _plain(v) for k, v in m.items()}) if m else None,
+                    record.log_path,
+                    record.host,
+                    record.pid,
+                    record.finished_at,
+                    record.engine_s,
+                    record.write_s,
+                    record.publish_s,
+                    record.point_id,
+                    *from_states,
                 ),
             )
             if cur.rowcount != 1:
-                raise CampaignError(f"ledger: point {record.point_id} is not in state {'/'.join(from_states)}; not committed twice")
+                raise CampaignError(
+                    f"ledger: point {record.point_id} is not in state {'/'.join(from_states)}; not committed twice"
+                )
             if self.session is not None:
                 self.db.execute("UPDATE sessions SET last_at = ? WHERE n = ?", (time.time(), self.session))
 

@@ -66,7 +66,9 @@ class DirectoryLock:
                     holder = _read(fd)
                     os.close(fd)
                     who = holder.describe() if holder else "another process"
-                    raise CampaignError(f"{self.path.parent} is in use by {who}; wait for it or stop it first") from None
+                    raise CampaignError(
+                        f"{self.path.parent} is in use by {who}; wait for it or stop it first"
+                    ) from None
                 time.sleep(0.02)
         previous = _read(fd)  # a record left behind: its holder died without releasing
         if previous and previous.pid != os.getpid():

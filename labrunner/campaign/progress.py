@@ -47,8 +47,9 @@ class _Reporter:
 
     unit = "run"
 
-    def __init__(self, label: str, total: int, initial: int, *, stream: TextIO | None, interval_s: float,
-                 bar: bool | None) -> None:
+    def __init__(
+        self, label: str, total: int, initial: int, *, stream: TextIO | None, interval_s: float, bar: bool | None
+    ) -> None:
         self.label, self.total, self.initial = label, total, initial
         self.stream = stream or sys.stderr
         self.interval_s = interval_s
@@ -61,8 +62,15 @@ class _Reporter:
             class _Bar(tqdm):  # no monitor thread: the process pool forks after the bar exists
                 monitor_interval = 0
 
-            self._bar = _Bar(total=total, initial=initial, desc=label, unit=self.unit, file=self.stream,
-                             dynamic_ncols=True, smoothing=0.1)
+            self._bar = _Bar(
+                total=total,
+                initial=initial,
+                desc=label,
+                unit=self.unit,
+                file=self.stream,
+                dynamic_ncols=True,
+                smoothing=0.1,
+            )
             self._bar.set_postfix_str(self.detail())
         else:
             self.write(self.line())  # from the first second, not after the first result
@@ -83,8 +91,10 @@ class _Reporter:
         rate = self.rate()
         eta = (self.total - self.finished) / rate if rate > 0 else float("nan")
         detail = f" ({self.detail()})" if self.detail() else ""
-        return (f"{self.label}: {self.finished}/{self.total}{detail} {_rate(rate)} {self.unit}s/s, "
-                f"elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}")
+        return (
+            f"{self.label}: {self.finished}/{self.total}{detail} {_rate(rate)} {self.unit}s/s, "
+            f"elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}"
+        )
 
     def _advanced(self, n: int) -> None:
         if self._bar is not None:
@@ -119,8 +129,16 @@ class Progress(_Reporter):
     """Runs of a campaign by outcome; ``counts`` are those the ledger held when the session began
     (outcome words of :data:`OUTCOMES`; claimed and planned ones are what is left to run)."""
 
-    def __init__(self, label: str, total: int, counts: Mapping[str, int] | None = None, *,
-                 stream: TextIO | None = None, interval_s: float = 5.0, bar: bool | None = None) -> None:
+    def __init__(
+        self,
+        label: str,
+        total: int,
+        counts: Mapping[str, int] | None = None,
+        *,
+        stream: TextIO | None = None,
+        interval_s: float = 5.0,
+        bar: bool | None = None,
+    ) -> None:
         self.counts = {w: int((counts or {}).get(w, 0)) for w in FINISHED}
         self.running = 0  # runs handed to workers and not yet committed
         super().__init__(label, total, sum(self.counts.values()), stream=stream, interval_s=interval_s, bar=bar)
@@ -150,8 +168,9 @@ class Steps(_Reporter):
 
     unit = "step"
 
-    def __init__(self, label: str, total: int, *, stream: TextIO | None = None, interval_s: float = 2.0,
-                 bar: bool | None = None) -> None:
+    def __init__(
+        self, label: str, total: int, *, stream: TextIO | None = None, interval_s: float = 2.0, bar: bool | None = None
+    ) -> None:
         self.done, self.step = 0, "starting"
         super().__init__(label, total, 0, stream=stream, interval_s=interval_s, bar=bar)
 

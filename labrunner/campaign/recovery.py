@@ -107,9 +107,14 @@ def recover(ledger: Ledger) -> Recovery:
                 outcome.pop("n_samples", None)
                 ledger.commit(
                     RunRecord(
-                        point_id=pid, outcome=outcome["status"], outcome_record=outcome, metrics=found["metrics"],
-                        log_path=final_path(pid), host=str(found["run"].get("host", "")),
-                        pid=int(found["run"].get("pid", 0)), finished_at=path.stat().st_mtime,
+                        point_id=pid,
+                        outcome=outcome["status"],
+                        outcome_record=outcome,
+                        metrics=found["metrics"],
+                        log_path=final_path(pid),
+                        host=str(found["run"].get("host", "")),
+                        pid=int(found["run"].get("pid", 0)),
+                        finished_at=path.stat().st_mtime,
                     ),
                     from_states=(state,),
                 )

@@ -94,8 +94,11 @@ def _campaign(directory: Path, meta: dict[str, str], source: str | Path | None) 
     elif meta.get("campaign_file"):
         text = meta["campaign_file"]
     else:
-        raise InvalidParameter("DIR", f"{str(directory)!r} has neither {COPY} nor a readable ledger keeping the "
-                                      "campaign: nothing to rebuild the grid from")
+        raise InvalidParameter(
+            "DIR",
+            f"{str(directory)!r} has neither {COPY} nor a readable ledger keeping the "
+            "campaign: nothing to rebuild the grid from",
+        )
     path = Path(source) if source else Path(meta["campaign_path"]) if meta.get("campaign_path") else copy
     return spec.from_text(text, source_path=path)
 
@@ -121,17 +124,26 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
     """Rebuild ``DIR/ledger.sqlite`` (see the module docstring); takes the directory's lock."""
     directory = Path(directory)
     if not directory.is_dir():
-        raise InvalidParameter("DIR", f"{str(directory)!r} does not exist" if not directory.exists()
-                                      else f"{str(directory)!r} is not a directory")
+        raise InvalidParameter(
+            "DIR",
+            f"{str(directory)!r} does not exist"
+            if not directory.exists()
+            else f"{str(directory)!r} is not a directory",
+        )
     path = directory / LEDGER_NAME
     if not (directory / COPY).is_file() and not path.is_file():
-        raise InvalidParameter("DIR", f"{str(directory)!r} has neither {COPY} nor a ledger keeping the campaign: "
-                                      "nothing to rebuild the grid from")
+        raise InvalidParameter(
+            "DIR",
+            f"{str(directory)!r} has neither {COPY} nor a ledger keeping the campaign: "
+            "nothing to rebuild the grid from",
+        )
     with DirectoryLock(directory, "repair"):
         meta, failed, sessions, quarantine, problem = _old_ledger(path)
         campaign = _campaign(directory, meta, campaign_file)
         if campaign.guided is not None:
-            raise InvalidParameter("DIR", "a guided campaign's rounds cannot be rebuilt from its file; its logs stay in runs/")
+            raise InvalidParameter(
+                "DIR", "a guided campaign's rounds cannot be rebuilt from its file; its logs stay in runs/"
+            )
         points, checksum = spec.plan(campaign)
         report = Repaired(points=len(points), problem=problem)
         restored: list[tuple[RunRecord, int]] = []
@@ -143,19 +155,36 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
             if found is None:
                 report.rejected.append(f"{final_path(p.id)}: {reason}")
                 continue
-            outcome = {**Outcome(str(found["outcome"].get("status"))).as_dict(), **found["outcome"]}  # logs leave None out
+            outcome = {
+                **Outcome(str(found["outcome"].get("status"))).as_dict(),
+                **found["outcome"],
+            }  # logs leave None out
             outcome.pop("n_samples", None)
             run = found["run"]
-            restored.append((RunRecord(
-                point_id=p.id, outcome=outcome["status"], outcome_record=outcome, metrics=found["metrics"],
-                log_path=final_path(p.id), host=str(run.get("host", "")), pid=int(run.get("pid", 0)),
-                finished_at=log.stat().st_mtime,
-            ), int(run.get("attempt", 1))))
+            restored.append(
+                (
+                    RunRecord(
+                        point_id=p.id,
+                        outcome=outcome["status"],
+                        outcome_record=outcome,
+                        metrics=found["metrics"],
+                        log_path=final_path(p.id),
+                        host=str(run.get("host", "")),
+                        pid=int(run.get("pid", 0)),
+                        finished_at=log.stat().st_mtime,
+                    ),
+                    int(run.get("attempt", 1)),
+                )
+            )
         new_meta = {
-            "campaign": campaign.name, "campaign_file": campaign.source, "plan_checksum": checksum,
-            "points": str(len(points)), "rig": campaign.rig,
+            "campaign": campaign.name,
+            "campaign_file": campaign.source,
+            "plan_checksum": checksum,
+            "points": str(len(points)),
+            "rig": campaign.rig,
             "campaign_path": meta.get("campaign_path") or str(Path(campaign_file or directory / COPY).resolve()),
-            "created_at": meta.get("created_at", repr(time.time())), "created_by": meta.get("created_by", "repair"),
+            "created_at": meta.get("created_at", repr(time.time())),
+            "created_by": meta.get("created_by", "repair"),
             "repaired_at": repr(time.time()),
         }
         if path.exists():
@@ -164,7 +193,9 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
             for suffix in ("-wal", "-shm"):
                 Path(f"{path}{suffix}").unlink(missing_ok=True)
         by_id = {p.id: p for p in points}
-        with Ledger.create(directory, meta=new_meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points)) as ledger:
+        with Ledger.create(
+            directory, meta=new_meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points)
+        ) as ledger:
             del points
             for record, attempt in restored:
                 ledger.commit(record, from_states=("planned",))
@@ -178,8 +209,13 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
                     report.failed_kept += 1
             _copy_history(ledger, sessions, quarantine)
             if report.old:
-                ledger.record_quarantine(None, LEDGER_NAME, report.old, f"ledger replaced by repair ({problem or 'sound'})",
-                                         (directory / report.old).stat().st_size)
+                ledger.record_quarantine(
+                    None,
+                    LEDGER_NAME,
+                    report.old,
+                    f"ledger replaced by repair ({problem or 'sound'})",
+                    (directory / report.old).stat().st_size,
+                )
             integrity.verify(ledger.db, path)
     return report
 
@@ -190,9 +226,16 @@ def _failed_record(row: dict[str, Any]) -> RunRecord:
     except ValueError:
         outcome = {}
     outcome = {"status": "failed", **(outcome if isinstance(outcome, dict) else {})}
-    return RunRecord(point_id=row["id"], outcome="failed", outcome_record=outcome, metrics={}, log_path=None,
-                     host=str(row.get("host") or ""), pid=int(row.get("pid") or 0),
-                     finished_at=float(row.get("finished_at") or time.time()))
+    return RunRecord(
+        point_id=row["id"],
+        outcome="failed",
+        outcome_record=outcome,
+        metrics={},
+        log_path=None,
+        host=str(row.get("host") or ""),
+        pid=int(row.get("pid") or 0),
+        finished_at=float(row.get("finished_at") or time.time()),
+    )
 
 
 def _copy_history(ledger: Ledger, sessions: list[dict], quarantine: list[dict]) -> None:
@@ -201,7 +244,10 @@ def _copy_history(ledger: Ledger, sessions: list[dict], quarantine: list[dict]) 
         ledger.db.execute("BEGIN IMMEDIATE")
         ledger.db.executemany(
             "INSERT INTO sessions (command, host, pid, started_at, last_at, ended_at, end_reason) VALUES (?, ?, ?, ?, ?, ?, ?)",
-            [(s["command"], s["host"], s["pid"], s["started_at"], s["last_at"], s["ended_at"], s["end_reason"]) for s in sessions],
+            [
+                (s["command"], s["host"], s["pid"], s["started_at"], s["last_at"], s["ended_at"], s["end_reason"])
+                for s in sessions
+            ],
         )
         ledger.db.executemany(
             "INSERT INTO quarantine (point_id, original, moved_to, reason, bytes, at) VALUES (?, ?, ?, ?, ?, ?)",

@@ -22,10 +22,10 @@ from typing import TextIO
 
 from labrunner import __version__
 from labrunner.campaign import integrity, recovery, spec
+from labrunner.campaign.executors import check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
-from labrunner.campaign.executors import check_executor_url, open_executor
 from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals, make_batches
 from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
@@ -101,7 +101,9 @@ def dry_run(campaign: spec.Campaign, points: list[spec.PlannedPoint], opts: Opti
     for key, sizes in groups.items():
         _, fs, duration, choices, _ = json.loads(key)
         kind = dict(choices).get("controller.kind")
-        lines.append(f"  {sum(sizes)} points × {duration:g} s at {fs:g} Hz ({kind}): {len(sizes)} batches of ≤ {max(sizes)}")
+        lines.append(
+            f"  {sum(sizes)} points × {duration:g} s at {fs:g} Hz ({kind}): {len(sizes)} batches of ≤ {max(sizes)}"
+        )
         total_s += sum(sizes) * duration
     if campaign.rig_info.simulated:
         est = _estimate_sim(campaign, points, slots, max(groups[next(iter(groups))]))
@@ -110,8 +112,10 @@ def dry_run(campaign: spec.Campaign, points: list[spec.PlannedPoint], opts: Opti
         from labrunner.rigs.device.plan import upload_s
 
         upload = upload_s(campaign, points)  # a device loop's samples sent after each run
-        lines.append(f"  estimated time ≈ {total_s + upload + 2.0 * len(points):.0f} s on the real rig (one run at a time"
-                     + (f"; {upload:.0f} s of it sending samples after the runs)" if upload else ")"))
+        lines.append(
+            f"  estimated time ≈ {total_s + upload + 2.0 * len(points):.0f} s on the real rig (one run at a time"
+            + (f"; {upload:.0f} s of it sending samples after the runs)" if upload else ")")
+        )
     return "\n".join(lines)
 
 
@@ -131,8 +135,9 @@ def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slot
     probe_s = min(duration, max(0.5, 2000.0 / fs))  # a prefix of each run is enough to time the ticks
     t0 = time.perf_counter()
     with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as rig:
-        engine.run_batch(configs, rig, fs=fs, duration=probe_s, seeds=[campaign.seed] * len(configs),
-                         rig_safety=campaign.rig_safety)
+        engine.run_batch(
+            configs, rig, fs=fs, duration=probe_s, seeds=[campaign.seed] * len(configs), rig_safety=campaign.rig_safety
+        )
     per_run_sample = (time.perf_counter() - t0) / (len(first) * fs * probe_s)
     samples = sum(fs_d[0] * fs_d[1] for fs_d in (json.loads(p.batch_key)[1:3] for p in points))
     return per_run_sample * samples / slots + 0.01 * len(points)
@@ -240,18 +245,26 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
     c = ledger.counts()
     total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
     progress = Progress(
-        campaign.name, total, ledger.by_outcome(),
-        stream=opts.stream, interval_s=opts.progress_interval_s,
+        campaign.name,
+        total,
+        ledger.by_outcome(),
+        stream=opts.stream,
+        interval_s=opts.progress_interval_s,
     )
     real = not campaign.rig_info.simulated
     out = Outcome()
     reason = "error"
     try:
-        with StopSignals() as signals, open_executor(
-            real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd
-        ) as handle:
+        with (
+            StopSignals() as signals,
+            open_executor(real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd) as handle,
+        ):
             scheduler = Scheduler(
-                campaign, ledger, executor=handle, batch_size=1 if real else opts.batch_size, progress=progress,
+                campaign,
+                ledger,
+                executor=handle,
+                batch_size=1 if real else opts.batch_size,
+                progress=progress,
                 signals=signals,
             )
             if campaign.guided is None:
@@ -260,7 +273,15 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
                 from labrunner.campaign import guided_run
 
                 out = guided_run.execute(campaign, ledger, scheduler.run, signals)
-        reason = "abandoned" if out.abandoned else "interrupted" if out.interrupted else "stopped" if out.stop_reason else "finished"
+        reason = (
+            "abandoned"
+            if out.abandoned
+            else "interrupted"
+            if out.interrupted
+            else "stopped"
+            if out.stop_reason
+            else "finished"
+        )
     finally:
         progress.close()
         with contextlib.suppress(LedgerWriteError):  # a full disk: the session's end is not recorded

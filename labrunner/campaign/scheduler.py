@@ -171,9 +171,16 @@ class Scheduler:
             config["campaign"]["duration"] = duration
             runs.append(RunTask(row["id"], row["attempts"] + 1, params, config, int(config["campaign"]["seed"])))
         return BatchTask(
-            directory=str(self.ledger.directory.resolve()), campaign=c.name, campaign_source=c.source, rig=c.rig_ref,
-            rig_search=c.rig_search, rig_safety=dict(c.rig_safety), fs=float(fs), duration=float(duration),
-            runs=tuple(runs), samples_hz=c.logging.get("samples_hz"),
+            directory=str(self.ledger.directory.resolve()),
+            campaign=c.name,
+            campaign_source=c.source,
+            rig=c.rig_ref,
+            rig_search=c.rig_search,
+            rig_safety=dict(c.rig_safety),
+            fs=float(fs),
+            duration=float(duration),
+            runs=tuple(runs),
+            samples_hz=c.logging.get("samples_hz"),
         )
 
     def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:
@@ -245,8 +252,10 @@ class Scheduler:
         self.bound_s = math.ceil(2.0 * expected + GRACE_S)  # a batch may wait behind one running on its slot
         self.deadline = time.monotonic() + self.bound_s
         if self.inflight:
-            self._say(f"{why}: finishing {len(self.inflight)} running batch(es), at most {self.bound_s:.0f} s"
-                      " (Ctrl-C again to abandon them now)")
+            self._say(
+                f"{why}: finishing {len(self.inflight)} running batch(es), at most {self.bound_s:.0f} s"
+                " (Ctrl-C again to abandon them now)"
+            )
 
     def _supervise(self, signals: StopSignals, out: Outcome, pending: deque) -> None:
         """Ctrl-C, a failure, a lost worker or a passed deadline: what the loop does next."""

@@ -91,7 +91,13 @@ class Campaign:
         """The full run configuration of one point: base sections with its parameters set."""
         config: dict[str, Any] = {s: copy_tree(dict(self.base.get(s, {}))) for s in SECTIONS}
         config.update({s: copy_tree(dict(self.base[s])) for s in OPTIONAL_SECTIONS if self.base.get(s)})
-        config["campaign"] = {"name": self.name, "rig": self.rig, "fs": self.fs, "duration": self.duration, "seed": self.seed}
+        config["campaign"] = {
+            "name": self.name,
+            "rig": self.rig,
+            "fs": self.fs,
+            "duration": self.duration,
+            "seed": self.seed,
+        }
         for key, value in parameters.items():
             _set(config, key, value)
         return config
@@ -255,7 +261,9 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
             if key not in settable:
                 raise InvalidParameter(field_name, f"only campaign.{{{', '.join(GRID_CAMPAIGN_KEYS)}}} may vary")
         elif section not in SECTIONS or "." not in key:
-            raise InvalidParameter(field_name, f"must be a dotted key in one of {', '.join(SECTIONS)} (or campaign.fs/duration/seed)")
+            raise InvalidParameter(
+                field_name, f"must be a dotted key in one of {', '.join(SECTIONS)} (or campaign.fs/duration/seed)"
+            )
         elif section == "rig_parameters" and key.split(".", 2)[1] not in rig_params:
             has = f"it has {', '.join(rig_params)}" if rig_params else "it has no per-run parameters"
             raise InvalidParameter(field_name, f"rig {rig!r} has no parameter {key.split('.', 2)[1]!r}; {has}")
@@ -265,7 +273,9 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     fixed = {k: check_number(f"rig_parameters.{k}", v) for k, v in base["rig_parameters"].items()}
     rig_class(rig_config.kind).check_overrides(rig_config, fixed, 1, "rig_parameters")  # grid values: in plan()
     if "grid" in doc and "guided" in doc:
-        raise InvalidParameter("guided", "a campaign has either [grid] (a fixed grid) or [guided] (a tuning procedure), not both")
+        raise InvalidParameter(
+            "guided", "a campaign has either [grid] (a fixed grid) or [guided] (a tuning procedure), not both"
+        )
     grid = gridmod.parse_grid(doc["grid"], check_key) if "grid" in doc else Grid()
     derived: list[tuple[str, expressions.Expression]] = []
     known = set(settable) | set(grid.keys) | set(info.constants)
@@ -276,9 +286,22 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         derived.append((key, expressions.parse(f'derived."{key}"', source, known)))
         known.add(key)
     campaign = Campaign(
-        name=name, description=description, rig=rig, rig_path=rig_path, fs=fs, duration=duration, seed=seed,
-        base=base, grid=grid, derived=tuple(derived), source=text, source_path=source_path, project_root=root,
-        rig_info=info, rig_safety=dict(rig_config.safety), rig_config=rig_config,
+        name=name,
+        description=description,
+        rig=rig,
+        rig_path=rig_path,
+        fs=fs,
+        duration=duration,
+        seed=seed,
+        base=base,
+        grid=grid,
+        derived=tuple(derived),
+        source=text,
+        source_path=source_path,
+        project_root=root,
+        rig_info=info,
+        rig_safety=dict(rig_config.safety),
+        rig_config=rig_config,
         logging=_logging(doc.get("logging", {})),
     )
     if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
@@ -295,7 +318,11 @@ def _logging(table: Mapping[str, Any]) -> dict[str, Any]:
     bad = sorted(set(table) - set(LOGGING_KEYS))
     if bad:
         raise InvalidParameter(f"logging.{bad[0]}", f"unknown key; allowed: {', '.join(LOGGING_KEYS)}")
-    return {"samples_hz": check_positive("logging.samples_hz", table["samples_hz"], strict=True)} if "samples_hz" in table else {}
+    return (
+        {"samples_hz": check_positive("logging.samples_hz", table["samples_hz"], strict=True)}
+        if "samples_hz" in table
+        else {}
+    )
 
 
 def _check_finite_leaves(path: str, node: Any) -> None:
@@ -371,7 +398,9 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     for seq, params, duration, _ in checked:  # batch keys once every batch-common key is known
         config = campaign.resolve(params)
         config["campaign"]["duration"] = duration
-        points.append(PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split)))
+        points.append(
+            PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split))
+        )
     gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
     from labrunner.rigs.device.plan import check_placement
 

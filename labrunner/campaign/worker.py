@@ -129,8 +129,12 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
         with rig:
             results = list(
                 (run_batch or _batch_runner(rig))(
-                    [r.config for r in task.runs], rig, fs=task.fs, duration=task.duration,
-                    seeds=[r.seed for r in task.runs], rig_safety=task.rig_safety,
+                    [r.config for r in task.runs],
+                    rig,
+                    fs=task.fs,
+                    duration=task.duration,
+                    seeds=[r.seed for r in task.runs],
+                    rig_safety=task.rig_safety,
                 )
             )
     except RigError as exc:  # the engine hands over the failed runs' logs up to the failure when it has them
@@ -147,7 +151,9 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     try:
         _publish_all(task, results, out, engine_s, host, pid, rig_record, start_time, diagnostics)
     except Exception as exc:  # re-raised as a plain, picklable error: the parent stops the campaign
-        raise CampaignError(f"publishing the logs of batch {task.runs[0].point_id}… failed: {type(exc).__name__}: {exc}") from None
+        raise CampaignError(
+            f"publishing the logs of batch {task.runs[0].point_id}… failed: {type(exc).__name__}: {exc}"
+        ) from None
     return out
 
 
@@ -161,7 +167,13 @@ def _batch_runner(rig: Any) -> Callable[..., Sequence[Any]]:
 
 
 def _publish_all(
-    task: BatchTask, results: list[Any], out: BatchResult, engine_s: float, host: str, pid: int, rig: Mapping[str, Any],
+    task: BatchTask,
+    results: list[Any],
+    out: BatchResult,
+    engine_s: float,
+    host: str,
+    pid: int,
+    rig: Mapping[str, Any],
     start_time: float,
     diagnostics: Mapping[str, Any] | None = None,
 ) -> None:
@@ -188,9 +200,17 @@ def _publish_all(
             record = getattr(result, "diagnostics", None) or diagnostics  # a device loop's record is per run
             if record is not None:
                 metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
-            write_run(tmp, metadata=metadata, signals=result.signals, outcome=outcome,
-                      prefix=prefixes.get(list(result.signals), result.channels), start_time=start_time)
-            written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1, syncer.submit(_fsync, tmp)))
+            write_run(
+                tmp,
+                metadata=metadata,
+                signals=result.signals,
+                outcome=outcome,
+                prefix=prefixes.get(list(result.signals), result.channels),
+                start_time=start_time,
+            )
+            written.append(
+                (run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1, syncer.submit(_fsync, tmp))
+            )
         t2 = time.perf_counter()
         for run, tmp, _, _, _, synced in written:
             synced.result()
@@ -201,9 +221,17 @@ def _publish_all(
     for run, _, outcome, metrics, write_s, _ in written:
         out.records.append(
             RunRecord(
-                point_id=run.point_id, outcome=outcome["status"], outcome_record=outcome, metrics=metrics,
-                log_path=final_path(run.point_id), host=host, pid=pid, finished_at=now, engine_s=engine_s,
-                write_s=write_s, publish_s=publish_s,
+                point_id=run.point_id,
+                outcome=outcome["status"],
+                outcome_record=outcome,
+                metrics=metrics,
+                log_path=final_path(run.point_id),
+                host=host,
+                pid=pid,
+                finished_at=now,
+                engine_s=engine_s,
+                write_s=write_s,
+                publish_s=publish_s,
             )
         )
 
@@ -213,8 +241,14 @@ def _failed(task: BatchTask, out: BatchResult, message: str, host: str, pid: int
     for run in task.runs:
         out.records.append(
             RunRecord(
-                point_id=run.point_id, outcome="failed", outcome_record={"status": "failed", "message": message},
-                metrics={}, log_path=None, host=host, pid=pid, finished_at=now,
+                point_id=run.point_id,
+                outcome="failed",
+                outcome_record={"status": "failed", "message": message},
+                metrics={},
+                log_path=None,
+                host=host,
+                pid=pid,
+                finished_at=now,
             )
         )
     return out

@@ -124,7 +124,9 @@ def _main(argv: Sequence[str] | None) -> int:
         return _say(f"{prefix} out of memory", 1)
     except Exception as exc:  # a bug: one line here, the traceback in a file
         where = _write_traceback(args.command, sys.argv[1:] if argv is None else list(argv))
-        return _say(f"labrunner {args.command}: internal error: {_line(exc, type(exc).__name__)}; traceback in {where}", 1)
+        return _say(
+            f"labrunner {args.command}: internal error: {_line(exc, type(exc).__name__)}; traceback in {where}", 1
+        )
 
 
 def os_error(exc: OSError) -> str:

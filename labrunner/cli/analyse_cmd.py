@@ -28,15 +28,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="output directory (default: DIR/report)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--workers", type=positive_int, metavar="N", help="processes reading logs (default: all cores)")
-    p.add_argument("--margin", type=float, default=0.1, metavar="F",
-                   help="leave out points within this relative distance of a predicted bound (default 0.1)")
-    p.add_argument("--error", choices=("e", "e_hat"), default="e",
-                   help="rank runs and draw the RMS map by e (default) or by paper 2's delayed error ê")
-    p.add_argument("--plot", action="append", default=[], metavar="WHICH",
-                   help="also plot these runs into OUT/plots/: a point id, an outcome (aborted, completed, no-motion, "
-                        "failed) or all; repeat or separate by commas")
-    p.add_argument("--recompute", action="store_true",
-                   help="read every run log and compute the metrics again instead of taking the ledger's")
+    p.add_argument(
+        "--margin",
+        type=float,
+        default=0.1,
+        metavar="F",
+        help="leave out points within this relative distance of a predicted bound (default 0.1)",
+    )
+    p.add_argument(
+        "--error",
+        choices=("e", "e_hat"),
+        default="e",
+        help="rank runs and draw the RMS map by e (default) or by paper 2's delayed error ê",
+    )
+    p.add_argument(
+        "--plot",
+        action="append",
+        default=[],
+        metavar="WHICH",
+        help="also plot these runs into OUT/plots/: a point id, an outcome (aborted, completed, no-motion, "
+        "failed) or all; repeat or separate by commas",
+    )
+    p.add_argument(
+        "--recompute",
+        action="store_true",
+        help="read every run log and compute the metrics again instead of taking the ledger's",
+    )
     p.set_defaults(func=run)
 
 
@@ -66,21 +83,34 @@ def run(args: argparse.Namespace) -> int:
     from labrunner.campaign.progress import format_counts
 
     plot = [word for item in args.plot for word in item.split(",") if word]
-    summary = analyse(args.directory, args.out, workers=args.workers, margin=args.margin, error=args.error,
-                      recompute=args.recompute, plot=plot)
+    summary = analyse(
+        args.directory,
+        args.out,
+        workers=args.workers,
+        margin=args.margin,
+        error=args.error,
+        recompute=args.recompute,
+        plot=plot,
+    )
     if args.json:
         print(json.dumps(_strict(summary), ensure_ascii=False))
         return 0
     agree = summary["agreement"]
-    print(f"{summary['runs']} runs of {summary['points']} points: {format_counts(summary['outcomes'])}"
-          + (f" ({summary['oscillating']} of the completed oscillating)" if summary.get("oscillating") else ""))
+    print(
+        f"{summary['runs']} runs of {summary['points']} points: {format_counts(summary['outcomes'])}"
+        + (f" ({summary['oscillating']} of the completed oscillating)" if summary.get("oscillating") else "")
+    )
     best = summary["best"]
     if best:
-        params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in best["params"].items())
+        params = ", ".join(
+            f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in best["params"].items()
+        )
         print(f"best: RMS({'ê' if args.error == 'e_hat' else 'e'}) = {best['rms']:.4g} at {params}")
     if agree.get("share") is not None:
-        print(f"theory ({agree['case']}) agrees on {agree['share']:.1%} of {agree['n_compared']} points "
-              f"({agree['n_excluded']} within ±{agree['margin']:.0%} of a bound left out)")
+        print(
+            f"theory ({agree['case']}) agrees on {agree['share']:.1%} of {agree['n_compared']} points "
+            f"({agree['n_excluded']} within ±{agree['margin']:.0%} of a bound left out)"
+        )
         if agree["false_unstable"] and not agree["observed_unstable"]:
             print("  no run was aborted, so no outcome can confirm a predicted instability: read the RMS map")
     for problem in summary["problems"]:

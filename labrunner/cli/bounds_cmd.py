@@ -26,11 +26,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--gamma", required=True, type=numeric(float, "> 0"), help="input gain γ of the MFC law (> 0)")
     p.add_argument("--delay", required=True, type=numeric(float, "> 0"), help="estimation delay δ [s] (> 0)")
     p.add_argument("--rho", type=numeric(float, "> 0"), help="ultra-local input gain ρ (> 0; default --b)")
-    p.add_argument("--a", type=numeric(float, "(any real)"), help="plant coefficient a [1/s] (motor cases; < 0: unstable plant)")
+    p.add_argument(
+        "--a", type=numeric(float, "(any real)"), help="plant coefficient a [1/s] (motor cases; < 0: unstable plant)"
+    )
     p.add_argument("--b", type=numeric(float, "> 0"), help="plant input gain b (> 0)")
     p.add_argument("--a0", type=numeric(float, ">= 0"), help="a₀ [1/s²] of the second-order plant (A.15), >= 0")
     p.add_argument("--a1", type=numeric(float, "(any real)"), help="a₁ [1/s] of the second-order plant (A.15)")
-    p.add_argument("--k-d", dest="k_d", type=numeric(float, "(any real)"), help="derivative gain k_d [1/s] (second-order cases)")
+    p.add_argument(
+        "--k-d", dest="k_d", type=numeric(float, "(any real)"), help="derivative gain k_d [1/s] (second-order cases)"
+    )
     p.add_argument("--numeric", action="store_true", help="also compute the intervals numerically")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
@@ -65,8 +69,18 @@ def run(args: argparse.Namespace) -> int:
 
     from labrunner.stability import bounds
 
-    result = bounds(args.case, gamma=args.gamma, delay=args.delay, rho=args.rho, a=args.a, b=args.b,
-                    k_d=args.k_d, a0=args.a0, a1=args.a1, numeric=args.numeric)
+    result = bounds(
+        args.case,
+        gamma=args.gamma,
+        delay=args.delay,
+        rho=args.rho,
+        a=args.a,
+        b=args.b,
+        k_d=args.k_d,
+        a0=args.a0,
+        a1=args.a1,
+        numeric=args.numeric,
+    )
     if args.json:
         print(json.dumps(result))
         return 0

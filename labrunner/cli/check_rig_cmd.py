@@ -12,9 +12,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "check-rig",
         help="handshake a can/serial rig, time round trips, show error counters, link load and the host loop's highest f_s",
         description="Open a can or serial rig file's link, handshake with the device (protocol version, device kind, "
-                    "channels, max f_s, capabilities, firmware id), time N HEARTBEAT round trips, and report the "
-                    "error counters, the link load of both loop placements and the highest f_s the host loop "
-                    "sustains with margin. Nothing moves: no run is set up.",
+        "channels, max f_s, capabilities, firmware id), time N HEARTBEAT round trips, and report the "
+        "error counters, the link load of both loop placements and the highest f_s the host loop "
+        "sustains with margin. Nothing moves: no run is set up.",
     )
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
     p.add_argument("--pings", type=positive_int, default=200, metavar="N", help="round trips to time (default 200)")

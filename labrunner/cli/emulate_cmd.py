@@ -22,21 +22,44 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "emulate",
         help="serve a can/serial rig file's device as its twin (paced; fault injection)",
         description="Serve the device of a can or serial rig file as its simulated twin, speaking protocol v1 "
-                    "(docs/protocol.md): on the rig's CAN bus, or on a new pty whose name it prints. Ctrl-C stops.",
+        "(docs/protocol.md): on the rig's CAN bus, or on a new pty whose name it prints. Ctrl-C stops.",
     )
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
-    p.add_argument("--free-run", action="store_true", help="tick as soon as the host commits an input (no real-time pacing)")
-    p.add_argument("--drop", type=_probability, default=0.0, metavar="P", help="drop each sent frame with probability P")
+    p.add_argument(
+        "--free-run", action="store_true", help="tick as soon as the host commits an input (no real-time pacing)"
+    )
+    p.add_argument(
+        "--drop", type=_probability, default=0.0, metavar="P", help="drop each sent frame with probability P"
+    )
     p.add_argument("--delay", type=_non_negative, default=0.0, metavar="MS", help="send every frame MS ms late")
-    p.add_argument("--garbage", type=_probability, default=0.0, metavar="P", help="garbage after a frame with probability P")
-    p.add_argument("--duplicate", type=_probability, default=0.0, metavar="P", help="send a frame twice with probability P")
-    p.add_argument("--stale", type=_probability, default=0.0, metavar="P", help="repeat an old frame with probability P")
-    p.add_argument("--spoof", type=_probability, default=0.0, metavar="P", help="a frame with the host's id with probability P")
-    p.add_argument("--error-frames", type=_probability, default=0.0, metavar="P", help="a CAN error frame with probability P")
-    p.add_argument("--die-after", type=_non_negative, default=math.inf, metavar="S", help="fall silent for good S seconds into the first run")
+    p.add_argument(
+        "--garbage", type=_probability, default=0.0, metavar="P", help="garbage after a frame with probability P"
+    )
+    p.add_argument(
+        "--duplicate", type=_probability, default=0.0, metavar="P", help="send a frame twice with probability P"
+    )
+    p.add_argument(
+        "--stale", type=_probability, default=0.0, metavar="P", help="repeat an old frame with probability P"
+    )
+    p.add_argument(
+        "--spoof", type=_probability, default=0.0, metavar="P", help="a frame with the host's id with probability P"
+    )
+    p.add_argument(
+        "--error-frames", type=_probability, default=0.0, metavar="P", help="a CAN error frame with probability P"
+    )
+    p.add_argument(
+        "--die-after",
+        type=_non_negative,
+        default=math.inf,
+        metavar="S",
+        help="fall silent for good S seconds into the first run",
+    )
     p.add_argument("--seed", type=numeric(int, ">= 0"), default=0, help="seed of the fault injection")
-    p.add_argument("--realtime", action="store_true",
-                   help="run the device's loop at SCHED_FIFO priority (root or CAP_SYS_NICE), like firmware on a timer")
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="run the device's loop at SCHED_FIFO priority (root or CAP_SYS_NICE), like firmware on a timer",
+    )
     p.set_defaults(func=main)
 
 
@@ -59,9 +82,17 @@ def main(args: argparse.Namespace) -> int:
     config = load_rig_config(args.rig)
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"emulate serves can or serial rig files, got {config.kind!r}")
-    faults = LinkFaults(drop=args.drop, delay_ms=args.delay, garbage=args.garbage, duplicate=args.duplicate,
-                        stale=args.stale, spoof=args.spoof, error_frame=args.error_frames, die_after_s=args.die_after,
-                        seed=args.seed)
+    faults = LinkFaults(
+        drop=args.drop,
+        delay_ms=args.delay,
+        garbage=args.garbage,
+        duplicate=args.duplicate,
+        stale=args.stale,
+        spoof=args.spoof,
+        error_frame=args.error_frames,
+        die_after_s=args.die_after,
+        seed=args.seed,
+    )
     if config.kind == "serial":
         port, link = pty_link(config.parameters["node_id"])
         print(f"port {port}", flush=True)

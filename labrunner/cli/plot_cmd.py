@@ -13,11 +13,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "plot",
         help="draw one run log (MCAP), or overlay several, to an image",
         description="Draw a run's outputs with their references, its inputs and estimates over time; with several "
-                    "logs, overlay their outputs and inputs, each run labelled by the grid values that differ.",
+        "logs, overlay their outputs and inputs, each run labelled by the grid values that differ.",
     )
     parser.add_argument("paths", nargs="+", metavar="RUN.mcap", help="run log(s) to draw (2-20 are overlaid)")
-    parser.add_argument("-o", "--output", help="image file (.png, .pdf, .svg); default: RUN.png beside the (first) "
-                                               "log, RUN-overlay.png for several")
+    parser.add_argument(
+        "-o",
+        "--output",
+        help="image file (.png, .pdf, .svg); default: RUN.png beside the (first) log, RUN-overlay.png for several",
+    )
     parser.add_argument("--dpi", type=float, default=150.0, help="resolution of raster images (default 150)")
     parser.set_defaults(func=run)
 

@@ -17,8 +17,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("directory", metavar="DIR", help="campaign directory")
-    p.add_argument("--campaign", metavar="FILE",
-                   help="the original campaign file, when its rig is a path relative to it and the old ledger is lost")
+    p.add_argument(
+        "--campaign",
+        metavar="FILE",
+        help="the original campaign file, when its rig is a path relative to it and the old ledger is lost",
+    )
     p.set_defaults(func=main)
 
 

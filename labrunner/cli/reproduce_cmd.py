@@ -20,8 +20,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "and re-analyses what OUT already holds. Figures: " + ", ".join(i.id for i in ITEMS) + "."
         ),
     )
-    p.add_argument("--quick", action="store_true",
-                   help="reduced grids and shortened references (a few minutes on 2 cores; the longest plate runs left out)")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="reduced grids and shortened references (a few minutes on 2 cores; the longest plate runs left out)",
+    )
     p.add_argument("--only", nargs="+", metavar="FIG", help="run only these figures/tables (ids as listed above)")
     p.add_argument("--out", default="data/reproduce", metavar="DIR", help="output directory (default: data/reproduce)")
     p.add_argument("--workers", type=int, metavar="N", help="worker processes (default: all cores)")

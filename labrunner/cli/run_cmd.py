@@ -15,7 +15,9 @@ def add_execution_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--executor", metavar="URL", help="run on a Dask distributed cluster, e.g. tcp://HOST:8786 (shared file system)"
     )
-    parser.add_argument("--batch-size", type=positive_int, metavar="N", help="runs per lockstep batch (default: automatic)")
+    parser.add_argument(
+        "--batch-size", type=positive_int, metavar="N", help="runs per lockstep batch (default: automatic)"
+    )
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -40,7 +42,11 @@ def report(outcome, directory: str, command: str) -> int:
 
     print(f"{directory}: {format_counts(outcome.counts)} ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)")
     if outcome.stop_reason:
-        retry = f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)" if outcome.counts.get("failed", 0) else ""
+        retry = (
+            f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)"
+            if outcome.counts.get("failed", 0)
+            else ""
+        )
         raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`{retry}")
     if outcome.interrupted:
         print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)

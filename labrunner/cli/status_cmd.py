@@ -39,7 +39,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"campaign {st['campaign']} in {st['directory']}: {runner}")
     print(f"  {st['total']} points: {format_counts(st['outcomes'])}; quarantined files: {st['quarantined']}")
     rate = f"{st['rate_per_s']:.2f} runs/s" if st["rate_per_s"] else "no rate yet"
-    print(f"  elapsed {_clock(st['elapsed_s'])} over {st['sessions']} session(s), {rate}, estimated {_clock(st['estimate_s'])} left")
+    print(
+        f"  elapsed {_clock(st['elapsed_s'])} over {st['sessions']} session(s), {rate}, estimated {_clock(st['estimate_s'])} left"
+    )
     if "guided" in st:  # what the procedure decided so far
         from labrunner.campaign.guided_run import status_lines
 

@@ -44,7 +44,9 @@ class Controller(abc.ABC):
         self.u_min = np.array(u_min, dtype=float, ndmin=2)
         self.u_max = np.array(u_max, dtype=float, ndmin=2)
         if self.u_min.shape != self.u_max.shape:
-            raise InvalidParameter("controller.u_max", f"shape {self.u_max.shape} differs from u_min {self.u_min.shape}")
+            raise InvalidParameter(
+                "controller.u_max", f"shape {self.u_max.shape} differs from u_min {self.u_min.shape}"
+            )
         if np.any(self.u_min > self.u_max):
             raise InvalidParameter("controller.u_max", "must be >= u_min for every run")
         self.batch, self.n_inputs = self.u_min.shape

@@ -102,7 +102,9 @@ def build_valve_ffc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     ctl.choice("output", ("flow",), "flow")
     flows = [i for i, s in enumerate(rig_info.outputs) if s.unit == "l/min"]
     if not flows:
-        raise InvalidParameter("controller.kind", f"valve-ffc needs a flow output in l/min; rig {rig_info.name!r} has none")
+        raise InvalidParameter(
+            "controller.kind", f"valve-ffc needs a flow output in l/min; rig {rig_info.name!r} has none"
+        )
     u_min, u_max = input_limits(ctl, rig_info)
     kappa = ctl.number("kappa", KAPPA_PAPER1, lo=0.0, lo_open=True)
     i_0 = ctl.number("i_0", I0_PAPER1, lo=rig_info.input_lo[0], hi=rig_info.input_hi[0])

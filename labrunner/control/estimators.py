@@ -84,7 +84,9 @@ class MFCEstimator:
         self._mode = "error" if m.all() else "output" if not m.any() else "mixed"
         self._m = np.array(np.broadcast_to(m[:, None], (B, C)), dtype=float)
         self._not_m = 1.0 - self._m
-        self.gamma = np.array(np.broadcast_to(np.reshape(gamma, (B, -1)) if np.ndim(gamma) else gamma, (B, C)), dtype=float)
+        self.gamma = np.array(
+            np.broadcast_to(np.reshape(gamma, (B, -1)) if np.ndim(gamma) else gamma, (B, C)), dtype=float
+        )
         self._unit_gamma = bool(np.all(self.gamma == 1.0))
         # tap vectors per run: y (shifted by ε), e (one per filter), v
         taps = [

@@ -130,7 +130,9 @@ class Section:
             out[i] = x
         return out
 
-    def choice(self, key: str, allowed: Sequence[str], default: str | None = None, *, per_run: bool = False) -> list[str] | str:
+    def choice(
+        self, key: str, allowed: Sequence[str], default: str | None = None, *, per_run: bool = False
+    ) -> list[str] | str:
         """A string from ``allowed``: the common value, or the list of per-run values."""
         vals = self.values(key, default)
         for v in vals:
@@ -175,7 +177,14 @@ def _rekey(exc: InvalidParameter, section: str) -> InvalidParameter:
 
 @functools.lru_cache(maxsize=4096)
 def _design(
-    alpha: float, beta: float, fs: float, omega_c: float | None, window: float | None, N: int, theta: float | None, method: str
+    alpha: float,
+    beta: float,
+    fs: float,
+    omega_c: float | None,
+    window: float | None,
+    N: int,
+    theta: float | None,
+    method: str,
 ) -> _diff.Differentiator:
     return _diff.design(alpha=alpha, beta=beta, fs=fs, omega_c=omega_c, window=window, N=N, theta=theta, method=method)
 
@@ -265,7 +274,9 @@ def reference(
             continue
         for k in row:
             if k != "kind" and k not in REFERENCE_KEYS[kind]:
-                raise InvalidParameter(sec.key(k), f"unknown key for kind {kind!r} (allowed: {', '.join(REFERENCE_KEYS[kind])})")
+                raise InvalidParameter(
+                    sec.key(k), f"unknown key for kind {kind!r} (allowed: {', '.join(REFERENCE_KEYS[kind])})"
+                )
         one = Section([{"reference": row}], "reference", used=("kind",) + REFERENCE_KEYS[kind])
         if kind == "setpoints":
             levels, transition, hold = one.values("levels")[0], one.values("transition")[0], one.values("hold")[0]
@@ -294,7 +305,9 @@ def input_limits(sec: Section, rig_info: RigInfo, *, lo: np.ndarray | None = Non
     rig's input limits, which they must lie within); ``lo`` replaces ``u_min`` (e.g. the valve's i_min).
     """
     if len(rig_info.inputs) != 1:
-        raise InvalidParameter(sec.key("kind"), f"needs a single-input rig, rig {rig_info.name!r} has {len(rig_info.inputs)}")
+        raise InvalidParameter(
+            sec.key("kind"), f"needs a single-input rig, rig {rig_info.name!r} has {len(rig_info.inputs)}"
+        )
     lo_rig, hi_rig = float(rig_info.input_lo[0]), float(rig_info.input_hi[0])
     u_min = sec.number("u_min", lo_rig, lo=lo_rig, hi=hi_rig) if lo is None else np.asarray(lo, dtype=float)
     u_max = sec.number("u_max", hi_rig, lo=lo_rig, hi=hi_rig)

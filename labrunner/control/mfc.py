@@ -73,17 +73,23 @@ def resolve_output(output: str | None, rig_info: RigInfo, order: int) -> OutputM
     """Map ``controller.output`` to a rig output; without it, the rig's only output, read directly."""
     if output is None:
         if len(rig_info.outputs) != 1:
-            raise InvalidParameter("controller.output", f"is required for rig {rig_info.name!r}: one of {', '.join(OUTPUTS)}")
+            raise InvalidParameter(
+                "controller.output", f"is required for rig {rig_info.name!r}: one of {', '.join(OUTPUTS)}"
+            )
         return OutputMap(rig_info.outputs[0].name, 0, unit=rig_info.outputs[0].unit)
     unit, difference, orders, scale = OUTPUTS[output]
     if order not in orders:
-        raise InvalidParameter("controller.output", f"{output!r} needs an ultra-local model of order {orders[0]}, got order {order}")
+        raise InvalidParameter(
+            "controller.output", f"{output!r} needs an ultra-local model of order {orders[0]}, got order {order}"
+        )
     for index, sig in enumerate(rig_info.outputs):
         if sig.unit == unit:
             if difference:
                 return OutputMap("omega", index, True, scale, f"{sig.unit}/s")
             return OutputMap(sig.name, index, False, scale, sig.unit)
-    raise InvalidParameter("controller.output", f"{output!r} needs a rig output in {unit}; rig {rig_info.name!r} has none")
+    raise InvalidParameter(
+        "controller.output", f"{output!r} needs a rig output in {unit}; rig {rig_info.name!r} has none"
+    )
 
 
 class MFC(Controller):
@@ -162,7 +168,9 @@ class MFC(Controller):
         return u
 
 
-def _build(points: Sequence[Point], rig_info: RigInfo, fs: float, order: int, *, with_k_p: bool = True) -> tuple[MFC, Reference]:
+def _build(
+    points: Sequence[Point], rig_info: RigInfo, fs: float, order: int, *, with_k_p: bool = True
+) -> tuple[MFC, Reference]:
     ctl = Section(points, "controller", used=("kind",))
     output = resolve_output(ctl.choice("output", tuple(OUTPUTS)) if ctl.has("output") else None, rig_info, order)
     gamma = ctl.number("gamma", lo=0.0, lo_open=True) * output.gamma_scale

@@ -136,7 +136,9 @@ class PlateMFC(Controller):
             self._notch.reset(y0[:, :3, None])
         self.controlled[...] = y0[:, :3]
         self._measured()
-        self.estimator.reset(self.controlled, self.controlled, self._model_input(self.u_applied))  # start at rest, e ≡ 0
+        self.estimator.reset(
+            self.controlled, self.controlled, self._model_input(self.u_applied)
+        )  # start at rest, e ≡ 0
 
     def _measured(self) -> None:
         """From this tick's y_1..y_3: the gaps h = K y (eq. (4)), d(h) and γ_i(y) for the law and the next tick."""
@@ -181,7 +183,9 @@ class PlateMFC(Controller):
         if self.input == "current":
             return self._over_actuated(np.divide(w, self._gamma_y, out=x))
         self._over_actuated(np.divide(w, self._gamma3, out=x))  # (17) or (19): F̃ or u = w/γ, then (18)
-        return current_at(u, self._d_h if self.input == "force" else self._gaps, out=u)  # (12), or i = √u·h (Sec. 3.2.3)
+        return current_at(
+            u, self._d_h if self.input == "force" else self._gaps, out=u
+        )  # (12), or i = √u·h (Sec. 3.2.3)
 
     def _over_actuated(self, x3: np.ndarray) -> np.ndarray:
         """(B, 4) = (x_1, x_2, x_3, Σ a_k x_k) in the input buffer (eq. (18))."""
@@ -202,7 +206,9 @@ def plate_geometry(rig_info: RigInfo) -> tuple[PlateGeometry, float]:
 def check_plate_rig(rig_info: RigInfo, kind: str) -> None:
     """Plate controllers need four current inputs and at least the three sensors of eq. (4)."""
     if len(rig_info.inputs) != 4 or len(rig_info.outputs) < 3:
-        raise InvalidParameter("controller.kind", f"{kind!r} needs a plate rig (4 currents, >= 3 sensors), got rig {rig_info.name!r}")
+        raise InvalidParameter(
+            "controller.kind", f"{kind!r} needs a plate rig (4 currents, >= 3 sensors), got rig {rig_info.name!r}"
+        )
 
 
 def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tuple[PlateMFC, Reference]:
@@ -222,7 +228,10 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     weights = (0.0, 0.5, 0.5)
     if ctl.has("weights"):
         if kind == "v":
-            raise InvalidParameter("controller.weights", "input 'v' allocates by the pseudo-inverse (eq. (11)); weights are for force, u, current")
+            raise InvalidParameter(
+                "controller.weights",
+                "input 'v' allocates by the pseudo-inverse (eq. (11)); weights are for force, u, current",
+            )
         try:
             rows = [over_actuation_weights(row) for row in ctl.values("weights", weights)]
         except InvalidParameter as exc:

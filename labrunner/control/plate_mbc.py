@@ -26,7 +26,17 @@ import numpy as np
 from labrunner.control.base import Controller
 from labrunner.control.factory import Point, Section, no_section
 from labrunner.control.plate import check_plate_rig, plate_geometry
-from labrunner.control.plate_filters import StateSpace, StreamingSS, identity, lowpass_tf, notch_tf, parallel, series, tf_ss, tustin
+from labrunner.control.plate_filters import (
+    StateSpace,
+    StreamingSS,
+    identity,
+    lowpass_tf,
+    notch_tf,
+    parallel,
+    series,
+    tf_ss,
+    tustin,
+)
 from labrunner.control.plate_trajectories import reference_from_points
 from labrunner.control.trajectories import Reference
 from labrunner.errors import InvalidParameter, check_finite
@@ -99,7 +109,9 @@ def estimation_chain(design: MBCDesign) -> dict[str, StateSpace]:
     fs = design.fs
     notch = tustin(tf_ss(*notch_tf(design.notch_omega, design.notch_q)), fs, design.notch_omega)
     observer = tustin(observer_ss(design.observer_poles), fs, design.observer_warp)
-    lowpass = parallel([tustin(tf_ss(*lowpass_tf(q, design.lowpass_omega)), fs, design.lowpass_omega) for q in design.lowpass_orders])
+    lowpass = parallel(
+        [tustin(tf_ss(*lowpass_tf(q, design.lowpass_omega)), fs, design.lowpass_omega) for q in design.lowpass_orders]
+    )
     chain = series(series(parallel([notch, identity()]), observer), lowpass)
     return {"notch": notch, "observer": observer, "lowpass": lowpass, "chain": chain}
 
@@ -196,7 +208,9 @@ def build_plate_mbc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     designs = []
     for i in range(len(points)):
         if np.ndim(poles[i]) != 1 or len(poles[i]) != 3:  # type: ignore[arg-type]
-            raise InvalidParameter("controller.observer_poles", f"needs three eigenvalue magnitudes [1/s], got {poles[i]!r}")
+            raise InvalidParameter(
+                "controller.observer_poles", f"needs three eigenvalue magnitudes [1/s], got {poles[i]!r}"
+            )
         try:
             designs.append(
                 MBCDesign(fs=fs, c_p=c_p[i], c_d=c_d[i], observer_poles=tuple(float(p) for p in poles[i]),  # type: ignore[union-attr]

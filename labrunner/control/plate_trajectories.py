@@ -65,7 +65,10 @@ def tilt(
     plate is tilted about both axes at once before it returns.
     """
     if len(targets) != 3 or len(transitions_s) != 3:
-        raise InvalidParameter(f"{field_prefix}.targets", f"needs three targets and three transition times, got {len(targets)} and {len(transitions_s)}")
+        raise InvalidParameter(
+            f"{field_prefix}.targets",
+            f"needs three targets and three transition times, got {len(targets)} and {len(transitions_s)}",
+        )
     slowest = max(transitions_s)
     return tuple(  # type: ignore[return-value]
         Setpoints.build(

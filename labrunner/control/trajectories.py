@@ -131,8 +131,10 @@ class Setpoints(Trajectory):
         return Setpoints(self.levels, self.transition, self.hold, float(delay_s))
 
     def _params(self) -> tuple[np.ndarray, ...]:
-        starts = self.delay_s + np.cumsum(np.asarray(self.hold[:-1])) + np.concatenate(
-            [[0.0], np.cumsum(self.transition[:-1])]
+        starts = (
+            self.delay_s
+            + np.cumsum(np.asarray(self.hold[:-1]))
+            + np.concatenate([[0.0], np.cumsum(self.transition[:-1])])
         )
         steps = np.diff(self.levels)
         return np.array([self.levels[0]]), starts, np.asarray(self.transition, float), steps
@@ -163,7 +165,9 @@ class Steps(Trajectory):
     delay_s: float = 0.0
 
     @classmethod
-    def build(cls, levels: Sequence[float], durations: float | Sequence[float], *, field_prefix: str = "reference") -> Steps:
+    def build(
+        cls, levels: Sequence[float], durations: float | Sequence[float], *, field_prefix: str = "reference"
+    ) -> Steps:
         if np.ndim(levels) != 1 or len(levels) < 1:
             raise InvalidParameter(f"{field_prefix}.levels", f"must be a non-empty list of numbers, got {levels!r}")
         lv = tuple(check_finite(f"{field_prefix}.levels", v) for v in levels)
@@ -198,7 +202,13 @@ class Sine(Trajectory):
 
     @classmethod
     def build(
-        cls, amplitude: float, frequency: float, duration: float, offset: float = 0.0, *, field_prefix: str = "reference"
+        cls,
+        amplitude: float,
+        frequency: float,
+        duration: float,
+        offset: float = 0.0,
+        *,
+        field_prefix: str = "reference",
     ) -> Sine:
         f = check_finite(f"{field_prefix}.frequency", frequency)
         d = check_finite(f"{field_prefix}.duration", duration)
@@ -215,7 +225,9 @@ class Sine(Trajectory):
         return self.delay_s + self.duration_s
 
     def _params(self) -> tuple[np.ndarray, ...]:
-        return (np.array([self.amplitude, 2.0 * np.pi * self.frequency_hz, self.duration_s, self.offset, self.delay_s]),)
+        return (
+            np.array([self.amplitude, 2.0 * np.pi * self.frequency_hz, self.duration_s, self.offset, self.delay_s]),
+        )
 
     @staticmethod
     def _eval(params: tuple[np.ndarray, ...], t: np.ndarray) -> np.ndarray:

@@ -66,9 +66,7 @@ class Differentiator:
         order = int(order)
         for name, value in (("alpha", self.alpha), ("beta", self.beta)):
             if not value > order - 1:
-                raise InvalidParameter(
-                    name, f"must be > n - 1 = {order - 1} for derivative order {order}, got {value}"
-                )
+                raise InvalidParameter(name, f"must be > n - 1 = {order - 1} for derivative order {order}, got {value}")
         return order
 
     def kernel(self, order: int, tau: np.ndarray) -> np.ndarray:
@@ -177,7 +175,9 @@ def design(
         got = "both" if omega_c is not None else "neither"
         raise InvalidParameter("omega_c", f"give exactly one of omega_c [rad/s] and window [s], got {got}")
     field_name = "omega_c" if omega_c is not None else "window"
-    samples = k_c / check_positive("omega_c", omega_c) * f if omega_c is not None else check_positive("window", window) * f
+    samples = (
+        k_c / check_positive("omega_c", omega_c) * f if omega_c is not None else check_positive("window", window) * f
+    )
     n_min = max(2, math.ceil(k_c / math.pi))  # ω_c,actual = k_c·f_s/n_s ≤ π·f_s
     if samples > MAX_SAMPLES:
         limit = f">= {k_c * f / MAX_SAMPLES:.6g} rad/s" if omega_c is not None else f"<= {MAX_SAMPLES / f:.6g} s"
@@ -186,8 +186,9 @@ def design(
     if n_s < n_min:
         limit = f"<= {k_c * f / n_min:.6g} rad/s" if omega_c is not None else f">= {n_min / f:.6g} s"
         reason = (
-            f"n_s >= 2 samples at fs = {f:g} Hz" if n_min == 2 else
-            f"n_s >= {n_min} at fs = {f:g} Hz: a realised cutoff <= Nyquist pi*fs = {math.pi * f:.6g} rad/s"
+            f"n_s >= 2 samples at fs = {f:g} Hz"
+            if n_min == 2
+            else f"n_s >= {n_min} at fs = {f:g} Hz: a realised cutoff <= Nyquist pi*fs = {math.pi * f:.6g} rad/s"
         )
         raise InvalidParameter(field_name, f"must be {limit} ({reason}), got {omega_c or window!r} (n_s = {n_s})")
     T = n_s / f

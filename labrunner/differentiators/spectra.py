@@ -83,8 +83,9 @@ def cost_db(d: Differentiator, order: int, omega_max: float | None = None, point
     """
     if d.n_s * int(points) > COST_MAX_WORK:
         raise InvalidParameter(
-            "cost", f"needs n_s × points <= {COST_MAX_WORK:,}, got {d.n_s} taps × {int(points)} frequencies; "
-            "use a shorter window (or a higher omega_c) or a lower fs"
+            "cost",
+            f"needs n_s × points <= {COST_MAX_WORK:,}, got {d.n_s} taps × {int(points)} frequencies; "
+            "use a shorter window (or a higher omega_c) or a lower fs",
         )
     omega = np.linspace(0.0, math.pi * d.fs if omega_max is None else float(omega_max), int(points))
     f = continuous_response(d, order, omega)

@@ -39,7 +39,9 @@ class History:
 
     def __init__(self, length: int, width: int, signals: int = 1) -> None:
         if length < 1 or width < 1 or signals < 1:
-            raise InvalidParameter("length", f"length, width and signals must be >= 1, got {length}, {width}, {signals}")
+            raise InvalidParameter(
+                "length", f"length, width and signals must be >= 1, got {length}, {width}, {signals}"
+            )
         self.length, self.width, self.signals = length, width, signals
         self._spare = max(length, 64)  # ticks between two copies; a copy of length − 1 rows each time
         self._buf = np.zeros((signals, self._spare + length, width))

@@ -191,8 +191,12 @@ class BulkWriter:
         """What was written so far (``stream`` must be a :class:`io.BytesIO`), to :meth:`resume` from."""
         self._close_chunks()
         return Prefix(
-            self._stream.getvalue(), tuple(self._schemas), tuple(self._channels),  # type: ignore[attr-defined]
-            tuple(self._attachment_indexes), tuple(self._metadata_indexes), tuple(self._options.items()),
+            self._stream.getvalue(),
+            tuple(self._schemas),
+            tuple(self._channels),  # type: ignore[attr-defined]
+            tuple(self._attachment_indexes),
+            tuple(self._metadata_indexes),
+            tuple(self._options.items()),
             (_encoded(self._schemas), _encoded(self._channels)),
         )
 
@@ -214,14 +218,23 @@ class BulkWriter:
         return schema.id
 
     def add_channel(
-        self, topic: str, message_encoding: str, schema_id: int, metadata: Mapping[str, str] | None = None,
-        *, level: int | None = None, crc: bool = True,
+        self,
+        topic: str,
+        message_encoding: str,
+        schema_id: int,
+        metadata: Mapping[str, str] | None = None,
+        *,
+        level: int | None = None,
+        crc: bool = True,
     ) -> int:
         """Register a channel (ids from 1); return its id. ``level`` (zstd) and ``crc`` (whether its
         chunks carry the CRC of their records; 0 means "not checked" in MCAP) apply to its chunks."""
         channel = Channel(
-            id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
-            schema_id=schema_id, metadata=dict(metadata or {}),
+            id=len(self._channels) + 1,
+            topic=topic,
+            message_encoding=message_encoding,
+            schema_id=schema_id,
+            metadata=dict(metadata or {}),
         )
         self._channels.append(channel)
         self._summary_records = None
@@ -237,7 +250,9 @@ class BulkWriter:
         length = self._write_record(Metadata(name=name, metadata=dict(data)))
         self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
 
-    def add_attachment(self, name: str, media_type: str, data: bytes, *, log_time: int = 0, create_time: int = 0) -> None:
+    def add_attachment(
+        self, name: str, media_type: str, data: bytes, *, log_time: int = 0, create_time: int = 0
+    ) -> None:
         """An attachment record (times in ns), after everything added so far."""
         self._close_chunks()
         offset = self._offset
@@ -245,8 +260,13 @@ class BulkWriter:
         length = self._write_record(record)
         self._attachment_indexes.append(
             AttachmentIndex(
-                offset=offset, length=length, create_time=create_time, log_time=log_time,
-                data_size=len(data), name=name, media_type=media_type,
+                offset=offset,
+                length=length,
+                create_time=create_time,
+                log_time=log_time,
+                data_size=len(data),
+                name=name,
+                media_type=media_type,
             )
         )
 
@@ -256,7 +276,13 @@ class BulkWriter:
         length = _MESSAGE_HEADER.size - 9 + sum(memoryview(p).nbytes for p in parts)
         header = _MESSAGE_HEADER.pack(Opcode.MESSAGE, length, channel_id, sequence, log_time, log_time)
         chunk = self._chunk(channel_id)
-        self._append(chunk, channel_id, np.array([log_time], dtype=np.uint64), np.array([chunk.size], dtype=np.uint64), [header, *parts])
+        self._append(
+            chunk,
+            channel_id,
+            np.array([log_time], dtype=np.uint64),
+            np.array([chunk.size], dtype=np.uint64),
+            [header, *parts],
+        )
 
     def add_messages(self, channel_id: int, log_times: np.ndarray, sequences: np.ndarray, payloads: np.ndarray) -> None:
         """Append messages of one channel with equal-sized payloads, a (n, size) uint8 array
@@ -273,7 +299,9 @@ class BulkWriter:
             chunk = self._chunk(channel_id)
             stop = min(len(records), start + max(1, -(-(self._chunk_size - chunk.size) // size)))
             offsets = chunk.size + size * np.arange(stop - start, dtype=np.uint64)
-            self._append(chunk, channel_id, records["log_time"][start:stop], offsets, [records[start:stop].view(np.uint8)])
+            self._append(
+                chunk, channel_id, records["log_time"][start:stop], offsets, [records[start:stop].view(np.uint8)]
+            )
             start = stop
 
     def _chunk(self, channel_id: int) -> _Chunk:
@@ -320,8 +348,11 @@ class BulkWriter:
         start_time, end_time = chunk.times
         length = _CHUNK_HEADER.size - 9 + len(_CHUNK_TAIL) + 8 + compressed_size
         chunk_start = self._offset
-        self._write(_CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, chunk.size, crc)
-                    + _CHUNK_TAIL + struct.pack("<Q", compressed_size))
+        self._write(
+            _CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, chunk.size, crc)
+            + _CHUNK_TAIL
+            + struct.pack("<Q", compressed_size)
+        )
         for piece in compressed:
             self._write(piece)
         chunk_length = self._offset - chunk_start
@@ -329,14 +360,21 @@ class BulkWriter:
         for channel_id, parts in chunk.index.items():
             entries = np.concatenate(parts) if len(parts) > 1 else parts[0]
             offsets[channel_id] = self._offset
-            self._write(_MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes, channel_id, entries.nbytes))
+            self._write(
+                _MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes, channel_id, entries.nbytes)
+            )
             self._write(memoryview(entries).cast("B"))
         self._chunk_indexes.append(
             ChunkIndex(
-                message_start_time=start_time, message_end_time=end_time, chunk_start_offset=chunk_start,
-                chunk_length=chunk_length, message_index_offsets=offsets,
-                message_index_length=self._offset - chunk_start - chunk_length, compression="zstd",
-                compressed_size=compressed_size, uncompressed_size=chunk.size,
+                message_start_time=start_time,
+                message_end_time=end_time,
+                chunk_start_offset=chunk_start,
+                chunk_length=chunk_length,
+                message_index_offsets=offsets,
+                message_index_length=self._offset - chunk_start - chunk_length,
+                compression="zstd",
+                compressed_size=compressed_size,
+                uncompressed_size=chunk.size,
             )
         )
         self._first_time = start_time if self._first_time is None else min(self._first_time, start_time)
@@ -355,15 +393,22 @@ class BulkWriter:
         builder = RecordBuilder()
         offsets = []
         statistics = Statistics(
-            message_count=sum(self._counts.values()), schema_count=len(self._schemas),
-            channel_count=len(self._channels), attachment_count=len(self._attachment_indexes),
-            metadata_count=len(self._metadata_indexes), chunk_count=len(self._chunk_indexes),
-            message_start_time=self._first_time or 0, message_end_time=self._last_time,
+            message_count=sum(self._counts.values()),
+            schema_count=len(self._schemas),
+            channel_count=len(self._channels),
+            attachment_count=len(self._attachment_indexes),
+            metadata_count=len(self._metadata_indexes),
+            chunk_count=len(self._chunk_indexes),
+            message_start_time=self._first_time or 0,
+            message_end_time=self._last_time,
             channel_message_counts=dict(self._counts),
         )
         groups = [
-            (Opcode.SCHEMA, self._schemas), (Opcode.CHANNEL, self._channels), (Opcode.STATISTICS, [statistics]),
-            (Opcode.CHUNK_INDEX, self._chunk_indexes), (Opcode.ATTACHMENT_INDEX, self._attachment_indexes),
+            (Opcode.SCHEMA, self._schemas),
+            (Opcode.CHANNEL, self._channels),
+            (Opcode.STATISTICS, [statistics]),
+            (Opcode.CHUNK_INDEX, self._chunk_indexes),
+            (Opcode.ATTACHMENT_INDEX, self._attachment_indexes),
             (Opcode.METADATA_INDEX, self._metadata_indexes),
         ]
         for opcode, records in groups:
@@ -374,14 +419,23 @@ class BulkWriter:
                 else:
                     for record in records:
                         record.write(builder)
-                offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + group_start,
-                                             group_length=builder.count - group_start))
+                offsets.append(
+                    SummaryOffset(
+                        group_opcode=opcode,
+                        group_start=summary_start + group_start,
+                        group_length=builder.count - group_start,
+                    )
+                )
         summary_offset_start = summary_start + builder.count
         for offset in offsets:
             offset.write(builder)
         summary = builder.end()
-        crc = zlib.crc32(_FOOTER_PREFIX.pack(Opcode.FOOTER, 20, summary_start, summary_offset_start), zlib.crc32(summary))
+        crc = zlib.crc32(
+            _FOOTER_PREFIX.pack(Opcode.FOOTER, 20, summary_start, summary_offset_start), zlib.crc32(summary)
+        )
         self._write(summary)
-        self._write_record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
+        self._write_record(
+            Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc)
+        )
         self._write(MCAP0_MAGIC)
         self._stream.flush()

@@ -304,6 +304,7 @@ def read_run(path: str | os.PathLike[str]) -> RunLog:
 
 def _check_records(records: dict[str, dict[str, Any]], path: str | os.PathLike[str]) -> None:
     """Refuse a file whose records are not what labrunner writes (another tool's MCAP)."""
+
     def foreign(why: str) -> InvalidParameter:
         return InvalidParameter("path", f"not a labrunner run log ({why}): {str(path)!r}")
 
@@ -337,4 +338,3 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
 def read_outcome(path: str | os.PathLike[str]) -> dict[str, Any] | None:
     """The run's outcome record (with ``n_samples``), or None when the run never finished."""
     return read_metadata(path).get("outcome")
-

@@ -51,8 +51,22 @@ BLOCK_SCHEMA_NAME = "labrunner.logs.SignalBlock"
 SAMPLES_SCHEMA_NAME = "labrunner.logs.Sample"
 BLOCK_SAMPLES = 1000  # samples per block message
 TIME_FIELD = "t__s"  # the per-sample message's time since the run's first sample [s]
-_UNIT_SPELLING = (("/", "_per_"), ("²", "2"), ("³", "3"), ("·", "_"), ("*", "_"), (" ", "_"), ("°", "deg"),
-                  ("µ", "u"), ("Ω", "Ohm"), ("%", "percent"), ("^", ""), ("(", ""), (")", ""), ("-", "_"))
+_UNIT_SPELLING = (
+    ("/", "_per_"),
+    ("²", "2"),
+    ("³", "3"),
+    ("·", "_"),
+    ("*", "_"),
+    (" ", "_"),
+    ("°", "deg"),
+    ("µ", "u"),
+    ("Ω", "Ohm"),
+    ("%", "percent"),
+    ("^", ""),
+    ("(", ""),
+    (")", ""),
+    ("-", "_"),
+)
 
 _F = descriptor_pb2.FieldDescriptorProto
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
@@ -72,7 +86,10 @@ def _block_file() -> descriptor_pb2.FileDescriptorProto:
     block.field.add(name="t0", number=2, type=_F.TYPE_DOUBLE, label=_F.LABEL_OPTIONAL)
     block.field.add(name="fs", number=3, type=_F.TYPE_DOUBLE, label=_F.LABEL_OPTIONAL)
     block.field.add(
-        name="signals", number=4, type=_F.TYPE_MESSAGE, label=_F.LABEL_REPEATED,
+        name="signals",
+        number=4,
+        type=_F.TYPE_MESSAGE,
+        label=_F.LABEL_REPEATED,
         type_name=".labrunner.logs.Signal",
     )
     return fdp
@@ -188,7 +205,9 @@ def signal_prefixes(names: Sequence[str]) -> list[bytes]:
     return [b"\x0a" + varint(len(b)) + b for b in (n.encode() for n in names)]
 
 
-def block_parts(first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]) -> list[bytes | np.ndarray]:
+def block_parts(
+    first_index: int, fs: float, prefixes: Sequence[bytes], columns: Sequence[np.ndarray]
+) -> list[bytes | np.ndarray]:
     """Wire bytes of a ``SignalBlock`` as pieces to concatenate; ``columns`` are float64 arrays
     of equal length (``prefixes`` from :func:`signal_prefixes`).
 

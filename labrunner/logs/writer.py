@@ -88,8 +88,10 @@ def normalise_channels(
     given: dict[str, dict[str, Any]] = {}
     if channels is None:
         channels = {}
-    if isinstance(channels, Mapping) and channels and all(
-        not isinstance(v, Mapping) for k, v in channels.items() if k != "units"
+    if (
+        isinstance(channels, Mapping)
+        and channels
+        and all(not isinstance(v, Mapping) for k, v in channels.items() if k != "units")
     ):
         units = channels.get("units", {})
         for group, members in channels.items():
@@ -240,7 +242,9 @@ class LogPrefix:
             mcap.add_attachment(str(name), media, bytes(data), log_time=created_ns, create_time=created_ns)
         block_schema = mcap.add_schema(schema.BLOCK_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.BLOCK_SCHEMA)
         self.block_channel = mcap.add_channel(schema.BLOCK_TOPIC, MessageEncoding.Protobuf, block_schema)
-        sample_schema = mcap.add_schema(schema.SAMPLES_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.samples_schema(self.fields))
+        sample_schema = mcap.add_schema(
+            schema.SAMPLES_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.samples_schema(self.fields)
+        )
         channel_meta = {
             "rate_hz": repr(self.samples_hz),
             "decimation": str(self.decimation),
@@ -250,7 +254,12 @@ class LogPrefix:
         # the samples repeat the blocks for viewers: compressed fast and without a chunk CRC (≈ 15 ms
         # of a 3 s, 32 kHz plate run's ≈ 70 ms), as the blocks, the record the reader uses, keep theirs
         self.samples_channel = mcap.add_channel(
-            schema.SAMPLES_TOPIC, MessageEncoding.Protobuf, sample_schema, channel_meta, level=SAMPLES_ZSTD_LEVEL, crc=False
+            schema.SAMPLES_TOPIC,
+            MessageEncoding.Protobuf,
+            sample_schema,
+            channel_meta,
+            level=SAMPLES_ZSTD_LEVEL,
+            crc=False,
         )
         self.encoded: Prefix = mcap.prefix()
 
@@ -262,8 +271,10 @@ class LogPrefix:
         """What ``/run/samples`` holds, for the ``run`` record."""
         if self.decimation == 1:
             return f"every sample ({self.fs:g} Hz)"
-        return (f"every {self.decimation}th sample ({self.samples_hz:g} Hz of {self.fs:g} Hz, thinned by "
-                "[logging] samples_hz); /run/blocks keeps every sample")
+        return (
+            f"every {self.decimation}th sample ({self.samples_hz:g} Hz of {self.fs:g} Hz, thinned by "
+            "[logging] samples_hz); /run/blocks keeps every sample"
+        )
 
 
 class RunLogWriter:
@@ -320,7 +331,9 @@ class RunLogWriter:
             raise InvalidParameter("metadata", f"must map record names to mappings, got {type(metadata).__name__}")
         reserved = sorted(set(metadata) & {*RESERVED_RECORDS, *self.prefix.shared_names})
         if reserved:
-            raise InvalidParameter("metadata", f"record names {reserved} are written by the logger or shared by the batch")
+            raise InvalidParameter(
+                "metadata", f"record names {reserved} are written by the logger or shared by the batch"
+            )
         run = metadata.get("run", {})
         if not isinstance(run, Mapping):
             raise InvalidParameter("metadata.run", f"must be a mapping, got {type(run).__name__}")
@@ -344,11 +357,15 @@ class RunLogWriter:
             raise InvalidParameter("block", f"signals must be 1-D arrays of one length, got {shapes}")
         first_index = int(first_index)
         if first_index < self.n_samples:
-            raise InvalidParameter("first_index", f"must be >= {self.n_samples} (samples already written), got {first_index}")
+            raise InvalidParameter(
+                "first_index", f"must be >= {self.n_samples} (samples already written), got {first_index}"
+            )
         channel = self.prefix.block_channel
         for start in range(0, n, schema.BLOCK_SAMPLES):
             k = first_index + start
-            parts = schema.block_parts(k, self.fs, self.prefix.prefixes, [c[start : start + schema.BLOCK_SAMPLES] for c in columns])
+            parts = schema.block_parts(
+                k, self.fs, self.prefix.prefixes, [c[start : start + schema.BLOCK_SAMPLES] for c in columns]
+            )
             self._mcap.add_message(channel, self.start_ns + round(k * 1e9 / self.fs), self._sequence, parts)
             self._sequence += 1
         self._write_samples(first_index, n, columns)
@@ -392,7 +409,9 @@ class RunLogWriter:
     def __enter__(self) -> RunLogWriter:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         if self._finished:
             return
         if exc_type is None:
@@ -447,6 +466,11 @@ class BatchPrefixes:
         described = normalise_channels(channels, list(signals))
         key = json.dumps(described, sort_keys=False)
         if key not in self._made:
-            self._made[key] = LogPrefix(fs=self.fs, channels=described, shared=self.shared,
-                                        attachments=self.attachments, samples_hz=self.samples_hz)
+            self._made[key] = LogPrefix(
+                fs=self.fs,
+                channels=described,
+                shared=self.shared,
+                attachments=self.attachments,
+                samples_hz=self.samples_hz,
+            )
         return self._made[key]

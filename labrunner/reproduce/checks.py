@@ -54,12 +54,21 @@ def identification(results: Results) -> Verdict:
     phys = physical_parameters(logs[0])
     da, db = res["a"] / 39.44 - 1, res["b"] / 108.55 - 1
     fric = res["friction"]
-    table = pd.DataFrame({"thesis": [39.44, 108.55, math.nan], "twin (thesis procedure)": [res["a"], res["b"], math.nan],
-                          "twin, with Coulomb term": [fric["a"], fric["b"], fric["coulomb"]],
-                          "twin's physical values": [phys["a"], phys["b"], phys["coulomb"]] if phys else [math.nan] * 3},
-                         index=["a [1/s]", "b [rad/(V s²)]", "u_c [V]"])
-    return Verdict(f"a = {res['a']:.2f} ({da:+.1%}), b = {res['b']:.2f} ({db:+.1%}); the friction fit gives "
-                   f"u_c = {fric['coulomb']:.3f} V", abs(da) <= 0.03 and abs(db) <= 0.03, table)
+    table = pd.DataFrame(
+        {
+            "thesis": [39.44, 108.55, math.nan],
+            "twin (thesis procedure)": [res["a"], res["b"], math.nan],
+            "twin, with Coulomb term": [fric["a"], fric["b"], fric["coulomb"]],
+            "twin's physical values": [phys["a"], phys["b"], phys["coulomb"]] if phys else [math.nan] * 3,
+        },
+        index=["a [1/s]", "b [rad/(V s²)]", "u_c [V]"],
+    )
+    return Verdict(
+        f"a = {res['a']:.2f} ({da:+.1%}), b = {res['b']:.2f} ({db:+.1%}); the friction fit gives "
+        f"u_c = {fric['coulomb']:.3f} V",
+        abs(da) <= 0.03 and abs(db) <= 0.03,
+        table,
+    )
 
 
 #: Table 3.2 of the thesis: unstable (α = β) at f_s = 200 Hz (a) and 1 kHz (b); none at 20 Hz (Fig. 3.7).
@@ -74,8 +83,9 @@ def unstable_differentiators(results: Results) -> Verdict:
     pairs = sorted(zip(bad["differentiator.alpha"].astype(int), bad["differentiator.omega_c"]))
     expected = THESIS_UNSTABLE.get(fs, [])
     table = pd.DataFrame({"α = β": [p[0] for p in pairs], "ω_c [rad/s]": [p[1] for p in pairs]})
-    measured = (f"{len(pairs)} of {len(frame)} unstable"
-                + (": " + ", ".join(f"α = {a} at {w:g} rad/s" for a, w in pairs) if pairs else ""))
+    measured = f"{len(pairs)} of {len(frame)} unstable" + (
+        ": " + ", ".join(f"α = {a} at {w:g} rad/s" for a, w in pairs) if pairs else ""
+    )
     return Verdict(measured, sorted(p[0] for p in pairs) == expected, table)
 
 
@@ -94,16 +104,29 @@ def gamma_kp_map(results: Results) -> Verdict:
     run = _one(results)
     done = _done(run.frame).copy()
     done["line"] = np.round(np.log10(done["controller.gamma"] / done["controller.k_p"]), 6)
-    rows = [{"log10 γ/k_p": line, "runs": len(g), "best RMS": g["rms_error"].min(),
-             "spread": _spread(g["rms_error"].to_numpy())} for line, g in done.groupby("line") if len(g) >= 3]
+    rows = [
+        {
+            "log10 γ/k_p": line,
+            "runs": len(g),
+            "best RMS": g["rms_error"].min(),
+            "spread": _spread(g["rms_error"].to_numpy()),
+        }
+        for line, g in done.groupby("line")
+        if len(g) >= 3
+    ]
     lines = pd.DataFrame(rows).sort_values("best RMS") if rows else pd.DataFrame()
     agree = run.summary["agreement"]
     edge = lines.iloc[0] if len(lines) else None
-    text = f"bound (2.46) agrees on {agree['share']:.1%} of {agree['n_compared']} points" if agree["share"] is not None \
+    text = (
+        f"bound (2.46) agrees on {agree['share']:.1%} of {agree['n_compared']} points"
+        if agree["share"] is not None
         else "no bound comparison"
+    )
     if edge is not None:
-        text += (f"; the best constant-ratio line (log10 γ/k_p = {edge['log10 γ/k_p']:g}, {int(edge['runs'])} runs) "
-                 f"spreads {edge['spread']:.1%} in RMS(e), the median line {lines['spread'].median():.1%}")
+        text += (
+            f"; the best constant-ratio line (log10 γ/k_p = {edge['log10 γ/k_p']:g}, {int(edge['runs'])} runs) "
+            f"spreads {edge['spread']:.1%} in RMS(e), the median line {lines['spread'].median():.1%}"
+        )
     ok = agree["share"] is not None and agree["share"] >= 0.85 and edge is not None and edge["spread"] <= 0.05
     return Verdict(text, ok, lines)
 
@@ -113,15 +136,24 @@ def constant_ratio_lines(results: Results) -> Verdict:
     frame = run.frame.copy()
     frame["γ/k_p"] = frame["controller.gamma"] / frame["controller.k_p"]
     frame["status"] = observed_outcome(frame)
-    lines = (frame.groupby(np.round(np.log10(frame["γ/k_p"]), 3))
-             .agg(runs=("rms_error", "size"), stable=("status", lambda s: int((s == "completed").sum())),
-                  mean_rms=("rms_error", "mean"), spread=("rms_error", lambda v: _spread(v.to_numpy())))
-             .reset_index().rename(columns={"γ/k_p": "log10 γ/k_p"}))
+    lines = (
+        frame.groupby(np.round(np.log10(frame["γ/k_p"]), 3))
+        .agg(
+            runs=("rms_error", "size"),
+            stable=("status", lambda s: int((s == "completed").sum())),
+            mean_rms=("rms_error", "mean"),
+            spread=("rms_error", lambda v: _spread(v.to_numpy())),
+        )
+        .reset_index()
+        .rename(columns={"γ/k_p": "log10 γ/k_p"})
+    )
     stable = lines[lines["stable"] == lines["runs"]]
     ordered = bool(stable["mean_rms"].is_monotonic_increasing) if len(stable) > 1 else False
     worst = float(stable["spread"].max()) if len(stable) else math.nan
-    text = (f"{len(stable)} of {len(lines)} lines stable throughout; RMS spread per line at most {worst:.1%}; "
-            f"RMS {'rises' if ordered else 'does not rise'} with the ratio")
+    text = (
+        f"{len(stable)} of {len(lines)} lines stable throughout; RMS spread per line at most {worst:.1%}; "
+        f"RMS {'rises' if ordered else 'does not rise'} with the ratio"
+    )
     return Verdict(text, len(stable) == len(lines) and worst <= 0.10 and ordered, lines)
 
 
@@ -129,11 +161,29 @@ def bound_agreement(results: Results) -> Verdict:
     agree = _one(results).summary["agreement"]
     if agree["share"] is None:
         return Verdict("no bound applies", None)
-    table = pd.DataFrame([{k: agree[k] for k in ("case", "n_compared", "n_match", "false_stable", "false_unstable",
-                                                  "n_excluded", "oscillating")}])
-    return Verdict(f"{agree['case']} agrees on {agree['share']:.1%} of {agree['n_compared']} points "
-                   f"({agree['false_stable']} unstable where predicted stable, {agree['false_unstable']} stable "
-                   "where predicted unstable)", agree["share"] >= 0.85, table)
+    table = pd.DataFrame(
+        [
+            {
+                k: agree[k]
+                for k in (
+                    "case",
+                    "n_compared",
+                    "n_match",
+                    "false_stable",
+                    "false_unstable",
+                    "n_excluded",
+                    "oscillating",
+                )
+            }
+        ]
+    )
+    return Verdict(
+        f"{agree['case']} agrees on {agree['share']:.1%} of {agree['n_compared']} points "
+        f"({agree['false_stable']} unstable where predicted stable, {agree['false_unstable']} stable "
+        "where predicted unstable)",
+        agree["share"] >= 0.85,
+        table,
+    )
 
 
 def bound_conservative(results: Results) -> Verdict:
@@ -144,8 +194,9 @@ def bound_conservative(results: Results) -> Verdict:
         return verdict
     n = agree["n_compared"]
     ok = agree["false_unstable"] > 0 and agree["false_stable"] <= 0.1 * n
-    return Verdict(f"{verdict.measured}: the bound is {'conservative' if ok else 'not conservative'} here",
-                   ok, verdict.table)
+    return Verdict(
+        f"{verdict.measured}: the bound is {'conservative' if ok else 'not conservative'} here", ok, verdict.table
+    )
 
 
 def fine_kp_kd(results: Results) -> Verdict:
@@ -156,5 +207,9 @@ def fine_kp_kd(results: Results) -> Verdict:
     best = done.loc[done["rms_error"].idxmin()]
     lk, ld = math.log10(best["controller.k_p"]), math.log10(best["controller.k_d"])
     near = abs(lk - 3.1875) <= 0.25 and abs(ld - 1.9375) <= 0.25
-    return Verdict(f"{verdict.measured}; best RMS(e_θ) = {best['rms_error']:.3g} rad at log10 k_p = {lk:.4g}, "
-                   f"log10 k_d = {ld:.4g}", bool(verdict.agrees and near), verdict.table)
+    return Verdict(
+        f"{verdict.measured}; best RMS(e_θ) = {best['rms_error']:.3g} rad at log10 k_p = {lk:.4g}, "
+        f"log10 k_d = {ld:.4g}",
+        bool(verdict.agrees and near),
+        verdict.table,
+    )

@@ -126,12 +126,16 @@ class RigConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form (for run metadata)."""
         f = self.faults
-        faults = {} if not f.any else {
-            "t_start": f.t_start,
-            "actuator_offset": list(f.actuator_offset),
-            "actuator_gain": list(f.actuator_gain),
-            "sensor_step": list(f.sensor_step),
-        }
+        faults = (
+            {}
+            if not f.any
+            else {
+                "t_start": f.t_start,
+                "actuator_offset": list(f.actuator_offset),
+                "actuator_gain": list(f.actuator_gain),
+                "sensor_step": list(f.sensor_step),
+            }
+        )
         return {
             "rig": {"kind": self.kind, "name": self.name, "description": self.description, "source": self.source},
             "parameters": _jsonable(self.parameters),

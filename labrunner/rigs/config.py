@@ -32,8 +32,17 @@ from labrunner.rigs.schema import Param, as_table, validate_section
 from labrunner.safety_config import SafetyConfig
 
 __all__ = [
-    "Param", "RigConfig", "apply_limits", "config_from_dict", "default_search", "load_rig_config",
-    "parse_faults", "resolve_rig_file", "rig_info", "search_path", "validate_section",
+    "Param",
+    "RigConfig",
+    "apply_limits",
+    "config_from_dict",
+    "default_search",
+    "load_rig_config",
+    "parse_faults",
+    "resolve_rig_file",
+    "rig_info",
+    "search_path",
+    "validate_section",
 ]
 
 SECTIONS = ("rig", "parameters", "limits", "noise", "faults", "safety")
@@ -72,11 +81,16 @@ def apply_limits(info: RigInfo, raw: Mapping[str, Any], path: str = "limits") ->
             allowed = ", ".join([*signals, "fs", "fs_default"])
             raise InvalidParameter(kpath, f"unknown key; allowed: {allowed}")
     fs_range = out.get("fs", info.fs_range)
-    fs_default = out.get("fs_default", info.fs_default if fs_range[0] <= info.fs_default <= fs_range[1] else fs_range[0])
+    fs_default = out.get(
+        "fs_default", info.fs_default if fs_range[0] <= info.fs_default <= fs_range[1] else fs_range[0]
+    )
     if not fs_range[0] <= fs_default <= fs_range[1]:
-        raise InvalidParameter(f"{path}.fs_default", f"must lie in [{fs_range[0]:g}, {fs_range[1]:g}] Hz, got {fs_default:g}")
+        raise InvalidParameter(
+            f"{path}.fs_default", f"must lie in [{fs_range[0]:g}, {fs_range[1]:g}] Hz, got {fs_default:g}"
+        )
     safe = tuple(
-        float(np.clip(v, narrowed.get(s.name, s).lo, narrowed.get(s.name, s).hi)) for v, s in zip(info.safe_input, info.inputs)
+        float(np.clip(v, narrowed.get(s.name, s).lo, narrowed.get(s.name, s).hi))
+        for v, s in zip(info.safe_input, info.inputs)
     )
     info = replace(
         info,

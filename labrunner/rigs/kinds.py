@@ -79,7 +79,14 @@ def check_contract(kind: str, cls: object, target: str) -> None:
     if inspect.isabstract(cls):
         missing = ", ".join(sorted(cls.__abstractmethods__))
         raise InvalidParameter("kind", f"{where} does not implement {missing} (see docs/writing-a-rig.md)")
-    for hook in ("validate_parameters", "validate_noise", "nominal_info", "overridable", "check_overrides", "from_config"):
+    for hook in (
+        "validate_parameters",
+        "validate_noise",
+        "nominal_info",
+        "overridable",
+        "check_overrides",
+        "from_config",
+    ):
         if not inspect.ismethod(getattr(cls, hook)):  # a class method is bound to the class
             raise InvalidParameter("kind", f"{where}: {hook} must be a classmethod")
     for schema in ("PARAMETERS", "NOISE"):

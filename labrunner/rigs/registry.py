@@ -17,7 +17,13 @@ from labrunner.rigs.config import config_from_dict, load_rig_config
 from labrunner.rigs.kinds import BUILTIN, ENTRY_POINT_GROUP, register_rig, rig_class, rig_kinds
 
 __all__ = [
-    "BUILTIN", "ENTRY_POINT_GROUP", "load_rig", "load_rig_config", "register_rig", "rig_class", "rig_kinds",
+    "BUILTIN",
+    "ENTRY_POINT_GROUP",
+    "load_rig",
+    "load_rig_config",
+    "register_rig",
+    "rig_class",
+    "rig_kinds",
 ]
 
 

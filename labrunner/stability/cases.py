@@ -49,8 +49,10 @@ class Loop:
         """Characteristic function Δ*(s) of the error equation (thesis appendix A)."""
         r, d = self.ratio, self.delay
         if self.order == 1:
-            if neutral:   # (A.11): B = (γ − b)/γ = 1 − r multiplies ė(t−δ) and −a e(t−δ)
-                return QuasiPolynomial.from_terms({0.0: [1.0, self.a1], d: [r - 1.0, r * (k_p - self.a1) + (r - 1.0) * self.a1]})
+            if neutral:  # (A.11): B = (γ − b)/γ = 1 − r multiplies ė(t−δ) and −a e(t−δ)
+                return QuasiPolynomial.from_terms(
+                    {0.0: [1.0, self.a1], d: [r - 1.0, r * (k_p - self.a1) + (r - 1.0) * self.a1]}
+                )
             return QuasiPolynomial.from_terms({0.0: [1.0, self.a1], d: [r * (k_p - self.a1)]})
         return QuasiPolynomial.from_terms({0.0: [1.0, self.a1, self.a0], d: [r * (k_d - self.a1), r * (k_p - self.a0)]})
 
@@ -66,8 +68,17 @@ class Loop:
         return self.ratio * (k_d - self.a1) * self.delay
 
 
-def resolve(case: str, *, gamma: float, delay: float, rho: float | None = None, a: float | None = None,
-            b: float | None = None, a0: float | None = None, a1: float | None = None) -> Loop:
+def resolve(
+    case: str,
+    *,
+    gamma: float,
+    delay: float,
+    rho: float | None = None,
+    a: float | None = None,
+    b: float | None = None,
+    a0: float | None = None,
+    a1: float | None = None,
+) -> Loop:
     """Validate the parameters of ``case`` and resolve them to a :class:`Loop`."""
     if case not in CASES:
         raise InvalidParameter("case", f"must be one of {', '.join(CASES)}, got {case!r}")
@@ -102,7 +113,9 @@ def check_scales(loop: Loop, k_d: float | None) -> None:
         checks.append(("k_d", "gain/gamma·(k_d − a1)·delay", abs(loop.d_of(k_d)), 0.0, 1e6))
     for field, what, value, lo, hi in checks:
         if not (lo <= value <= hi) or not np.isfinite(value):
-            raise InvalidParameter(field, f"gives {what} = {value:.3g}, outside [{lo:g}, {hi:g}] (the range these bounds are computed in)")
+            raise InvalidParameter(
+                field, f"gives {what} = {value:.3g}, outside [{lo:g}, {hi:g}] (the range these bounds are computed in)"
+            )
 
 
 def _required(field: str, value: float | None, case: str) -> float:
@@ -171,14 +184,25 @@ def numeric_bounds(loop: Loop, k_d: float | None) -> dict:
         edge = loop.k_p_of(_EDGE)
         found_d = stable_intervals(lambda k: loop.quasi_polynomial(edge, k), d_lo, d_hi, n_scan=_SCAN_POINTS)
     else:
-        found_d = projected_intervals(lambda kd, kp: loop.quasi_polynomial(kp, kd), d_lo, d_hi, p_lo, p_hi,
-                                      n_x=21, n_y=31)
+        found_d = projected_intervals(
+            lambda kd, kp: loop.quasi_polynomial(kp, kd), d_lo, d_hi, p_lo, p_hi, n_x=21, n_y=31
+        )
     return {"k_p": _intervals(found_p, float), "k_d": _intervals(found_d, float)}
 
 
-def bounds(case: str, *, gamma: float, delay: float, rho: float | None = None, a: float | None = None,
-           b: float | None = None, k_d: float | None = None, a0: float | None = None, a1: float | None = None,
-           numeric: bool = False) -> dict:
+def bounds(
+    case: str,
+    *,
+    gamma: float,
+    delay: float,
+    rho: float | None = None,
+    a: float | None = None,
+    b: float | None = None,
+    k_d: float | None = None,
+    a0: float | None = None,
+    a1: float | None = None,
+    numeric: bool = False,
+) -> dict:
     """Stability intervals of ``case`` (open intervals), exactly the object ``labrunner bounds --json``
     prints: ``{"k_p": [lo, hi] | None}``, plus ``"k_d": [lo, hi] | None`` for second-order cases
     (k_p at the given ``k_d``; None when no k_p is stable there), plus ``"numeric"`` (the same keys
@@ -195,9 +219,20 @@ def bounds(case: str, *, gamma: float, delay: float, rho: float | None = None, a
     return out
 
 
-def case_quasipolynomial(case: str, *, gamma: float, delay: float, k_p: float, k_d: float | None = None,
-                         rho: float | None = None, a: float | None = None, b: float | None = None,
-                         a0: float | None = None, a1: float | None = None, neutral: bool = False) -> QuasiPolynomial:
+def case_quasipolynomial(
+    case: str,
+    *,
+    gamma: float,
+    delay: float,
+    k_p: float,
+    k_d: float | None = None,
+    rho: float | None = None,
+    a: float | None = None,
+    b: float | None = None,
+    a0: float | None = None,
+    a1: float | None = None,
+    neutral: bool = False,
+) -> QuasiPolynomial:
     """Characteristic quasi-polynomial of ``case`` at one parameter point, e.g. for
     ``abscissa_map(lambda g, kp: case_quasipolynomial("mfc1-motor", gamma=g, k_p=kp, ...), g, kp)``.
     ``neutral=True`` (case mfc1-motor only) gives the neutral equation (A.11)."""
@@ -207,8 +242,19 @@ def case_quasipolynomial(case: str, *, gamma: float, delay: float, k_p: float, k
     return loop.quasi_polynomial(check_finite("k_p", k_p), _check_k_d(loop, k_d), neutral=neutral)
 
 
-def predict_stable(case: str, *, gamma, k_p, delay, k_d=None, rho: float | None = None, a: float | None = None,
-                   b: float | None = None, a0: float | None = None, a1: float | None = None):
+def predict_stable(
+    case: str,
+    *,
+    gamma,
+    k_p,
+    delay,
+    k_d=None,
+    rho: float | None = None,
+    a: float | None = None,
+    b: float | None = None,
+    a0: float | None = None,
+    a1: float | None = None,
+):
     """Whether the closed forms predict an exponentially stable error equation at each point.
 
     ``gamma``, ``k_p``, ``delay`` and ``k_d`` broadcast like numpy arrays; returns a bool array of

@@ -99,8 +99,8 @@ def _p_window(a0: float, a1: float, d: float) -> tuple[float, float] | None:
     near = ends[: int(np.searchsorted(ends, _binding_span(a0, a1, d))) + 1]
     z = roots_between(lambda x: crossing_d(x, a0, a1) - d, near)
     p = crossing_p(z, a0, a1)
-    lo = max(-a0, float(np.max(p[1::2], initial=-np.inf)))   # z_2, z_4, ...: Δ_Re > 0
-    hi = float(np.min(p[0::2], initial=np.inf))              # z_1, z_3, ...: Δ_Re < 0
+    lo = max(-a0, float(np.max(p[1::2], initial=-np.inf)))  # z_2, z_4, ...: Δ_Re > 0
+    hi = float(np.min(p[0::2], initial=np.inf))  # z_1, z_3, ...: Δ_Re < 0
     return lo + 0.0, hi
 
 
@@ -130,7 +130,7 @@ def second_order_d_gain(a0: float, a1: float) -> tuple[Interval, ...]:
     width = lambda x: _width(a0, a1, x)  # noqa: E731
     found: list[list[float]] = []
     for lo, hi in zip(breaks[:-1], breaks[1:]):
-        if not np.isfinite(width(0.5 * (lo + hi))):       # the count is constant on (lo, hi)
+        if not np.isfinite(width(0.5 * (lo + hi))):  # the count is constant on (lo, hi)
             continue
         xs = lo + (hi - lo) * np.concatenate([[1e-12], np.linspace(0.0, 1.0, _SAMPLES)[1:-1], [1.0 - 1e-12]])
         positive = np.array([width(x) for x in xs]) > 0

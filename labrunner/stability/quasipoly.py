@@ -52,7 +52,7 @@ class QuasiPolynomial:
         width = max(len(v) for _, v in items)
         coeffs = np.zeros((len(items), width))
         for row, (_, v) in enumerate(items):
-            coeffs[row, width - len(v):] = v
+            coeffs[row, width - len(v) :] = v
         return cls(coeffs, np.array([k for k, _ in items]))
 
     @property
@@ -85,9 +85,9 @@ class QuasiPolynomial:
         """Δ(s), Δ'(s) and Σ_k |P_k(s) e^{−sτ_k}| (the size of the terms, for residual tests)."""
         s = np.asarray(s, dtype=complex)
         n = self.degree
-        vander = s[..., None] ** np.arange(n, -1, -1)                 # (..., n+1)
-        dcoeffs = self.coeffs[:, :-1] * np.arange(n, 0, -1)            # P_k' coefficients
-        p = vander @ self.coeffs.T                                     # (..., K)
+        vander = s[..., None] ** np.arange(n, -1, -1)  # (..., n+1)
+        dcoeffs = self.coeffs[:, :-1] * np.arange(n, 0, -1)  # P_k' coefficients
+        p = vander @ self.coeffs.T  # (..., K)
         dp = vander[..., 1:] @ dcoeffs.T
         e = np.exp(-s[..., None] * self.delays)
         terms = p * e

@@ -25,7 +25,9 @@ def _abscissa(family: Family, n_nodes: int) -> Callable[[float], float]:
     return lambda k: spectral_abscissa(family(float(k)), n_nodes=n_nodes)
 
 
-def _extremum_crossings(alpha: Callable[[float], float], grid: np.ndarray, values: np.ndarray, tol: float) -> list[float]:
+def _extremum_crossings(
+    alpha: Callable[[float], float], grid: np.ndarray, values: np.ndarray, tol: float
+) -> list[float]:
     """Zeros of α hidden between samples: around each sampled local minimum with α > 0 (maximum with
     α < 0) find the extremum; if it has the other sign, bracket the zero on both sides of it."""
     out: list[float] = []
@@ -33,16 +35,21 @@ def _extremum_crossings(alpha: Callable[[float], float], grid: np.ndarray, value
         v = values[i - 1 : i + 2]
         for sign in (1.0, -1.0):
             if sign * v[1] > 0 and sign * v[1] <= sign * v[0] and sign * v[1] <= sign * v[2]:
-                res = minimize_scalar(lambda k: sign * alpha(k), bounds=(grid[i - 1], grid[i + 1]),
-                                      method="bounded", options={"xatol": tol})
+                res = minimize_scalar(
+                    lambda k: sign * alpha(k),
+                    bounds=(grid[i - 1], grid[i + 1]),
+                    method="bounded",
+                    options={"xatol": tol},
+                )
                 if sign * res.fun < 0:
                     out.append(brentq(alpha, grid[i - 1], res.x, xtol=tol, rtol=1e-14))
                     out.append(brentq(alpha, res.x, grid[i + 1], xtol=tol, rtol=1e-14))
     return out
 
 
-def gain_boundaries(family: Family, lo: float, hi: float, *, n_scan: int = 101,
-                    n_nodes: int = DEFAULT_NODES) -> np.ndarray:
+def gain_boundaries(
+    family: Family, lo: float, hi: float, *, n_scan: int = 101, n_nodes: int = DEFAULT_NODES
+) -> np.ndarray:
     """Gains k ∈ (lo, hi) where the spectral abscissa of ``family(k)`` crosses zero, ascending.
 
     ``family`` maps a gain to the characteristic quasi-polynomial; ``n_scan`` samples cover
@@ -56,20 +63,21 @@ def gain_boundaries(family: Family, lo: float, hi: float, *, n_scan: int = 101,
     grid = np.linspace(lo, hi, n_scan)
     values = np.array([alpha(k) for k in grid])
     stable = values < 0
-    found = [brentq(alpha, grid[i], grid[i + 1], xtol=tol, rtol=1e-14)
-             for i in np.flatnonzero(stable[:-1] != stable[1:])]
+    found = [
+        brentq(alpha, grid[i], grid[i + 1], xtol=tol, rtol=1e-14) for i in np.flatnonzero(stable[:-1] != stable[1:])
+    ]
     found += _extremum_crossings(alpha, grid, values, tol)
     return np.unique(np.array(found, dtype=float))
 
 
-def stable_intervals(family: Family, lo: float, hi: float, *, n_scan: int = 101,
-                     n_nodes: int = DEFAULT_NODES) -> list[tuple[float, float]]:
+def stable_intervals(
+    family: Family, lo: float, hi: float, *, n_scan: int = 101, n_nodes: int = DEFAULT_NODES
+) -> list[tuple[float, float]]:
     """Open intervals of k ∈ [lo, hi] where ``family(k)`` is exponentially stable (α < 0).
     An interval that ends at ``lo`` or ``hi`` is cut by the scan window."""
     edges = np.concatenate([[lo], gain_boundaries(family, lo, hi, n_scan=n_scan, n_nodes=n_nodes), [hi]])
     alpha = _abscissa(family, n_nodes)
-    return [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:])
-            if b > a and alpha(0.5 * (a + b)) < 0]
+    return [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a and alpha(0.5 * (a + b)) < 0]
 
 
 def _min_over_y(family: Family2, x: float, y: np.ndarray, n_nodes: int) -> float:
@@ -77,13 +85,26 @@ def _min_over_y(family: Family2, x: float, y: np.ndarray, n_nodes: int) -> float
     values = np.array([spectral_abscissa(family(x, float(yi)), n_nodes=n_nodes) for yi in y])
     i = int(np.argmin(values))
     lo, hi = y[max(i - 1, 0)], y[min(i + 1, len(y) - 1)]
-    res = minimize_scalar(lambda yi: spectral_abscissa(family(x, float(yi)), n_nodes=n_nodes), bounds=(lo, hi),
-                          method="bounded", options={"xatol": 1e-13 * max(abs(y[0]), abs(y[-1]))})
+    res = minimize_scalar(
+        lambda yi: spectral_abscissa(family(x, float(yi)), n_nodes=n_nodes),
+        bounds=(lo, hi),
+        method="bounded",
+        options={"xatol": 1e-13 * max(abs(y[0]), abs(y[-1]))},
+    )
     return float(min(res.fun, values[i]))
 
 
-def projected_intervals(family: Family2, x_lo: float, x_hi: float, y_lo: float, y_hi: float, *, n_x: int = 25,
-                        n_y: int = 41, n_nodes: int = DEFAULT_NODES) -> list[tuple[float, float]]:
+def projected_intervals(
+    family: Family2,
+    x_lo: float,
+    x_hi: float,
+    y_lo: float,
+    y_hi: float,
+    *,
+    n_x: int = 25,
+    n_y: int = 41,
+    n_nodes: int = DEFAULT_NODES,
+) -> list[tuple[float, float]]:
     """Intervals of x for which some y ∈ [y_lo, y_hi] makes ``family(x, y)`` stable: the projection
     of the stable set, e.g. the k_d range of a second-order loop. Edges are the zeros of
     m(x) = min_y α(x, y) (continuous), bracketed on ``n_x`` samples and refined by Brent's method."""

@@ -78,7 +78,7 @@ def generator_matrix(qp: QuasiPolynomial, n_nodes: int = DEFAULT_NODES) -> np.nd
         lower = np.zeros((n, n))
         if k == 0:
             lower[:-1, 1:] = np.eye(n - 1)
-        lower[-1, :] = -c[k, :0:-1]                     # −c_{k,i} for powers i = 0..n−1
+        lower[-1, :] = -c[k, :0:-1]  # −c_{k,i} for powers i = 0..n−1
         m[:n, :] += np.kron(ell, lower)
         if k and c[k, 0] != 0.0:
             neutral = np.zeros((n, n))

@@ -66,13 +66,26 @@ class Verdict:
 
     def encode(self) -> bytes:
         monitor, message = self.monitor.encode("ascii")[:255], self.message.encode("utf-8")[:4096]
-        head = VERDICT_HEAD.pack(STATUSES.index(self.status), len(monitor), len(message), self.n_samples, self.ticks,
-                                 self.overruns, self.time, self.value, self.threshold, self.device_us, self.compute_ns)
+        head = VERDICT_HEAD.pack(
+            STATUSES.index(self.status),
+            len(monitor),
+            len(message),
+            self.n_samples,
+            self.ticks,
+            self.overruns,
+            self.time,
+            self.value,
+            self.threshold,
+            self.device_us,
+            self.compute_ns,
+        )
         return head + monitor + message
 
     @classmethod
     def decode(cls, body: bytes) -> Verdict:
-        status, n_mon, n_msg, n, ticks, overruns, t, value, threshold, device_us, compute_ns = VERDICT_HEAD.unpack_from(body)
+        status, n_mon, n_msg, n, ticks, overruns, t, value, threshold, device_us, compute_ns = VERDICT_HEAD.unpack_from(
+            body
+        )
         at = VERDICT_HEAD.size
         monitor = body[at : at + n_mon].decode("ascii")
         message = body[at + n_mon : at + n_mon + n_msg].decode("utf-8", "replace")

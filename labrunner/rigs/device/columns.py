@@ -42,7 +42,7 @@ def from_columns(columns: np.ndarray, channels: Mapping[str, object]) -> dict[st
     measured outputs, inputs, then per controlled output its value, reference and error, then
     the estimates (float64; e = y − y_r computed here)."""
     col = dict(zip(column_names(channels), np.asarray(columns, float).T))
-    outputs = [ref[len("ref_"):] for ref in channels["references"]]  # type: ignore[attr-defined]
+    outputs = [ref[len("ref_") :] for ref in channels["references"]]  # type: ignore[attr-defined]
     sig = {n: col[n] for n in channels["outputs"]}  # type: ignore[attr-defined]
     sig.update((n, col[n]) for n in channels["inputs"])  # type: ignore[attr-defined]
     for o in outputs:

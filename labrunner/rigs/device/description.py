@@ -37,7 +37,9 @@ RUN = struct.Struct("<ddIIdBBH")  # fs, duration, ticks, seed, watchdog, n_input
 FLAG_STREAM = 0x0001  # header flag: send the samples during the run
 
 #: record types (docs/device-loop.md, "Run description")
-R_RUN, R_KIND, R_PARAM, R_FIR, R_SATURATION, R_BOUNDS, R_RATE, R_MAX_DURATION, R_TRAJECTORY, R_DERIVED, R_FILTER = range(1, 12)
+R_RUN, R_KIND, R_PARAM, R_FIR, R_SATURATION, R_BOUNDS, R_RATE, R_MAX_DURATION, R_TRAJECTORY, R_DERIVED, R_FILTER = (
+    range(1, 12)
+)
 #: point sections carried as parameter records, by id (``rig_safety``: the rig file's [safety])
 SECTIONS = {"controller": 1, "differentiator": 2, "reference": 3, "safety": 4, "rig_safety": 5}
 #: parameter value types
@@ -49,7 +51,15 @@ B_INPUT, B_OUTPUT, B_DERIVED = range(3)
 #: trajectory types and their parameter arrays (Trajectory._params)
 TRAJECTORIES = {Setpoints: 1, Steps: 2, Sine: 3}
 #: controller kinds device firmware runs → the highest derivative order of their differentiator
-DEVICE_KINDS = {"mfc1": 1, "mfc1-ff": 1, "mfc2": 2, "plate-mfc": 2, "plate-mbc": None, "open-loop": None, "valve-ffc": None}
+DEVICE_KINDS = {
+    "mfc1": 1,
+    "mfc1-ff": 1,
+    "mfc2": 2,
+    "plate-mfc": 2,
+    "plate-mbc": None,
+    "open-loop": None,
+    "valve-ffc": None,
+}
 
 
 @dataclass(frozen=True)
@@ -93,15 +103,24 @@ def _value(section: str, key: str, value: object) -> tuple[int, bytes]:
     if isinstance(value, str):
         raw = value.encode("ascii", "replace")
         if len(raw) > 255 or not value.isascii():
-            raise InvalidParameter(where, f"cannot be sent to a device-loop rig: needs an ASCII string of at most 255 bytes, got {value!r}")
+            raise InvalidParameter(
+                where, f"cannot be sent to a device-loop rig: needs an ASCII string of at most 255 bytes, got {value!r}"
+            )
         return T_STR, struct.pack("<H", len(raw)) + raw
     if isinstance(value, (list, tuple)) and all(_is_number(v) for v in value):
         return T_F64_LIST, struct.pack("<I", len(value)) + np.asarray(value, "<f8").tobytes()
-    if isinstance(value, (list, tuple)) and value and all(isinstance(v, (list, tuple)) and all(_is_number(x) for x in v) for v in value):
+    if (
+        isinstance(value, (list, tuple))
+        and value
+        and all(isinstance(v, (list, tuple)) and all(_is_number(x) for x in v) for v in value)
+    ):
         lengths = np.asarray([len(v) for v in value], "<u4")
         flat = np.asarray([x for v in value for x in v], "<f8")
         return T_F64_LISTS, struct.pack("<H", len(value)) + lengths.tobytes() + flat.tobytes()
-    raise InvalidParameter(where, f"cannot be sent to a device-loop rig: needs a number, bool, string or (nested) list of numbers, got {value!r}")
+    raise InvalidParameter(
+        where,
+        f"cannot be sent to a device-loop rig: needs a number, bool, string or (nested) list of numbers, got {value!r}",
+    )
 
 
 def _is_number(v: object) -> bool:
@@ -131,7 +150,9 @@ def build(
     The STREAM flag is clear: :func:`with_stream` sets it where the link has room for the samples."""
     kind = str(dict(point.get("controller") or {}).get("kind"))
     if kind not in DEVICE_KINDS:
-        raise InvalidParameter("controller.kind", f"{kind!r} cannot run on a device-loop rig (device kinds: {', '.join(DEVICE_KINDS)})")
+        raise InvalidParameter(
+            "controller.kind", f"{kind!r} cannot run on a device-loop rig (device kinds: {', '.join(DEVICE_KINDS)})"
+        )
     if point.get("rig_parameters"):
         raise InvalidParameter("rig_parameters", "a device-loop rig has no per-run rig parameters; remove the section")
     controller, reference = factory.build([point], rig_info, fs)  # every check the engine runs
@@ -139,8 +160,21 @@ def build(
     ticks = int(round(duration * fs))
     if not 0 < ticks < 2**32:
         raise InvalidParameter("campaign.duration", f"needs 1..2³²−1 ticks at {fs:g} Hz, got {duration!r} s")
-    records = [_record(R_RUN, RUN.pack(float(fs), float(duration), ticks, int(seed) % 2**32, float(watchdog_s),
-                                       len(rig_info.inputs), len(rig_info.outputs), column_count(rig_info, controller)))]
+    records = [
+        _record(
+            R_RUN,
+            RUN.pack(
+                float(fs),
+                float(duration),
+                ticks,
+                int(seed) % 2**32,
+                float(watchdog_s),
+                len(rig_info.inputs),
+                len(rig_info.outputs),
+                column_count(rig_info, controller),
+            ),
+        )
+    ]
     records.append(_record(R_KIND, kind.encode("ascii")))
     sections = {name: dict(point.get(name) or {}) for name in SECTIONS if name != "rig_safety"}
     sections["rig_safety"] = dict(rig_safety or {})
@@ -154,11 +188,20 @@ def build(
     order = DEVICE_KINDS[kind]
     if order is not None and point.get("differentiator"):
         design = factory.differentiators([point], fs, order)[0]
-        records += [_record(R_FIR, struct.pack("<BBI", FIR_CONTROLLER, n, design.weights(n).size) + _f64(design.weights(n)))
-                    for n in range(order + 1)]
-    records.append(_record(R_SATURATION, struct.pack("<B", controller.n_inputs) + _f64(controller.u_min[0]) + _f64(controller.u_max[0])))
-    for code, signals, key in ((B_INPUT, rig_info.inputs, "input_bounds"), (B_OUTPUT, rig_info.outputs, "output_bounds"),
-                               (B_DERIVED, rig_info.derived, "output_bounds")):
+        records += [
+            _record(R_FIR, struct.pack("<BBI", FIR_CONTROLLER, n, design.weights(n).size) + _f64(design.weights(n)))
+            for n in range(order + 1)
+        ]
+    records.append(
+        _record(
+            R_SATURATION, struct.pack("<B", controller.n_inputs) + _f64(controller.u_min[0]) + _f64(controller.u_max[0])
+        )
+    )
+    for code, signals, key in (
+        (B_INPUT, rig_info.inputs, "input_bounds"),
+        (B_OUTPUT, rig_info.outputs, "output_bounds"),
+        (B_DERIVED, rig_info.derived, "output_bounds"),
+    ):
         if signals:
             limits = getattr(config, key)
             lo = [limits.get(s.name, (-np.inf, np.inf))[0] for s in signals]
@@ -168,14 +211,20 @@ def build(
         weights = np.array([d.weights for d in rig_info.derived], dtype=float)
         records.append(_record(R_DERIVED, struct.pack("<BB", *weights.shape) + _f64(weights)))
     if config.max_du_dt is not None:
-        records.append(_record(R_RATE, _f64([config.max_du_dt, config.du_dt_alpha, config.du_dt_beta, config.du_dt_omega_c])))
-        w = design_rate(alpha=config.du_dt_alpha, beta=config.du_dt_beta, omega_c=config.du_dt_omega_c, fs=fs).weights(1)
+        records.append(
+            _record(R_RATE, _f64([config.max_du_dt, config.du_dt_alpha, config.du_dt_beta, config.du_dt_omega_c]))
+        )
+        w = design_rate(alpha=config.du_dt_alpha, beta=config.du_dt_beta, omega_c=config.du_dt_omega_c, fs=fs).weights(
+            1
+        )
         records.append(_record(R_FIR, struct.pack("<BBI", FIR_RATE, 1, w.size) + _f64(w)))
     records.append(_record(R_MAX_DURATION, _f64([np.inf if config.max_duration is None else config.max_duration])))
     for j, trajectory in enumerate(reference.trajectories[0]):
         code = TRAJECTORIES.get(type(trajectory))
         if code is None:
-            raise InvalidParameter("reference.kind", f"a {type(trajectory).__name__} reference cannot be sent to a device-loop rig")
+            raise InvalidParameter(
+                "reference.kind", f"a {type(trajectory).__name__} reference cannot be sent to a device-loop rig"
+            )
         arrays = [np.atleast_1d(np.asarray(a, float)) for a in trajectory._params()]
         body = struct.pack("<BBB", j, code, len(arrays)) + b"".join(struct.pack("<I", a.size) + _f64(a) for a in arrays)
         records.append(_record(R_TRAJECTORY, body))
@@ -198,7 +247,9 @@ def with_stream(data: bytes, stream: bool) -> bytes:
 def _param(section: str, key: str, value: object) -> bytes:
     name = key.encode("ascii")
     if len(name) > 255 or not key.isascii():
-        raise InvalidParameter(f"{section}.{key}", "cannot be sent to a device-loop rig: keys are ASCII of at most 255 bytes")
+        raise InvalidParameter(
+            f"{section}.{key}", "cannot be sent to a device-loop rig: keys are ASCII of at most 255 bytes"
+        )
     code, raw = _value(section, key, value)
     return _record(R_PARAM, struct.pack("<BBB", SECTIONS[section], code, len(name)) + name + raw)
 
@@ -222,8 +273,14 @@ def decode(data: bytes) -> Description:
     if zlib.crc32(data[:-4]) != crc:
         raise DescriptionError("description CRC-32 mismatch")
     run: tuple | None = None
-    out: dict[str, object] = {"sections": {name: {} for name in SECTIONS}, "fir": {}, "bounds": {}, "trajectories": [], "filters": {},
-                              "stream": bool(flags & FLAG_STREAM)}
+    out: dict[str, object] = {
+        "sections": {name: {} for name in SECTIONS},
+        "fir": {},
+        "bounds": {},
+        "trajectories": [],
+        "filters": {},
+        "stream": bool(flags & FLAG_STREAM),
+    }
     names = {v: k for k, v in SECTIONS.items()}
     pos, end = head_len, len(data) - 4
     try:

@@ -55,8 +55,10 @@ def check(description: Description, rig: Rig) -> dict[str, object]:
     description does not fit this device or its firmware records disagree with its point."""
     info = rig.info
     if (description.n_inputs, description.n_outputs) != (len(info.inputs), len(info.outputs)):
-        raise DescriptionError(f"description for {description.n_inputs} inputs and {description.n_outputs} outputs; "
-                               f"this {info.kind} has {len(info.inputs)} and {len(info.outputs)}")
+        raise DescriptionError(
+            f"description for {description.n_inputs} inputs and {description.n_outputs} outputs; "
+            f"this {info.kind} has {len(info.inputs)} and {len(info.outputs)}"
+        )
     if description.kind not in DEVICE_KINDS:
         raise DescriptionError(f"controller kind {description.kind!r} is not in this firmware")
     point = description.point()
@@ -66,7 +68,9 @@ def check(description: Description, rig: Rig) -> dict[str, object]:
         raise DescriptionError(f"the description's point does not build: {exc}") from None
     channels = engine.channel_names(info, controller)
     if len(column_names(channels)) != description.n_columns:
-        raise DescriptionError(f"description asks for {description.n_columns} columns, the run logs {len(column_names(channels))}")
+        raise DescriptionError(
+            f"description asks for {description.n_columns} columns, the run logs {len(column_names(channels))}"
+        )
     order = DEVICE_KINDS[description.kind]
     if order is not None and point.get("differentiator"):
         design = factory.differentiators([point], description.fs, order)[0]
@@ -74,11 +78,15 @@ def check(description: Description, rig: Rig) -> dict[str, object]:
             sent = description.fir.get((FIR_CONTROLLER, n))
             if sent is None or not np.array_equal(sent, design.weights(n)):
                 raise DescriptionError(f"FIR weights of derivative order {n} differ from the point's design")
-    if description.saturation is None or not (np.array_equal(description.saturation[0], controller.u_min[0])
-                                              and np.array_equal(description.saturation[1], controller.u_max[0])):
+    if description.saturation is None or not (
+        np.array_equal(description.saturation[0], controller.u_min[0])
+        and np.array_equal(description.saturation[1], controller.u_max[0])
+    ):
         raise DescriptionError("input saturation differs from the point's")
     mine = filter_matrices(controller)
-    if mine.keys() != description.filters.keys() or any(not np.array_equal(mine[k], description.filters[k]) for k in mine):
+    if mine.keys() != description.filters.keys() or any(
+        not np.array_equal(mine[k], description.filters[k]) for k in mine
+    ):
         raise DescriptionError("filter matrices differ from the point's controller")
     expected = expected_trajectories(reference.trajectories[0])
     if len(expected) != len(description.trajectories) or any(
@@ -89,7 +97,9 @@ def check(description: Description, rig: Rig) -> dict[str, object]:
     return channels
 
 
-def execute(data: bytes, rig: Rig, hook: Hook | None = None, on_accept: Callable[[Description], None] | None = None) -> DeviceRun:
+def execute(
+    data: bytes, rig: Rig, hook: Hook | None = None, on_accept: Callable[[Description], None] | None = None
+) -> DeviceRun:
     """Decode, check and run one description on ``rig`` (B = 1); raises DescriptionError for a
     description the device refuses (before the rig moves). ``on_accept(description)`` is called
     once it is checked, before the first tick."""
@@ -99,12 +109,20 @@ def execute(data: bytes, rig: Rig, hook: Hook | None = None, on_accept: Callable
         on_accept(description)
     sink = None
     if hook is not None:
+
         def sink(first: int, signals: Mapping[str, np.ndarray]) -> None:
             hook(first, to_columns(signals, channels))
 
     t0 = time.perf_counter_ns()
-    result = engine.run_batch([description.point()], rig, fs=description.fs, duration=description.duration,
-                              seeds=[description.seed], rig_safety=rig_safety(description), sink=sink)[0]
+    result = engine.run_batch(
+        [description.point()],
+        rig,
+        fs=description.fs,
+        duration=description.duration,
+        seeds=[description.seed],
+        rig_safety=rig_safety(description),
+        sink=sink,
+    )[0]
     compute_ns = time.perf_counter_ns() - t0
     n = result.n_samples
     o = result.outcome

@@ -23,21 +23,41 @@ from labrunner.rigs.device.columns import column_names, from_columns
 from labrunner.rigs.transports import linkload
 
 
-def plan(points: Sequence[Mapping[str, object]], rig_info: RigInfo, *, fs: float, duration: float, seeds: Sequence[int],
-         rig_safety: Mapping[str, object] | None, watchdog_s: float = 0.5, link: linkload.LinkSpec | None = None) -> list[bytes]:
+def plan(
+    points: Sequence[Mapping[str, object]],
+    rig_info: RigInfo,
+    *,
+    fs: float,
+    duration: float,
+    seeds: Sequence[int],
+    rig_safety: Mapping[str, object] | None,
+    watchdog_s: float = 0.5,
+    link: linkload.LinkSpec | None = None,
+) -> list[bytes]:
     """One encoded description per point (raises InvalidParameter for one the device cannot run).
     With ``link``, each says whether its samples stream during the run (they fit the link)."""
     out = []
     for point, seed in zip(points, seeds):
-        data = description.build(point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, watchdog_s=watchdog_s)
-        if link is not None and linkload.device_loop_load(link, fs, description.decode(data).n_columns) <= linkload.MAX_LOAD:
+        data = description.build(
+            point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, watchdog_s=watchdog_s
+        )
+        if (
+            link is not None
+            and linkload.device_loop_load(link, fs, description.decode(data).n_columns) <= linkload.MAX_LOAD
+        ):
             data = description.with_stream(data, True)
         out.append(data)
     return out
 
 
-def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict: blocks.Verdict, rows: np.ndarray,
-              diagnostics: Mapping[str, object]) -> engine.RunResult:
+def to_result(
+    point: Mapping[str, object],
+    rig_info: RigInfo,
+    fs: float,
+    verdict: blocks.Verdict,
+    rows: np.ndarray,
+    diagnostics: Mapping[str, object],
+) -> engine.RunResult:
     """The RunResult of one device run, named and measured as the engine names and measures a twin run."""
     controller, _ = factory.build([point], rig_info, fs)
     channels = engine.channel_names(rig_info, controller)
@@ -48,26 +68,54 @@ def to_result(point: Mapping[str, object], rig_info: RigInfo, fs: float, verdict
     def opt(x: float) -> float | None:
         return None if math.isnan(x) else float(x)
 
-    outcome = engine.Outcome(verdict.status, verdict.monitor or None, opt(verdict.time), opt(verdict.value),
-                             opt(verdict.threshold), verdict.message)
-    metrics = run_metrics(signals, engine.roles_of(channels, rig_info), fs=float(fs),
-                          windows=parse_windows(point.get("metrics")))  # as the engine measures a twin run
+    outcome = engine.Outcome(
+        verdict.status,
+        verdict.monitor or None,
+        opt(verdict.time),
+        opt(verdict.value),
+        opt(verdict.threshold),
+        verdict.message,
+    )
+    metrics = run_metrics(
+        signals, engine.roles_of(channels, rig_info), fs=float(fs), windows=parse_windows(point.get("metrics"))
+    )  # as the engine measures a twin run
     return engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
 
 
-def run(send: session.Send, recv: session.Recv, max_payload: int, points: Sequence[Mapping[str, object]], rig_info: RigInfo,
-        *, fs: float, duration: float, seeds: Sequence[int], rig_safety: Mapping[str, object] | None = None,
-        watchdog_s: float = 0.5, link: linkload.LinkSpec | None = None, silence_s: float = 10.0) -> list[engine.RunResult]:
+def run(
+    send: session.Send,
+    recv: session.Recv,
+    max_payload: int,
+    points: Sequence[Mapping[str, object]],
+    rig_info: RigInfo,
+    *,
+    fs: float,
+    duration: float,
+    seeds: Sequence[int],
+    rig_safety: Mapping[str, object] | None = None,
+    watchdog_s: float = 0.5,
+    link: linkload.LinkSpec | None = None,
+    silence_s: float = 10.0,
+) -> list[engine.RunResult]:
     """Run ``points`` on the device one after the other; one RunResult each (a RigError stops the batch)."""
-    descriptions = plan(points, rig_info, fs=fs, duration=duration, seeds=seeds, rig_safety=rig_safety,
-                        watchdog_s=watchdog_s, link=link)
+    descriptions = plan(
+        points, rig_info, fs=fs, duration=duration, seeds=seeds, rig_safety=rig_safety, watchdog_s=watchdog_s, link=link
+    )
     results = []
     for point, data in zip(points, descriptions):
         d = description.decode(data)
-        verdict, rows, transfer = session.run_on_device(send, recv, max_payload, data, d.ticks, d.n_columns, silence_s=silence_s)
+        verdict, rows, transfer = session.run_on_device(
+            send, recv, max_payload, data, d.ticks, d.n_columns, silence_s=silence_s
+        )
         diagnostics = {
-            "loop": "device", "description_bytes": len(data), "columns": d.n_columns, "streamed": d.stream, "ticks": verdict.ticks,
-            "overruns": verdict.overruns, "device_run_s": verdict.device_us / 1e6, "device_compute_s": verdict.compute_ns / 1e9,
+            "loop": "device",
+            "description_bytes": len(data),
+            "columns": d.n_columns,
+            "streamed": d.stream,
+            "ticks": verdict.ticks,
+            "overruns": verdict.overruns,
+            "device_run_s": verdict.device_us / 1e6,
+            "device_compute_s": verdict.compute_ns / 1e9,
             **transfer.as_dict(),
         }
         results.append(to_result(point, rig_info, fs, verdict, rows, diagnostics))

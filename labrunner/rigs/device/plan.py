@@ -38,8 +38,14 @@ def upload_s(campaign, points: Sequence) -> float:
         fs, duration = json.loads(p.batch_key)[1:3]
         key = p.batch_key
         if key not in columns:
-            data = description.build(campaign.resolve(p.parameters), campaign.rig_info, fs=fs, duration=duration,
-                                     seed=campaign.seed, rig_safety=campaign.rig_safety)
+            data = description.build(
+                campaign.resolve(p.parameters),
+                campaign.rig_info,
+                fs=fs,
+                duration=duration,
+                seed=campaign.seed,
+                rig_safety=campaign.rig_safety,
+            )
             columns[key] = description.decode(data).n_columns
         if linkload.device_loop_load(link, fs, columns[key]) > linkload.MAX_LOAD:
             total += linkload.upload_s(link, fs, duration, columns[key])

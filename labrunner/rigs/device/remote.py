@@ -16,8 +16,7 @@ from typing import Any
 from labrunner.engine import RunResult
 from labrunner.errors import RigError
 from labrunner.rigs.device import host, session
-from labrunner.rigs.transports import linkload
-from labrunner.rigs.transports import messages as m
+from labrunner.rigs.transports import linkload, messages as m
 from labrunner.rigs.transports.protocol import Frame, Kind
 
 DEVICE_WATCHDOG_MIN_S = 1.0  #: shortest host-silence watchdog of a device-loop run [s]
@@ -31,8 +30,15 @@ def watchdog_s(parameters: Mapping[str, Any], fs: float) -> float:
     return max(float(parameters["watchdog_periods"]) / fs, DEVICE_WATCHDOG_MIN_S)
 
 
-def run_on_device(rig, points: Sequence[Mapping[str, object]], *, fs: float, duration: float, seeds: Sequence[int],
-                  rig_safety: Mapping[str, object] | None = None) -> list[RunResult]:
+def run_on_device(
+    rig,
+    points: Sequence[Mapping[str, object]],
+    *,
+    fs: float,
+    duration: float,
+    seeds: Sequence[int],
+    rig_safety: Mapping[str, object] | None = None,
+) -> list[RunResult]:
     """Run ``points`` one after the other on ``rig``'s device (a RemoteRig with ``loop = "device"``)."""
     if rig.identity is None:
         rig.handshake()
@@ -73,10 +79,25 @@ def run_on_device(rig, points: Sequence[Mapping[str, object]], *, fs: float, dur
     for point, seed in zip(points, seeds):
         rig._drain()
         before = replace(link.counters)
-        [result] = host.run(send, recv, link.max_payload, [point], rig.info, fs=fs, duration=duration, seeds=[seed],
-                            rig_safety=rig_safety, watchdog_s=wd, link=spec)
+        [result] = host.run(
+            send,
+            recv,
+            link.max_payload,
+            [point],
+            rig.info,
+            fs=fs,
+            duration=duration,
+            seeds=[seed],
+            rig_safety=rig_safety,
+            watchdog_s=wd,
+            link=spec,
+        )
         now, then = link.counters.as_dict(), before.as_dict()
-        result.diagnostics = {"loop": "device", "link": {k: now[k] - then[k] for k in now},
-                              "firmware_id": rig.identity.firmware_id, "device_loop": result.diagnostics}
+        result.diagnostics = {
+            "loop": "device",
+            "link": {k: now[k] - then[k] for k in now},
+            "firmware_id": rig.identity.firmware_id,
+            "device_loop": result.diagnostics,
+        }
         results.append(result)
     return results

@@ -56,8 +56,17 @@ def _slices(data: bytes, size: int) -> list[bytes]:
     return [data[i : i + size] for i in range(0, len(data), size)] or [b""]
 
 
-def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, n_ticks: int, n_columns: int,
-                  *, silence_s: float = 10.0, heartbeat_s: float = 0.25) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
+def run_on_device(
+    send: Send,
+    recv: Recv,
+    max_payload: int,
+    description: bytes,
+    n_ticks: int,
+    n_columns: int,
+    *,
+    silence_s: float = 10.0,
+    heartbeat_s: float = 0.25,
+) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
     """Host side of one run: send ``description``, collect the samples and the verdict; a
     HEARTBEAT goes out whenever the host sent nothing for ``heartbeat_s`` (the device's watchdog).
 
@@ -93,9 +102,11 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
         if now - last_rx > silence_s:  # nothing new arrived: a dead device or a link that delivers nothing
             rx.cancel()
             phase = "description" if t_accept is None else f"results ({covered} of {n_ticks} ticks in)"
-            raise RigError(f"device-loop run: no new block from the device for {silence_s:g} s during the {phase}; "
-                           f"host sent {tx.acked}/{tx.next_seq} description blocks acknowledged, received {rx.expected} "
-                           f"blocks ({rx.counters.as_dict()})")
+            raise RigError(
+                f"device-loop run: no new block from the device for {silence_s:g} s during the {phase}; "
+                f"host sent {tx.acked}/{tx.next_seq} description blocks acknowledged, received {rx.expected} "
+                f"blocks ({rx.counters.as_dict()})"
+            )
         if msg is None:
             rx.poll(now)
             continue
@@ -114,13 +125,17 @@ def run_on_device(send: Send, recv: Recv, max_payload: int, description: bytes, 
                     ticks, cols = blocks.ACCEPT_BODY.unpack(block.body)
                     if (ticks, cols) != (n_ticks, n_columns):
                         rx.cancel()
-                        raise RigError(f"the device accepted {ticks} ticks × {cols} columns, the host asked for {n_ticks} × {n_columns}")
+                        raise RigError(
+                            f"the device accepted {ticks} ticks × {cols} columns, the host asked for {n_ticks} × {n_columns}"
+                        )
                     t_accept = now
                 elif block.kind == blocks.SAMPLES:
                     first, chunk, _ = blocks.decode_samples(block.body)
                     if first != covered or first + len(chunk) > n_ticks or chunk.shape[1] != n_columns:
                         rx.cancel()
-                        raise RigError(f"SAMPLES block for ticks {first}..{first + len(chunk) - 1} after {covered} ticks")
+                        raise RigError(
+                            f"SAMPLES block for ticks {first}..{first + len(chunk) - 1} after {covered} ticks"
+                        )
                     rows[first : first + len(chunk)] = chunk
                     covered += len(chunk)
                 elif block.kind == blocks.VERDICT:
@@ -145,8 +160,15 @@ class DeviceSession:
     it keeps unacknowledged results for a silent host before it drops them.
     """
 
-    def __init__(self, send: Send, recv: Recv, max_payload: int, execute: Callable[..., object], *,
-                 upload_silence_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        send: Send,
+        recv: Recv,
+        max_payload: int,
+        execute: Callable[..., object],
+        *,
+        upload_silence_s: float = 10.0,
+    ) -> None:
         self.send, self.recv, self.max_payload, self.execute = send, recv, max_payload, execute
         self.upload_silence_s = upload_silence_s
         self.runs = 0
@@ -201,11 +223,22 @@ class DeviceSession:
         return None
 
     def _run(self, data: bytes) -> None:
-        state = {"streamed": 0, "stream": False, "fs": 1.0, "per_block": 1, "last": time.monotonic(), "watchdog": float("inf")}
+        state = {
+            "streamed": 0,
+            "stream": False,
+            "fs": 1.0,
+            "per_block": 1,
+            "last": time.monotonic(),
+            "watchdog": float("inf"),
+        }
 
         def on_accept(description) -> None:
-            state.update(stream=description.stream, fs=description.fs, watchdog=description.watchdog_s,
-                         per_block=blocks.samples_per_block(self.tx.body_limit, description.n_columns))
+            state.update(
+                stream=description.stream,
+                fs=description.fs,
+                watchdog=description.watchdog_s,
+                per_block=blocks.samples_per_block(self.tx.body_limit, description.n_columns),
+            )
             self.tx.queue(blocks.ACCEPT, blocks.ACCEPT_BODY.pack(description.ticks, description.n_columns))
             self._service()
 

@@ -38,11 +38,15 @@ class NoiseStreams:
         self.batch = len(seeds)
         # one generator per distinct seed (a campaign's runs mostly share one), and its runs
         unique, run_of = np.unique(seeds, return_inverse=True)
-        self._gens = [np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(s) % 2**64, stream]))) for s in unique]
+        self._gens = [
+            np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(s) % 2**64, stream]))) for s in unique
+        ]
         self._runs = [np.flatnonzero(run_of.reshape(-1) == i) for i in range(len(unique))]
         self.width = int(width)
         self.block = int(block)
-        self._scale = None if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (self.batch, self.width))
+        self._scale = (
+            None if scale is None else np.broadcast_to(np.asarray(scale, dtype=float), (self.batch, self.width))
+        )
         if groups < 1 or self.width % groups:
             raise InvalidParameter("groups", f"must divide the width {self.width}, got {groups}")
         self.groups = groups

@@ -52,10 +52,19 @@ class DCMotorTwin(SimRig):
 
     KIND = "dcmotor"
     PARAMETERS = {
-        "a": Param(40.8, "1/s", "physical pole of (2.31b), calibrated: thesis Sec. 3.2 on the twin gives 39.44", **_POS),
-        "b": Param(121.3, "rad/(V s^2)", "physical input gain of (2.31b), calibrated: Sec. 3.2 on the twin gives 108.55", **_POS),
+        "a": Param(
+            40.8, "1/s", "physical pole of (2.31b), calibrated: thesis Sec. 3.2 on the twin gives 39.44", **_POS
+        ),
+        "b": Param(
+            121.3,
+            "rad/(V s^2)",
+            "physical input gain of (2.31b), calibrated: Sec. 3.2 on the twin gives 108.55",
+            **_POS,
+        ),
         "identified_a": Param(39.44, "1/s", "a as thesis Sec. 3.2 identified it: the rig's constant a", **_POS),
-        "identified_b": Param(108.55, "rad/(V s^2)", "b as thesis Sec. 3.2 identified it: the rig's constants b, rho", **_POS),
+        "identified_b": Param(
+            108.55, "rad/(V s^2)", "b as thesis Sec. 3.2 identified it: the rig's constants b, rho", **_POS
+        ),
         "u_max": Param(12.0, "V", "driver saturation ±u_max (MD10C on a 12 V supply, thesis Sec. 3.1)", **_POS),
         "static_friction": Param(0.8, "V", "breakaway voltage of motor+gearbox (assumed; 1:18 spur gearbox)", lo=0.0),
         "coulomb_friction": Param(0.6, "V", "voltage that keeps the load moving (assumed), <= static", lo=0.0),
@@ -95,8 +104,13 @@ class DCMotorTwin(SimRig):
             fs_range=(10.0, 10_000.0),
             fs_default=200.0,
             safe_input=(0.0,),
-            constants={"a": p["identified_a"], "b": p["identified_b"], "rho": p["identified_b"], "u_max": p["u_max"],
-                       "dtheta": dtheta},
+            constants={
+                "a": p["identified_a"],
+                "b": p["identified_b"],
+                "rho": p["identified_b"],
+                "u_max": p["u_max"],
+                "dtheta": dtheta,
+            },
             simulated=True,
             description=description or "simulated DC motor with gearbox, load and encoder (thesis Sec. 2.4.1)",
         )
@@ -196,7 +210,11 @@ class DCMotorTwin(SimRig):
     @property
     def state(self) -> dict[str, np.ndarray]:
         """True (unmeasured) state per run: load angle [rad], velocity [rad/s], motor voltage [V]."""
-        return {"theta": self._theta.copy(), "omega": self._z[1].copy(), "voltage": np.where(self._lag, self._z[2], self._z[3])}
+        return {
+            "theta": self._theta.copy(),
+            "omega": self._z[1].copy(),
+            "voltage": np.where(self._lag, self._z[2], self._z[3]),
+        }
 
 
 def _check_friction(static: np.ndarray, coulomb: np.ndarray, field: str) -> None:

@@ -61,23 +61,38 @@ class PlateTwin(SimRig):
         "l_dy": Param(0.144, "m", "sensor distance in y (Table 2)", **_POS),
         "l_fx": Param(0.1825, "m", "force-point distance in x (Table 2)", **_POS),
         "l_fy": Param(0.117, "m", "force-point distance in y (Table 2)", **_POS),
-        "lambda_inv_sqrt": Param(LAMBDA_INV_SQRT, "A s/(kg m^3)^0.5", "d(h) = λ^(−1/2) h (Sec. 3.2.3, Fig. 3)", lo=50.0, hi=1000.0),
-        **{f"d_gain_{j}": Param(1.0, "1", f"factor on d_{j}(h) of magnet {j} (identified d_j differ, Fig. 3)", lo=0.5, hi=2.0) for j in range(1, 5)},
+        "lambda_inv_sqrt": Param(
+            LAMBDA_INV_SQRT, "A s/(kg m^3)^0.5", "d(h) = λ^(−1/2) h (Sec. 3.2.3, Fig. 3)", lo=50.0, hi=1000.0
+        ),
+        **{
+            f"d_gain_{j}": Param(
+                1.0, "1", f"factor on d_{j}(h) of magnet {j} (identified d_j differ, Fig. 3)", lo=0.5, hi=2.0
+            )
+            for j in range(1, 5)
+        },
         "d_offset": Param(0.0, "m", "gap offset of the force model d(h) = λ^(−1/2)(h + offset)", lo=-2e-4, hi=2e-3),
-        "force_max": Param(300.0, "N", "magnetic saturation: the largest force of one magnet (assumed)", lo=50.0, hi=1e4),
+        "force_max": Param(
+            300.0, "N", "magnetic saturation: the largest force of one magnet (assumed)", lo=50.0, hi=1e4
+        ),
         "i_max": Param(8.0, "A", "current limit of the power electronics (Sec. 4)", lo=0.1, hi=50.0),
         "screw_gap": Param(5.5e-3, "m", "gap at which the screws hold the plate at rest (Sec. 4.1)", lo=1e-3, hi=20e-3),
         "top_gap": Param(0.5e-3, "m", "gap of the upper mechanical stop (assumed)", lo=1e-4, hi=1e-3),
-        "contact_omega": Param(1e4, "rad/s", "eigenfrequency of the stiffest contact motion (numerical stiffness)", lo=1e3, hi=2e4),
+        "contact_omega": Param(
+            1e4, "rad/s", "eigenfrequency of the stiffest contact motion (numerical stiffness)", lo=1e3, hi=2e4
+        ),
         "contact_zeta": Param(0.5, "1", "damping ratio of that contact motion", lo=0.0, hi=1.0),
         "mode_omega": Param(942.0, "rad/s", "plate resonance (paper 2 Remark 9, Sec. 4.2)", lo=100.0, hi=5000.0),
         "mode_zeta": Param(0.02, "1", "damping ratio of the plate mode (assumed: lightly damped)", lo=0.0, hi=1.0),
-        "mode_mass": Param(4.0, "kg", "modal mass of the plate mode (assumed: notch needed, Remark 9)", lo=0.05, hi=100.0),
+        "mode_mass": Param(
+            4.0, "kg", "modal mass of the plate mode (assumed: notch needed, Remark 9)", lo=0.05, hi=100.0
+        ),
         "mode_sensor_shape": Param(0.8, "1", "mode amplitude at the sensors relative to the magnets", lo=-2.0, hi=2.0),
         "max_substep": Param(32e-6, "s", "longest integration sub-step (stability: ω h ≤ 0.64)", lo=1e-7, hi=32e-6),
     }
     NOISE = {
-        "sensor_std": Param(0.5e-6, "m", "white sensor noise, std (assumed; Sec. 4.3.1: RMS spread < 30 nm)", lo=0.0, hi=1e-4),
+        "sensor_std": Param(
+            0.5e-6, "m", "white sensor noise, std (assumed; Sec. 4.3.1: RMS spread < 30 nm)", lo=0.0, hi=1e-4
+        ),
         "current_std": Param(0.02, "A", "current ripple of the current controllers, std (assumed)", lo=0.0, hi=1.0),
     }
 
@@ -85,7 +100,9 @@ class PlateTwin(SimRig):
     def validate_parameters(cls, raw: Mapping[str, Any], path: str = "parameters") -> dict[str, Any]:
         p = super().validate_parameters(raw, path)
         if p["top_gap"] >= p["screw_gap"]:
-            raise InvalidParameter(f"{path}.top_gap", f"must be < screw_gap = {p['screw_gap']:g} m, got {p['top_gap']:g}")
+            raise InvalidParameter(
+                f"{path}.top_gap", f"must be < screw_gap = {p['screw_gap']:g} m, got {p['top_gap']:g}"
+            )
         return p
 
     @classmethod
@@ -104,7 +121,9 @@ class PlateTwin(SimRig):
     @classmethod
     def nominal_info(cls, name: str, description: str, parameters: Mapping[str, Any]) -> RigInfo:
         p = {**{k: v.default for k, v in cls.PARAMETERS.items()}, **parameters}
-        constants = {k: float(p[k]) for k in ("m", "g", "J_x", "J_y", "l_dx", "l_dy", "l_fx", "l_fy", "lambda_inv_sqrt")}
+        constants = {
+            k: float(p[k]) for k in ("m", "g", "J_x", "J_y", "l_dx", "l_dy", "l_fx", "l_fy", "lambda_inv_sqrt")
+        }
         K = PlateGeometry(**{k: float(p[k]) for k in ("l_dx", "l_dy", "l_fx", "l_fy")}).K  # h = K y_1..3, eq. (4)
         return RigInfo(
             name=name,
@@ -116,7 +135,8 @@ class PlateTwin(SimRig):
             safe_input=(0.0, 0.0, 0.0, 0.0),
             constants={**constants, "rest_gap": float(p["screw_gap"])},
             simulated=True,
-            description=description or "simulated magnetically supported plate (paper 2): 3-DOF body, four magnets, 942 rad/s mode",
+            description=description
+            or "simulated magnetically supported plate (paper 2): 3-DOF body, four magnets, 942 rad/s mode",
             derived=tuple(Derived(f"h{j + 1}", "m", (*map(float, K[j]), 0.0)) for j in range(4)),
         )
 
@@ -151,7 +171,9 @@ class PlateTwin(SimRig):
         self._offset, self._f_max = full(p["d_offset"]), full(p["force_max"])
         self._any_offset = bool(np.any(self._offset))
         # noise drawn pre-scaled: sensors (B, 4) | current ripple (B, 4)
-        scale = np.column_stack([np.repeat(col(p["sensor_std"]), 4, axis=1), np.repeat(col(p["current_std"]), 4, axis=1)])
+        scale = np.column_stack(
+            [np.repeat(col(p["sensor_std"]), 4, axis=1), np.repeat(col(p["current_std"]), 4, axis=1)]
+        )
         self._noise = NoiseStreams(seeds, 8, stream=3, block=2048, scale=scale, groups=2)
         self._G_T = self._G.T
         # per-tick scratch, (B, 4) each, one purpose each: the squared currents i², the drift/kick
@@ -164,7 +186,9 @@ class PlateTwin(SimRig):
         self._gaps, self._dd, self._pen, self._pen_sign, self._k_pen, self._lin = (scratch() for _ in range(6))
         self._f_up, self._stop_force, self._gen_acc, self._damping = (scratch() for _ in range(4))
         # at rest on the four screws, sagging: (k G Gᵀ + S) x = M g + k G 1 screw_gap, S the mode's stiffness
-        stiffness = self._k_c[:, :1, None] * (self._G @ self._G.T) + np.einsum("bi,ij->bij", self._stiff / self._inv_mass, np.eye(4))
+        stiffness = self._k_c[:, :1, None] * (self._G @ self._G.T) + np.einsum(
+            "bi,ij->bij", self._stiff / self._inv_mass, np.eye(4)
+        )
         load = self._gravity / self._inv_mass + self._k_c[:, :1] * self._screw[:, :1] * self._G.sum(axis=1)
         x = np.linalg.solve(stiffness, load[:, :, None])[:, :, 0]
         self.set_state(x, np.zeros((batch, 4)))

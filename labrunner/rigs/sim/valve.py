@@ -82,13 +82,21 @@ class ValveTwin(SimRig):
         "current_tau": Param(1.5e-3, "s", "lag of the hardware current controller (assumed)", lo=0.0),
         "hysteresis": Param(0.02, "A", "width of the solenoid's magnetic hysteresis (assumed)", lo=0.0),
         "pilot_tau": Param(3e-3, "s", "pilot spool time constant (assumed)", lo=0.0),
-        "pilot_threshold": Param(0.5, "1", "current fraction where the main spool opens (paper 1 Remark 6)", lo=0.0, hi=0.95),
+        "pilot_threshold": Param(
+            0.5, "1", "current fraction where the main spool opens (paper 1 Remark 6)", lo=0.0, hi=0.95
+        ),
         "main_tau": Param(0.015, "s", "main spool time constant (assumed)", **_POS),
-        "main_static_friction": Param(0.006, "1", "main spool breakaway, fraction of stroke, with dither (assumed)", lo=0.0, hi=0.5),
-        "main_coulomb_friction": Param(0.004, "1", "main spool sliding friction, fraction of stroke (assumed)", lo=0.0, hi=0.5),
+        "main_static_friction": Param(
+            0.006, "1", "main spool breakaway, fraction of stroke, with dither (assumed)", lo=0.0, hi=0.5
+        ),
+        "main_coulomb_friction": Param(
+            0.004, "1", "main spool sliding friction, fraction of stroke (assumed)", lo=0.0, hi=0.5
+        ),
         "main_conductance": Param(12.0, "(l/min)/sqrt(bar)", "main orifice fully open (assumed)", **_POS),
         "pilot_conductance": Param(0.02, "(l/min)/sqrt(bar)", "pilot orifice fully open (assumed)", lo=0.0),
-        "downstream_conductance": Param(6.0, "(l/min)/sqrt(bar)", "return path: chamber and open V_1T (assumed)", **_POS),
+        "downstream_conductance": Param(
+            6.0, "(l/min)/sqrt(bar)", "return path: chamber and open V_1T (assumed)", **_POS
+        ),
         "supply_pressure": Param(30.0, "bar", "pump pressure (paper 1 Sec. 5.5)", **_POS),
         "pump_flow": Param(21.9, "l/min", "largest pump flow (paper 1 Sec. 5)", **_POS),
         "sensor_delay": Param(0.05, "s", "flow sensor delay tau_qp (paper 1 Sec. 5.4)", lo=0.0, hi=1.0),
@@ -193,7 +201,12 @@ class ValveTwin(SimRig):
     @property
     def state(self) -> dict[str, np.ndarray]:
         """True state per run: coil current [A], pilot and main stroke [1], true flow [l/min]."""
-        return {"current": self._i_c.copy(), "pilot": self._x_p.copy(), "main": self._x_m.copy(), "flow": self._q.copy()}
+        return {
+            "current": self._i_c.copy(),
+            "pilot": self._x_p.copy(),
+            "main": self._x_m.copy(),
+            "flow": self._q.copy(),
+        }
 
 
 def _check_valve(p: Mapping[str, Any], path: str) -> None:

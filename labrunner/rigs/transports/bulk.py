@@ -133,8 +133,16 @@ class Receiver:
     is a new transfer; ``follow`` refuses the ones it has run).
     """
 
-    def __init__(self, send_ack: Callable[[bytes], None], direction: int, *, transfer: int | None = None,
-                 follow: Callable[[int], bool] | None = None, window: int = 64, nack_s: float = 0.2) -> None:
+    def __init__(
+        self,
+        send_ack: Callable[[bytes], None],
+        direction: int,
+        *,
+        transfer: int | None = None,
+        follow: Callable[[int], bool] | None = None,
+        window: int = 64,
+        nack_s: float = 0.2,
+    ) -> None:
         self.send_ack, self.direction, self.window, self.nack_s = send_ack, direction, window, nack_s
         self.transfer, self.follow = transfer, follow
         self.counters = Counters()

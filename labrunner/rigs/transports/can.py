@@ -63,8 +63,13 @@ class CanLink(Link):
         return payload.ljust(dlc2len(len2dlc(len(payload))), b"\x00") if self.fd else payload
 
     def _send(self, kind: Kind, payload: bytes) -> None:
-        msg = can.Message(arbitration_id=can_id(self.node_id, kind, self.end), data=payload,
-                          is_extended_id=False, is_fd=self.fd, bitrate_switch=self.fd)
+        msg = can.Message(
+            arbitration_id=can_id(self.node_id, kind, self.end),
+            data=payload,
+            is_extended_id=False,
+            is_fd=self.fd,
+            bitrate_switch=self.fd,
+        )
         try:
             self.bus.send(msg)
         except (can.CanError, OSError) as exc:
@@ -109,12 +114,23 @@ class CanRig(RemoteRig):
 
     KIND = "can"
     TRANSPORT = {
-        "interface": Param("", "", "python-can interface (socketcan, pcan, kvaser, udp_multicast, virtual, ...); "
-                           "empty: python-can's configuration"),
-        "channel": Param("", "", "python-can channel (can0, PCAN_USBBUS1, a multicast group, ...); "
-                         "empty: python-can's configuration"),
-        "bitrate": Param(500_000, "bit/s", "the bus's (nominal) bit rate: set on pcan, kvaser, ...; on socketcan "
-                         "set by `ip link`; used by the link-load check", lo=10_000, hi=1_000_000),
+        "interface": Param(
+            "",
+            "",
+            "python-can interface (socketcan, pcan, kvaser, udp_multicast, virtual, ...); "
+            "empty: python-can's configuration",
+        ),
+        "channel": Param(
+            "", "", "python-can channel (can0, PCAN_USBBUS1, a multicast group, ...); empty: python-can's configuration"
+        ),
+        "bitrate": Param(
+            500_000,
+            "bit/s",
+            "the bus's (nominal) bit rate: set on pcan, kvaser, ...; on socketcan "
+            "set by `ip link`; used by the link-load check",
+            lo=10_000,
+            hi=1_000_000,
+        ),
         "fd": Param(False, "", "CAN FD frames (64-byte bulk payloads)"),
         "data_bitrate": Param(2_000_000, "bit/s", "CAN FD data-phase bit rate", lo=1_000_000, hi=8_000_000),
         "port": Param(0, "", "UDP port of the udp_multicast interface; 0 for its default", lo=0, hi=65535),

@@ -19,8 +19,7 @@ import numpy as np
 
 from labrunner.rigs.base import RigConfig
 from labrunner.rigs.config import rig_info
-from labrunner.rigs.transports import linkload
-from labrunner.rigs.transports import messages as m
+from labrunner.rigs.transports import linkload, messages as m
 
 RTT_MARGIN = 0.5  # share of a period a host-loop round trip may take
 
@@ -30,8 +29,9 @@ def socketcan_bitrate(channel: str) -> int | None:
     if not channel or shutil.which("ip") is None:
         return None
     try:
-        out = subprocess.run(["ip", "-details", "-json", "link", "show", channel], capture_output=True, text=True,
-                             timeout=5, check=True).stdout
+        out = subprocess.run(
+            ["ip", "-details", "-json", "link", "show", channel], capture_output=True, text=True, timeout=5, check=True
+        ).stdout
         return int(json.loads(out)[0]["linkinfo"]["info_data"]["bittiming"]["bitrate"])
     except (OSError, subprocess.SubprocessError, ValueError, KeyError, IndexError, TypeError):
         return None
@@ -41,8 +41,11 @@ def _link_load(config: RigConfig, fs: float, n_in: int, n_out: int, bitrate: flo
     """Both placements' loads at ``fs`` from the load model (the device loop streaming u and y only:
     a controller's estimates add columns), on the link the rig file names at ``bitrate``."""
     spec = linkload.from_rig(config.kind, {**config.parameters, "bitrate": bitrate})
-    return {"link": linkload.describe(spec), **linkload.report(spec, fs, n_in, n_out, n_in + n_out).as_dict(),
-            "max_host_fs_by_load": linkload.max_host_fs(spec, n_in, n_out)}
+    return {
+        "link": linkload.describe(spec),
+        **linkload.report(spec, fs, n_in, n_out, n_in + n_out).as_dict(),
+        "max_host_fs_by_load": linkload.max_host_fs(spec, n_in, n_out),
+    }
 
 
 def check_rig(config: RigConfig, pings: int = 200) -> dict[str, Any]:
@@ -54,21 +57,35 @@ def check_rig(config: RigConfig, pings: int = 200) -> dict[str, Any]:
         ident = rig.handshake()
         rtt = np.array([rig.ping() for _ in range(pings)])
         counters = rig.link.counters.as_dict()
-        device = {"state": m.DeviceState(rig.device.state).name.lower() if rig.device.state >= 0 else None,
-                  "rejected": rig.device.rejected, "last_error": m.ErrorCode(rig.device.last_error).name}
+        device = {
+            "state": m.DeviceState(rig.device.state).name.lower() if rig.device.state >= 0 else None,
+            "rejected": rig.device.rejected,
+            "last_error": m.ErrorCode(rig.device.last_error).name,
+        }
     finally:
         rig.close()
     p = config.parameters
     report: dict[str, Any] = {
-        "rig": config.name, "source": config.source, "transport": config.kind, "node_id": p["node_id"], "loop": p["loop"],
+        "rig": config.name,
+        "source": config.source,
+        "transport": config.kind,
+        "node_id": p["node_id"],
+        "loop": p["loop"],
         "identity": {
-            "protocol_version": ident.version, "device_kind": m.DeviceKind(ident.device_kind).name.lower(),
-            "inputs": ident.n_inputs, "outputs": ident.n_outputs, "max_fs": ident.max_fs,
+            "protocol_version": ident.version,
+            "device_kind": m.DeviceKind(ident.device_kind).name.lower(),
+            "inputs": ident.n_inputs,
+            "outputs": ident.n_outputs,
+            "max_fs": ident.max_fs,
             "capabilities": [c.name for c in m.Capability if ident.capabilities & c],
             "firmware_id": f"0x{ident.firmware_id:08x}",
         },
-        "rtt_ms": {"pings": pings, "p50": 1e3 * float(np.percentile(rtt, 50)),
-                   "p99": 1e3 * float(np.percentile(rtt, 99)), "max": 1e3 * float(rtt.max())},
+        "rtt_ms": {
+            "pings": pings,
+            "p50": 1e3 * float(np.percentile(rtt, 50)),
+            "p99": 1e3 * float(np.percentile(rtt, 99)),
+            "max": 1e3 * float(rtt.max()),
+        },
         "link_counters": counters,
         "device": device,
     }
@@ -100,11 +117,15 @@ def describe(report: dict[str, Any]) -> list[str]:
         actual = f", socketcan reports {b['socketcan']}" if "socketcan" in b else ""
         lines.append(f"  bit rate: {b['configured']} bit/s configured ({b['interface']}){actual}")
     bad = {k: v for k, v in report["link_counters"].items() if v and k not in ("sent", "received", "echoes")}
-    lines.append(f"  link counters: {', '.join(f'{k} {v}' for k, v in bad.items()) or 'no errors'}; "
-                 f"device rejected {report['device']['rejected']}, last error {report['device']['last_error']}")
+    lines.append(
+        f"  link counters: {', '.join(f'{k} {v}' for k, v in bad.items()) or 'no errors'}; "
+        f"device rejected {report['device']['rejected']}, last error {report['device']['last_error']}"
+    )
     ld = report["link_load"]
-    lines.append(f"  link load at {ld['fs']:g} Hz on {ld['link']}: host loop {ld['host_load']:.0%}"
-                 f"{'' if ld['host_feasible'] else ' (too much)'}, device-loop stream of u and y "
-                 f"{ld['device_stream_load']:.0%}{'' if ld['device_streams'] else ' (sent after the run)'}")
+    lines.append(
+        f"  link load at {ld['fs']:g} Hz on {ld['link']}: host loop {ld['host_load']:.0%}"
+        f"{'' if ld['host_feasible'] else ' (too much)'}, device-loop stream of u and y "
+        f"{ld['device_stream_load']:.0%}{'' if ld['device_streams'] else ' (sent after the run)'}"
+    )
     lines.append(f"  the host loop sustains up to {report['max_host_fs']:.0f} Hz with margin")
     return lines

@@ -49,8 +49,16 @@ EXTENSIONS: list[str] = ["labrunner.rigs.device.emulated:install"]  # "module:fu
 class Emulator:
     """Serve ``rig`` behind ``link`` until :meth:`stop`; ``errors`` collects exceptions of the twin."""
 
-    def __init__(self, rig: Rig, link: Link, *, paced: bool = True, faults: LinkFaults | None = None,
-                 extensions: list[str] | None = None, realtime: bool = False) -> None:
+    def __init__(
+        self,
+        rig: Rig,
+        link: Link,
+        *,
+        paced: bool = True,
+        faults: LinkFaults | None = None,
+        extensions: list[str] | None = None,
+        realtime: bool = False,
+    ) -> None:
         faults = faults or LinkFaults()
         self.rig, self.paced, self.faults = rig, paced, faults
         self.realtime = realtime  # ask for SCHED_FIFO in the firmware thread; False after start if not granted
@@ -66,8 +74,10 @@ class Emulator:
         self.errors: list[BaseException] = []
         self.capabilities = m.Capability.HOST_LOOP | (m.Capability.CAN_FD if link.max_payload > 8 else 0)
         self.handlers: dict[Kind, Handler] = {
-            Kind.HELLO: self._hello, Kind.HEARTBEAT: lambda f: self.send_status(),
-            Kind.SAFE: self._safe, Kind.STOP: self._stop_run,
+            Kind.HELLO: self._hello,
+            Kind.HEARTBEAT: lambda f: self.send_status(),
+            Kind.SAFE: self._safe,
+            Kind.STOP: self._stop_run,
         }
         self.tasks: list[Task] = [self._watchdog, self._heartbeat]
         self._link_rejects_at_setup = 0
@@ -132,15 +142,31 @@ class Emulator:
 
     def send_status(self) -> None:
         rejected = self.rejected + self._link_rejects() - self._link_rejects_at_setup
-        self.link.send(m.pack(m.Status(int(self.state), int(self.last_error), min(rejected, 0xFFFF),
-                                       min(self.late, 0xFFFF), self.seq % 2**16)))
+        self.link.send(
+            m.pack(
+                m.Status(
+                    int(self.state),
+                    int(self.last_error),
+                    min(rejected, 0xFFFF),
+                    min(self.late, 0xFFFF),
+                    self.seq % 2**16,
+                )
+            )
+        )
         self._last_status = time.monotonic()
 
     def identity(self) -> m.Identity:
         info = self.rig.info
         kind = m.DeviceKind.__members__.get(info.kind.upper(), m.DeviceKind.OTHER)
-        return m.Identity(PROTOCOL_VERSION, int(kind), len(info.inputs), len(info.outputs),
-                          int(self.capabilities), float(info.fs_range[1]), FIRMWARE_ID)
+        return m.Identity(
+            PROTOCOL_VERSION,
+            int(kind),
+            len(info.inputs),
+            len(info.outputs),
+            int(self.capabilities),
+            float(info.fs_range[1]),
+            FIRMWARE_ID,
+        )
 
     # -- firmware loop ---------------------------------------------------------------------------
     def _serve(self) -> None:
@@ -242,7 +268,9 @@ class Emulator:
 def twin_for(config: RigConfig) -> Rig:
     """The sim twin a remote rig file describes: its ``device`` kind with ``[parameters.model]``."""
     p = config.parameters
-    return load_rig(config_from_dict({"rig": {"kind": p["device"], "name": config.name}, "parameters": dict(p["model"])}))
+    return load_rig(
+        config_from_dict({"rig": {"kind": p["device"], "name": config.name}, "parameters": dict(p["model"])})
+    )
 
 
 def device_link(config: RigConfig) -> Link:

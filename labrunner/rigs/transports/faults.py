@@ -40,8 +40,9 @@ class LinkFaults:
 
     @property
     def any(self) -> bool:
-        return any((self.drop, self.delay_ms, self.garbage, self.duplicate, self.stale, self.spoof, self.error_frame)) \
-            or self.die_after_s != float("inf")
+        return any(
+            (self.drop, self.delay_ms, self.garbage, self.duplicate, self.stale, self.spoof, self.error_frame)
+        ) or self.die_after_s != float("inf")
 
 
 class FaultyLink:
@@ -51,7 +52,9 @@ class FaultyLink:
     def __init__(self, inner: Link, faults: LinkFaults) -> None:
         self.inner, self.faults = inner, faults
         self.node_id, self.end, self.counters = inner.node_id, inner.end, inner.counters
-        self.injected: dict[str, int] = {k: 0 for k in ("drop", "garbage", "duplicate", "stale", "spoof", "error_frame")}
+        self.injected: dict[str, int] = {
+            k: 0 for k in ("drop", "garbage", "duplicate", "stale", "spoof", "error_frame")
+        }
         self._rng = random.Random(faults.seed)
         self._delayed: list[tuple[float, int, Frame]] = []
         self._order = itertools.count()

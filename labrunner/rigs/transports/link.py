@@ -26,7 +26,6 @@ from dataclasses import asdict, dataclass
 
 from labrunner.rigs.transports.protocol import BULK_KINDS, FIXED_PAYLOAD, End, Frame, Kind, senders
 
-
 _RECENT = 4096  # frames remembered to tell this end's echoes from spoofed frames (a bulk burst is
 # up to 64 frames a block times the sender's window, and a loopback echo may lag that far behind)
 

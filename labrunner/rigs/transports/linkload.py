@@ -152,15 +152,26 @@ class LoadReport:
         return self.device_stream_load <= MAX_LOAD
 
     def as_dict(self) -> dict[str, object]:
-        return {"fs": self.fs, "host_load": self.host_load, "host_feasible": self.host_feasible,
-                "device_stream_load": self.device_stream_load, "device_streams": self.device_streams,
-                "upload_s": self.upload_s}
+        return {
+            "fs": self.fs,
+            "host_load": self.host_load,
+            "host_feasible": self.host_feasible,
+            "device_stream_load": self.device_stream_load,
+            "device_streams": self.device_streams,
+            "upload_s": self.upload_s,
+        }
 
 
-def report(link: LinkSpec, fs: float, n_inputs: int, n_outputs: int, n_columns: int, duration: float = 1.0) -> LoadReport:
+def report(
+    link: LinkSpec, fs: float, n_inputs: int, n_outputs: int, n_columns: int, duration: float = 1.0
+) -> LoadReport:
     """Both placements' loads of a rig with these channel counts at ``fs``."""
-    return LoadReport(float(fs), host_loop_load(link, fs, n_inputs, n_outputs), device_loop_load(link, fs, n_columns),
-                      upload_s(link, fs, duration, n_columns))
+    return LoadReport(
+        float(fs),
+        host_loop_load(link, fs, n_inputs, n_outputs),
+        device_loop_load(link, fs, n_columns),
+        upload_s(link, fs, duration, n_columns),
+    )
 
 
 def max_host_fs(link: LinkSpec, n_inputs: int, n_outputs: int) -> float:
@@ -191,5 +202,7 @@ def check_host_loop(link: LinkSpec, fs: float, n_inputs: int, n_outputs: int) ->
     load = host_loop_load(link, fs, n_inputs, n_outputs)
     if load <= MAX_LOAD:
         return ""
-    return (f"the host loop at {fs:g} Hz needs {load:.0%} of {describe(link)} (at most {MAX_LOAD:.0%}; it sustains "
-            f"{max_host_fs(link, n_inputs, n_outputs):.0f} Hz): set loop = \"device\" in the rig file or lower campaign.fs")
+    return (
+        f"the host loop at {fs:g} Hz needs {load:.0%} of {describe(link)} (at most {MAX_LOAD:.0%}; it sustains "
+        f'{max_host_fs(link, n_inputs, n_outputs):.0f} Hz): set loop = "device" in the rig file or lower campaign.fs'
+    )

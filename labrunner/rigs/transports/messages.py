@@ -140,8 +140,9 @@ Message = Input | Measurement | TickEnd | Heartbeat | Status | Error | Safe | St
 def pack(message: Message, kind: Kind | None = None) -> Frame:
     """The frame of ``message`` (``kind`` is needed only for a :class:`Record`: SETUP or IDENTITY)."""
     if isinstance(message, TickEnd):
-        return Frame(Kind.MEASUREMENT, _TICK.pack(message.seq % 2**16, TICK_CHANNEL, message.flags,
-                                                  message.timestamp_us % 2**32))
+        return Frame(
+            Kind.MEASUREMENT, _TICK.pack(message.seq % 2**16, TICK_CHANNEL, message.flags, message.timestamp_us % 2**32)
+        )
     kind = kind if kind is not None else _KIND_OF[type(message)]
     layout, _ = _LAYOUTS[kind]
     if hasattr(message, "seq"):
@@ -168,9 +169,11 @@ _F32, _U32 = struct.Struct("<f"), struct.Struct("<I")
 
 def setup_frames(fs: float, watchdog_s: float, seed: int) -> list[Frame]:
     """The SETUP records of a host-loop run, in the order they are sent (the seed starts it)."""
-    return [pack(Record(SETUP_FS, _F32.pack(fs)), Kind.SETUP),
-            pack(Record(SETUP_WATCHDOG, _F32.pack(watchdog_s)), Kind.SETUP),
-            pack(Record(SETUP_SEED, _U32.pack(seed % 2**32)), Kind.SETUP)]
+    return [
+        pack(Record(SETUP_FS, _F32.pack(fs)), Kind.SETUP),
+        pack(Record(SETUP_WATCHDOG, _F32.pack(watchdog_s)), Kind.SETUP),
+        pack(Record(SETUP_SEED, _U32.pack(seed % 2**32)), Kind.SETUP),
+    ]
 
 
 def setup_value(record: Record) -> float | int:
@@ -203,15 +206,20 @@ def identity_frames(identity: Identity) -> list[Frame]:
     """The IDENTITY records answering a HELLO: 0 version/kind/n_in/n_out, 1 capabilities,
     2 max f_s (f32), 3 firmware id (u32)."""
     i = identity
-    values = [_ID0.pack(i.version, i.device_kind, i.n_inputs, i.n_outputs), _U32.pack(i.capabilities),
-              _F32.pack(i.max_fs), _U32.pack(i.firmware_id)]
+    values = [
+        _ID0.pack(i.version, i.device_kind, i.n_inputs, i.n_outputs),
+        _U32.pack(i.capabilities),
+        _F32.pack(i.max_fs),
+        _U32.pack(i.firmware_id),
+    ]
     return [pack(Record(k, v), Kind.IDENTITY) for k, v in enumerate(values)]
 
 
 def identity_from(records: dict[int, bytes]) -> Identity:
     """The identity from its four records by index (KeyError if one is missing)."""
-    return Identity(*_ID0.unpack(records[0]), _U32.unpack(records[1])[0], _F32.unpack(records[2])[0],
-                    _U32.unpack(records[3])[0])
+    return Identity(
+        *_ID0.unpack(records[0]), _U32.unpack(records[1])[0], _F32.unpack(records[2])[0], _U32.unpack(records[3])[0]
+    )
 
 
 def hello() -> Frame:

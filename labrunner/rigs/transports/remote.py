@@ -43,13 +43,21 @@ DEFAULT_LOOP = {"dcmotor": "host", "valve": "device", "plate": "device"}
 COMMON = {
     "device": Param("dcmotor", "", "the kind of rig behind the link (any registered kind that is not itself remote)"),
     "node_id": Param(1, "", "the device's node id (0 is CANopen NMT; ids stay below 0x7F0)", lo=NODE_MIN, hi=NODE_MAX),
-    "loop": Param("", "", "where the closed loop runs: host (B = 1 over the link) or device; "
-                  "empty: host for dcmotor, device for valve and plate", choices=("", "host", "device")),
-    "timeout_s": Param(0.1, "s", "longest wait for a measurement beyond one sample period", lo=0.0, lo_open=True, hi=60.0),
+    "loop": Param(
+        "",
+        "",
+        "where the closed loop runs: host (B = 1 over the link) or device; "
+        "empty: host for dcmotor, device for valve and plate",
+        choices=("", "host", "device"),
+    ),
+    "timeout_s": Param(
+        0.1, "s", "longest wait for a measurement beyond one sample period", lo=0.0, lo_open=True, hi=60.0
+    ),
     "watchdog_periods": Param(10.0, "1", "device watchdog in sample periods, sent in SETUP", lo=2.0, hi=1e6),
     "max_late_ticks": Param(10, "", "late ticks in a row that fail a host-loop run", lo=1, hi=1_000_000),
-    "realtime": Param(False, "", "run the host loop's thread at SCHED_FIFO priority (root or CAP_SYS_NICE; "
-                      "ignored where not granted)"),
+    "realtime": Param(
+        False, "", "run the host loop's thread at SCHED_FIFO priority (root or CAP_SYS_NICE; ignored where not granted)"
+    ),
     "handshake_timeout_s": Param(0.5, "s", "longest wait for the device's IDENTITY", lo=0.0, lo_open=True, hi=60.0),
 }
 
@@ -132,10 +140,16 @@ class RemoteRig(Rig):
             self._fail(f"no complete IDENTITY answer to {attempts} HELLOs within {wait * attempts:.3g} s")
         ident = m.identity_from(records)
         kind = int(m.DeviceKind.__members__.get(self.info.kind.upper(), m.DeviceKind.OTHER))
-        wrong = [f"{what} {got} (expected {want})" for what, got, want in (
-            ("protocol version", ident.version, PROTOCOL_VERSION), ("device kind", ident.device_kind, kind),
-            ("inputs", ident.n_inputs, len(self.info.inputs)), ("outputs", ident.n_outputs, len(self.info.outputs)))
-            if got != want]
+        wrong = [
+            f"{what} {got} (expected {want})"
+            for what, got, want in (
+                ("protocol version", ident.version, PROTOCOL_VERSION),
+                ("device kind", ident.device_kind, kind),
+                ("inputs", ident.n_inputs, len(self.info.inputs)),
+                ("outputs", ident.n_outputs, len(self.info.outputs)),
+            )
+            if got != want
+        ]
         if wrong:
             self._fail("the device reports " + ", ".join(wrong))
         self.identity = ident
@@ -144,8 +158,13 @@ class RemoteRig(Rig):
     def diagnostics(self) -> dict[str, Any]:
         """This run's ``diagnostics`` record (see :mod:`.diagnostics`)."""
         now, then = self.link.counters.as_dict(), self._link_at_setup.as_dict()
-        return diagnostics_record({k: now[k] - then[k] for k in now}, self.host, self.device, loop=self.loop,
-                                  firmware_id=self.identity.firmware_id if self.identity else None)
+        return diagnostics_record(
+            {k: now[k] - then[k] for k in now},
+            self.host,
+            self.device,
+            loop=self.loop,
+            firmware_id=self.identity.firmware_id if self.identity else None,
+        )
 
     def ping(self, stale_errors: bool = False) -> float:
         """Round trip [s] of one HEARTBEAT to the device's STATUS answer (RigError after ``timeout_s``).
@@ -272,8 +291,10 @@ class RemoteRig(Rig):
         limit = (self.timeout_s if tick else max(self.timeout_s, SETUP_ANSWER_S)) + 1.0 / self.fs
         deadline = time.monotonic() + limit
         while True:
-            frame = self._recv_until(deadline, f"no complete measurement of tick {seq} within {limit:.3g} s "
-                                               f"(missing channels {sorted(missing)})")
+            frame = self._recv_until(
+                deadline,
+                f"no complete measurement of tick {seq} within {limit:.3g} s (missing channels {sorted(missing)})",
+            )
             if frame.kind == Kind.STATUS:
                 self._status(m.unpack(frame))
                 continue
@@ -308,8 +329,10 @@ class RemoteRig(Rig):
         self.device.device_time_s = msg.timestamp_us * 1e-6
         self._late_run = self._late_run + 1 if late else 0
         if self._late_run > int(self.parameters["max_late_ticks"]):
-            self._fail(f"{self._late_run} late ticks in a row at {self.fs:g} Hz: the host loop cannot keep "
-                       f"this rate over this link (lower fs, or loop = \"device\")")
+            self._fail(
+                f"{self._late_run} late ticks in a row at {self.fs:g} Hz: the host loop cannot keep "
+                f'this rate over this link (lower fs, or loop = "device")'
+            )
 
     def _status(self, msg: m.Status) -> None:
         self.host.status_frames += 1
