@@ -230,7 +230,8 @@ def test_ctrl_c_at_random_moments_stops_within_the_bound_and_resumes(project):
         # KeyboardInterrupt passed through an extension's import, even though the command handled it
         assert proc.returncode in (0, 130, -signal.SIGINT), err
         assert "Traceback" not in err
-        if proc.returncode != 0:
+        finished = "64/64" in err  # every point was done before the press: nothing left to interrupt
+        if proc.returncode != 0 and not finished:
             assert "interrupted" in _one_line(err)
         if trial == 0:
             assert not (project / "data").exists()

@@ -70,7 +70,7 @@ def test_error_names_file_and_key(tmp_path, monkeypatch):
         (
             '[rig]\nkind = "dcmotor"\n[faults]\nt_start = 1\nsensor_step = [1, 2]\n',
             "faults.sensor_step",
-            "1 or 1 values",
+            "needs 1 value, got 2",
         ),
         ('[rig]\nkind = "dcmotor"\n[faults]\nt_start = 1\nactuator_gain = -1.5\n', "faults.actuator_gain", "> -1"),
         ('[rig]\nkind = "dcmotor"\n[safety]\nmax_du_dt = -5\n', "safety.max_du_dt", "must be > 0"),
