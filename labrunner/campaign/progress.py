@@ -13,6 +13,7 @@ batch jobs stay readable.
 
 from __future__ import annotations
 
+import abc
 import sys
 import time
 from collections.abc import Mapping
@@ -42,7 +43,7 @@ def _rate(per_s: float) -> str:
     return f"{per_s:.1f}" if per_s >= 10 else f"{per_s:.2g}"
 
 
-class _Reporter:
+class _Reporter(abc.ABC):
     """A tqdm bar on a terminal, else periodic plain lines; subclasses say what a line holds."""
 
     unit = "run"
@@ -76,8 +77,9 @@ class _Reporter:
             self.write(self.line())  # from the first second, not after the first result
 
     @property
+    @abc.abstractmethod
     def finished(self) -> int:
-        raise NotImplementedError
+        """Items done so far (runs of a campaign, steps of an analysis)."""
 
     def detail(self) -> str:
         return ""
