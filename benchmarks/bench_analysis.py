@@ -23,35 +23,24 @@ import tempfile
 import time
 from pathlib import Path
 
+from motor_campaign import motor_campaign
+
 ROOT = Path(__file__).resolve().parents[1]
-CAMPAIGN = """
-[campaign]
-name = "bench-analysis-{n}"
-description = "γ–k_p sweep for the analysis benchmark"
-rig = "dcmotor-sim"
-fs = 200.0
 
-[controller]
-kind = "mfc1"
-output = "velocity"
-gamma = 108.55
-k_p = 50.0
 
-[differentiator]
-alpha = 9
-beta = 9
-omega_c = 200.0
-
-[reference]
-kind = "setpoints"
-levels = [0.0, 20.0, 0.0]
-transition = 1.0
-hold = 1.0
-
-[grid]
-"controller.gamma" = {{ log10 = [0.0, 4.0], num = {side} }}
-"controller.k_p" = {{ log10 = [-1.0, 3.0], num = {side} }}
-"""
+def campaign_text(n: int, side: int) -> str:
+    """The γ–k_p sweep of ``side`` × ``side`` points (about ``n``) on log axes."""
+    grid = (
+        f'"controller.gamma" = {{ log10 = [0.0, 4.0], num = {side} }}\n'
+        f'"controller.k_p" = {{ log10 = [-1.0, 3.0], num = {side} }}\n'
+    )
+    return motor_campaign(
+        f"bench-analysis-{n}",
+        description="γ–k_p sweep for the analysis benchmark",
+        levels="[0.0, 20.0, 0.0]",
+        hold=1.0,
+        grid=grid,
+    )
 
 
 def campaign(n: int, parent: Path, workers: int) -> Path:
@@ -60,7 +49,7 @@ def campaign(n: int, parent: Path, workers: int) -> Path:
     directory = parent / f"campaign-{side * side}"
     if not (directory / "ledger.sqlite").exists():
         spec_file = ROOT / "campaigns" / f".bench-analysis-{side}.toml"
-        spec_file.write_text(CAMPAIGN.format(n=side * side, side=side), encoding="utf-8")
+        spec_file.write_text(campaign_text(side * side, side), encoding="utf-8")
         try:
             t = time.perf_counter()
             subprocess.run(

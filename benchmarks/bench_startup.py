@@ -23,28 +23,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from motor_campaign import motor_campaign
+
 HEAVY = ("scipy", "matplotlib", "pandas", "dask", "distributed")
-CAMPAIGN = """
-[campaign]
-name = "startup"
-rig = "dcmotor-sim"
-fs = 200.0
-duration = 0.05
-[controller]
-kind = "mfc1"
-output = "velocity"
-gamma = 108.55
-k_p = 50.0
-[differentiator]
-alpha = 9
-beta = 9
-omega_c = 200.0
-[reference]
-kind = "setpoints"
-levels = [0.0, 20.0]
-transition = 1.0
-hold = 0.5
-"""
+CAMPAIGN = motor_campaign("startup", levels="[0.0, 20.0]", hold=0.5, duration=0.05)
 # Run in the command's process: when labrunner.engine is loaded (in a worker), report the time
 # its run_batch is first entered; nothing else is imported early.
 HOOK = """
