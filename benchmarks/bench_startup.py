@@ -26,7 +26,7 @@ from pathlib import Path
 from motor_campaign import motor_campaign
 
 HEAVY = ("scipy", "matplotlib", "pandas", "dask", "distributed")
-CAMPAIGN = motor_campaign("startup", levels="[0.0, 20.0]", hold=0.5, duration=0.05)
+CAMPAIGN = motor_campaign("startup", levels="[0.0, 20.0]", hold=0.5, duration=0.1)  # 20 samples ≥ the 14-sample window
 # Run in the command's process: when labrunner.engine is loaded (in a worker), report the time
 # its run_batch is first entered; nothing else is imported early.
 HOOK = """
