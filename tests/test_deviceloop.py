@@ -277,7 +277,9 @@ def test_stop_from_the_host_ends_the_run_failed_and_safe():
     channel, held, stop, thread = _device_thread(rig)
     try:
         send, recv = channel.end("host", "device")
-        _send_description(send, description.build(point, rig.info, fs=fs, duration=20.0, seed=0, rig_safety=safety))
+        # a watchdog far longer than the test's wait: this host sends no heartbeats, and the STOP is what ends the run
+        data = description.build(point, rig.info, fs=fs, duration=20.0, seed=0, rig_safety=safety, watchdog_s=30.0)
+        _send_description(send, data)
         assert _wait(lambda: (msg := recv(0.05)) is not None and msg[0] == session.TO_HOST)  # the run began
         send(session.STOP, b"")  # what the emulator's adapter hands over for SAFE or STOP
         assert _wait(lambda: held.get("runs"))
