@@ -6,7 +6,9 @@ and submitted to an executor (:mod:`labrunner.campaign.executors`: a local proce
 cluster, or in-process for a real rig).
 
 A batch's points are claimed in one transaction when it is submitted; each run's row is
-committed when its batch returns (the worker has published the logs by then).
+committed when its batch returns (the worker has published the logs by then). While batches
+run, the share of their ticks done (:mod:`labrunner.campaign.live`) goes to the progress as
+run-equivalents in flight, so its rate and ETA hold from the first second.
 
 Supervision — the loop never blocks longer than :data:`POLL_S` and never hangs:
 
@@ -32,7 +34,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
@@ -160,6 +162,8 @@ class Scheduler:
         self.deadline: float | None = None  # once stopping: when running batches are abandoned
         self.bound_s = 0.0
         self._next_probe = 0.0
+        if progress is not None:
+            progress.no_live = self.handle.no_live
 
     def _task(self, key: str, rows: list[Any]) -> BatchTask:
         _, fs, duration, *_ = json.loads(key)
@@ -184,7 +188,9 @@ class Scheduler:
         )
 
     def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:
-        task = self._task(key, rows)
+        live = self.handle.live
+        slot = live.reserve() if live is not None else None
+        task = replace(self._task(key, rows), live_slot=slot)
         ids = [r.point_id for r in task.runs]
         self.ledger.claim(ids)
         h = self.handle
@@ -201,44 +207,73 @@ class Scheduler:
         except KeyboardInterrupt:  # a real rig's run, stopped by a second Ctrl-C: its points stay claimed
             raise
         except Exception as exc:  # the executor refused the batch (broken pool, lost cluster): nothing ran
+            self._release(slot)
             self.ledger.unclaim(ids)
             out.stop_reason = out.stop_reason or f"the executor refused a batch: {type(exc).__name__}: {exc}"
             return
-        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic())
+        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic(), slot)
         if self.progress:
             self.progress.started_runs(len(ids))
 
+    def _release(self, slot: int | None) -> None:
+        if self.handle.live is not None:
+            self.handle.live.release(slot)
+
+    def in_flight(self) -> float:
+        """Run-equivalents done by the running batches: Σ runs × share of the batch's ticks done."""
+        live = self.handle.live
+        if live is None:
+            return 0.0
+        done = 0.0
+        for batch in self.inflight.values():
+            ticks = live.ticks(batch.slot)
+            if ticks > 0 and batch.ticks > 0:
+                done += len(batch.ids) * min(1.0, ticks / batch.ticks)
+        return done
+
     def _collect(self, future: Future, out: Outcome) -> None:
         batch = self.inflight.pop(future)
-        if future.cancelled():
-            self.ledger.unclaim(batch.ids)
-            return
-        self.longest_s = max(self.longest_s, time.monotonic() - batch.submitted)
-        exc = future.exception()
-        if isinstance(exc, BrokenExecutor):  # a worker process died: every running batch is lost with it
-            out.stop_reason = out.stop_reason or (
-                "a worker process died (killed, or out of memory?); the running batches were abandoned"
-            )
-            self._abandon(out)
-            return
-        if exc is not None:  # the worker itself broke (could not write): stop, points stay claimed
-            out.stop_reason = out.stop_reason or f"a worker failed: {type(exc).__name__}: {exc}"
-            return
-        result: BatchResult = future.result()
-        for record in result.records:
-            self.ledger.commit(record)
-            out.committed += 1
-            if self.progress:
-                self.progress.update(record.outcome)
-        if result.stop:
-            out.stop_reason = out.stop_reason or result.stop
+        self._release(batch.slot)  # its worker has returned (or never started it): nothing writes the slot now
+        if self.progress:  # its runs whole in flight until each is counted: the position does not jump back
+            self.progress.live(self.in_flight() + len(batch.ids))
+        counted = 0
+        try:
+            if future.cancelled():
+                self.ledger.unclaim(batch.ids)
+                return
+            self.longest_s = max(self.longest_s, time.monotonic() - batch.submitted)
+            exc = future.exception()
+            if isinstance(exc, BrokenExecutor):  # a worker process died: every running batch is lost with it
+                out.stop_reason = out.stop_reason or (
+                    "a worker process died (killed, or out of memory?); the running batches were abandoned"
+                )
+                self._abandon(out)
+                return
+            if exc is not None:  # the worker itself broke (could not write): stop, points stay claimed
+                out.stop_reason = out.stop_reason or f"a worker failed: {type(exc).__name__}: {exc}"
+                return
+            result: BatchResult = future.result()
+            for record in result.records:
+                self.ledger.commit(record)
+                out.committed += 1
+                counted += 1
+                if self.progress:
+                    self.progress.update(record.outcome)
+            if result.stop:
+                out.stop_reason = out.stop_reason or result.stop
+        finally:
+            if self.progress:  # runs that will not be counted this session (unclaimed, left claimed)
+                self.progress.returned(len(batch.ids) - counted)
 
     def _abandon(self, out: Outcome) -> None:
         """Give up on every running batch now: their points stay claimed for ``resume``."""
         if self.inflight:
             self.handle.abandon()
-            for future in self.inflight:
+            for future, batch in self.inflight.items():
                 future.cancel()
+                self._release(batch.slot)
+                if self.progress:
+                    self.progress.returned(len(batch.ids))
             self.inflight.clear()
             out.abandoned = True
 
@@ -286,7 +321,7 @@ class Scheduler:
         rows = self.ledger.rows(("planned",))
         pending = deque(make_batches(rows, self.slots, self.requested))
         del rows
-        max_inflight = 1 if self.handle.in_process else max(1, 2 * self.slots)  # in-process: runs at submit
+        max_inflight = self.handle.max_inflight
         own = self.signals is None
         signals = self.signals or StopSignals()
         with signals if own else contextlib.nullcontext():
@@ -306,7 +341,7 @@ class Scheduler:
                         if future in self.inflight:
                             self._collect(future, out)
                     if self.progress:
-                        self.progress.tick()
+                        self.progress.tick(self.in_flight())
             except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
                 out.interrupted = out.abandoned = True
                 self.inflight.clear()
@@ -325,12 +360,14 @@ class Scheduler:
 
 @dataclass
 class _Batch:
-    """A submitted batch: its point ids, run duration [s], ticks and submit time (monotonic)."""
+    """A submitted batch: its point ids, run duration [s], ticks, submit time (monotonic) and its
+    slot in the live channel (None: none)."""
 
     ids: list[str]
     duration: float
     ticks: int
     submitted: float
+    slot: int | None = None
 
     @property
     def expected_s(self) -> float:

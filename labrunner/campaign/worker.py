@@ -11,6 +11,7 @@ parent's memory does not grow with the number of runs.
 
 from __future__ import annotations
 
+import functools
 import os
 import secrets
 import socket
@@ -22,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
 from labrunner.errors import CampaignError, RigError
 
@@ -55,6 +57,7 @@ class BatchTask:
     duration: float
     runs: tuple[RunTask, ...]
     samples_hz: float | None = None  # [logging] samples_hz: thin the logs' per-sample channel (None: full rate)
+    live_slot: int | None = None  # where a pool worker reports the ticks done (labrunner.campaign.live)
 
 
 @dataclass
@@ -115,10 +118,14 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
     asks the parent to stop (architecture: "stop-campaign"), publishing the logs up to the failure
     when the engine attached them (``exc.results``); any other exception marks the batch's
-    points failed with the message (they have no log) and the campaign goes on.
+    points failed with the message (they have no log) and the campaign goes on. In a pool worker
+    the ticks done go to the parent's live channel (:mod:`labrunner.campaign.live`) as they pass.
     """
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
+    report = live.hook(task.live_slot)
+    if report is not None:
+        report(0)  # taken: no longer queued
     t0, start_time = time.perf_counter(), time.time()
     try:
         rig, rig_record = _load_rig(task)
@@ -128,7 +135,7 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     try:
         with rig:
             results = list(
-                (run_batch or _batch_runner(rig))(
+                (run_batch or _batch_runner(rig, report))(
                     [r.config for r in task.runs],
                     rig,
                     fs=task.fs,
@@ -157,13 +164,14 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     return out
 
 
-def _batch_runner(rig: Any) -> Callable[..., Sequence[Any]]:
-    """How a batch runs on ``rig``: the engine's loop, or the rig's own for a loop on the device."""
+def _batch_runner(rig: Any, report: Callable[[int], None] | None) -> Callable[..., Sequence[Any]]:
+    """How a batch runs on ``rig``: the engine's loop (telling ``report`` the ticks done), or the
+    rig's own for a loop on the device (a real rig, in the parent's process: no live channel)."""
     from labrunner import engine
 
     if getattr(rig, "loop", "host") == "device":
         return lambda points, rig, **kw: rig.run_on_device(points, **kw)
-    return engine.run_batch
+    return functools.partial(engine.run_batch, progress=report)
 
 
 def _publish_all(
