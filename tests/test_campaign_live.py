@@ -99,21 +99,32 @@ def test_the_progress_line_counts_whole_runs_and_shows_those_in_flight_apart(mon
     out = io.StringIO()
     p = Progress("camp", 320, {"completed": 10, "aborted": 2}, stream=out, bar=False, interval_s=1e9)
     p.started_runs(64)
+    assert "; 64 running)" in p.line()  # nothing known yet from a live channel
+    p.live(0.0, 0)
+    assert "; 0 running, 64 waiting)" in p.line()
     now[0] = 20.0
-    p.tick(20.0)  # 64 running, 20 run-equivalents done: 1 run/s, 320 − 12 − 20 = 288 left
+    p.live(10.0, 32)  # 32 started, 10 run-equivalents done: 0.5 run/s, 320 − 12 − 10 = 298 left
     line = p.line()
-    assert line.startswith("camp: 12/320 (10 completed, 0 no-motion, 2 aborted, 0 failed; 64 running, 31 % through)")
-    assert "1 runs/s" in line and "ETA 4:48" in line
-    p.live(19.5 + 1.0)  # a batch of one run returned: the others' share and its run whole, until counted
-    p.update("completed")
-    assert p.position == 13 + 19.5
-    assert p.line().startswith(
-        "camp: 13/320 (11 completed, 0 no-motion, 2 aborted, 0 failed; 63 running, 31 % through)"
+    assert line.startswith(
+        "camp: 12/320 (10 completed, 0 no-motion, 2 aborted, 0 failed; 32 running, 31 % through, 32 waiting)"
     )
+    assert "0.5 runs/s" in line and "ETA 9:56" in line
+    p.live(9.5 + 1.0, 32)  # a batch of one run returned: the others' share and its run whole, until counted
+    p.update("completed")
+    assert p.position == 13 + 9.5 and p.taken == 31 and p.running == 63
+    assert p.line().startswith(
+        "camp: 13/320 (11 completed, 0 no-motion, 2 aborted, 0 failed; 31 running, 31 % through, 32 waiting)"
+    )
+    p.returned(32)  # the waiting batches unclaimed (Ctrl-C before they started)
+    assert p.running == 31 and p.finished == 13 and "waiting" not in p.line()
+
+
+def test_without_a_live_channel_the_line_says_why():
+    p = Progress("camp", 100, stream=io.StringIO(), bar=False)
     p.no_live = "Dask: no live progress, runs counted as batches end"
-    assert "; 63 running (Dask: no live progress, runs counted as batches end))" in p.line()
-    p.returned(3)  # a batch of three unclaimed (Ctrl-C before it started)
-    assert p.running == 60 and p.finished == 13
+    p.started_runs(32)
+    assert "; 32 in flight (Dask: no live progress, runs counted as batches end))" in p.line()
+    assert "ETA ?" in p.line()
 
 
 def test_the_bar_moves_with_the_runs_in_flight_and_shows_whole_runs():
@@ -124,7 +135,8 @@ def test_the_bar_moves_with_the_runs_in_flight_and_shows_whole_runs():
     out = Terminal()
     p = Progress("camp", 10, {"completed": 2}, stream=out, interval_s=0.0)
     p.started_runs(4)
-    p.tick(2.0)
+    p.live(2.0, 4)
+    p.tick()
     bar = out.getvalue().split("\r")[-1]
     assert re.search(r"camp: +40%.*\| 2/10 \[", bar), bar  # 4 of 10 run-equivalents, 2 whole runs
     assert "4 running, 50 % through" in bar
@@ -153,9 +165,9 @@ def test_a_slow_twin_campaign_shows_its_runs_in_flight_before_the_first_batch_en
     stream.seek(0)
     lines = stream.read().splitlines()
     first = [ln for ln in lines if ln.startswith("slow: 0/4 ")]
-    shares = [int(m.group(1)) for ln in first if (m := re.search(r"; 4 running, (\d+) % through", ln))]
+    shares = [int(m.group(1)) for ln in first if (m := re.search(r"; 2 running, (\d+) % through, 2 waiting", ln))]
     assert len(shares) >= 5 and shares == sorted(shares), lines  # rising while the first batch runs
-    assert 0 < shares[-1] <= 50  # the first batch of two is under way, the second waits: at most half
+    assert 0 < shares[-1] <= 100  # the first batch of two is under way, the second waits for the one worker
     assert all("ETA ?" not in ln for ln in first[-3:]), first  # run-equivalents: an ETA before any run ends
     with Ledger.open_readonly(Path(directory)) as ledger:
         counts = format_counts(ledger.by_outcome())

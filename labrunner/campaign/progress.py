@@ -11,7 +11,7 @@ the command started), then at most every ``interval_s`` seconds, and one at the 
 batch jobs stay readable.
 
 A campaign's counts are whole runs with a finished outcome; the runs in flight are shown apart,
-with the share of their ticks done (``12/320 (… ; 64 running, 31 % through)``, from
+with the share of their ticks done (``12/320 (… ; 32 running, 31 % through, 32 waiting)``, from
 :mod:`labrunner.campaign.live`). The bar's position, the rate and the ETA count those
 run-equivalents too, so they are right before the first lockstep batch ends.
 """
@@ -116,9 +116,9 @@ class _Reporter(abc.ABC):
         )
 
     def _moved(self) -> None:
-        if self._bar is not None:
-            self._bar.update(self.position - self._bar.n)
+        if self._bar is not None:  # the words first: update() draws them with the position
             self._bar.set_postfix_str(self.detail(), refresh=False)
+            self._bar.update(self.position - self._bar.n)
         elif time.monotonic() - self._last_line >= self.interval_s:
             self.write(self.line())
 
@@ -158,9 +158,10 @@ class Progress(_Reporter):
         bar: bool | None = None,
     ) -> None:
         self.counts = {w: int((counts or {}).get(w, 0)) for w in FINISHED}
-        self.running = 0  # runs handed to workers and not yet committed
-        self.in_flight = 0.0  # run-equivalents the running runs have done (their batches' share of ticks)
-        self.no_live = ""  # why the running runs' share is unknown (e.g. a Dask cluster), if it is
+        self.running = 0  # runs handed to the executor and not yet counted
+        self.taken: int | None = None  # of those, the runs a worker has taken (None: not known)
+        self.in_flight = 0.0  # run-equivalents the started runs have done (their batches' share of ticks)
+        self.no_live = ""  # why the running runs' share is not known (a Dask cluster), if it is not
         super().__init__(label, total, sum(self.counts.values()), stream=stream, interval_s=interval_s, bar=bar)
 
     @property
@@ -172,40 +173,39 @@ class Progress(_Reporter):
         return self.finished + min(self.in_flight, self.running)
 
     def detail(self) -> str:
-        running = ""
-        if self.running:
-            share = f" ({self.no_live})" if self.no_live else f", {100 * self._share():.0f} % through"
-            running = f"; {self.running} running{share}"
-        return format_counts(self.counts) + running
-
-    def _share(self) -> float:
-        """Share of the running runs' ticks done (0 before any batch reports)."""
-        return min(self.in_flight, self.running) / self.running if self.running else 0.0
+        """The counts; then, apart, the runs in flight: ``; 16 running, 31 % through, 16 waiting``
+        (waiting: submitted, no worker free yet), or ``; 32 in flight (why no share is known)``."""
+        flight = ""
+        if self.running and self.taken is not None:
+            started = min(self.taken, self.running)
+            share = f", {100 * min(self.in_flight / started, 1.0):.0f} % through" if started else ""
+            waiting = f", {self.running - started} waiting" if self.running > started else ""
+            flight = f"; {started} running{share}{waiting}"
+        elif self.running:
+            flight = f"; {self.running} in flight ({self.no_live})" if self.no_live else f"; {self.running} running"
+        return format_counts(self.counts) + flight
 
     def started_runs(self, n: int) -> None:
-        """``n`` more runs handed to the workers (shown until they finish)."""
+        """``n`` more runs handed to the executor (shown until they are counted)."""
         self.running += n
 
-    def live(self, in_flight: float) -> None:
-        """The running runs' run-equivalents done (:meth:`Scheduler.in_flight`; a returned batch's
-        runs are whole until :meth:`update` counts each)."""
-        self.in_flight = in_flight
+    def live(self, in_flight: float, started: int | None) -> None:
+        """What the live channel says (:meth:`Scheduler.live`): run-equivalents done by the
+        started runs, and how many runs have started (a returned batch's runs count as started
+        and whole until :meth:`update` counts each)."""
+        self.in_flight, self.taken = in_flight, started
 
     def returned(self, n: int) -> None:
-        """``n`` running runs will not be counted in this session (unclaimed, or left claimed for resume)."""
+        """``n`` runs handed out will not be counted in this session (unclaimed, or left claimed for resume)."""
         self.running = max(0, self.running - n)
-        self.in_flight = max(0.0, self.in_flight - n)
-
-    def tick(self, in_flight: float | None = None) -> None:
-        if in_flight is not None:
-            self.live(in_flight)
-        super().tick()
 
     def update(self, outcome: str) -> None:
         """One more run with ``outcome`` (completed | no-motion | aborted | failed)."""
         self.counts[outcome] += 1
         self.running = max(0, self.running - 1)
         self.in_flight = max(0.0, self.in_flight - 1.0)  # it was in flight, whole
+        if self.taken is not None:
+            self.taken = max(0, self.taken - 1)
         self._moved()
 
 

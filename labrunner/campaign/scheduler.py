@@ -39,6 +39,7 @@ from typing import Any
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
+from labrunner.campaign.live import QUEUED
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
@@ -219,28 +220,30 @@ class Scheduler:
         if self.handle.live is not None:
             self.handle.live.release(slot)
 
-    def in_flight(self) -> float:
-        """Run-equivalents done by the running batches: Σ runs × share of the batch's ticks done."""
+    def live(self, whole: int = 0) -> None:
+        """Tell the progress what the live channel says: run-equivalents done (Σ runs × share of the
+        batch's ticks done) and runs started, over the batches in flight; ``whole``: runs of a
+        returned batch not yet counted (started, all ticks done). Nothing without a channel."""
         live = self.handle.live
-        if live is None:
-            return 0.0
-        done = 0.0
+        if self.progress is None or live is None:
+            return
+        done, started = float(whole), whole
         for batch in self.inflight.values():
             ticks = live.ticks(batch.slot)
-            if ticks > 0 and batch.ticks > 0:
-                done += len(batch.ids) * min(1.0, ticks / batch.ticks)
-        return done
+            if batch.slot is not None and ticks != QUEUED:
+                started += len(batch.ids)
+                done += len(batch.ids) * min(1.0, ticks / batch.ticks) if batch.ticks else 0.0
+        self.progress.live(done, started)
 
     def _collect(self, future: Future, out: Outcome) -> None:
         batch = self.inflight.pop(future)
         self._release(batch.slot)  # its worker has returned (or never started it): nothing writes the slot now
-        if self.progress:  # its runs whole in flight until each is counted: the position does not jump back
-            self.progress.live(self.in_flight() + len(batch.ids))
         counted = 0
         try:
             if future.cancelled():
                 self.ledger.unclaim(batch.ids)
                 return
+            self.live(whole=len(batch.ids))  # its runs whole until each is counted: the position never jumps back
             self.longest_s = max(self.longest_s, time.monotonic() - batch.submitted)
             exc = future.exception()
             if isinstance(exc, BrokenExecutor):  # a worker process died: every running batch is lost with it
@@ -262,8 +265,9 @@ class Scheduler:
             if result.stop:
                 out.stop_reason = out.stop_reason or result.stop
         finally:
-            if self.progress:  # runs that will not be counted this session (unclaimed, left claimed)
+            if self.progress:  # runs that will not be counted in this session (unclaimed, left claimed)
                 self.progress.returned(len(batch.ids) - counted)
+                self.live()
 
     def _abandon(self, out: Outcome) -> None:
         """Give up on every running batch now: their points stay claimed for ``resume``."""
@@ -275,6 +279,7 @@ class Scheduler:
                 if self.progress:
                     self.progress.returned(len(batch.ids))
             self.inflight.clear()
+            self.live()
             out.abandoned = True
 
     def _stopping(self, out: Outcome, pending: deque, why: str) -> None:
@@ -340,8 +345,9 @@ class Scheduler:
                     for future in done:
                         if future in self.inflight:
                             self._collect(future, out)
+                    self.live()
                     if self.progress:
-                        self.progress.tick(self.in_flight())
+                        self.progress.tick()
             except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
                 out.interrupted = out.abandoned = True
                 self.inflight.clear()
