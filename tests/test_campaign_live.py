@@ -6,8 +6,10 @@ from __future__ import annotations
 import io
 import math
 import multiprocessing
+import os
 import re
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -72,23 +74,26 @@ def test_a_batch_that_ends_early_reports_every_tick_once_at_its_end(project):
     assert calls[-1] == 1000 and calls[:-1] == list(range(10, ended, 10))
 
 
-def test_live_slots_are_reserved_freed_and_written_by_another_process():
-    ticks = live.LiveTicks(2, multiprocessing.get_context("fork"))
-    a, b = ticks.reserve(), ticks.reserve()
-    assert {a, b} == {0, 1} and ticks.reserve() is None  # full: that batch shows no progress
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_live_slots_are_reserved_freed_and_written_by_pool_workers(method):
+    """The runner's pool forks; a spawned pool gets the shared array through its initializer too."""
+    context = multiprocessing.get_context(method)
+    ticks = live.LiveTicks(3, context)
+    a, b, c = ticks.reserve(), ticks.reserve(), ticks.reserve()
+    assert {a, b, c} == {0, 1, 2} and ticks.reserve() is None  # full: that batch shows no progress
     assert ticks.ticks(a) == live.QUEUED and ticks.ticks(None) == 0
-    child = multiprocessing.get_context("fork").Process(target=_write_in_worker, args=(ticks.array, b, 1234))
-    child.start()
-    child.join(30)
-    assert child.exitcode == 0 and ticks.ticks(b) == 1234 and ticks.ticks(a) == live.QUEUED
+    with ProcessPoolExecutor(2, mp_context=context, initializer=live.install, initargs=(ticks.array,)) as pool:
+        pids = set(pool.map(_write_in_worker, [b, c], [1234, 99]))
+    assert os.getpid() not in pids  # written by other processes
+    assert ticks.ticks(b) == 1234 and ticks.ticks(c) == 99 and ticks.ticks(a) == live.QUEUED
     ticks.release(a)
     assert ticks.reserve() == a
     assert live.hook(0) is None  # not a pool worker: no channel installed here
 
 
-def _write_in_worker(array, slot: int, value: int) -> None:
-    live.install(array)
+def _write_in_worker(slot: int, value: int) -> int:
     live.hook(slot)(value)
+    return os.getpid()
 
 
 def test_the_progress_line_counts_whole_runs_and_shows_those_in_flight_apart(monkeypatch):
