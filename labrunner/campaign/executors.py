@@ -62,8 +62,8 @@ class InProcessExecutor(Executor):
 @dataclass
 class ExecutorHandle:
     """An executor, its number of parallel slots, its supervision hooks (see module docstring),
-    and its live channel (None: none; ``no_live`` then says why, for the progress line, or is
-    empty where a batch is one run and nothing is missed)."""
+    and its live channel (None: none; ``no_live`` then says why in the progress line, where
+    batches of many runs would otherwise seem stuck until they return)."""
 
     executor: Executor
     slots: int
