@@ -3,6 +3,7 @@ ETA of the progress line, and a slow twin's campaign whose progress moves before
 
 from __future__ import annotations
 
+import contextlib
 import io
 import math
 import multiprocessing
@@ -80,20 +81,34 @@ def test_live_slots_are_reserved_freed_and_written_by_pool_workers(method):
     context = multiprocessing.get_context(method)
     ticks = live.LiveTicks(3, context)
     a, b, c = ticks.reserve(), ticks.reserve(), ticks.reserve()
-    assert {a, b, c} == {0, 1, 2} and ticks.reserve() is None  # full: that batch shows no progress
-    assert ticks.ticks(a) == live.QUEUED and ticks.ticks(None) == 0
+    assert {a.slot, b.slot, c.slot} == {0, 1, 2} and ticks.reserve() is None  # full: that batch shows no progress
+    assert ticks.ticks(a) == live.QUEUED and ticks.ticks(None) == live.QUEUED
     with ProcessPoolExecutor(2, mp_context=context, initializer=live.install, initargs=(ticks.array,)) as pool:
         pids = set(pool.map(_write_in_worker, [b, c], [1234, 99]))
     assert os.getpid() not in pids  # written by other processes
     assert ticks.ticks(b) == 1234 and ticks.ticks(c) == 99 and ticks.ticks(a) == live.QUEUED
     ticks.release(a)
-    assert ticks.reserve() == a
-    assert live.hook(0) is None  # not a pool worker: no channel installed here
+    again = ticks.reserve()
+    assert again.slot == a.slot and again.serial == a.serial + 1
+    assert live.hook(again) is None  # not a pool worker: no channel installed here
 
 
-def _write_in_worker(slot: int, value: int) -> int:
-    live.hook(slot)(value)
+def _write_in_worker(address: live.Address, value: int) -> int:
+    live.hook(address)(value)
     return os.getpid()
+
+
+def test_a_late_dask_event_of_a_slots_previous_batch_is_dropped():
+    ticks = live.LiveTicks(1, topic="t")
+    first = ticks.reserve()
+    ticks.receive((0.0, [first.slot, first.serial, 500]))
+    assert ticks.ticks(first) == 500
+    ticks.release(first)
+    second = ticks.reserve()
+    ticks.receive((0.0, [first.slot, first.serial, 1000]))  # the first batch's last report, after its result
+    assert ticks.ticks(second) == live.QUEUED
+    ticks.receive((0.0, [second.slot, second.serial, 0]))
+    assert ticks.ticks(second) == 0
 
 
 def test_the_progress_line_counts_whole_runs_and_shows_those_in_flight_apart(monkeypatch):
@@ -124,14 +139,6 @@ def test_the_progress_line_counts_whole_runs_and_shows_those_in_flight_apart(mon
     assert p.running == 31 and p.finished == 13 and "waiting" not in p.line()
 
 
-def test_without_a_live_channel_the_line_says_why():
-    p = Progress("camp", 100, stream=io.StringIO(), bar=False)
-    p.no_live = "Dask: no live progress, runs counted as batches end"
-    p.started_runs(32)
-    assert "; 32 in flight (Dask: no live progress, runs counted as batches end))" in p.line()
-    assert "ETA ?" in p.line()
-
-
 def test_the_bar_moves_with_the_runs_in_flight_and_shows_whole_runs():
     class Terminal(io.StringIO):
         def isatty(self) -> bool:
@@ -156,16 +163,26 @@ def _slow_step(step):
     return slow
 
 
-def test_a_slow_twin_campaign_shows_its_runs_in_flight_before_the_first_batch_ends(project, monkeypatch):
-    """Two batches of two 10 s runs at 200 Hz, 1 ms a tick (≥ 2 s a batch), one worker, a line
-    every 0.1 s: lines with nothing committed show the share rising and an ETA; the last line's
-    counts are the ledger's."""
-    monkeypatch.setattr(DCMotorTwin, "_step", _slow_step(DCMotorTwin._step))  # the pool's workers fork from here
+@pytest.mark.parametrize("executor", ["pool", "dask"])
+def test_a_slow_twin_campaign_shows_its_runs_in_flight_before_the_first_batch_ends(project, monkeypatch, executor):
+    """Two batches of two 10 s runs at 200 Hz, 1 ms a tick (≥ 2 s a batch), one worker (a forked
+    pool's, or a Dask worker's thread: reports as Dask events), a line every 0.1 s: lines with
+    nothing committed show the share rising and an ETA; the last line's counts are the ledger's."""
+    monkeypatch.setattr(DCMotorTwin, "_step", _slow_step(DCMotorTwin._step))  # pool workers fork from here
     path = write(project / "campaigns" / "slow.toml", campaign_text("slow", duration=10.0, grid=GRID2))
     stream = (project / "progress.txt").open("w+")
-    opts = runner.Options(workers=1, batch_size=2, stream=stream, progress_interval_s=0.1)
-    started = time.monotonic()
-    outcome, directory = runner.start(path, project / "data" / "slow", opts)
+    with contextlib.ExitStack() as stack:
+        url = None
+        if executor == "dask":
+            from distributed import LocalCluster
+
+            cluster = LocalCluster(
+                n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://", dashboard_address=":0"
+            )
+            url = stack.enter_context(cluster).scheduler_address
+        opts = runner.Options(workers=1, executor=url, batch_size=2, stream=stream, progress_interval_s=0.1)
+        started = time.monotonic()
+        outcome, directory = runner.start(path, project / "data" / "slow", opts)
     assert time.monotonic() - started > 4.0, "the twin was not slow: the test shows nothing"
     stream.seek(0)
     lines = stream.read().splitlines()

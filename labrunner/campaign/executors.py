@@ -16,7 +16,8 @@ Executors:
   (``PR_SET_PDEATHSIG``), reporting their batches' ticks through a shared array
   (:mod:`labrunner.campaign.live`);
 - a Dask distributed cluster (``--executor tcp://HOST:PORT``: ``Client(address).get_executor()``);
-  its workers must see the campaign directory (shared file system); no live channel;
+  its workers must see the campaign directory (shared file system) and report their batches'
+  ticks as Dask events on a topic the client subscribes to;
 - in-process, one run at a time, for a real rig.
 
 At most :data:`QUEUE_DEPTH` batches per slot are in flight (one running, the next queued behind it).
@@ -30,6 +31,7 @@ import multiprocessing
 import os
 import signal
 import socket
+import uuid
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -62,15 +64,13 @@ class InProcessExecutor(Executor):
 @dataclass
 class ExecutorHandle:
     """An executor, its number of parallel slots, its supervision hooks (see module docstring),
-    and its live channel (None: none; ``no_live`` then says why in the progress line, where
-    batches of many runs would otherwise seem stuck until they return)."""
+    and its live channel (None: none, a real rig's one run at a time)."""
 
     executor: Executor
     slots: int
     probe: Callable[[], str] = field(default=lambda: "")
     abandon: Callable[[], None] = field(default=lambda: None)
     live: live.LiveTicks | None = None
-    no_live: str = ""
 
     @property
     def max_inflight(self) -> int:
@@ -179,6 +179,8 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
         started = len(client.scheduler_info().get("workers", {}))
         slots = workers or max(1, sum(client.nthreads().values()))
         executor = client.get_executor(pure=False)
+        ticks = live.LiveTicks(QUEUE_DEPTH * slots, topic=f"labrunner-live-{uuid.uuid4().hex}")
+        client.subscribe_topic(ticks.topic, ticks.receive)
 
         def probe() -> str:
             if client.status != "running":
@@ -192,9 +194,7 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
             with contextlib.suppress(Exception):
                 client.cancel(list(getattr(executor, "_futures", ())), force=True)
 
-        yield ExecutorHandle(
-            executor, slots, probe=probe, abandon=abandon, no_live="Dask: no live progress, runs counted as batches end"
-        )
+        yield ExecutorHandle(executor, slots, probe=probe, abandon=abandon, live=ticks)
     finally:
         with contextlib.suppress(Exception):
             client.close(timeout=5)

@@ -161,7 +161,6 @@ class Progress(_Reporter):
         self.running = 0  # runs handed to the executor and not yet counted
         self.taken: int | None = None  # of those, the runs a worker has taken (None: not known)
         self.in_flight = 0.0  # run-equivalents the started runs have done (their batches' share of ticks)
-        self.no_live = ""  # why the running runs' share is not known (a Dask cluster), if it is not
         super().__init__(label, total, sum(self.counts.values()), stream=stream, interval_s=interval_s, bar=bar)
 
     @property
@@ -174,7 +173,7 @@ class Progress(_Reporter):
 
     def detail(self) -> str:
         """The counts; then, apart, the runs in flight: ``; 16 running, 31 % through, 16 waiting``
-        (waiting: submitted, no worker free yet), or ``; 32 in flight (why no share is known)``."""
+        (waiting: submitted, no worker free yet; without a live channel only ``; 16 running``)."""
         flight = ""
         if self.running and self.taken is not None:
             started = min(self.taken, self.running)
@@ -182,7 +181,7 @@ class Progress(_Reporter):
             waiting = f", {self.running - started} waiting" if self.running > started else ""
             flight = f"; {started} running{share}{waiting}"
         elif self.running:
-            flight = f"; {self.running} in flight ({self.no_live})" if self.no_live else f"; {self.running} running"
+            flight = f"; {self.running} running"
         return format_counts(self.counts) + flight
 
     def started_runs(self, n: int) -> None:

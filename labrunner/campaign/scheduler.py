@@ -163,8 +163,6 @@ class Scheduler:
         self.deadline: float | None = None  # once stopping: when running batches are abandoned
         self.bound_s = 0.0
         self._next_probe = 0.0
-        if progress is not None:
-            progress.no_live = self.handle.no_live
 
     def _task(self, key: str, rows: list[Any]) -> BatchTask:
         _, fs, duration, *_ = json.loads(key)
@@ -191,7 +189,7 @@ class Scheduler:
     def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:
         live = self.handle.live
         slot = live.reserve() if live is not None else None
-        task = replace(self._task(key, rows), live_slot=slot)
+        task = replace(self._task(key, rows), live_at=slot)
         ids = [r.point_id for r in task.runs]
         self.ledger.claim(ids)
         h = self.handle
@@ -230,7 +228,7 @@ class Scheduler:
         done, started = float(whole), whole
         for batch in self.inflight.values():
             ticks = live.ticks(batch.slot)
-            if batch.slot is not None and ticks != QUEUED:
+            if ticks != QUEUED:
                 started += len(batch.ids)
                 done += len(batch.ids) * min(1.0, ticks / batch.ticks) if batch.ticks else 0.0
         self.progress.live(done, started)

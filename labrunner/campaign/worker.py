@@ -57,7 +57,7 @@ class BatchTask:
     duration: float
     runs: tuple[RunTask, ...]
     samples_hz: float | None = None  # [logging] samples_hz: thin the logs' per-sample channel (None: full rate)
-    live_slot: int | None = None  # where a pool worker reports the ticks done (labrunner.campaign.live)
+    live_at: live.Address | None = None  # where the worker reports the ticks done (labrunner.campaign.live)
 
 
 @dataclass
@@ -118,12 +118,12 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
     asks the parent to stop (architecture: "stop-campaign"), publishing the logs up to the failure
     when the engine attached them (``exc.results``); any other exception marks the batch's
-    points failed with the message (they have no log) and the campaign goes on. In a pool worker
-    the ticks done go to the parent's live channel (:mod:`labrunner.campaign.live`) as they pass.
+    points failed with the message (they have no log) and the campaign goes on. The ticks done go
+    to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass.
     """
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
-    report = live.hook(task.live_slot)
+    report = live.hook(task.live_at)
     if report is not None:
         report(0)  # taken: no longer queued
     t0, start_time = time.perf_counter(), time.time()
