@@ -142,9 +142,10 @@ def run_batch(
 
     ``rig_safety`` is the rig file's ``[safety]`` section; each point's ``safety`` section
     overrides it. ``sink(first_index, block)`` receives run 0's samples every 1024 ticks (real rigs
-    log while they run). ``progress(ticks_done)`` is called every ⌈K / PROGRESS_CALLS⌉ ticks and once
-    when the loop ends (with K, also after an early end), so at most PROGRESS_CALLS times. Bad configuration raises :class:`~labrunner.errors.InvalidParameter`
-    before the rig moves; an exception during the run marks every unfinished run ``failed``.
+    log while they run). ``progress(ticks_done)`` is called every ⌈K / PROGRESS_CALLS⌉ ticks and
+    once when the loop ends (with K, also after an early end): at most PROGRESS_CALLS times. Bad
+    configuration raises :class:`~labrunner.errors.InvalidParameter` before the rig moves; an
+    exception during the run marks every unfinished run ``failed``.
     """
     B = len(points)
     K = int(round(duration * fs))

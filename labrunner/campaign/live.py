@@ -23,6 +23,7 @@ batch, and is counted per run (no channel).
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import threading
 from collections.abc import Callable
@@ -98,7 +99,8 @@ def hook(address: Address | None) -> Callable[[int], None] | None:
         worker, topic, slot, serial = get_worker(), address.topic, address.slot, address.serial
 
         def send(ticks: int) -> None:
-            worker.log_event(topic, [slot, serial, int(ticks)])
+            with contextlib.suppress(Exception):  # best effort: a lost report must never fail the runs
+                worker.log_event(topic, [slot, serial, int(ticks)])
 
         return send
     array = _channel
