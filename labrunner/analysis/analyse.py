@@ -11,6 +11,7 @@ theory (:mod:`.agreement`); write the report. Returns the summary that ``--json`
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
@@ -19,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner.analysis import agreement as agreement_mod, campaign_report, figures, table as table_mod
+from labrunner.analysis.background import Background
 from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.maps import gain_units
 from labrunner.campaign import spec
@@ -28,6 +30,9 @@ from labrunner.control.mfc import GAMMA_UNITS
 from labrunner.errors import InvalidParameter, LabrunnerError
 
 __all__ = ["Context", "Theories", "analyse", "load_campaign", "varying_axes"]
+
+#: Run plots drawn in a forked child while the maps are drawn (more: in this process, with progress).
+BACKGROUND_PLOTS = 8
 
 
 def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Campaign | None, str]:
@@ -206,13 +211,10 @@ def analyse(
     )
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
-    csv, parquet = table_mod.write_table(frame, out, directory)
     if error == "e_hat":
         if not frame.get("rms_error_hat", pd.Series(dtype=float)).notna().any():
             raise InvalidParameter("error", "e_hat: the runs of this campaign log no ê (e_hat_<output>)")
         frame = frame.assign(rms_error=frame["rms_error_hat"])
-    advance()
-    step("maps")
     ctx = Context(
         directory,
         out,
@@ -222,19 +224,35 @@ def analyse(
         _units(frame, directory, campaign),
         "ê" if error == "e_hat" else "e",
     )
-    theories = Theories(campaign)
-    maps = figures.draw_maps(frame, ctx, theories)
-    advance()
     chosen = chosen_runs(frame)
     extra = plot_selection(frame, plot)
-    step("run plots", len(chosen) + len(extra))
-    plots = figures.draw_runs(frame, [*(row["id"] for row in chosen.values()), *extra], ctx, tick=advance)
-    agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
-    sections, guided = [], None
-    if campaign is not None and campaign.guided is not None:  # the walk and its step counts
-        from labrunner.campaign import guided_report
+    ids = list(dict.fromkeys([*(row["id"] for row in chosen.values()), *extra]))
+    # a few run plots (the usual best, worst, first aborted) are drawn in a forked child meanwhile;
+    # many (--plot all) here, below, with progress
+    few = (workers or os.cpu_count() or 1) > 1 and 0 < len(ids) <= BACKGROUND_PLOTS
+    drawing = Background(lambda: figures.draw_runs(frame, ids, ctx)) if few else None
+    try:
+        csv, parquet = table_mod.write_table(built.frame, out, directory)
+        advance()
+        step("maps")
+        theories = Theories(campaign)
+        maps = figures.draw_maps(frame, ctx, theories)
+        advance()
+        agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
+        sections, guided = [], None
+        if campaign is not None and campaign.guided is not None:  # the walk and its step counts
+            from labrunner.campaign import guided_report
 
-        sections, guided = guided_report.sections(campaign, rows, out)
+            sections, guided = guided_report.sections(campaign, rows, out)
+        step("run plots", len(ids))
+        if drawing is not None:
+            plots = drawing.result()
+            advance(len(ids))
+        else:
+            plots = figures.draw_runs(frame, ids, ctx, tick=advance)
+    finally:
+        if drawing is not None:
+            drawing.close()
     step("report")
     summary = {
         **counts(frame),
