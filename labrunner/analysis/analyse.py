@@ -230,6 +230,8 @@ def analyse(
     # a few run plots (the usual best, worst, first aborted) are drawn in a forked child meanwhile;
     # many (--plot all) here, below, with progress
     few = (workers or os.cpu_count() or 1) > 1 and 0 < len(ids) <= BACKGROUND_PLOTS
+    if few:
+        figures.warm_text()
     drawing = Background(lambda: figures.draw_runs(frame, ids, ctx)) if few else None
     try:
         csv, parquet = table_mod.write_table(built.frame, out, directory)

@@ -168,12 +168,26 @@ def mark_outside(lines: Sequence[OverlayLine], x: Axis, y: Axis) -> list[Overlay
     return [replace(line, label=f"{line.label} (outside the map)") if _outside(line, x, y) else line for line in lines]
 
 
+#: zlib level of the PNGs: 3 encodes a map in ~20 instead of ~30 ms (level 6) for files within a few per cent.
+PNG_COMPRESSION = 3
+
+
 def _save(fig, path: Path) -> Path:
     """Save atomically (temporary name, then rename): a killed analysis leaves no half a PNG."""
     tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, dpi=DPI, format="png")
+    fig.savefig(tmp, dpi=DPI, format="png", pil_kwargs={"compress_level": PNG_COMPRESSION})
     tmp.replace(path)
     return path
+
+
+def warm_text() -> None:
+    """Load the fonts and mathtext's grammar (the log axes' 10^k labels, the run plots' Ω_r) now:
+    called before the run plots' child is forked, so that it shares them instead of loading them
+    again (~65 ms of its ~0.55 s)."""
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.mathtext import MathTextParser
+
+    MathTextParser("agg").parse(r"$\mathdefault{10^{2}}$", DPI, FontProperties())
 
 
 def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tuple[Path, str]]:
