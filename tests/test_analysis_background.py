@@ -1,5 +1,5 @@
-"""The run plots drawn in a forked child: the same result as in this process, and a failed child
-falls back to this process."""
+"""Figures drawn in forked children: the same result as in this process, and a failed child falls
+back to this process."""
 
 import os
 import sys
@@ -54,14 +54,17 @@ def test_close_waits_for_an_unwanted_child():
 
 
 @forks
-def test_run_plots_drawn_in_a_child_equal_those_drawn_here(tmp_path):
+def test_figures_drawn_in_children_equal_those_drawn_here(tmp_path):
+    """workers=2: the run plots and the second map come from forked children; byte for byte the
+    files one process draws, and the same summary."""
     make_campaign(tmp_path)
     here = analyse(tmp_path, tmp_path / "one", workers=1, progress=False)
     child = analyse(tmp_path, tmp_path / "two", workers=2, progress=False)
-    assert len(here["run_plots"]) == len(child["run_plots"]) == 3
-    for a, b in zip(here["run_plots"], child["run_plots"]):
+    assert len(here["run_plots"]) == len(child["run_plots"]) == 3 and len(here["maps"]) == len(child["maps"]) == 2
+    for a, b in zip(here["maps"] + here["run_plots"], child["maps"] + child["run_plots"]):
         assert os.path.basename(a) == os.path.basename(b)
         assert open(a, "rb").read() == open(b, "rb").read()
-    assert {k: v for k, v in here.items() if k not in ("maps", "run_plots", "metrics", "report")} == {
-        k: v for k, v in child.items() if k not in ("maps", "run_plots", "metrics", "report")
-    }
+    paths = ("maps", "run_plots", "metrics", "report")
+    assert {k: v for k, v in here.items() if k not in paths} == {k: v for k, v in child.items() if k not in paths}
+    text = [open(s["report"], encoding="utf-8").read() for s in (here, child)]
+    assert text[0].replace(str(tmp_path / "one"), "OUT") == text[1].replace(str(tmp_path / "two"), "OUT")

@@ -227,18 +227,25 @@ def analyse(
     chosen = chosen_runs(frame)
     extra = plot_selection(frame, plot)
     ids = list(dict.fromkeys([*(row["id"] for row in chosen.values()), *extra]))
-    # a few run plots (the usual best, worst, first aborted) are drawn in a forked child meanwhile;
-    # many (--plot all) here, below, with progress
-    few = (workers or os.cpu_count() or 1) > 1 and 0 < len(ids) <= BACKGROUND_PLOTS
-    if few:
-        figures.warm_text()
-    drawing = Background(lambda: figures.draw_runs(frame, ids, ctx)) if few else None
+    # Two cores: the run plots (the usual few; many, --plot all, are drawn here with progress) are
+    # drawn in a child forked now, the second half of the maps in one forked once their overlays
+    # are computed; this process draws the rest and writes the tables meanwhile.
+    concurrent = (workers or os.cpu_count() or 1) > 1
+    children: list[Background] = []
+    if concurrent and 0 < len(ids) <= BACKGROUND_PLOTS:
+        figures.warm_text()  # fonts and mathtext loaded once, for all processes
+        children.append(Background(lambda: figures.draw_runs(frame, ids, ctx)))
+    drawing = children[0] if children else None
     try:
         csv, parquet = table_mod.write_table(built.frame, out, directory)
         advance()
         step("maps")
         theories = Theories(campaign)
-        maps = figures.draw_maps(frame, ctx, theories)
+        jobs = figures.map_jobs(frame, ctx, theories)
+        half = len(jobs) // 2 if concurrent else 0
+        if half:
+            children.append(Background(lambda: figures.draw(jobs[-half:])))
+        maps = figures.draw(jobs[: len(jobs) - half]) + (children[-1].result() if half else [])
         advance()
         agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
         sections, guided = [], None
@@ -253,8 +260,8 @@ def analyse(
         else:
             plots = figures.draw_runs(frame, ids, ctx, tick=advance)
     finally:
-        if drawing is not None:
-            drawing.close()
+        for child in children:
+            child.close()
     step("report")
     summary = {
         **counts(frame),

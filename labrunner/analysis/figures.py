@@ -8,6 +8,7 @@ one γ). Run plots reuse :func:`labrunner.runplot.plot_run`.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure
 
 from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.maps import Axis, axis_label, cell_edges, is_log_spaced, map_figure, sweep_figure
@@ -190,9 +192,15 @@ def warm_text() -> None:
     MathTextParser("agg").parse(r"$\mathdefault{10^{2}}$", DPI, FontProperties())
 
 
-def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tuple[Path, str]]:
-    """RMS and energy maps (2-D grids) or sweep plots (1-D): (PNG path, title) each."""
-    paths: list[tuple[Path, str]] = []
+#: A figure to draw: (PNG path, caption, a function that makes the figure).
+Job = tuple[Path, str, Callable[[], Figure]]
+
+
+def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Job]:
+    """The RMS and energy maps (2-D grids) or the sweep plot (1-D) as figures to draw, their
+    overlays computed now (the theory, once), the drawing left to :func:`draw` (so that a forked
+    process can draw some of them)."""
+    jobs: list[Job] = []
     name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
     units, forms = ctx.units, grid_forms(ctx.campaign)
     if len(ctx.axes) == 1:
@@ -207,13 +215,11 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
             others = ", ".join(f"{_SYMBOLS[k]} = {v:.5g}" for k, v in fixed.items() if k != GAINS[key])
             note = f"\n{theory.delay_note()}" + (f", {others}" if others else "")
         columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in map_metrics(ctx.error)]
-        fig = sweep_figure(
-            frame, x, columns, title=f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}", overlays=lines
-        )
-        paths.append((_save(fig, ctx.out / "sweep.png"), f"RMS of {ctx.error} and input energy over {x.label}"))
-        return paths
+        title = f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}"
+        sweep = functools.partial(sweep_figure, frame, x, columns, title=title, overlays=lines)
+        return [(ctx.out / "sweep.png", f"RMS of {ctx.error} and input energy over {x.label}", sweep)]
     if len(ctx.axes) < 2:
-        return paths
+        return jobs
     kx, ky = choose_pair(ctx.axes)
     extra = [k for k in ctx.axes if k not in (kx, ky)]
     for i, (suffix, rows) in enumerate(facets(frame, extra)):
@@ -224,7 +230,8 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
         for column, title, label in map_metrics(ctx.error, rows):
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
-            fig = map_figure(
+            figure = functools.partial(
+                map_figure,
                 rows,
                 x,
                 y,
@@ -235,8 +242,13 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
             )
             tag = f"_{i + 1}" if extra else ""
             caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
-            paths.append((_save(fig, ctx.out / f"map_{column}{tag}.png"), caption))
-    return paths
+            jobs.append((ctx.out / f"map_{column}{tag}.png", caption, figure))
+    return jobs
+
+
+def draw(jobs: Sequence[Job]) -> list[tuple[Path, str]]:
+    """Draw and save each job's figure: (PNG path, caption) each."""
+    return [(_save(make(), path), caption) for path, caption, make in jobs]
 
 
 PLOTS_DIR = "plots"  # run plots, one per point: <out>/plots/<id>.png
