@@ -264,3 +264,23 @@ def test_k_p_limits_equal_the_bounds_point_by_point(kind, case):
         expected = (np.nan, np.nan) if found is None else tuple(found)
         np.testing.assert_array_equal([lo[idx], hi[idx]], expected)
     assert kind == "mfc1" or np.isnan(lo).any()  # k_d = 60 lies outside the corrected k_d range
+
+
+def test_parameter_records_are_the_dotted_columns_and_the_distinct_settings():
+    from labrunner.analysis.context import parameter_records
+
+    table = pd.DataFrame(
+        {
+            "controller.gamma": [1.0, 2.0, 1.0, 2.0],
+            "controller.k_p": [5.0, 5.0, 6.0, 6.0],
+            "differentiator.alpha": [4.0, 4.0, 6.0, 6.0],
+            "reference.law": ["step", "step", "step", None],
+            "rms_error": [0.1, 0.2, 0.3, 0.4],
+        }
+    )
+    plain = parameter_records(table)
+    assert plain == [{k: v for k, v in r.items() if k != "rms_error"} for r in table.to_dict("records")]
+    settings = parameter_records(table, settings=True)
+    assert len(settings) == 3 and all(set(r) == {"differentiator.alpha", "reference.law"} for r in settings)
+    assert parameter_records(table[["controller.gamma", "controller.k_p"]], settings=True) == [{}]
+    assert parameter_records(table.iloc[:0], settings=True) == []

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from labrunner.analysis.context import parameter_records
 from labrunner.analysis.figures import common_theory
 from labrunner.analysis.overlays import EQUATIONS
 from labrunner.analysis.report import Image, Section, write_report
@@ -125,8 +126,7 @@ def _theory_section(frame: pd.DataFrame, theories) -> Section | None:
     theory = common_theory(frame, theories)
     if theory is None or not theory.cases():
         return None
-    records = frame.to_dict("records")
-    gains = [theories.gains(r) for r in records[:: max(1, len(records) // 200)]]
+    gains = [theories.gains(r) for r in parameter_records(frame.iloc[:: max(1, len(frame) // 200)])]
     gammas = sorted({g["gamma"] for g in gains if "gamma" in g})
     if len(gammas) > _GAMMAS_SHOWN:
         gammas = [gammas[round(i * (len(gammas) - 1) / (_GAMMAS_SHOWN - 1))] for i in range(_GAMMAS_SHOWN)]

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from labrunner.analysis.context import Context, Theories
+from labrunner.analysis.context import Context, Theories, parameter_records
 from labrunner.analysis.maps import Axis, axis_label, cell_edges, is_log_spaced, map_figure, sweep_figure
 from labrunner.analysis.overlays import (
     OverlayLine,
@@ -123,7 +123,7 @@ def facets(frame: pd.DataFrame, extra: Sequence[str]) -> list[tuple[str, pd.Data
 def common_theory(rows: pd.DataFrame, theories: Theories) -> Theory | None:
     """The one theory valid for all ``rows`` (same kind, δ_t and rig constants), else None."""
     found = {}
-    for row in rows.to_dict("records"):
+    for row in parameter_records(rows, settings=True):
         theory = theories(row)
         if theory is None:
             return None
@@ -145,7 +145,7 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
     if pair == ("controller.gamma", "controller.k_p") and theory.kind == "mfc1":
         return gamma_kp_lines(theory, dense_axis(cell_edges(x.values, x.log), x.log)), note
     if pair == ("controller.k_p", "controller.k_d") and theory.kind == "mfc2":
-        gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for r in rows.to_dict("records")}
+        gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for r in parameter_records(rows)}
         if len(gammas) == 1:
             gamma = gammas.pop()
             return kp_kd_lines(
