@@ -6,7 +6,9 @@ metrics or with ``recompute``); pick the map axes from the grid (γ–k_p and k_
 thesis, else grid order; further axes become facets); draw RMS and energy maps (or sweep plots)
 with the stability overlays that fit (:mod:`.overlays`); plot the best, the worst completed, the
 first aborted run and any runs asked for (the only logs read then); compare outcomes with the
-theory (:mod:`.agreement`); write the report. Returns the summary that ``--json`` prints.
+theory (:mod:`.agreement`); write the report. Returns the summary that ``--json`` prints. With
+more than one worker the run plots and the second half of the maps are drawn in forked children
+(:mod:`.background`) while this process draws the rest.
 """
 
 from __future__ import annotations
