@@ -68,3 +68,26 @@ def test_figures_drawn_in_children_equal_those_drawn_here(tmp_path):
     assert {k: v for k, v in here.items() if k not in paths} == {k: v for k, v in child.items() if k not in paths}
     text = [open(s["report"], encoding="utf-8").read() for s in (here, child)]
     assert text[0].replace(str(tmp_path / "one"), "OUT") == text[1].replace(str(tmp_path / "two"), "OUT")
+
+
+def test_plots_to_draw_are_those_not_kept(tmp_path):
+    """A run plot newer than its log is kept (not drawn, no child forked for it); a missing or
+    older one is drawn; a point without a log has nothing to draw."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from labrunner.analysis.figures import plot_path, plots_to_draw
+
+    (tmp_path / "runs").mkdir()
+    for name in ("a", "b", "c"):
+        (tmp_path / "runs" / f"{name}.mcap").write_bytes(b"log")
+    ctx = SimpleNamespace(directory=tmp_path, out=tmp_path / "report")
+    frame = pd.DataFrame({"id": ["a", "b", "c", "d"], "log_path": ["runs/a.mcap", "runs/b.mcap", "runs/c.mcap", None]})
+    for name, offset in (("a", 10), ("b", -10)):  # a's plot newer than its log, b's older
+        png = plot_path(ctx.out, name)
+        png.parent.mkdir(parents=True, exist_ok=True)
+        png.write_bytes(b"png")
+        log_ns = (tmp_path / "runs" / f"{name}.mcap").stat().st_mtime_ns
+        os.utime(png, ns=(log_ns + offset * 10**9, log_ns + offset * 10**9))
+    assert plots_to_draw(frame, ["a", "b", "c", "d", "b"], ctx) == ["b", "c"]

@@ -233,9 +233,10 @@ def analyse(
     # drawn in a child forked now, the second half of the maps in one forked once their overlays
     # are computed; this process draws the rest and writes the tables meanwhile.
     concurrent = (workers or os.cpu_count() or 1) > 1
-    children: list[Background] = []
-    if concurrent and 0 < len(ids) <= BACKGROUND_PLOTS:
+    if concurrent:
         figures.warm_text()  # fonts and mathtext loaded once, for all processes
+    children: list[Background] = []
+    if concurrent and 0 < len(ids) <= BACKGROUND_PLOTS and figures.plots_to_draw(frame, ids, ctx):
         children.append(Background(lambda: figures.draw_runs(frame, ids, ctx)))
     drawing = children[0] if children else None
     try:

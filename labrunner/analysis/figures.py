@@ -258,6 +258,25 @@ def plot_path(out: Path, point_id: str) -> Path:
     return out / PLOTS_DIR / f"{point_id}.png"
 
 
+def _kept(log: Path, png: Path) -> bool:
+    """Whether the run plot ``png`` is newer than its ``log`` (then it is not drawn again)."""
+    return png.is_file() and png.stat().st_mtime_ns >= log.stat().st_mtime_ns
+
+
+def plots_to_draw(frame: pd.DataFrame, ids: Sequence[str], ctx: Context) -> list[str]:
+    """The ``ids`` whose run plot :func:`draw_runs` would draw (not kept, a log to draw it from)."""
+    logs = dict(zip(frame["id"], frame["log_path"]))
+    todo = []
+    for point_id in dict.fromkeys(ids):
+        rel = logs.get(point_id)
+        try:
+            if isinstance(rel, str) and not _kept(ctx.directory / rel, plot_path(ctx.out, point_id)):
+                todo.append(point_id)
+        except OSError:
+            pass
+    return todo
+
+
 def draw_runs(
     frame: pd.DataFrame, ids: Sequence[str], ctx: Context, tick: Callable[[int], None] | None = None
 ) -> dict[str, Path]:
@@ -272,7 +291,7 @@ def draw_runs(
         if isinstance(rel, str):
             log, png = ctx.directory / rel, plot_path(ctx.out, point_id)
             try:
-                if not (png.is_file() and png.stat().st_mtime_ns >= log.stat().st_mtime_ns):
+                if not _kept(log, png):
                     png.parent.mkdir(parents=True, exist_ok=True)
                     _save(plot_run(log), png)
                 out[point_id] = png
