@@ -26,7 +26,10 @@ analyse 3.69 s / 3.15 s, naive script 24.1 s / 23.2 s → 3.4× wall, 3.7× CPU 
 run + 3.2 s fixed. Where the 1000-point campaign's ~6 s CPU goes: the engine ~0.75 s and the
 log writer ~1 s in the workers; the runner's imports and plan ~0.8 s; analyse's imports (pandas,
 matplotlib, pyarrow) ~1 s, its two maps ~0.65 s and three run plots ~0.65 s (matplotlib's drawing
-of ticks and text, not the data).
+of ticks and text, not the data). Since then (load average 2.3, `--skip-10k --skip-naive`):
+analyse 3.08 s wall / 2.43 s CPU at 1000 points (run plots and half the maps drawn in forked
+children, log axes with the ticks in view only, bounds once per setting), 0.14 ms per run +
+2.2 s fixed (benchmarks/bench_analysis.py); run 2.05 s / 2.25 s.
 
 Run: ``python benchmarks/bench_campaign.py [--skip-10k] [--skip-naive]``.
 """
