@@ -61,16 +61,13 @@ def _compressor(level: int, thread: int | None = None) -> zstandard.ZstdCompress
     return zstandard.ZstdCompressor(level=level)
 
 
-def message_array(n: int, channel_id: int, payload: np.dtype | int, template: np.ndarray | None = None) -> np.ndarray:
-    """``n`` MCAP message records of ``channel_id`` whose ``data`` field has dtype ``payload`` (a
-    structured dtype the caller fills field by field, or a byte count for raw bytes).
+def message_row(channel_id: int, payload: np.dtype | int, template: np.ndarray | None = None) -> np.ndarray:
+    """One MCAP message record of ``channel_id`` as a structured row whose ``data`` field has dtype
+    ``payload`` (a structured dtype the caller fills field by field, or a byte count for raw bytes).
 
     Row layout: opcode 0x05, record length (u64), channel id (u16), sequence (u32), log time and
     publish time (u64, ns), payload. Opcode, length and channel are filled here, and the payload
-    from ``template`` (one payload, e.g. the constant tags of a protobuf message) if given — by
-    broadcasting one row's bytes, 10× faster than assigning fields; the caller fills ``sequence``,
-    ``log_time`` and the payload's varying fields (:meth:`BulkWriter.add_records` sets the
-    publish time).
+    from ``template`` (one payload, e.g. the constant tags of a protobuf message) if given.
     """
     payload = np.dtype(("u1", (payload,))) if isinstance(payload, int) else np.dtype(payload)
     dtype = np.dtype(
@@ -85,9 +82,21 @@ def message_array(n: int, channel_id: int, payload: np.dtype | int, template: np
     row["opcode"], row["length"], row["channel"] = Opcode.MESSAGE, dtype.itemsize - 9, channel_id
     if template is not None:
         row["data"] = template
-    records = np.empty(n, dtype=dtype)
-    records.view(np.uint8).reshape(n, dtype.itemsize)[...] = row.view(np.uint8)
+    return row
+
+
+def repeat_row(row: np.ndarray, n: int) -> np.ndarray:
+    """``n`` copies of a :func:`message_row`, by broadcasting its bytes (10× faster than
+    assigning fields); the caller fills ``sequence``, ``log_time`` and the payload's varying fields
+    (:meth:`BulkWriter.add_records` sets the publish time)."""
+    records = np.empty(n, dtype=row.dtype)
+    records.view(np.uint8).reshape(n, row.dtype.itemsize)[...] = row.view(np.uint8)
     return records
+
+
+def message_array(n: int, channel_id: int, payload: np.dtype | int, template: np.ndarray | None = None) -> np.ndarray:
+    """``n`` MCAP message records of ``channel_id`` (:func:`message_row`, :func:`repeat_row`)."""
+    return repeat_row(message_row(channel_id, payload, template), n)
 
 
 def message_records(channel_id: int, log_times: np.ndarray, sequences: np.ndarray, payloads: np.ndarray) -> np.ndarray:
