@@ -333,7 +333,7 @@ class BulkWriter:
         if chunk.times is None:
             return
         # joined and compressed in one call: ~30 µs a chunk less than zstd's streaming chunker (whose
-        # buffers are fresh memory each time); the frame is the same, content size included
+        # buffers are fresh memory each time); the frame still records the content size
         records = b"".join(chunk.pieces)
         crc = zlib.crc32(records) if chunk.crc else 0
         compressed = _compressor(chunk.level, threading.get_ident()).compress(records)
