@@ -30,6 +30,7 @@ from labrunner.errors import CampaignError, RigError
 RUNS_DIR = "runs"
 TMP_PREFIX = ".tmp-"
 _FSYNC_THREADS = 8
+_FSYNC_GROUP = 16  # logs fsynced by one thread task, one after the other
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,11 @@ def _fsync(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def _fsync_all(paths: list[Path]) -> None:
+    for path in paths:
+        _fsync(path)
 
 
 def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> dict[str, dict[str, Any]]:
@@ -185,8 +191,10 @@ def _publish_all(
     start_time: float,
     diagnostics: Mapping[str, Any] | None = None,
 ) -> None:
-    """Write every log under a temporary name, fsync them concurrently (one journal flush for many
-    files instead of one each), rename them into place, fsync the directory once. What the logs
+    """Write every log under a temporary name, fsync them concurrently while the next ones are
+    written (groups of :data:`_FSYNC_GROUP` per thread task, so that the writing thread hands work
+    over once per group rather than per file; one journal flush for many files instead of one
+    each), rename them into place, fsync the directory once. What the logs
     share (rig record, campaign file, schemas) is encoded once for the batch. A real rig's
     ``diagnostics`` record (docs/protocol.md § Diagnostics), or a device-loop run's own
     (``RunResult.diagnostics``, docs/device-loop.md), goes into the metadata and the outcome."""
@@ -196,12 +204,13 @@ def _publish_all(
     samples_hz = None if task.samples_hz is None or task.samples_hz >= task.fs else task.samples_hz
     # rig: kind, parameters, limits, noise, faults, safety as the rig file gave them
     prefixes = BatchPrefixes(task.fs, {"rig": dict(rig)}, {"campaign.toml": task.campaign_source.encode()}, samples_hz)
-    written = []
+    written, synced, group = [], [], []
+    token = secrets.token_hex(4)  # with the pid and the point id, unique among the batches that may write at once
     with ThreadPoolExecutor(max_workers=_FSYNC_THREADS) as syncer:
         for i, run in enumerate(task.runs):
             result, results[i] = results[i], None  # free each run's signals as soon as it is written
             t1 = time.perf_counter()
-            tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{secrets.token_hex(4)}.mcap"
+            tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{token}.mcap"
             metadata = _metadata(task, run, host, start_time)
             metadata["metrics"] = dict(result.metrics)
             outcome = result.outcome.as_dict()
@@ -216,17 +225,20 @@ def _publish_all(
                 prefix=prefixes.get(list(result.signals), result.channels),
                 start_time=start_time,
             )
-            written.append(
-                (run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1, syncer.submit(_fsync, tmp))
-            )
+            written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1))
+            group.append(tmp)
+            if len(group) == _FSYNC_GROUP or i == len(task.runs) - 1:  # fsynced while the next ones are written
+                synced.append(syncer.submit(_fsync_all, group))
+                group = []
         t2 = time.perf_counter()
-        for run, tmp, _, _, _, synced in written:
-            synced.result()
+        for future in synced:
+            future.result()
+        for run, tmp, *_ in written:
             os.replace(tmp, runs_dir / f"{run.point_id}.mcap")
     fsync_dir(runs_dir)  # every rename durable before any row is committed
     publish_s = (time.perf_counter() - t2) / max(len(written), 1)
     now = time.time()
-    for run, _, outcome, metrics, write_s, _ in written:
+    for run, _, outcome, metrics, write_s in written:
         out.records.append(
             RunRecord(
                 point_id=run.point_id,
