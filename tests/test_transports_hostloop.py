@@ -240,6 +240,7 @@ def test_emulate_serves_a_serial_rig_on_a_pty_it_names(tmp_path):
     [
         (["--drop", "1.5"], "--drop: must be in [0, 1], got 1.5"),
         (["--delay", "x"], "argument --delay: must be a number >= 0, got 'x'"),
+        (["--realtime", "--free-run"], "--realtime: paces the device's clock; it cannot be used with --free-run"),
     ],
 )
 def test_emulate_refuses_bad_options_in_one_line(args, message):
