@@ -58,6 +58,12 @@ COMMON = {
     "realtime": Param(
         False, "", "run the host loop's thread at SCHED_FIFO priority (root or CAP_SYS_NICE; ignored where not granted)"
     ),
+    "reference_table": Param(
+        False,
+        "",
+        "device loop: send the reference as a sample table read by tick index (firmware without "
+        "the setpoints, steps and sine trajectory types)",
+    ),
     "handshake_timeout_s": Param(0.5, "s", "longest wait for the device's IDENTITY", lo=0.0, lo_open=True, hi=60.0),
 }
 
