@@ -179,19 +179,34 @@ def test_a_dying_device_stops_the_campaign_keeps_the_log_and_resume_retries(proj
 
 def test_check_rig_reports_the_handshake_round_trips_and_link_load(tmp_path):
     path = can_rig_file(tmp_path / "motor.toml")
+    campaign = write(tmp_path / "c.toml", campaign_text(rig=str(path)))  # mfc1 on the velocity at 200 Hz
     device = emulate(path)
     try:
-        out = subprocess.run(
-            [sys.executable, "-m", "labrunner", "check-rig", str(path), "--json", "--pings", "50"],
-            capture_output=True,
-            text=True,
-            cwd=ROOT,
-            timeout=60,
+        out, with_campaign = (
+            subprocess.run(
+                [sys.executable, "-m", "labrunner", "check-rig", str(path), "--json", "--pings", "50", *extra],
+                capture_output=True,
+                text=True,
+                cwd=ROOT,
+                timeout=60,
+            )
+            for extra in ((), ("--campaign", str(campaign)))
         )
     finally:
         stop(device)
     assert out.returncode == 0, out.stderr
+    assert with_campaign.returncode == 0, with_campaign.stderr
+    # the stream counts every logged column: u, θ, Ω (computed from θ), its reference, f̂ and ê (ν = 1)
+    load = json.loads(with_campaign.stdout)["link_load"]
+    assert load["stream_columns"] == ["u", "theta", "omega", "ref_omega", "f_hat_omega", "e_hat_omega"]
+    # by hand: 200 ticks/s × 6 float32 + one 32-byte block header per 256 ticks, in 7-byte bulk
+    # frames of 135 bits (8 bytes) on 500 kbit/s
+    data = 200 * 6 * 4 + 1 * 32
+    assert load["device_stream_load"] == pytest.approx(
+        (data // 7 * 135 + (34 + 8 * (1 + data % 7) + 13 + (34 + 8 * (1 + data % 7) - 1) // 4)) / 500_000
+    )
     report = json.loads(out.stdout)
+    assert report["link_load"]["stream_columns"] == ["u", "theta"]
     assert report["identity"] == {
         "protocol_version": 1,
         "device_kind": "dcmotor",
