@@ -43,15 +43,20 @@ class Keepalive:
         self._wake = threading.Condition()
         self._thread: threading.Thread | None = None
 
+    def start(self) -> None:
+        """Start the thread (once; before a run's set-up: ``Thread.start`` waits until the new
+        thread runs, which on a busy machine can take longer than a watchdog period)."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._serve, name="labrunner-keepalive", daemon=True)
+            self._thread.start()
+
     def arm(self, watchdog_s: float, stall_s: float) -> None:
         """A run was set up: keep the device's watchdog of ``watchdog_s`` fed while the loop steps."""
+        self.start()
         with self._wake:
             self._silence_s, self._stall_s = SILENCE_SHARE * watchdog_s, stall_s
             self.last_step = time.monotonic()
             self._armed = True
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._serve, name="labrunner-keepalive", daemon=True)
-                self._thread.start()
             self._wake.notify()
 
     def disarm(self) -> None:

@@ -234,6 +234,7 @@ class RemoteRig(Rig):
         if self.identity is not None and not self.identity.capabilities & m.Capability.HOST_LOOP:
             self._fail("the device does not serve the host loop (capabilities lack HOST_LOOP)")
         self._drain()
+        self._keepalive.start()
         self.host, self.device = HostCounters(), DeviceReport()
         self.ping(stale_errors=True)  # in step: what the device sent before this run is behind us
         self._link_at_setup = replace(self.link.counters)
