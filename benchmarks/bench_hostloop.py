@@ -1,6 +1,6 @@
 """The host loop over ``udp_multicast`` against a paced emulated device in its own process.
 
-    python benchmarks/bench_hostloop.py [--seconds S]
+    python benchmarks/bench_hostloop.py [--seconds S] [--stalls S]
 
 The device (``labrunner emulate --realtime``) ticks on its own clock at f_s; the host runs the
 loop as a campaign does (step → the next tick). Per rate and host scheduling (normal, SCHED_FIFO
@@ -10,12 +10,19 @@ next tick) and overruns (the device's own clock slipped), and the host's CPU tim
 (process time, kernel time of the loopback sockets included). Targets (issue 13): p99 ≤ 1 ms and
 no missed deadline at 200 Hz. The figures depend
 on the machine's load: say how loaded it was when quoting them.
+
+``--stalls S`` measures instead what the machine does to a real-time thread: one SCHED_FIFO
+process per CPU, above the loops' priority and pinned, sleeps 1 ms over and over for S seconds;
+it prints how late each wake-up came (p99, max, count over 5 ms), the longest time both CPUs
+were off at once, and the steal time the kernel counted (/proc/stat). A thread that only sleeps
+cannot be held up by anything of labrunner's: what it sees is the (virtual) machine's scheduler.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import multiprocessing
 import os
 import random
 import signal
@@ -81,10 +88,72 @@ def run(path: Path, fs: float, seconds: float, fifo: bool) -> dict[str, float]:
     }
 
 
+STALL_PRIORITY = 20  # above the loops' SCHED_FIFO priority (realtime.DEFAULT_PRIORITY = 10)
+
+
+def _sleeper(cpu: int, seconds: float, queue) -> None:
+    """Sleep 1 ms again and again on ``cpu`` at SCHED_FIFO; put (start, lateness) pairs on ``queue``."""
+    os.sched_setaffinity(0, {cpu})
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(STALL_PRIORITY))
+    wakes = []
+    end = time.monotonic() + seconds
+    while (t := time.monotonic()) < end:
+        time.sleep(0.001)
+        wakes.append((t, time.monotonic() - t - 0.001))
+    queue.put((cpu, np.array(wakes)))
+
+
+def _steal() -> dict[str, int]:
+    """Steal time per CPU [clock ticks] from /proc/stat."""
+    return {line.split()[0]: int(line.split()[8]) for line in open("/proc/stat") if line.startswith("cpu")}
+
+
+def stalls(seconds: float) -> None:
+    """Print how late a pinned SCHED_FIFO sleeper on each CPU woke up (see the module doc)."""
+    cpus = sorted(os.sched_getaffinity(0))
+    before = _steal()
+    queue = multiprocessing.Queue()
+    workers = [multiprocessing.Process(target=_sleeper, args=(c, seconds, queue)) for c in cpus]
+    for w in workers:
+        w.start()
+    results = dict(queue.get() for _ in workers)
+    for w in workers:
+        w.join()
+    after = _steal()
+    hz = os.sysconf("SC_CLK_TCK")
+    print(
+        f"1 ms sleeps at SCHED_FIFO {STALL_PRIORITY}, pinned, {seconds:g} s; load average "
+        f"{open('/proc/loadavg').read().split()[0]} on {len(cpus)} cores; steal time "
+        + ", ".join(f"cpu{c} {(after[f'cpu{c}'] - before[f'cpu{c}']) / hz:.2f} s" for c in cpus)
+    )
+    off = {}
+    for c in cpus:
+        late = results[c][:, 1] * 1e3
+        off[c] = [(t + 1e-3, t + 1e-3 + v) for t, v in results[c] if v > 2e-3]  # off the CPU past the wake time
+        print(
+            f"  cpu{c}: {len(late)} wakes, late p50 {np.percentile(late, 50):.3f} ms, p99 {np.percentile(late, 99):.3f} ms, "
+            f"max {late.max():.2f} ms; {(late > 5).sum()} over 5 ms, {(late > 10).sum()} over 10 ms"
+        )
+    both = [
+        min(a1, b1) - max(a0, b0)
+        for i, c in enumerate(cpus)
+        for d in cpus[i + 1 :]
+        for a0, a1 in off[c]
+        for b0, b1 in off[d]
+    ]
+    print(f"  longest time every CPU was off at once: {1e3 * max([0.0, *both]):.2f} ms")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds per case (default 10)")
+    parser.add_argument(
+        "--stalls", type=float, metavar="S", help="measure the machine's real-time stalls for S s instead"
+    )
     args = parser.parse_args()
+    if args.stalls:
+        stalls(args.stalls)
+        return
     with realtime() as granted:
         pass
     with tempfile.TemporaryDirectory() as tmp:

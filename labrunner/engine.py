@@ -25,6 +25,7 @@ import numpy as np
 from labrunner._ufunc import count_nonzero
 from labrunner.control import factory
 from labrunner.control.base import Controller
+from labrunner.control.trajectories import Reference
 from labrunner.errors import LabrunnerError, RigError
 from labrunner.metrics import Roles, parse_windows, run_metrics
 from labrunner.rigs.base import Rig, RigInfo
@@ -137,6 +138,7 @@ def run_batch(
     rig_safety: Mapping[str, object] | None = None,
     sink: Sink | None = None,
     progress: Progress | None = None,
+    reference: Reference | None = None,
 ) -> list[RunResult]:
     """Run B = len(points) resolved campaign points in lockstep on ``rig``; return one result each.
 
@@ -145,11 +147,13 @@ def run_batch(
     log while they run). ``progress(ticks_done)`` is called every ⌈K / PROGRESS_CALLS⌉ ticks and
     once when the loop ends (with K, also after an early end): at most PROGRESS_CALLS times. Bad
     configuration raises :class:`~labrunner.errors.InvalidParameter` before the rig moves; an
-    exception during the run marks every unfinished run ``failed``.
+    exception during the run marks every unfinished run ``failed``. ``reference`` replaces the
+    points' references (a device runs its description's sample tables).
     """
     B = len(points)
     K = int(round(duration * fs))
-    controller, reference = factory.build(points, rig.info, fs)
+    controller, built = factory.build(points, rig.info, fs)
+    reference = built if reference is None else reference
     configs = _safety_configs(points, rig.info, rig_safety or {})
     overrides = _overrides(points)
     monitor = SafetyMonitor(configs, rig.info, fs)
