@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from labrunner.errors import RigError
 from labrunner.rigs.config import load_rig_config
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports.realtime import realtime
@@ -60,21 +61,26 @@ fs = [20.0, 1000.0]
 
 
 def run(path: Path, fs: float, seconds: float, fifo: bool) -> dict[str, float]:
+    """One case; a run the device stopped (its watchdog) reports the ticks up to it and why."""
     rig = load_rig(load_rig_config(path))
     n = int(seconds * fs)
     stamps = np.empty(n + 1)
     u = 3.0 * np.sin(np.arange(n) * 2 * np.pi / fs)
+    stopped = ""
     with realtime() if fifo else contextlib.nullcontext():
         rig.reset(1, [0], fs)
         stamps[0] = time.perf_counter()
         cpu0 = time.process_time()
-        for k in range(n):
-            rig.step(u[k : k + 1, None])
-            stamps[k + 1] = time.perf_counter()
+        try:
+            for k in range(n):
+                rig.step(u[k : k + 1, None])
+                stamps[k + 1] = time.perf_counter()
+        except RigError as exc:
+            n, stopped = k, str(exc).partition(": ")[2]
         cpu = time.process_time() - cpu0
     host = rig.diagnostics()["host"]
     rig.close()
-    period = np.diff(stamps) * 1e3
+    period = np.diff(stamps[: n + 1]) * 1e3 if n else np.array([np.nan])
     jitter = np.abs(period - 1e3 / fs)
     return {
         "p50": np.percentile(period, 50),
@@ -83,8 +89,9 @@ def run(path: Path, fs: float, seconds: float, fifo: bool) -> dict[str, float]:
         "jitter99": np.percentile(jitter, 99),
         "missed": host["late_ticks"],
         "overruns": host["overruns"],
-        "cpu_us": 1e6 * cpu / n,
+        "cpu_us": 1e6 * cpu / max(n, 1),
         "ticks": n,
+        "stopped": f"; STOPPED: {stopped}" if stopped else "",
     }
 
 
@@ -179,7 +186,7 @@ def main() -> None:
                     print(
                         f"{fs:>6.0f} {'fifo' if fifo else 'normal':>7} {r['p50']:>8.3f} ms {r['p99']:>5.3f} ms "
                         f"{r['max']:>5.2f} ms {r['jitter99']:>10.3f} ms {r['missed']:>7d} {r['overruns']:>9d} {r['cpu_us']:>6.0f} µs"
-                        f"   (of {r['ticks']} ticks, period {1e3 / fs:g} ms)"
+                        f"   (of {r['ticks']} ticks, period {1e3 / fs:g} ms{r['stopped']})"
                     )
         finally:
             device.send_signal(signal.SIGTERM)
