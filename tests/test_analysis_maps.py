@@ -3,6 +3,7 @@
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PathCollection, QuadMesh
 from matplotlib.lines import Line2D
 
@@ -125,3 +126,49 @@ def test_sweep_plot_draws_markers_per_status():
     assert labels == {"aborted by the safety routine", "no-motion (input too small)", "completed"}
     assert bottom.get_yscale() == "log" and top.get_xscale() == "log"
     assert [line.get_gid() for line in top.get_lines()].count("bound:x") == 1
+
+
+def _pixels(fig) -> np.ndarray:
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba()).copy()
+
+
+@pytest.mark.parametrize(
+    ("x_log", "y_log", "span"),
+    [(True, True, (0, 4)), (True, False, (-2, 1)), (False, False, (0, 2)), (True, True, (0.3, 0.8))],
+)
+def test_in_view_locators_draw_the_same_pixels(monkeypatch, x_log, y_log, span):
+    """Maps and sweeps with InView locators on their log axes equal those drawn with matplotlib's
+    own (ticks, labels, minor ticks, a log colour bar), and create fewer ticks."""
+    import labrunner.analysis.maps as maps
+
+    g = np.logspace(*span, 7) if x_log else np.linspace(1.0, 9.0, 7)
+    kp = np.logspace(-1, 3, 5) if y_log else np.linspace(-3.0, 3.0, 5)
+    G, K = np.meshgrid(g, kp)
+    t = pd.DataFrame(
+        {
+            "controller.gamma": G.ravel(),
+            "controller.k_p": K.ravel(),
+            "outcome": "completed",
+            "e": (G * (1.0 + K**2)).ravel(),
+        }
+    )
+    x, y = Axis("controller.gamma", g, x_log, "γ"), Axis("controller.k_p", kp, y_log, "k_p")
+
+    def draw(in_view: bool):
+        if not in_view:
+            monkeypatch.setattr(maps, "visible_ticks_only", lambda fig: None)
+        figs = [
+            map_figure(t, x, y, "e", title="map", colour_label="e", log_colour=True),
+            sweep_figure(t[t["controller.k_p"] == kp[0]], x, [("e", "e")], title="sweep"),
+        ]
+        monkeypatch.undo()
+        pixels = [_pixels(f) for f in figs]
+        ticks = sum(len(a.majorTicks) + len(a.minorTicks) for f in figs for ax in f.axes for a in (ax.xaxis, ax.yaxis))
+        return pixels, ticks
+
+    (plain, n_plain), (fast, n_fast) = draw(False), draw(True)
+    for a, b in zip(plain, fast):
+        np.testing.assert_array_equal(a, b)
+    assert n_fast < n_plain if x_log else n_fast <= n_plain

@@ -246,3 +246,41 @@ def test_map_axes_follow_the_grid_form():
     table = pd.DataFrame({"g": [100.0, 177.8, 316.2], "k": [1.0, 10.0, 100.0]})
     assert axis_of(table, "g", {}, "log10").log and not axis_of(table, "g", {}, "values").log
     assert not axis_of(table, "k", {}, "linspace").log and axis_of(table, "k", {}, "values").log
+
+
+@pytest.mark.parametrize(
+    ("kind", "case"), [("mfc1", "mfc1-motor"), ("mfc1", "mfc1-ultralocal"), ("mfc2", "mfc2-motor")]
+)
+def test_k_p_limits_equal_the_bounds_point_by_point(kind, case):
+    """The vectorised limits (one bounds() per distinct (γ, k_d)) are bounds()' own numbers, also
+    with repeated values and where no k_p is stable (NaN)."""
+    theory = Theory(kind, DELAY, MOTOR)
+    gammas = np.array([[1.0, 50.0, 108.55], [50.0, 400.0, 1.0]])
+    k_ds = None if kind == "mfc1" else np.array([[20.0, 20.0, 5.0], [20.0, 60.0, 20.0]])
+    lo, hi = theory.k_p_limits(case, gammas, k_ds)
+    assert lo.shape == hi.shape == gammas.shape
+    for idx in np.ndindex(gammas.shape):
+        found = theory.bounds(case, gammas[idx], None if k_ds is None else k_ds[idx])["k_p"]
+        expected = (np.nan, np.nan) if found is None else tuple(found)
+        np.testing.assert_array_equal([lo[idx], hi[idx]], expected)
+    assert kind == "mfc1" or np.isnan(lo).any()  # k_d = 60 lies outside the corrected k_d range
+
+
+def test_parameter_records_are_the_dotted_columns_and_the_distinct_settings():
+    from labrunner.analysis.context import parameter_records
+
+    table = pd.DataFrame(
+        {
+            "controller.gamma": [1.0, 2.0, 1.0, 2.0],
+            "controller.k_p": [5.0, 5.0, 6.0, 6.0],
+            "differentiator.alpha": [4.0, 4.0, 6.0, 6.0],
+            "reference.law": ["step", "step", "step", None],
+            "rms_error": [0.1, 0.2, 0.3, 0.4],
+        }
+    )
+    plain = parameter_records(table)
+    assert plain == [{k: v for k, v in r.items() if k != "rms_error"} for r in table.to_dict("records")]
+    settings = parameter_records(table, settings=True)
+    assert len(settings) == 3 and all(set(r) == {"differentiator.alpha", "reference.law"} for r in settings)
+    assert parameter_records(table[["controller.gamma", "controller.k_p"]], settings=True) == [{}]
+    assert parameter_records(table.iloc[:0], settings=True) == []

@@ -36,6 +36,7 @@ def test_naive_loops_equal_the_engine_for_completed_and_aborted_points(batch):
     statuses = set()
     for (gamma, k_p), result in zip(chosen[:3], results):
         run = naive.closed_loop(float(gamma), float(k_p), cfg)
+        check_naive_style(naive.closed_loop_numpy(float(gamma), float(k_p), cfg), run)
         statuses.add(result.outcome.status)
         assert result.n_samples == run["end"]
         assert (result.outcome.status == "aborted") == run["aborted"]
@@ -43,3 +44,10 @@ def test_naive_loops_equal_the_engine_for_completed_and_aborted_points(batch):
         np.testing.assert_allclose(result.signals["omega"], run["omega"], rtol=0, atol=1e-7)
         np.testing.assert_allclose(result.signals["u"], run["u"], rtol=1e-9, atol=1e-9)
     assert statuses == {"completed", "aborted"}
+
+
+def check_naive_style(numpy_run: dict, floats_run: dict) -> None:
+    """The numpy-per-sample script computes the plain-float script's loop (to rounding)."""
+    assert numpy_run["end"] == floats_run["end"] and numpy_run["aborted"] == floats_run["aborted"]
+    for key in ("theta", "omega", "u"):
+        np.testing.assert_allclose(numpy_run[key], floats_run[key], rtol=1e-12, atol=1e-12)

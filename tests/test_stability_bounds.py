@@ -382,3 +382,13 @@ def test_rho_defaults_to_b():
     assert bounds("mfc1-ultralocal", gamma=2.0, delay=0.01, b=3.0) == bounds(
         "mfc1-ultralocal", gamma=2.0, delay=0.01, rho=3.0
     )
+
+
+def test_cached_closed_forms_equal_a_fresh_evaluation():
+    """first_order_gain and second_order_p_gain are cached; the cache returns what the formula gives."""
+    from labrunner.stability.closed_forms import first_order_gain
+
+    for a_delta in (-0.5, 0.0, 1.3804, 7.0):
+        assert first_order_gain(a_delta) == first_order_gain.__wrapped__(a_delta)
+    for d in (-1.0, 0.3, 1.2, 1.8):
+        assert second_order_p_gain(0.0, 1.38, d) == second_order_p_gain.__wrapped__(0.0, 1.38, d)

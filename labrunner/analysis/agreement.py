@@ -48,10 +48,10 @@ def agreement(
 ) -> dict[str, object]:
     """Share of compared points whose outcome matches the prediction, with the counts behind it.
 
-    ``theory_of(row)`` gives the :class:`Theory` of a table row (its δ_t depends on the row's
-    differentiator), or None when no stability case applies; ``gains_of(row)`` its γ, k_p, k_d
-    (default: the grid columns; the analysis passes the resolved point, so fixed gains count
-    too). Returns ``{"case", "share",
+    ``theory_of(row)`` gives the :class:`Theory` of a table row (a record of its parameter columns
+    and outcome; its δ_t depends on the row's differentiator), or None when no stability case
+    applies; ``gains_of(row)`` its γ, k_p, k_d (default: the grid columns; the analysis passes the
+    resolved point, so fixed gains count too). Returns ``{"case", "share",
     "margin", "n_compared", "n_match", "n_excluded", "false_stable", "false_unstable",
     "observed_unstable", "oscillating"}`` (observed_unstable: compared runs that were aborted or
     oscillating);
@@ -59,7 +59,8 @@ def agreement(
     from completed into observed unstable.
     """
     outcome = observed_outcome(table)
-    rows = table.assign(outcome=outcome)[outcome.isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)].to_dict("records")
+    params = table[[c for c in table.columns if "." in c]]  # what theory_of and gains_of read, not the metrics
+    rows = params.assign(outcome=outcome)[outcome.isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)].to_dict("records")
     case = None
     match = excluded = false_stable = false_unstable = observed_unstable = 0
     for row in rows:

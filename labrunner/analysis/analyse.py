@@ -6,11 +6,14 @@ metrics or with ``recompute``); pick the map axes from the grid (γ–k_p and k_
 thesis, else grid order; further axes become facets); draw RMS and energy maps (or sweep plots)
 with the stability overlays that fit (:mod:`.overlays`); plot the best, the worst completed, the
 first aborted run and any runs asked for (the only logs read then); compare outcomes with the
-theory (:mod:`.agreement`); write the report. Returns the summary that ``--json`` prints.
+theory (:mod:`.agreement`); write the report. Returns the summary that ``--json`` prints. With
+more than one worker the run plots and the second half of the maps are drawn in forked children
+(:mod:`.background`) while this process draws the rest.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
@@ -19,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner.analysis import agreement as agreement_mod, campaign_report, figures, table as table_mod
+from labrunner.analysis.background import Background
 from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.maps import gain_units
 from labrunner.campaign import spec
@@ -28,6 +32,9 @@ from labrunner.control.mfc import GAMMA_UNITS
 from labrunner.errors import InvalidParameter, LabrunnerError
 
 __all__ = ["Context", "Theories", "analyse", "load_campaign", "varying_axes"]
+
+#: Run plots drawn in a forked child while the maps are drawn (more: in this process, with progress).
+BACKGROUND_PLOTS = 8
 
 
 def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Campaign | None, str]:
@@ -203,16 +210,14 @@ def analyse(
         limits=rig_limits,
         recompute=recompute,
         tick=advance,
+        announce=lambda n: step(f"metrics table, reading {n} logs", n),
     )
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
-    csv, parquet = table_mod.write_table(frame, out, directory)
     if error == "e_hat":
         if not frame.get("rms_error_hat", pd.Series(dtype=float)).notna().any():
             raise InvalidParameter("error", "e_hat: the runs of this campaign log no ê (e_hat_<output>)")
         frame = frame.assign(rms_error=frame["rms_error_hat"])
-    advance()
-    step("maps")
     ctx = Context(
         directory,
         out,
@@ -222,19 +227,45 @@ def analyse(
         _units(frame, directory, campaign),
         "ê" if error == "e_hat" else "e",
     )
-    theories = Theories(campaign)
-    maps = figures.draw_maps(frame, ctx, theories)
-    advance()
     chosen = chosen_runs(frame)
     extra = plot_selection(frame, plot)
-    step("run plots", len(chosen) + len(extra))
-    plots = figures.draw_runs(frame, [*(row["id"] for row in chosen.values()), *extra], ctx, tick=advance)
-    agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
-    sections, guided = [], None
-    if campaign is not None and campaign.guided is not None:  # the walk and its step counts
-        from labrunner.campaign import guided_report
+    ids = list(dict.fromkeys([*(row["id"] for row in chosen.values()), *extra]))
+    # Two cores: the run plots (the usual few; many, --plot all, are drawn here with progress) are
+    # drawn in a child forked now, the second half of the maps in one forked once their overlays
+    # are computed; this process draws the rest and writes the tables meanwhile.
+    concurrent = (workers or os.cpu_count() or 1) > 1
+    if concurrent:
+        figures.warm_text()  # fonts and mathtext loaded once, for all processes
+    children: list[Background] = []
+    if concurrent and 0 < len(ids) <= BACKGROUND_PLOTS and figures.plots_to_draw(frame, ids, ctx):
+        children.append(Background(lambda: figures.draw_runs(frame, ids, ctx)))
+    drawing = children[0] if children else None
+    try:
+        csv, parquet = table_mod.write_table(built.frame, out, directory)
+        advance()
+        step("maps")
+        theories = Theories(campaign)
+        jobs = figures.map_jobs(frame, ctx, theories)
+        half = len(jobs) // 2 if concurrent else 0
+        if half:
+            children.append(Background(lambda: figures.draw(jobs[-half:])))
+        maps = figures.draw(jobs[: len(jobs) - half]) + (children[-1].result() if half else [])
+        advance()
+        agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
+        sections, guided = [], None
+        if campaign is not None and campaign.guided is not None:  # the walk and its step counts
+            from labrunner.campaign import guided_report
 
-        sections, guided = guided_report.sections(campaign, rows, out)
+            sections, guided = guided_report.sections(campaign, rows, out)
+        step("run plots", len(ids))
+        if drawing is not None:
+            plots = drawing.result()
+            advance(len(ids))
+        else:
+            plots = figures.draw_runs(frame, ids, ctx, tick=advance)
+    finally:
+        for child in children:
+            child.close()
     step("report")
     summary = {
         **counts(frame),

@@ -8,6 +8,7 @@ one γ). Run plots reuse :func:`labrunner.runplot.plot_run`.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -15,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure
 
-from labrunner.analysis.context import Context, Theories
+from labrunner.analysis.context import Context, Theories, parameter_records
 from labrunner.analysis.maps import Axis, axis_label, cell_edges, is_log_spaced, map_figure, sweep_figure
 from labrunner.analysis.overlays import (
     OverlayLine,
@@ -121,7 +123,7 @@ def facets(frame: pd.DataFrame, extra: Sequence[str]) -> list[tuple[str, pd.Data
 def common_theory(rows: pd.DataFrame, theories: Theories) -> Theory | None:
     """The one theory valid for all ``rows`` (same kind, δ_t and rig constants), else None."""
     found = {}
-    for row in rows.to_dict("records"):
+    for row in parameter_records(rows, settings=True):
         theory = theories(row)
         if theory is None:
             return None
@@ -143,7 +145,7 @@ def map_overlays(rows: pd.DataFrame, x, y, theories: Theories) -> tuple[list[Ove
     if pair == ("controller.gamma", "controller.k_p") and theory.kind == "mfc1":
         return gamma_kp_lines(theory, dense_axis(cell_edges(x.values, x.log), x.log)), note
     if pair == ("controller.k_p", "controller.k_d") and theory.kind == "mfc2":
-        gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for r in rows.to_dict("records")}
+        gammas = {round(theories.gains(r).get("gamma", np.nan), 12) for r in parameter_records(rows)}
         if len(gammas) == 1:
             gamma = gammas.pop()
             return kp_kd_lines(
@@ -168,17 +170,37 @@ def mark_outside(lines: Sequence[OverlayLine], x: Axis, y: Axis) -> list[Overlay
     return [replace(line, label=f"{line.label} (outside the map)") if _outside(line, x, y) else line for line in lines]
 
 
+#: zlib level of the PNGs: 3 encodes a map in ~20 instead of ~30 ms (level 6) for files within a few per cent.
+PNG_COMPRESSION = 3
+
+
 def _save(fig, path: Path) -> Path:
     """Save atomically (temporary name, then rename): a killed analysis leaves no half a PNG."""
     tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, dpi=DPI, format="png")
+    fig.savefig(tmp, dpi=DPI, format="png", pil_kwargs={"compress_level": PNG_COMPRESSION})
     tmp.replace(path)
     return path
 
 
-def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tuple[Path, str]]:
-    """RMS and energy maps (2-D grids) or sweep plots (1-D): (PNG path, title) each."""
-    paths: list[tuple[Path, str]] = []
+def warm_text() -> None:
+    """Load the fonts and mathtext's grammar (the log axes' 10^k labels, the run plots' Ω_r) now:
+    called before the run plots' child is forked, so that it shares them instead of loading them
+    again (~65 ms of its ~0.55 s)."""
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.mathtext import MathTextParser
+
+    MathTextParser("agg").parse(r"$\mathdefault{10^{2}}$", DPI, FontProperties())
+
+
+#: A figure to draw: (PNG path, caption, a function that makes the figure).
+Job = tuple[Path, str, Callable[[], Figure]]
+
+
+def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Job]:
+    """The RMS and energy maps (2-D grids) or the sweep plot (1-D) as figures to draw, their
+    overlays computed now (the theory, once), the drawing left to :func:`draw` (so that a forked
+    process can draw some of them)."""
+    jobs: list[Job] = []
     name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
     units, forms = ctx.units, grid_forms(ctx.campaign)
     if len(ctx.axes) == 1:
@@ -193,13 +215,11 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
             others = ", ".join(f"{_SYMBOLS[k]} = {v:.5g}" for k, v in fixed.items() if k != GAINS[key])
             note = f"\n{theory.delay_note()}" + (f", {others}" if others else "")
         columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in map_metrics(ctx.error)]
-        fig = sweep_figure(
-            frame, x, columns, title=f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}", overlays=lines
-        )
-        paths.append((_save(fig, ctx.out / "sweep.png"), f"RMS of {ctx.error} and input energy over {x.label}"))
-        return paths
+        title = f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}"
+        sweep = functools.partial(sweep_figure, frame, x, columns, title=title, overlays=lines)
+        return [(ctx.out / "sweep.png", f"RMS of {ctx.error} and input energy over {x.label}", sweep)]
     if len(ctx.axes) < 2:
-        return paths
+        return jobs
     kx, ky = choose_pair(ctx.axes)
     extra = [k for k in ctx.axes if k not in (kx, ky)]
     for i, (suffix, rows) in enumerate(facets(frame, extra)):
@@ -210,7 +230,8 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
         for column, title, label in map_metrics(ctx.error, rows):
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
-            fig = map_figure(
+            figure = functools.partial(
+                map_figure,
                 rows,
                 x,
                 y,
@@ -221,8 +242,13 @@ def draw_maps(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[tup
             )
             tag = f"_{i + 1}" if extra else ""
             caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
-            paths.append((_save(fig, ctx.out / f"map_{column}{tag}.png"), caption))
-    return paths
+            jobs.append((ctx.out / f"map_{column}{tag}.png", caption, figure))
+    return jobs
+
+
+def draw(jobs: Sequence[Job]) -> list[tuple[Path, str]]:
+    """Draw and save each job's figure: (PNG path, caption) each."""
+    return [(_save(make(), path), caption) for path, caption, make in jobs]
 
 
 PLOTS_DIR = "plots"  # run plots, one per point: <out>/plots/<id>.png
@@ -230,6 +256,25 @@ PLOTS_DIR = "plots"  # run plots, one per point: <out>/plots/<id>.png
 
 def plot_path(out: Path, point_id: str) -> Path:
     return out / PLOTS_DIR / f"{point_id}.png"
+
+
+def _kept(log: Path, png: Path) -> bool:
+    """Whether the run plot ``png`` is newer than its ``log`` (then it is not drawn again)."""
+    return png.is_file() and png.stat().st_mtime_ns >= log.stat().st_mtime_ns
+
+
+def plots_to_draw(frame: pd.DataFrame, ids: Sequence[str], ctx: Context) -> list[str]:
+    """The ``ids`` whose run plot :func:`draw_runs` would draw (not kept, a log to draw it from)."""
+    logs = dict(zip(frame["id"], frame["log_path"]))
+    todo = []
+    for point_id in dict.fromkeys(ids):
+        rel = logs.get(point_id)
+        try:
+            if isinstance(rel, str) and not _kept(ctx.directory / rel, plot_path(ctx.out, point_id)):
+                todo.append(point_id)
+        except OSError:
+            pass
+    return todo
 
 
 def draw_runs(
@@ -246,7 +291,7 @@ def draw_runs(
         if isinstance(rel, str):
             log, png = ctx.directory / rel, plot_path(ctx.out, point_id)
             try:
-                if not (png.is_file() and png.stat().st_mtime_ns >= log.stat().st_mtime_ns):
+                if not _kept(log, png):
                     png.parent.mkdir(parents=True, exist_ok=True)
                     _save(plot_run(log), png)
                 out[point_id] = png

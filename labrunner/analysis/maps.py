@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import matplotlib
 import numpy as np
 import pandas as pd
-from matplotlib import colors, patheffects
+from matplotlib import colors, patheffects, ticker
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
@@ -194,6 +194,50 @@ def draw_heatmap(
     return mesh
 
 
+class InView(ticker.Locator):
+    """The locations of ``base`` that lie in the axis's view (to within a tolerance wider than the
+    one matplotlib draws ticks by). Matplotlib makes a tick object, formats and measures a label
+    for every location a locator returns, and a log locator returns whole decades beyond the view
+    that are never drawn: on the 40 × 25 maps ~40 % of their ticks, a quarter of a map's drawing.
+    Only for log axes, whose labels do not depend on their neighbours (a linear axis's format
+    depends on every location)."""
+
+    def __init__(self, base: ticker.Locator) -> None:
+        self.base = base
+
+    def set_axis(self, axis) -> None:
+        super().set_axis(axis)
+        self.base.set_axis(axis)
+
+    def __call__(self) -> list[float]:
+        transform = self.axis.get_transform()
+        lo, hi = sorted(transform.transform(np.asarray(self.axis.get_view_interval(), dtype=float)))
+        margin = 1e-6 * (hi - lo)
+        locs = np.asarray(self.base(), dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = transform.transform(locs)
+        return list(locs[(t >= lo - margin) & (t <= hi + margin)])
+
+    def tick_values(self, vmin: float, vmax: float):
+        return self.base.tick_values(vmin, vmax)
+
+    def nonsingular(self, v0: float, v1: float):
+        return self.base.nonsingular(v0, v1)
+
+    def view_limits(self, vmin: float, vmax: float):
+        return self.base.view_limits(vmin, vmax)
+
+
+def visible_ticks_only(fig: Figure) -> None:
+    """Give every log axis of ``fig`` (a map's axes, a log colour bar) :class:`InView` locators;
+    the figure draws the same pixels, faster. Call once its scales are set."""
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            if axis.get_scale() == "log" and not isinstance(axis.get_major_locator(), InView):  # shared: once
+                axis.set_major_locator(InView(axis.get_major_locator()))
+                axis.set_minor_locator(InView(axis.get_minor_locator()))
+
+
 def map_figure(
     table: pd.DataFrame,
     x: Axis,
@@ -214,6 +258,7 @@ def map_figure(
     _frame(fig, title, len(handles), 2)
     if handles:
         fig.legend(handles, labels, loc="lower center", ncols=2, fontsize="small", framealpha=0.9)
+    visible_ticks_only(fig)
     return fig
 
 
@@ -264,4 +309,5 @@ def sweep_figure(
     _frame(fig, title, len(handles), 3)
     if handles:
         fig.legend(handles, labels, loc="lower center", ncols=3, fontsize="small")
+    visible_ticks_only(fig)
     return fig

@@ -104,6 +104,20 @@ class Theory:
             case, float(gamma), self.delay, tuple(sorted(gains.items())), None if k_d is None else float(k_d)
         )
 
+    def k_p_limits(
+        self, case: str, gammas: np.ndarray, k_ds: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of the k_p interval of ``case`` at each γ (and k_d), NaN where none is stable:
+        :meth:`bounds` once per distinct (γ, k_d) pair, not once per point of a dense axis."""
+        g = np.asarray(gammas, dtype=float)
+        kd = np.zeros_like(g) if k_ds is None else np.broadcast_to(np.asarray(k_ds, dtype=float), g.shape)
+        pairs, inverse = np.unique(np.stack([g.ravel(), kd.ravel()], axis=1), axis=0, return_inverse=True)
+        found = np.array(
+            [_interval(self.bounds(case, gi, None if k_ds is None else kdi), "k_p") for gi, kdi in pairs]
+        ).reshape(-1, 2)
+        lo, hi = found[inverse.ravel()].T
+        return lo.reshape(g.shape), hi.reshape(g.shape)
+
     def predict(self, case: str, params: Mapping[str, float]) -> tuple[bool, float]:
         """Whether ``case`` predicts a stable loop at ``params`` (gamma, k_p, k_d) and the relative
         distance to its nearest bound: min |g − bound| / bound over the gains g = k_p (and k_d)
@@ -142,7 +156,7 @@ def gamma_kp_lines(theory: Theory, gammas: np.ndarray) -> list[OverlayLine]:
     """Bounds of k_p over a dense γ axis (x = γ, y = k_p), and the nominal gain line."""
     lines = []
     for case in theory.cases():
-        lo, hi = np.array([_interval(theory.bounds(case, float(g)), "k_p") for g in gammas]).T
+        lo, hi = theory.k_p_limits(case, gammas)
         eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
         lines.append(OverlayLine(f"{eq} max k_p", gammas, hi, colour, "-", f"bound:{case}:k_p_max"))
         if np.any(lo > 0):
@@ -173,7 +187,7 @@ def kp_kd_lines(theory: Theory, gamma: float, k_ds: np.ndarray) -> list[OverlayL
         eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
         first = theory.bounds(case, gamma, float(k_ds[0]))
         kd_lo, kd_hi = _interval(first, "k_d")
-        lo, hi = np.array([_interval(theory.bounds(case, gamma, float(kd)), "k_p") for kd in k_ds]).T
+        lo, hi = theory.k_p_limits(case, np.full(len(k_ds), float(gamma)), k_ds)
         lines.append(OverlayLine(f"{eq} max k_p", hi, k_ds, colour, "-", f"bound:{case}:k_p_max"))
         if np.any(lo > 0):
             lines.append(

@@ -27,7 +27,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("directory", metavar="DIR", help="campaign directory (holds ledger.sqlite)")
     p.add_argument("--out", metavar="DIR", help="output directory (default: DIR/report)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    p.add_argument("--workers", type=positive_int, metavar="N", help="processes reading logs (default: all cores)")
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        metavar="N",
+        help="processes reading logs and drawing figures (default: all cores; 1: all in this process)",
+    )
     p.add_argument(
         "--margin",
         type=float,

@@ -46,8 +46,10 @@ from labrunner.stability.roots import dsinc, first_order_crossing, roots_between
 Interval = tuple[float, float]
 
 
+@lru_cache(maxsize=4096)
 def first_order_gain(a_delta: float) -> Interval | None:
-    """Interval of C = c·δ for which s + a + c·e^{−sδ} is stable (thesis (2.46), remark 2.8)."""
+    """Interval of C = c·δ for which s + a + c·e^{−sδ} is stable (thesis (2.46), remark 2.8).
+    Cached: in these normalised units it does not depend on γ, so a γ–k_p map needs it once."""
     z = first_order_crossing(a_delta)
     if z is None:
         return None
@@ -104,9 +106,10 @@ def _p_window(a0: float, a1: float, d: float) -> tuple[float, float] | None:
     return lo + 0.0, hi
 
 
+@lru_cache(maxsize=4096)
 def second_order_p_gain(a0: float, a1: float, d: float) -> Interval | None:
     """Interval of P = κ_p·δ² for which Δ is stable at D = κ_d·δ (corrected (2.54), (2.59), A.6);
-    None when no P is."""
+    None when no P is. Cached: the maps, the agreement and the report ask for the same D."""
     if not d > -a1 - a0:
         return None
     window = _p_window(a0, a1, d)

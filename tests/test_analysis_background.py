@@ -1,0 +1,93 @@
+"""Figures drawn in forked children: the same result as in this process, and a failed child falls
+back to this process."""
+
+import os
+import sys
+
+import pytest
+from test_analysis_support import make_campaign
+
+from labrunner.analysis.analyse import analyse
+from labrunner.analysis.background import Background
+
+forks = pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
+
+
+@forks
+def test_the_function_runs_in_another_process_and_its_result_comes_back(tmp_path):
+    def work():
+        (tmp_path / "side-effect").write_text(str(os.getpid()))
+        return {"pid": os.getpid(), "data": list(range(100_000))}  # more than a pipe's buffer
+
+    job = Background(work)
+    result = job.result()
+    assert result["pid"] != os.getpid() and result["data"] == list(range(100_000))
+    assert (tmp_path / "side-effect").read_text() == str(result["pid"])
+
+
+@forks
+def test_a_failed_child_falls_back_to_this_process():
+    parent = os.getpid()
+
+    def work():
+        if os.getpid() != parent:
+            os._exit(3)  # as if the child had crashed
+        return "here"
+
+    assert Background(work).result() == "here"
+
+    def broken():
+        raise ValueError("bad data")
+
+    with pytest.raises(ValueError, match="bad data"):  # the error is the one this process would raise
+        Background(broken).result()
+
+
+@forks
+def test_close_waits_for_an_unwanted_child():
+    job = Background(lambda: sys.exit(0))
+    pid = job._pid
+    job.close()
+    with pytest.raises(ChildProcessError):  # reaped: no zombie left
+        os.waitpid(pid, os.WNOHANG)
+    job.close()  # once is enough
+
+
+@forks
+def test_figures_drawn_in_children_equal_those_drawn_here(tmp_path):
+    """workers=2: the run plots and the second map come from forked children; byte for byte the
+    files one process draws, and the same summary."""
+    make_campaign(tmp_path)
+    here = analyse(tmp_path, tmp_path / "one", workers=1, progress=False)
+    child = analyse(tmp_path, tmp_path / "two", workers=2, progress=False)
+    assert len(here["run_plots"]) == len(child["run_plots"]) == 3 and len(here["maps"]) == len(child["maps"]) == 2
+    for a, b in zip(here["maps"] + here["run_plots"], child["maps"] + child["run_plots"]):
+        assert os.path.basename(a) == os.path.basename(b)
+        assert open(a, "rb").read() == open(b, "rb").read()
+    paths = ("maps", "run_plots", "metrics", "report")
+    assert {k: v for k, v in here.items() if k not in paths} == {k: v for k, v in child.items() if k not in paths}
+    text = [open(s["report"], encoding="utf-8").read() for s in (here, child)]
+    assert text[0].replace(str(tmp_path / "one"), "OUT") == text[1].replace(str(tmp_path / "two"), "OUT")
+
+
+def test_plots_to_draw_are_those_not_kept(tmp_path):
+    """A run plot newer than its log is kept (not drawn, no child forked for it); a missing or
+    older one is drawn; a point without a log has nothing to draw."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from labrunner.analysis.figures import plot_path, plots_to_draw
+
+    (tmp_path / "runs").mkdir()
+    for name in ("a", "b", "c"):
+        (tmp_path / "runs" / f"{name}.mcap").write_bytes(b"log")
+    ctx = SimpleNamespace(directory=tmp_path, out=tmp_path / "report")
+    frame = pd.DataFrame({"id": ["a", "b", "c", "d"], "log_path": ["runs/a.mcap", "runs/b.mcap", "runs/c.mcap", None]})
+    for name, offset in (("a", 10), ("b", -10)):  # a's plot newer than its log, b's older
+        png = plot_path(ctx.out, name)
+        png.parent.mkdir(parents=True, exist_ok=True)
+        png.write_bytes(b"png")
+        log_ns = (tmp_path / "runs" / f"{name}.mcap").stat().st_mtime_ns
+        os.utime(png, ns=(log_ns + offset * 10**9, log_ns + offset * 10**9))
+    assert plots_to_draw(frame, ["a", "b", "c", "d", "b"], ctx) == ["b", "c"]
