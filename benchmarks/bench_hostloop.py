@@ -16,6 +16,11 @@ process per CPU, above the loops' priority and pinned, sleeps 1 ms over and over
 it prints how late each wake-up came (p99, max, count over 5 ms), the longest time both CPUs
 were off at once, and the steal time the kernel counted (/proc/stat). A thread that only sleeps
 cannot be held up by anything of labrunner's: what it sees is the (virtual) machine's scheduler.
+
+Last measured (2 Dec 2026, figures in docs/protocol.md): idle 2-core VM, SCHED_FIFO host, 200 Hz:
+period p99 5.26 ms, |jitter| p99 0.30 ms, 0 missed, 162 µs CPU/tick (before the keepalive
+thread: 5.21 ms, 0.26 ms, 0, 171 µs); 1 kHz: p99 1.21 ms, 3 missed of 10 000. --stalls 330 at
+load 4.8: wake-ups up to 11.4 ms late, 7 over 5 ms, steal 0.98 s per CPU.
 """
 
 from __future__ import annotations
