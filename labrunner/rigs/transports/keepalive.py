@@ -41,14 +41,17 @@ class Keepalive:
         self._armed = False
         self._closed = False
         self._wake = threading.Condition()
+        self._parked = threading.Event()  # the thread waits for its first arm
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
-        """Start the thread (once; before a run's set-up: ``Thread.start`` waits until the new
-        thread runs, which on a busy machine can take longer than a watchdog period)."""
+        """Start the thread and wait until it is parked (once, before a run's set-up: a new
+        thread's first steps hold the interpreter lock, and on a busy machine it can be preempted
+        there for longer than a watchdog period)."""
         if self._thread is None:
             self._thread = threading.Thread(target=self._serve, name="labrunner-keepalive", daemon=True)
             self._thread.start()
+            self._parked.wait(1.0)
 
     def arm(self, watchdog_s: float, stall_s: float) -> None:
         """A run was set up: keep the device's watchdog of ``watchdog_s`` fed while the loop steps."""
@@ -78,6 +81,7 @@ class Keepalive:
                         return
                     now = time.monotonic()
                     if not self._armed:
+                        self._parked.set()
                         self._wake.wait()
                         continue
                     if now - self.last_step > self._stall_s:  # the loop is stuck: let the watchdog judge

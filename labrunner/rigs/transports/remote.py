@@ -239,11 +239,10 @@ class RemoteRig(Rig):
         self.ping(stale_errors=True)  # in step: what the device sent before this run is behind us
         self._link_at_setup = replace(self.link.counters)
         self._seq, self._late_run = 0, 0
+        self._keepalive.arm(self._watchdog_s(), int(self.parameters["max_late_ticks"]) / self.fs)
         for frame in m.setup_frames(self.fs, self._watchdog_s(), int(seeds[0])):
             self._send(frame)
-        y = self._collect(0, 0)
-        self._keepalive.arm(self._watchdog_s(), int(self.parameters["max_late_ticks"]) / self.fs)
-        return y
+        return self._collect(0, 0)
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         n = u.shape[1]
