@@ -57,7 +57,9 @@ def _terminal(directory) -> int:
 @pytest.mark.slow
 def test_sigkill_at_random_moments_loses_nothing_and_repeats_nothing(project):
     rng = random.Random(6)
-    path = write(project / "crash.toml", campaign_text(name="crash", grid=GRID, duration=3.0))
+    path = write(
+        project / "crash.toml", campaign_text(name="crash", grid=GRID, duration=6.0)
+    )  # long enough that 10 kills land before the 120 runs end
     planned = [p.id for p in spec.plan(spec.load(path))[0]]
     assert len(planned) == 120
     directory = project / "data" / "crash"
