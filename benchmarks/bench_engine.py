@@ -7,7 +7,8 @@ per core in batches of ≥ 100. Two batches of ``campaigns/dcmotor-velocity-gamm
 this one process (best of ``--repeat`` rounds): ``--batch`` points spread over its γ–k_p grid
 (some abort early, as in the campaign), and the worst case, its nominal point (γ = b,
 k_p = 50 1/s) ``--batch`` times with different seeds, every run completing all 5 s. Runs per
-second are counted in CPU time; wall time is printed alongside.
+second are counted in CPU time; wall time is printed alongside. The engine reports its ticks to
+a live-progress slot as in a campaign's pool worker (:mod:`labrunner.campaign.live`).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import time
 from pathlib import Path
 
 from labrunner import engine
-from labrunner.campaign import spec
+from labrunner.campaign import live, spec
 from labrunner.logs import write_run
 from labrunner.rigs.registry import load_rig
 
@@ -47,11 +48,18 @@ def measure(campaign: spec.Campaign, label: str, configs: list[dict], repeat: in
     share the cores: "per core" is one process's CPU time)."""
     fs, duration = campaign.fs, float(campaign.duration)
     rig = load_rig(campaign.rig_ref, search=campaign.rig_search)
+    live.install(live.LiveTicks(1).array)  # as a pool worker's initializer does
     best = {"engine": [math.inf, math.inf], "total": [math.inf, math.inf]}  # [wall, CPU] seconds
     for _ in range(repeat):
         w0, c0 = time.perf_counter(), time.process_time()
         results = engine.run_batch(
-            configs, rig, fs=fs, duration=duration, seeds=list(range(len(configs))), rig_safety=campaign.rig_safety
+            configs,
+            rig,
+            fs=fs,
+            duration=duration,
+            seeds=list(range(len(configs))),
+            rig_safety=campaign.rig_safety,
+            progress=live.hook(0),
         )
         w1, c1 = time.perf_counter(), time.process_time()
         with tempfile.TemporaryDirectory() as tmp:

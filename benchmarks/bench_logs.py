@@ -8,6 +8,13 @@ schemas, channels, rig record, campaign file) encoded once, the run's records pe
 
 ``--dir`` chooses where the files go (default: the system's temporary directory); a tmpfs such
 as /dev/shm takes the disk out of the figures.
+
+Last measured (2-core machine, load average 0.3–0.7, ext4, best of two rounds; before the per-file
+records were encoded by ``mcap_records`` and chunks compressed in one call, same machine and
+hour): plate full rate write 41 ms CPU (was 45), thinned 13.3 ms (was 15.3), read 12 ms; motor
+0.67 ms CPU per file in batches of 64 (was 0.76), 0.90 ms alone (was 0.94). These synthetic motor
+runs are noisy (168 kB a file); a real campaign's logs (33 kB on average, half of the runs
+aborted) cost 0.33 ms CPU each on a tmpfs (0.43 ms before).
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@
 give B·T/W. Rows: the twin alone; controller and twin tick by tick (the loop without anything
 around it); and the figure that matters for a campaign, :func:`labrunner.engine.run_batch` with
 the rig file's safety monitors (reference, controller, safety, twin, signal collection and the
-per-run results, as a campaign worker runs a batch; MCAP writing is bench_logs.py's).
+per-run results, as a campaign worker runs a batch, reporting its ticks to a live-progress slot;
+MCAP writing is bench_logs.py's).
 
 W is the best of ``--repeat`` rounds in CPU time of this process (on a shared host, time spent
 descheduled is not the code's cost); the median wall-clock time is printed beside it.
@@ -25,6 +26,7 @@ from collections.abc import Callable  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labrunner import engine  # noqa: E402
+from labrunner.campaign import live  # noqa: E402
 from labrunner.control.factory import build  # noqa: E402
 from labrunner.rigs.registry import load_rig  # noqa: E402
 
@@ -84,10 +86,17 @@ def campaign_batch(point: dict, batch: int, ticks: int) -> Callable[[], None]:
     """engine.run_batch with the rig file's [safety] section (air-gap and current bounds, run time)."""
     rig = load_rig("plate-sim")
     points = [point] * batch
+    live.install(live.LiveTicks(1).array)  # as a pool worker's initializer does
 
     def run() -> None:
         results = engine.run_batch(
-            points, rig, fs=FS, duration=ticks / FS, seeds=list(range(batch)), rig_safety=rig.config.safety
+            points,
+            rig,
+            fs=FS,
+            duration=ticks / FS,
+            seeds=list(range(batch)),
+            rig_safety=rig.config.safety,
+            progress=live.hook(0),
         )
         bad = [r.outcome.status for r in results if r.outcome.status != "completed"]
         assert not bad, f"benchmark runs must complete, got {bad[:3]}"

@@ -10,7 +10,9 @@ threshold); ``no-motion`` (completed, but the load never moved beyond the sensor
 the flow never rose above its threshold); ``failed`` (an exception: its message; a
 :class:`~labrunner.errors.RigError` is re-raised after the runs are built, with them in
 ``exc.results``, so the worker keeps their logs up to the failure and stops the campaign). The same code
-drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``.
+drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``. A
+``progress`` hook hears the ticks done at most :data:`PROGRESS_CALLS` times a batch (the
+campaign's live progress, :mod:`labrunner.campaign.live`); it costs one integer comparison a tick.
 """
 
 from __future__ import annotations
@@ -23,13 +25,16 @@ import numpy as np
 from labrunner._ufunc import count_nonzero
 from labrunner.control import factory
 from labrunner.control.base import Controller
+from labrunner.control.trajectories import Reference
 from labrunner.errors import LabrunnerError, RigError
 from labrunner.metrics import Roles, parse_windows, run_metrics
 from labrunner.rigs.base import Rig, RigInfo
 from labrunner.safety import SafetyConfig, SafetyMonitor
 
 _CHUNK = 1024  # reference samples evaluated at once, and samples per streamed block
+PROGRESS_CALLS = 100  # a batch's progress hook is called at most this often (the last call: all ticks done)
 Sink = Callable[[int, Mapping[str, np.ndarray]], None]
+Progress = Callable[[int], None]  # ticks done of the batch's round(duration · fs)
 
 
 @dataclass(frozen=True)
@@ -132,17 +137,23 @@ def run_batch(
     seeds: Sequence[int],
     rig_safety: Mapping[str, object] | None = None,
     sink: Sink | None = None,
+    progress: Progress | None = None,
+    reference: Reference | None = None,
 ) -> list[RunResult]:
     """Run B = len(points) resolved campaign points in lockstep on ``rig``; return one result each.
 
     ``rig_safety`` is the rig file's ``[safety]`` section; each point's ``safety`` section
     overrides it. ``sink(first_index, block)`` receives run 0's samples every 1024 ticks (real rigs
-    log while they run). Bad configuration raises :class:`~labrunner.errors.InvalidParameter`
-    before the rig moves; an exception during the run marks every unfinished run ``failed``.
+    log while they run). ``progress(ticks_done)`` is called every ⌈K / PROGRESS_CALLS⌉ ticks and
+    once when the loop ends (with K, also after an early end): at most PROGRESS_CALLS times. Bad
+    configuration raises :class:`~labrunner.errors.InvalidParameter` before the rig moves; an
+    exception during the run marks every unfinished run ``failed``. ``reference`` replaces the
+    points' references (a device runs its description's sample tables).
     """
     B = len(points)
     K = int(round(duration * fs))
-    controller, reference = factory.build(points, rig.info, fs)
+    controller, built = factory.build(points, rig.info, fs)
+    reference = built if reference is None else reference
     configs = _safety_configs(points, rig.info, rig_safety or {})
     overrides = _overrides(points)
     monitor = SafetyMonitor(configs, rig.info, fs)
@@ -154,6 +165,8 @@ def run_batch(
     failure = ""
     rig_error: RigError | None = None
     k = logged = 0  # logged: ticks whose row is complete in every log
+    every = -(-K // PROGRESS_CALLS) if K else 1
+    report_at = every if progress is not None else K  # K: never inside the loop
 
     try:
         y = rig.reset(B, seeds, fs, overrides)
@@ -162,6 +175,9 @@ def run_batch(
         r_chunk = np.empty(0)
         finished = False  # every run has ended
         for k in range(K):
+            if k == report_at:
+                progress(k)  # type: ignore[misc]
+                report_at += every
             if k % _CHUNK == 0:
                 r_chunk = reference.evaluate(np.arange(k, min(k + _CHUNK, K)) / fs)
                 r_log[k : k + len(r_chunk)] = r_chunk[..., 0]
@@ -198,6 +214,8 @@ def run_batch(
         end = np.where(active, np.minimum(end, k + 1), end)
     else:
         rig.safe_state()
+    if progress is not None:
+        progress(K)
     if sink is not None and int(end[0]) % _CHUNK:  # run 0's samples after its last full chunk
         last = int(end[0]) - int(end[0]) % _CHUNK
         sink(last, log.signals(log.rows(0, last, int(end[0]))))

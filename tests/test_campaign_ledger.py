@@ -137,7 +137,7 @@ def test_progress_plain_lines_when_not_a_terminal(tmp_path):
     out.seek(0)
     lines = out.read().splitlines()
     assert lines[0].startswith("camp: 2/10 (2 completed, 0 no-motion, 0 aborted, 0 failed)")  # at once, before any run
-    assert lines[-1].startswith("camp: 4/10 (2 completed, 1 no-motion, 1 aborted, 0 failed, 1 running)")
+    assert lines[-1].startswith("camp: 4/10 (2 completed, 1 no-motion, 1 aborted, 0 failed; 1 running)")
     assert "runs/s" in lines[-1] and "ETA" in lines[-1]
 
 

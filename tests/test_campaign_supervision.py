@@ -203,11 +203,15 @@ def test_killing_a_worker_of_a_running_pool_ends_the_run_within_a_bound(project,
 def test_ctrl_c_at_random_moments_stops_within_the_bound_and_resumes(project):
     rng = random.Random(18)
     write(project / "c.toml", campaign_text(name="c", grid=GRID, duration=4.0))
+    # trial 0 presses 0.3 s after the start, while it plans: 4000 points take long enough to plan
+    # (~0.2–0.5 s after ~0.2 s of imports) for the press to come before the directory is made
+    big = GRID.replace("num = 8 }", "num = 64 }", 1).replace("num = 8 }", "num = 63 }")
+    write(project / "c0.toml", campaign_text(name="c", grid=big, duration=4.0))
     ledger = project / "data" / "c" / "ledger.sqlite"
     for trial in range(7):
         presses = 1 + trial % 2
         proc = spawn(
-            *(["resume", "data/c"] if ledger.exists() else ["run", "c.toml"]),
+            *(["resume", "data/c"] if ledger.exists() else ["run", "c0.toml" if trial == 0 else "c.toml"]),
             "--workers",
             "2",
             "--batch-size",

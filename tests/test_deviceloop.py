@@ -110,6 +110,31 @@ def test_executor_equals_the_twin_engine(name):
     assert np.array_equal(run.columns, to_columns(twin.signals, twin.channels))  # bit for bit in float32
 
 
+@pytest.mark.parametrize("name", ["motor-mfc2", "motor-open-loop", "plate-mfc"])
+def test_a_reference_sent_as_a_sample_table_runs_as_the_twin(name):
+    """reference_table: every output's reference travels as its samples; the device runs the
+    table by tick index and its run equals the twin's bit for bit in float32."""
+    point, rig_name, fs, duration, safety = POINTS[name]
+    rig = load_rig(rig_name)
+    data = description.build(
+        point, rig.info, fs=fs, duration=duration, seed=11, rig_safety=safety, reference_table=True
+    )
+    d = description.decode(data)
+    assert {code for code, _ in d.trajectories} == {description.T_TABLE}
+    twin = twin_run(name, seed=11)
+    for j, (_, (head, flat)) in enumerate(d.trajectories):  # a hand check: row k is the reference at k/f_s
+        rows = flat.reshape(-1, 4)
+        assert head.tolist() == [fs] and 1 < len(rows) <= d.ticks
+        ref = twin.signals[twin.channels["references"][j]]
+        k = np.minimum(np.arange(len(ref)), len(rows) - 1)
+        assert np.array_equal(rows[k, 0], ref)  # the held last row is the reference to the end
+    run = executor.execute(data, rig)
+    assert np.array_equal(run.columns, to_columns(twin.signals, twin.channels))
+    tampered = [(code, [head, flat + 1e-9]) for code, (head, flat) in d.trajectories]
+    with pytest.raises(DescriptionError, match="reference segments"):
+        executor.check(description.Description(**{**d.__dict__, "trajectories": tampered}), rig)
+
+
 class _Channel:
     """Two queues between host and device; bulk frames the device sends (of ``kinds``) are dropped
     or corrupted with probability ``fault``."""

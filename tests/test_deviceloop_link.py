@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from labrunner.rigs.config import config_from_dict
+from labrunner.rigs.device import description
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import linkload
 from tests.deviceloop_points import POINTS, assert_same_as_twin
@@ -141,3 +142,15 @@ def test_a_host_loop_rig_file_is_not_run_on_the_device():
         rig = load_rig(config_from_dict(config))
         with rig:
             assert rig.loop == "host"
+
+
+@pytest.mark.slow
+def test_a_rig_file_asking_for_reference_tables_runs_the_twin_result_across_processes():
+    config = rig_file("motor-mfc2", "can")
+    config["parameters"]["reference_table"] = True
+    with emulator_process(config) as config:
+        result = device_run("motor-mfc2", config)
+    assert_same_as_twin(result, "motor-mfc2", 11)
+    point, rig_name, fs, duration, safety = POINTS["motor-mfc2"]
+    compact = description.build(point, load_rig(rig_name).info, fs=fs, duration=duration, seed=11, rig_safety=safety)
+    assert result.diagnostics["device_loop"]["description_bytes"] > len(compact) + 32 * 200  # ≥ 1 s of table rows

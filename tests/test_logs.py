@@ -20,6 +20,7 @@ from labrunner.errors import InvalidParameter, LabrunnerError
 from labrunner.logs import (
     BLOCK_TOPIC,
     SAMPLES_TOPIC,
+    BatchPrefixes,
     RunLogWriter,
     normalise_channels,
     read_metadata,
@@ -318,6 +319,26 @@ def test_identical_inputs_give_identical_files(tmp_path):
             start_time=START,
         )
     assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+
+
+def test_batch_prefixes_are_reused_only_for_equal_descriptions(tmp_path):
+    """A worker's runs share the prefix made for their description; a file written with it is the
+    file written without one (the plain path), and a run described otherwise (another unit, or the
+    same mapping changed since) gets a prefix of its own."""
+    signals = motor_run(duration=1.0)
+    names = list(signals)
+    channels = {n: dict(info) for n, info in CHANNELS.items()}
+    batch = BatchPrefixes(200.0, {}, {})
+    first = batch.get(names, channels)
+    assert batch.get(names, {n: dict(info) for n, info in CHANNELS.items()}) is first  # equal, not the same object
+    kw = dict(metadata=metadata(), signals=signals, outcome=COMPLETED, start_time=START)
+    write_run(tmp_path / "batch.mcap", prefix=batch.get(names, channels), **kw)
+    write_run(tmp_path / "plain.mcap", fs=200.0, channels=CHANNELS, **kw)
+    assert (tmp_path / "batch.mcap").read_bytes() == (tmp_path / "plain.mcap").read_bytes()
+    channels["u"]["unit"] = "mV"  # the same mapping, changed
+    changed = batch.get(names, channels)
+    assert changed is not first and changed.channels["u"]["unit"] == "mV"
+    assert first.channels["u"]["unit"] == CHANNELS["u"]["unit"]
 
 
 @settings(max_examples=40, deadline=None)

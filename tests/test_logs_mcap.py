@@ -1,7 +1,8 @@
 """The bulk MCAP writer and the vectorised per-sample encoding against their references.
 
 References: the ``mcap`` package's own writer (same messages, metadata and attachments must read
-back identically with its reader, CRCs validated) and the MCAP spec for what its reader does not
+back identically with its reader, CRCs validated; its record classes, byte for byte, for the
+records written per file) and the MCAP spec for what its reader does not
 check (message indexes, summary CRC); for the per-sample messages, the classes ``google.protobuf``
 generates from the schema (decoding, and its own serialisation byte for byte).
 """
@@ -15,15 +16,25 @@ import zlib
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
-from mcap.data_stream import ReadDataStream
+from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Chunk, Footer, MessageIndex
+from mcap.records import (
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Statistics,
+    SummaryOffset,
+)
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 from test_logs_support import COMPLETED, motor_run
 
-from labrunner.logs import read_run, schema as log_schema, write_run
+from labrunner.logs import mcap_records, read_run, schema as log_schema, write_run
 from labrunner.logs.mcap_writer import BulkWriter
 from labrunner.logs.writer import encode_record
 
@@ -234,3 +245,63 @@ def test_sample_encoding_agrees_with_protobuf(n_signals, n, data):
         assert all(bits(getattr(msg, name)) == bits(c[k]) for name, c in zip(names, columns))
         if all(bits(c[k]) != 0 for c in columns) and bits(t[k]) != 0:  # proto3 leaves +0.0 out
             assert msg.SerializeToString() == row.tobytes()
+
+
+def _mcap_bytes(record) -> bytes:
+    builder = RecordBuilder()
+    record.write(builder)
+    return builder.end()
+
+
+_u64, _u32, _u16 = st.integers(0, 2**64 - 1), st.integers(0, 2**32 - 1), st.integers(0, 2**16 - 1)
+_text = st.text(max_size=12)  # any Unicode: the length prefixes count UTF-8 bytes
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    name=_text,
+    mapping=st.dictionaries(_text, _text, max_size=5),
+    numbers=st.lists(_u64, min_size=9, max_size=9),
+    small=st.lists(_u32, min_size=5, max_size=5),
+    channels=st.dictionaries(_u16, _u64, max_size=3),
+    opcode=st.integers(0, 255),
+)
+def test_record_encoders_agree_with_mcap_records(name, mapping, numbers, small, channels, opcode):
+    """:mod:`labrunner.logs.mcap_records` writes every record byte for byte as ``mcap.records``."""
+    a, b, c, d, e, f, g, h, i = numbers
+    assert mcap_records.metadata(name, mapping) == _mcap_bytes(Metadata(name=name, metadata=mapping))
+    assert mcap_records.metadata_index(a, b, name) == _mcap_bytes(MetadataIndex(offset=a, length=b, name=name))
+    assert mcap_records.chunk_index(a, b, c, d, channels, e, name, f, g) == _mcap_bytes(
+        ChunkIndex(
+            message_start_time=a,
+            message_end_time=b,
+            chunk_start_offset=c,
+            chunk_length=d,
+            message_index_offsets=channels,
+            message_index_length=e,
+            compression=name,
+            compressed_size=f,
+            uncompressed_size=g,
+        )
+    )
+    schemas = small[0] % 2**16
+    assert mcap_records.statistics(a, schemas, *small[1:], b, c, channels) == _mcap_bytes(
+        Statistics(
+            message_count=a,
+            schema_count=schemas,
+            channel_count=small[1],
+            attachment_count=small[2],
+            metadata_count=small[3],
+            chunk_count=small[4],
+            message_start_time=b,
+            message_end_time=c,
+            channel_message_counts=channels,
+        )
+    )
+    assert mcap_records.summary_offset(opcode, h, i) == _mcap_bytes(
+        SummaryOffset(group_opcode=opcode, group_start=h, group_length=i)
+    )
+    assert mcap_records.data_end(small[0]) == _mcap_bytes(DataEnd(data_section_crc=small[0]))
+    assert mcap_records.footer(h, i, small[1]) == _mcap_bytes(
+        Footer(summary_start=h, summary_offset_start=i, summary_crc=small[1])
+    )

@@ -4,6 +4,7 @@ load none of the heavy packages they do not use. Checked in fresh interpreters (
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -37,3 +38,27 @@ def test_a_worker_writes_logs_without_pandas_or_matplotlib():
         "from labrunner.logs import BatchPrefixes, write_run, read_metadata"
     )
     assert _loaded(code) == []
+
+
+_BLAS_THREADS = """
+import ctypes, glob, os, sys
+from labrunner.cli import main
+main(["run", "no-such-campaign.toml"])  # exits 2 after the campaign commands' set-up
+import numpy
+libs = glob.glob(os.path.join(os.path.dirname(numpy.__file__), os.pardir, "numpy.libs", "libscipy_openblas64_*.so"))
+print(ctypes.CDLL(libs[0]).scipy_openblas_get_num_threads64_() if libs else "no-openblas")
+"""
+
+
+@pytest.mark.parametrize("user", [None, "2"])
+def test_a_campaign_process_runs_blas_on_one_thread_unless_the_user_says(user):
+    """``run``/``resume`` processes (and the workers they fork) use one OpenBLAS thread: one
+    process per core already fills the cores; a user's OPENBLAS_NUM_THREADS is kept."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if user is not None:
+        env["OPENBLAS_NUM_THREADS"] = user
+    out = subprocess.run([sys.executable, "-c", _BLAS_THREADS], capture_output=True, text=True, env=env)
+    threads = out.stdout.strip().splitlines()[-1]
+    if threads == "no-openblas":
+        pytest.skip("numpy is not built with scipy-openblas here")
+    assert int(threads) == int(user or 1)

@@ -210,6 +210,7 @@ def analyse(
         limits=rig_limits,
         recompute=recompute,
         tick=advance,
+        announce=lambda n: step(f"metrics table, reading {n} logs", n),
     )
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)

@@ -256,11 +256,13 @@ def build_table(
     limits: Mapping[str, tuple[float, float]] | None = None,
     recompute: bool = False,
     tick: Callable[[int], None] | None = None,
+    announce: Callable[[int], None] | None = None,
 ) -> CampaignTable:
     """The table of ledger ``rows``: metrics from the ledger; from the logs (reusing ``cache`` rows
     that still match) where the ledger has none, or for every run with ``recompute``. ``units``
     are the rig's signal units, for logs that record none; ``limits`` its input limits (the
-    oscillation detector's columns); ``tick(n)`` is called as logs are read."""
+    oscillation detector's columns); ``announce(n)`` is told how many logs will be read (before
+    the first), ``tick(n)`` as they are read."""
     frame, missing_list = ledger_frame(rows)
     missing = set(missing_list)
     problems: list[dict[str, str]] = []
@@ -289,6 +291,8 @@ def build_table(
             metrics[i] = _unsplit(hit, frame.columns)
         else:
             read.append(i)
+    if announce and read:
+        announce(len(read))
     results = _read_many([str(directory / paths[i]) for i in read], workers or os.cpu_count() or 1, units, limits, tick)
     for i, result in zip(read, results):
         if "error" in result:

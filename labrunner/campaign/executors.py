@@ -13,10 +13,14 @@ Executors:
 
 - a local process pool (default; ``--workers N``, default all cores), workers forked, ignoring
   SIGINT/SIGTERM (the parent decides what Ctrl-C means) and killed if the parent dies
-  (``PR_SET_PDEATHSIG``);
+  (``PR_SET_PDEATHSIG``), reporting their batches' ticks through a shared array
+  (:mod:`labrunner.campaign.live`);
 - a Dask distributed cluster (``--executor tcp://HOST:PORT``: ``Client(address).get_executor()``);
-  its workers must see the campaign directory (shared file system);
+  its workers must see the campaign directory (shared file system) and report their batches'
+  ticks as Dask events on a topic the client subscribes to;
 - in-process, one run at a time, for a real rig.
+
+At most :data:`QUEUE_DEPTH` batches per slot are in flight (one running, the next queued behind it).
 """
 
 from __future__ import annotations
@@ -27,18 +31,21 @@ import multiprocessing
 import os
 import signal
 import socket
+import uuid
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit
 
+from labrunner.campaign import live
 from labrunner.errors import CampaignError, InvalidParameter
 
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 DASK_PORT = 8786  # the Dask scheduler's default port
 CONNECT_TIMEOUT_S = 5.0  # reaching a Dask scheduler before anything is created
 _PR_SET_PDEATHSIG = 1
+QUEUE_DEPTH = 2  # batches in flight per slot
 
 
 class InProcessExecutor(Executor):
@@ -56,12 +63,19 @@ class InProcessExecutor(Executor):
 
 @dataclass
 class ExecutorHandle:
-    """An executor, its number of parallel slots, and its supervision hooks (see module docstring)."""
+    """An executor, its number of parallel slots, its supervision hooks (see module docstring),
+    and its live channel (None: none, a real rig's one run at a time)."""
 
     executor: Executor
     slots: int
     probe: Callable[[], str] = field(default=lambda: "")
     abandon: Callable[[], None] = field(default=lambda: None)
+    live: live.LiveTicks | None = None
+
+    @property
+    def max_inflight(self) -> int:
+        """Batches submitted and not yet collected, at most (in-process: each runs at submit)."""
+        return 1 if self.in_process else max(1, QUEUE_DEPTH * self.slots)
 
     @property
     def in_process(self) -> bool:
@@ -73,9 +87,10 @@ class ExecutorHandle:
         return isinstance(self.executor, ProcessPoolExecutor)
 
 
-def _init_worker(lock_fd: int | None) -> None:
+def _init_worker(lock_fd: int | None, ticks: Any = None) -> None:
     """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it lets running batches finish or
-    kills the workers), die with the parent, drop the inherited lock descriptor."""
+    kills the workers), die with the parent, drop the inherited lock descriptor, keep the live
+    channel's shared array."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # blocked by the parent while it forked us
@@ -86,6 +101,7 @@ def _init_worker(lock_fd: int | None) -> None:
     if lock_fd is not None:
         with contextlib.suppress(OSError):
             os.close(lock_fd)
+    live.install(ticks)
 
 
 def parse_executor_url(url: str) -> tuple[str, int]:
@@ -131,8 +147,10 @@ def _kill(processes: Any) -> None:
 def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
     n = workers or len(os.sched_getaffinity(0))
     _preload_worker_modules()
+    context = multiprocessing.get_context("fork")
+    ticks = live.LiveTicks(QUEUE_DEPTH * n, context)
     pool = ProcessPoolExecutor(
-        max_workers=n, mp_context=multiprocessing.get_context("fork"), initializer=_init_worker, initargs=(lock_fd,)
+        max_workers=n, mp_context=context, initializer=_init_worker, initargs=(lock_fd, ticks.array)
     )
     abandoned = False
 
@@ -142,7 +160,7 @@ def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
         _kill(getattr(pool, "_processes", None))
 
     try:
-        yield ExecutorHandle(pool, n, abandon=abandon)
+        yield ExecutorHandle(pool, n, abandon=abandon, live=ticks)
     finally:
         if abandoned or getattr(pool, "_broken", False):  # a broken pool SIGTERMs its workers: they ignore it
             _kill(getattr(pool, "_processes", None))
@@ -161,6 +179,8 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
         started = len(client.scheduler_info().get("workers", {}))
         slots = workers or max(1, sum(client.nthreads().values()))
         executor = client.get_executor(pure=False)
+        ticks = live.LiveTicks(QUEUE_DEPTH * slots, topic=f"labrunner-live-{uuid.uuid4().hex}")
+        client.subscribe_topic(ticks.topic, ticks.receive)
 
         def probe() -> str:
             if client.status != "running":
@@ -174,7 +194,7 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
             with contextlib.suppress(Exception):
                 client.cancel(list(getattr(executor, "_futures", ())), force=True)
 
-        yield ExecutorHandle(executor, slots, probe=probe, abandon=abandon)
+        yield ExecutorHandle(executor, slots, probe=probe, abandon=abandon, live=ticks)
     finally:
         with contextlib.suppress(Exception):
             client.close(timeout=5)

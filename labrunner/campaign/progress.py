@@ -9,6 +9,11 @@ not the plant); a point without a finished run is ``claimed`` (running) or ``pla
 On a terminal (stderr is a TTY) a tqdm bar; otherwise plain lines: one at once (so a log shows
 the command started), then at most every ``interval_s`` seconds, and one at the end, so logs of
 batch jobs stay readable.
+
+A campaign's counts are whole runs with a finished outcome; the runs in flight are shown apart,
+with the share of their ticks done (``12/320 (… ; 32 running, 31 % through, 32 waiting)``, from
+:mod:`labrunner.campaign.live`). The bar's position, the rate and the ETA count those
+run-equivalents too, so they are right before the first lockstep batch ends.
 """
 
 from __future__ import annotations
@@ -60,8 +65,14 @@ class _Reporter(abc.ABC):
         if self.stream.isatty() if bar is None else bar:
             from tqdm import tqdm
 
+            reporter = self
+
             class _Bar(tqdm):  # no monitor thread: the process pool forks after the bar exists
                 monitor_interval = 0
+
+                @property
+                def format_dict(self):  # the whole items done, while the bar's n may hold a fraction
+                    return {**super().format_dict, "finished": reporter.finished}
 
             self._bar = _Bar(
                 total=total,
@@ -71,6 +82,7 @@ class _Reporter(abc.ABC):
                 file=self.stream,
                 dynamic_ncols=True,
                 smoothing=0.1,
+                bar_format="{l_bar}{bar}| {finished}/{total_fmt} [{elapsed}<{remaining}, {rate_fmt}{postfix}]",
             )
             self._bar.set_postfix_str(self.detail())
         else:
@@ -81,36 +93,40 @@ class _Reporter(abc.ABC):
     def finished(self) -> int:
         """Items done so far (runs of a campaign, steps of an analysis)."""
 
+    @property
+    def position(self) -> float:
+        """Items done, with the share done of those under way (what rate and ETA count)."""
+        return float(self.finished)
+
     def detail(self) -> str:
         return ""
 
     def rate(self) -> float:
         """Items per second in this session."""
         elapsed = time.monotonic() - self.started
-        return (self.finished - self.initial) / elapsed if elapsed > 0 else 0.0
+        return (self.position - self.initial) / elapsed if elapsed > 0 else 0.0
 
     def line(self) -> str:
         rate = self.rate()
-        eta = (self.total - self.finished) / rate if rate > 0 else float("nan")
+        eta = (self.total - self.position) / rate if rate > 0 else float("nan")
         detail = f" ({self.detail()})" if self.detail() else ""
         return (
             f"{self.label}: {self.finished}/{self.total}{detail} {_rate(rate)} {self.unit}s/s, "
             f"elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}"
         )
 
-    def _advanced(self, n: int) -> None:
-        if self._bar is not None:
-            self._bar.update(n)
+    def _moved(self) -> None:
+        if self._bar is not None:  # the words first: update() draws them with the position
             self._bar.set_postfix_str(self.detail(), refresh=False)
+            self._bar.update(self.position - self._bar.n)
         elif time.monotonic() - self._last_line >= self.interval_s:
             self.write(self.line())
 
     def tick(self) -> None:
         """Called while waiting: a plain line every ``interval_s`` even when nothing finished."""
+        self._moved()
         if self._bar is not None:
             self._bar.refresh()
-        elif time.monotonic() - self._last_line >= self.interval_s:
-            self.write(self.line())
 
     def write(self, message: str) -> None:
         """A message that does not break the bar."""
@@ -142,26 +158,54 @@ class Progress(_Reporter):
         bar: bool | None = None,
     ) -> None:
         self.counts = {w: int((counts or {}).get(w, 0)) for w in FINISHED}
-        self.running = 0  # runs handed to workers and not yet committed
+        self.running = 0  # runs handed to the executor and not yet counted
+        self.taken: int | None = None  # of those, the runs a worker has taken (None: not known)
+        self.in_flight = 0.0  # run-equivalents the started runs have done (their batches' share of ticks)
         super().__init__(label, total, sum(self.counts.values()), stream=stream, interval_s=interval_s, bar=bar)
 
     @property
     def finished(self) -> int:
         return sum(self.counts.values())
 
+    @property
+    def position(self) -> float:
+        return self.finished + min(self.in_flight, self.running)
+
     def detail(self) -> str:
-        running = f", {self.running} running" if self.running else ""
-        return format_counts(self.counts) + running
+        """The counts; then, apart, the runs in flight: ``; 16 running, 31 % through, 16 waiting``
+        (waiting: submitted, no worker free yet; without a live channel only ``; 16 running``)."""
+        flight = ""
+        if self.running and self.taken is not None:
+            started = min(self.taken, self.running)
+            share = f", {100 * min(self.in_flight / started, 1.0):.0f} % through" if started else ""
+            waiting = f", {self.running - started} waiting" if self.running > started else ""
+            flight = f"; {started} running{share}{waiting}"
+        elif self.running:
+            flight = f"; {self.running} running"
+        return format_counts(self.counts) + flight
 
     def started_runs(self, n: int) -> None:
-        """``n`` more runs handed to the workers (shown until they finish)."""
+        """``n`` more runs handed to the executor (shown until they are counted)."""
         self.running += n
+
+    def live(self, in_flight: float, started: int | None) -> None:
+        """What the live channel says (:meth:`Scheduler.live`): run-equivalents done by the
+        started runs, and how many runs have started (a returned batch's runs count as started
+        and whole until :meth:`update` counts each)."""
+        self.in_flight, self.taken = in_flight, started
+
+    def returned(self, n: int) -> None:
+        """``n`` runs handed out will not be counted in this session (unclaimed, or left claimed for resume)."""
+        self.running = max(0, self.running - n)
 
     def update(self, outcome: str) -> None:
         """One more run with ``outcome`` (completed | no-motion | aborted | failed)."""
         self.counts[outcome] += 1
         self.running = max(0, self.running - 1)
-        self._advanced(1)
+        self.in_flight = max(0.0, self.in_flight - 1.0)  # it was in flight, whole
+        if self.taken is not None:
+            self.taken = max(0, self.taken - 1)
+        self._moved()
 
 
 class Steps(_Reporter):
@@ -198,4 +242,4 @@ class Steps(_Reporter):
             self.total = self.done
             if self._bar is not None:
                 self._bar.total = self.total
-        self._advanced(n)
+        self._moved()

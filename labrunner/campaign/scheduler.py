@@ -6,7 +6,9 @@ and submitted to an executor (:mod:`labrunner.campaign.executors`: a local proce
 cluster, or in-process for a real rig).
 
 A batch's points are claimed in one transaction when it is submitted; each run's row is
-committed when its batch returns (the worker has published the logs by then).
+committed when its batch returns (the worker has published the logs by then). While batches
+run, the share of their ticks done (:mod:`labrunner.campaign.live`) goes to the progress as
+run-equivalents in flight, so its rate and ETA hold from the first second.
 
 Supervision — the loop never blocks longer than :data:`POLL_S` and never hangs:
 
@@ -32,11 +34,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
+from labrunner.campaign.live import QUEUED
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
@@ -184,7 +187,9 @@ class Scheduler:
         )
 
     def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:
-        task = self._task(key, rows)
+        live = self.handle.live
+        slot = live.reserve() if live is not None else None
+        task = replace(self._task(key, rows), live_at=slot)
         ids = [r.point_id for r in task.runs]
         self.ledger.claim(ids)
         h = self.handle
@@ -201,45 +206,78 @@ class Scheduler:
         except KeyboardInterrupt:  # a real rig's run, stopped by a second Ctrl-C: its points stay claimed
             raise
         except Exception as exc:  # the executor refused the batch (broken pool, lost cluster): nothing ran
+            self._release(slot)
             self.ledger.unclaim(ids)
             out.stop_reason = out.stop_reason or f"the executor refused a batch: {type(exc).__name__}: {exc}"
             return
-        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic())
+        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic(), slot)
         if self.progress:
             self.progress.started_runs(len(ids))
 
+    def _release(self, slot: int | None) -> None:
+        if self.handle.live is not None:
+            self.handle.live.release(slot)
+
+    def live(self, whole: int = 0) -> None:
+        """Tell the progress what the live channel says: run-equivalents done (Σ runs × share of the
+        batch's ticks done) and runs started, over the batches in flight; ``whole``: runs of a
+        returned batch not yet counted (started, all ticks done). Nothing without a channel."""
+        live = self.handle.live
+        if self.progress is None or live is None:
+            return
+        done, started = float(whole), whole
+        for batch in self.inflight.values():
+            ticks = live.ticks(batch.slot)
+            if ticks != QUEUED:
+                started += len(batch.ids)
+                done += len(batch.ids) * min(1.0, ticks / batch.ticks) if batch.ticks else 0.0
+        self.progress.live(done, started)
+
     def _collect(self, future: Future, out: Outcome) -> None:
         batch = self.inflight.pop(future)
-        if future.cancelled():
-            self.ledger.unclaim(batch.ids)
-            return
-        self.longest_s = max(self.longest_s, time.monotonic() - batch.submitted)
-        exc = future.exception()
-        if isinstance(exc, BrokenExecutor):  # a worker process died: every running batch is lost with it
-            out.stop_reason = out.stop_reason or (
-                "a worker process died (killed, or out of memory?); the running batches were abandoned"
-            )
-            self._abandon(out)
-            return
-        if exc is not None:  # the worker itself broke (could not write): stop, points stay claimed
-            out.stop_reason = out.stop_reason or f"a worker failed: {type(exc).__name__}: {exc}"
-            return
-        result: BatchResult = future.result()
-        for record in result.records:
-            self.ledger.commit(record)
-            out.committed += 1
-            if self.progress:
-                self.progress.update(record.outcome)
-        if result.stop:
-            out.stop_reason = out.stop_reason or result.stop
+        self._release(batch.slot)  # its worker has returned (or never started it): nothing writes the slot now
+        counted = 0
+        try:
+            if future.cancelled():
+                self.ledger.unclaim(batch.ids)
+                return
+            self.live(whole=len(batch.ids))  # its runs whole until each is counted: the position never jumps back
+            self.longest_s = max(self.longest_s, time.monotonic() - batch.submitted)
+            exc = future.exception()
+            if isinstance(exc, BrokenExecutor):  # a worker process died: every running batch is lost with it
+                out.stop_reason = out.stop_reason or (
+                    "a worker process died (killed, or out of memory?); the running batches were abandoned"
+                )
+                self._abandon(out)
+                return
+            if exc is not None:  # the worker itself broke (could not write): stop, points stay claimed
+                out.stop_reason = out.stop_reason or f"a worker failed: {type(exc).__name__}: {exc}"
+                return
+            result: BatchResult = future.result()
+            for record in result.records:
+                self.ledger.commit(record)
+                out.committed += 1
+                counted += 1
+                if self.progress:
+                    self.progress.update(record.outcome)
+            if result.stop:
+                out.stop_reason = out.stop_reason or result.stop
+        finally:
+            if self.progress:  # runs that will not be counted in this session (unclaimed, left claimed)
+                self.progress.returned(len(batch.ids) - counted)
+                self.live()
 
     def _abandon(self, out: Outcome) -> None:
         """Give up on every running batch now: their points stay claimed for ``resume``."""
         if self.inflight:
             self.handle.abandon()
-            for future in self.inflight:
+            for future, batch in self.inflight.items():
                 future.cancel()
+                self._release(batch.slot)
+                if self.progress:
+                    self.progress.returned(len(batch.ids))
             self.inflight.clear()
+            self.live()
             out.abandoned = True
 
     def _stopping(self, out: Outcome, pending: deque, why: str) -> None:
@@ -286,7 +324,7 @@ class Scheduler:
         rows = self.ledger.rows(("planned",))
         pending = deque(make_batches(rows, self.slots, self.requested))
         del rows
-        max_inflight = 1 if self.handle.in_process else max(1, 2 * self.slots)  # in-process: runs at submit
+        max_inflight = self.handle.max_inflight
         own = self.signals is None
         signals = self.signals or StopSignals()
         with signals if own else contextlib.nullcontext():
@@ -305,6 +343,7 @@ class Scheduler:
                     for future in done:
                         if future in self.inflight:
                             self._collect(future, out)
+                    self.live()
                     if self.progress:
                         self.progress.tick()
             except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
@@ -325,12 +364,14 @@ class Scheduler:
 
 @dataclass
 class _Batch:
-    """A submitted batch: its point ids, run duration [s], ticks and submit time (monotonic)."""
+    """A submitted batch: its point ids, run duration [s], ticks, submit time (monotonic) and its
+    slot in the live channel (None: none)."""
 
     ids: list[str]
     duration: float
     ticks: int
     submitted: float
+    slot: int | None = None
 
     @property
     def expected_s(self) -> float:

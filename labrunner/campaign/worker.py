@@ -11,6 +11,7 @@ parent's memory does not grow with the number of runs.
 
 from __future__ import annotations
 
+import functools
 import os
 import secrets
 import socket
@@ -22,12 +23,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
 from labrunner.errors import CampaignError, RigError
 
 RUNS_DIR = "runs"
 TMP_PREFIX = ".tmp-"
 _FSYNC_THREADS = 8
+_FSYNC_GROUP = 16  # logs fsynced by one thread task, one after the other
 
 
 @dataclass(frozen=True)
@@ -55,6 +58,7 @@ class BatchTask:
     duration: float
     runs: tuple[RunTask, ...]
     samples_hz: float | None = None  # [logging] samples_hz: thin the logs' per-sample channel (None: full rate)
+    live_at: live.Address | None = None  # where the worker reports the ticks done (labrunner.campaign.live)
 
 
 @dataclass
@@ -87,6 +91,11 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
+def _fsync_all(paths: list[Path]) -> None:
+    for path in paths:
+        _fsync(path)
+
+
 def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> dict[str, dict[str, Any]]:
     """A run's own log records (the rig record is shared by the batch: :func:`_publish_all`)."""
     return {
@@ -115,10 +124,14 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
     asks the parent to stop (architecture: "stop-campaign"), publishing the logs up to the failure
     when the engine attached them (``exc.results``); any other exception marks the batch's
-    points failed with the message (they have no log) and the campaign goes on.
+    points failed with the message (they have no log) and the campaign goes on. The ticks done go
+    to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass.
     """
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
+    report = live.hook(task.live_at)
+    if report is not None:
+        report(0)  # taken: no longer queued
     t0, start_time = time.perf_counter(), time.time()
     try:
         rig, rig_record = _load_rig(task)
@@ -128,7 +141,7 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     try:
         with rig:
             results = list(
-                (run_batch or _batch_runner(rig))(
+                (run_batch or _batch_runner(rig, report))(
                     [r.config for r in task.runs],
                     rig,
                     fs=task.fs,
@@ -157,13 +170,14 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     return out
 
 
-def _batch_runner(rig: Any) -> Callable[..., Sequence[Any]]:
-    """How a batch runs on ``rig``: the engine's loop, or the rig's own for a loop on the device."""
+def _batch_runner(rig: Any, report: Callable[[int], None] | None) -> Callable[..., Sequence[Any]]:
+    """How a batch runs on ``rig``: the engine's loop (telling ``report`` the ticks done), or the
+    rig's own for a loop on the device (a real rig, in the parent's process: no live channel)."""
     from labrunner import engine
 
     if getattr(rig, "loop", "host") == "device":
         return lambda points, rig, **kw: rig.run_on_device(points, **kw)
-    return engine.run_batch
+    return functools.partial(engine.run_batch, progress=report)
 
 
 def _publish_all(
@@ -177,8 +191,10 @@ def _publish_all(
     start_time: float,
     diagnostics: Mapping[str, Any] | None = None,
 ) -> None:
-    """Write every log under a temporary name, fsync them concurrently (one journal flush for many
-    files instead of one each), rename them into place, fsync the directory once. What the logs
+    """Write every log under a temporary name, fsync them concurrently while the next ones are
+    written (groups of :data:`_FSYNC_GROUP` per thread task, so that the writing thread hands work
+    over once per group rather than per file; one journal flush for many files instead of one
+    each), rename them into place, fsync the directory once. What the logs
     share (rig record, campaign file, schemas) is encoded once for the batch. A real rig's
     ``diagnostics`` record (docs/protocol.md § Diagnostics), or a device-loop run's own
     (``RunResult.diagnostics``, docs/device-loop.md), goes into the metadata and the outcome."""
@@ -188,12 +204,13 @@ def _publish_all(
     samples_hz = None if task.samples_hz is None or task.samples_hz >= task.fs else task.samples_hz
     # rig: kind, parameters, limits, noise, faults, safety as the rig file gave them
     prefixes = BatchPrefixes(task.fs, {"rig": dict(rig)}, {"campaign.toml": task.campaign_source.encode()}, samples_hz)
-    written = []
+    written, synced, group = [], [], []
+    token = secrets.token_hex(4)  # with the pid and the point id, unique among the batches that may write at once
     with ThreadPoolExecutor(max_workers=_FSYNC_THREADS) as syncer:
         for i, run in enumerate(task.runs):
             result, results[i] = results[i], None  # free each run's signals as soon as it is written
             t1 = time.perf_counter()
-            tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{secrets.token_hex(4)}.mcap"
+            tmp = runs_dir / f"{TMP_PREFIX}{run.point_id}-{pid}-{token}.mcap"
             metadata = _metadata(task, run, host, start_time)
             metadata["metrics"] = dict(result.metrics)
             outcome = result.outcome.as_dict()
@@ -208,17 +225,20 @@ def _publish_all(
                 prefix=prefixes.get(list(result.signals), result.channels),
                 start_time=start_time,
             )
-            written.append(
-                (run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1, syncer.submit(_fsync, tmp))
-            )
+            written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1))
+            group.append(tmp)
+            if len(group) == _FSYNC_GROUP or i == len(task.runs) - 1:  # fsynced while the next ones are written
+                synced.append(syncer.submit(_fsync_all, group))
+                group = []
         t2 = time.perf_counter()
-        for run, tmp, _, _, _, synced in written:
-            synced.result()
+        for future in synced:
+            future.result()
+        for run, tmp, *_ in written:
             os.replace(tmp, runs_dir / f"{run.point_id}.mcap")
     fsync_dir(runs_dir)  # every rename durable before any row is committed
     publish_s = (time.perf_counter() - t2) / max(len(written), 1)
     now = time.time()
-    for run, _, outcome, metrics, write_s, _ in written:
+    for run, _, outcome, metrics, write_s in written:
         out.records.append(
             RunRecord(
                 point_id=run.point_id,

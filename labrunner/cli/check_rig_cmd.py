@@ -19,6 +19,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
     p.add_argument("--pings", type=positive_int, default=200, metavar="N", help="round trips to time (default 200)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument(
+        "--campaign",
+        metavar="C.toml",
+        help="count the device loop's stream for this campaign's first point (every logged column, at its f_s)",
+    )
     p.set_defaults(func=main)
 
 
@@ -32,6 +37,6 @@ def main(args: argparse.Namespace) -> int:
     config = load_rig_config(args.rig)
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"check-rig checks can or serial rig files, got {config.kind!r}")
-    report = check_rig(config, args.pings)
+    report = check_rig(config, args.pings, args.campaign)
     print(json.dumps(report, sort_keys=True) if args.json else "\n".join(describe(report)))
     return 0

@@ -79,6 +79,8 @@ def main(args: argparse.Namespace) -> int:
     for name in ("delay", "die_after"):
         if getattr(args, name) < 0:
             raise InvalidParameter(f"--{name.replace('_', '-')}", f"must be >= 0, got {getattr(args, name)!r}")
+    if args.realtime and args.free_run:
+        raise InvalidParameter("--realtime", "paces the device's clock; it cannot be used with --free-run")
     config = load_rig_config(args.rig)
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"emulate serves can or serial rig files, got {config.kind!r}")

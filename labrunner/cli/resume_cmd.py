@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from labrunner.cli.run_cmd import add_execution_options, report
+from labrunner.cli.run_cmd import add_execution_options, one_blas_thread, report
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,6 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    one_blas_thread()
     from labrunner.campaign.runner import Options, resume
 
     opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)

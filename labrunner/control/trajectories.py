@@ -13,6 +13,8 @@ one.
   Sec. 4.3.1).
 - :class:`Steps`: piecewise-constant levels (open-loop step experiments, thesis Sec. 3.2).
 - :class:`Sine`: ``offset + amplitude·sin(2π f t)`` (open-loop identification, thesis Fig. 3.1).
+- :class:`Table`: samples at f_s, read by tick index (a device-loop run description's sample
+  table, docs/device-loop.md): any trajectory sampled at the run's ticks is its table.
 """
 
 from __future__ import annotations
@@ -240,6 +242,38 @@ class Sine(Trajectory):
         out = np.where(on[..., None], out, 0.0)
         out[..., 0] += offset
         return out
+
+
+@dataclass(frozen=True, eq=False)
+class Table(Trajectory):
+    """Samples ``rows`` (n, 4: value and derivatives 1..3) at ``fs``: row k at t = k/f_s, the
+    nearest row to t, the last one held after the end (as firmware reads a table by tick index)."""
+
+    fs: float
+    rows: np.ndarray
+    delay_s: float = 0.0
+
+    @classmethod
+    def sample(cls, trajectory: Trajectory, fs: float, ticks: int) -> Table:
+        """``trajectory`` at ticks 0..ticks−1, cut after the last change (the held row ends it)."""
+        rows = trajectory.evaluate(np.arange(ticks) / fs)
+        changed = np.flatnonzero(np.any(rows != rows[-1], axis=1))
+        n = int(changed[-1]) + 2 if changed.size else 1  # one row of the final value after the last change
+        return cls(float(fs), rows[:n].copy())
+
+    @property
+    def duration(self) -> float:
+        return (len(self.rows) - 1) / self.fs
+
+    def _params(self) -> tuple[np.ndarray, ...]:
+        return np.array([self.fs, len(self.rows)]), self.rows.ravel()
+
+    @staticmethod
+    def _eval(params: tuple[np.ndarray, ...], t: np.ndarray) -> np.ndarray:
+        head, flat = params  # (R, 2), (R, 4·n_max)
+        k = np.clip(np.rint(t * head[:, 0]), 0, head[:, 1] - 1).astype(np.int64)  # (..., R)
+        runs = np.arange(flat.shape[0])[:, None]
+        return flat[runs, 4 * k[..., None] + np.arange(4)]  # (..., R, 4)
 
 
 class Reference:

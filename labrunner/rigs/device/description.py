@@ -6,7 +6,8 @@ gains by name, the reference executor rebuilds the controller from them with the
 factory) *and* everything a firmware would otherwise have to design: the differentiator's FIR
 weights of every derivative order the law uses, the controller's discretised linear filters, the
 input saturation, the reference as resolved
-poly-5 segments (or steps, or a sine), the safety limits with the |du/dt| estimator's weights and
+poly-5 segments (or steps, or a sine) or, where the rig file asks for it or a trajectory has no
+compact form, as a sample table read by tick index, the safety limits with the |du/dt| estimator's weights and
 the weights of derived outputs (the plate's air gaps), the watchdog, f_s, the tick count and the
 seed. :func:`build` refuses at plan time what a description cannot carry, with a one-line
 :class:`~labrunner.errors.InvalidParameter`.
@@ -22,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from labrunner.control import factory
-from labrunner.control.trajectories import Setpoints, Sine, Steps
+from labrunner.control.trajectories import Setpoints, Sine, Steps, Table, Trajectory
 from labrunner.differentiators import design as design_rate
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo
@@ -50,6 +51,8 @@ FIR_CONTROLLER, FIR_RATE = 0, 1
 B_INPUT, B_OUTPUT, B_DERIVED = range(3)
 #: trajectory types and their parameter arrays (Trajectory._params)
 TRAJECTORIES = {Setpoints: 1, Steps: 2, Sine: 3}
+#: the sample-table trajectory type: arrays (f_s,) and the rows (value, 3 derivatives) row-major
+T_TABLE = 4
 #: controller kinds device firmware runs → the highest derivative order of their differentiator
 DEVICE_KINDS = {
     "mfc1": 1,
@@ -144,10 +147,13 @@ def build(
     seed: int,
     rig_safety: Mapping[str, object] | None = None,
     watchdog_s: float = 0.5,
+    reference_table: bool = False,
 ) -> bytes:
     """The encoded description of one resolved ``point``; raises InvalidParameter for what the
     device loop cannot run (unknown kind, per-run rig parameters, values without an encoding).
-    The STREAM flag is clear: :func:`with_stream` sets it where the link has room for the samples."""
+    ``reference_table`` sends every trajectory as its sample table (firmware without the compact
+    trajectory types). The STREAM flag is clear: :func:`with_stream` sets it where the link has
+    room for the samples."""
     kind = str(dict(point.get("controller") or {}).get("kind"))
     if kind not in DEVICE_KINDS:
         raise InvalidParameter(
@@ -220,12 +226,7 @@ def build(
         records.append(_record(R_FIR, struct.pack("<BBI", FIR_RATE, 1, w.size) + _f64(w)))
     records.append(_record(R_MAX_DURATION, _f64([np.inf if config.max_duration is None else config.max_duration])))
     for j, trajectory in enumerate(reference.trajectories[0]):
-        code = TRAJECTORIES.get(type(trajectory))
-        if code is None:
-            raise InvalidParameter(
-                "reference.kind", f"a {type(trajectory).__name__} reference cannot be sent to a device-loop rig"
-            )
-        arrays = [np.atleast_1d(np.asarray(a, float)) for a in trajectory._params()]
+        code, arrays = trajectory_record(trajectory, fs, ticks, reference_table)
         body = struct.pack("<BBB", j, code, len(arrays)) + b"".join(struct.pack("<I", a.size) + _f64(a) for a in arrays)
         records.append(_record(R_TRAJECTORY, body))
     for name, f in _streaming_filters(controller).items():
@@ -377,9 +378,24 @@ def rig_safety(description: Description) -> dict[str, object]:
     return dict(description.sections.get("rig_safety", {}))
 
 
-def expected_trajectories(reference_rows: Sequence[object]) -> list[tuple[int, list[np.ndarray]]]:
-    """(type code, parameter arrays) per output of one run's trajectories, as :func:`build` sends them."""
-    return [(TRAJECTORIES[type(t)], [np.atleast_1d(np.asarray(a, float)) for a in t._params()]) for t in reference_rows]
+def trajectory_record(
+    trajectory: Trajectory, fs: float, ticks: int, table: bool = False
+) -> tuple[int, list[np.ndarray]]:
+    """(type code, parameter arrays) of one output's trajectory as :func:`build` sends it: its
+    compact form, or with ``table`` (or no compact form) its samples at the run's ticks."""
+    code = None if table else TRAJECTORIES.get(type(trajectory))
+    if code is None:
+        sampled = Table.sample(trajectory, fs, ticks)
+        return T_TABLE, [np.array([sampled.fs]), sampled.rows.ravel()]
+    return code, [np.atleast_1d(np.asarray(a, float)) for a in trajectory._params()]
+
+
+def executed_trajectories(description: Description, reference_rows: Sequence[Trajectory]) -> list[Trajectory]:
+    """What a device runs per output: a sent table as a :class:`Table`, else the point's trajectory."""
+    return [
+        Table(float(arrays[0][0]), arrays[1].reshape(-1, 4)) if code == T_TABLE else trajectory
+        for (code, arrays), trajectory in zip(description.trajectories, reference_rows)
+    ]
 
 
 def _streaming_filters(controller: object) -> dict[str, object]:

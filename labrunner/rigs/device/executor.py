@@ -23,18 +23,21 @@ import numpy as np
 
 from labrunner import engine
 from labrunner.control import factory
+from labrunner.control.trajectories import Reference
 from labrunner.rigs.base import Rig
 from labrunner.rigs.device import blocks
 from labrunner.rigs.device.columns import column_names, to_columns
 from labrunner.rigs.device.description import (
     DEVICE_KINDS,
     FIR_CONTROLLER,
+    T_TABLE,
     Description,
     DescriptionError,
     decode,
-    expected_trajectories,
+    executed_trajectories,
     filter_matrices,
     rig_safety,
+    trajectory_record,
 )
 
 #: ``hook(first_tick, columns)``: every 1024 ticks during the run, float32 rows of those ticks
@@ -53,6 +56,11 @@ class DeviceRun:
 def check(description: Description, rig: Rig) -> dict[str, object]:
     """The channel groups of the described run on ``rig``; raises DescriptionError where the
     description does not fit this device or its firmware records disagree with its point."""
+    return _check(description, rig)[0]
+
+
+def _check(description: Description, rig: Rig) -> tuple[dict[str, object], Reference]:
+    """:func:`check`'s channel groups, and the reference the device runs (its sample tables)."""
     info = rig.info
     if (description.n_inputs, description.n_outputs) != (len(info.inputs), len(info.outputs)):
         raise DescriptionError(
@@ -88,13 +96,18 @@ def check(description: Description, rig: Rig) -> dict[str, object]:
         not np.array_equal(mine[k], description.filters[k]) for k in mine
     ):
         raise DescriptionError("filter matrices differ from the point's controller")
-    expected = expected_trajectories(reference.trajectories[0])
-    if len(expected) != len(description.trajectories) or any(
+    rows = reference.trajectories[0]
+    sent = description.trajectories
+    expected = [
+        trajectory_record(t, description.fs, description.ticks, table=code == T_TABLE)
+        for t, (code, _) in zip(rows, sent)
+    ]
+    if len(rows) != len(sent) or any(
         code != c or len(a) != len(b) or any(not np.array_equal(x, y) for x, y in zip(a, b))
         for (code, a), (c, b) in zip(expected, description.trajectories)
     ):
         raise DescriptionError("reference segments differ from the point's reference")
-    return channels
+    return channels, Reference([executed_trajectories(description, rows)])
 
 
 def execute(
@@ -104,7 +117,7 @@ def execute(
     description the device refuses (before the rig moves). ``on_accept(description)`` is called
     once it is checked, before the first tick."""
     description = decode(data)
-    channels = check(description, rig)
+    channels, reference = _check(description, rig)
     if on_accept is not None:
         on_accept(description)
     sink = None
@@ -122,6 +135,7 @@ def execute(
         seeds=[description.seed],
         rig_safety=rig_safety(description),
         sink=sink,
+        reference=reference,
     )[0]
     compute_ns = time.perf_counter_ns() - t0
     n = result.n_samples

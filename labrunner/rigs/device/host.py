@@ -33,13 +33,22 @@ def plan(
     rig_safety: Mapping[str, object] | None,
     watchdog_s: float = 0.5,
     link: linkload.LinkSpec | None = None,
+    reference_table: bool = False,
 ) -> list[bytes]:
     """One encoded description per point (raises InvalidParameter for one the device cannot run).
-    With ``link``, each says whether its samples stream during the run (they fit the link)."""
+    With ``link``, each says whether its samples stream during the run (they fit the link);
+    ``reference_table`` sends the references as sample tables."""
     out = []
     for point, seed in zip(points, seeds):
         data = description.build(
-            point, rig_info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, watchdog_s=watchdog_s
+            point,
+            rig_info,
+            fs=fs,
+            duration=duration,
+            seed=seed,
+            rig_safety=rig_safety,
+            watchdog_s=watchdog_s,
+            reference_table=reference_table,
         )
         if (
             link is not None
@@ -96,10 +105,19 @@ def run(
     watchdog_s: float = 0.5,
     link: linkload.LinkSpec | None = None,
     silence_s: float = 10.0,
+    reference_table: bool = False,
 ) -> list[engine.RunResult]:
     """Run ``points`` on the device one after the other; one RunResult each (a RigError stops the batch)."""
     descriptions = plan(
-        points, rig_info, fs=fs, duration=duration, seeds=seeds, rig_safety=rig_safety, watchdog_s=watchdog_s, link=link
+        points,
+        rig_info,
+        fs=fs,
+        duration=duration,
+        seeds=seeds,
+        rig_safety=rig_safety,
+        watchdog_s=watchdog_s,
+        link=link,
+        reference_table=reference_table,
     )
     results = []
     for point, data in zip(points, descriptions):

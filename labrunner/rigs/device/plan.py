@@ -70,4 +70,12 @@ def check_placement(campaign, points: Sequence) -> None:
     for p in points:
         fs, duration = json.loads(p.batch_key)[1:3]
         point = campaign.resolve(p.parameters)
-        description.build(point, info, fs=fs, duration=duration, seed=campaign.seed, rig_safety=campaign.rig_safety)
+        description.build(
+            point,
+            info,
+            fs=fs,
+            duration=duration,
+            seed=campaign.seed,
+            rig_safety=campaign.rig_safety,
+            reference_table=bool(config.parameters.get("reference_table")),
+        )

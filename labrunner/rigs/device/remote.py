@@ -91,6 +91,7 @@ def run_on_device(
             rig_safety=rig_safety,
             watchdog_s=wd,
             link=spec,
+            reference_table=bool(rig.parameters["reference_table"]),
         )
         now, then = link.counters.as_dict(), before.as_dict()
         result.diagnostics = {

@@ -5,7 +5,10 @@ the device's error counters, the link load of both loop placements at the rig's 
 load model, :mod:`~labrunner.rigs.transports.linkload`) and the highest f_s
 the host loop sustains with margin: a host-loop tick needs one round trip (the measurement to
 the host, the input back), so with half a period of margin for the host's own work
-``f_max = 0.5 / p99(round trip)``, and no more than the load model allows.
+``f_max = 0.5 / p99(round trip)``, and no more than the load model allows. The device loop's
+stream counts every column a run sends (:mod:`labrunner.rigs.device.columns`: u, y, the
+controlled outputs computed from y, the references, the estimates) of a campaign's first point
+at its f_s; without a campaign, the inputs and outputs alone (a lower bound).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 
 from labrunner.rigs.base import RigConfig
 from labrunner.rigs.config import rig_info
+from labrunner.rigs.device.columns import column_names
 from labrunner.rigs.transports import linkload, messages as m
 
 RTT_MARGIN = 0.5  # share of a period a host-loop round trip may take
@@ -37,19 +41,42 @@ def socketcan_bitrate(channel: str) -> int | None:
         return None
 
 
-def _link_load(config: RigConfig, fs: float, n_in: int, n_out: int, bitrate: float) -> dict[str, Any]:
-    """Both placements' loads at ``fs`` from the load model (the device loop streaming u and y only:
-    a controller's estimates add columns), on the link the rig file names at ``bitrate``."""
+def streamed_columns(config: RigConfig, campaign_path: str | None) -> dict[str, Any]:
+    """The columns a device-loop run streams per tick and the f_s they stream at: of the first
+    point of the campaign at ``campaign_path`` on this rig, else the rig's inputs and outputs at
+    its default f_s (InvalidParameter: a campaign whose point does not build on this rig)."""
+    info = rig_info(config)
+    if campaign_path is None:
+        names = [s.name for s in (*info.inputs, *info.outputs)]
+        return {"fs": info.fs_default, "columns": names, "from": "inputs and outputs (no campaign)"}
+    from labrunner.campaign import spec
+    from labrunner.control import factory
+    from labrunner.engine import channel_names
+
+    campaign = spec.load(campaign_path)
+    _, point = next(campaign.points())
+    controller, _ = factory.build([point], info, campaign.fs)
+    names = column_names(channel_names(info, controller))
+    return {"fs": campaign.fs, "columns": names, "from": f"campaign {campaign.name}, first point"}
+
+
+def _link_load(config: RigConfig, stream: dict[str, Any], n_in: int, n_out: int, bitrate: float) -> dict[str, Any]:
+    """Both placements' loads at the stream's f_s from the load model, on the link the rig file
+    names at ``bitrate``, the device loop streaming the ``stream``'s columns."""
     spec = linkload.from_rig(config.kind, {**config.parameters, "bitrate": bitrate})
     return {
         "link": linkload.describe(spec),
-        **linkload.report(spec, fs, n_in, n_out, n_in + n_out).as_dict(),
+        **linkload.report(spec, stream["fs"], n_in, n_out, len(stream["columns"])).as_dict(),
         "max_host_fs_by_load": linkload.max_host_fs(spec, n_in, n_out),
+        "stream_columns": stream["columns"],
+        "stream_columns_from": stream["from"],
     }
 
 
-def check_rig(config: RigConfig, pings: int = 200) -> dict[str, Any]:
-    """Open the rig, handshake, ping it ``pings`` times; the report as a JSON-friendly dict."""
+def check_rig(config: RigConfig, pings: int = 200, campaign: str | None = None) -> dict[str, Any]:
+    """Open the rig, handshake, ping it ``pings`` times; the report as a JSON-friendly dict
+    (the device loop's stream counted for ``campaign``'s first point, see :func:`streamed_columns`)."""
+    stream = streamed_columns(config, campaign)  # a bad campaign is refused before the rig opens
     from labrunner.rigs.registry import load_rig
 
     rig = load_rig(config)
@@ -97,7 +124,7 @@ def check_rig(config: RigConfig, pings: int = 200) -> dict[str, Any]:
             bitrate = actual or bitrate
     else:
         report["baudrate"] = p["baudrate"]
-    load = _link_load(config, rig_info(config).fs_default, ident.n_inputs, ident.n_outputs, float(bitrate))
+    load = _link_load(config, stream, ident.n_inputs, ident.n_outputs, float(bitrate))
     report["link_load"] = load
     report["max_host_fs"] = min(RTT_MARGIN / float(np.percentile(rtt, 99)), load["max_host_fs_by_load"], ident.max_fs)
     return report
@@ -124,8 +151,9 @@ def describe(report: dict[str, Any]) -> list[str]:
     ld = report["link_load"]
     lines.append(
         f"  link load at {ld['fs']:g} Hz on {ld['link']}: host loop {ld['host_load']:.0%}"
-        f"{'' if ld['host_feasible'] else ' (too much)'}, device-loop stream of u and y "
-        f"{ld['device_stream_load']:.0%}{'' if ld['device_streams'] else ' (sent after the run)'}"
+        f"{'' if ld['host_feasible'] else ' (too much)'}, device-loop stream of {len(ld['stream_columns'])} "
+        f"columns ({ld['stream_columns_from']}) {ld['device_stream_load']:.0%}"
+        f"{'' if ld['device_streams'] else ' (sent after the run)'}"
     )
     lines.append(f"  the host loop sustains up to {report['max_host_fs']:.0f} Hz with margin")
     return lines

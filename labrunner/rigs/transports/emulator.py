@@ -7,7 +7,10 @@ here serves what every device does (``docs/protocol.md``): HELLO → IDENTITY, H
 SAFE (the safe input latched until the next run; a host-loop clock keeps ticking so the host
 can log the rig coming to rest, until STOP or the watchdog), STOP (idle), the watchdog armed by a
 run's set-up, a STATUS
-heartbeat every :data:`STATUS_PERIOD_S` while running. The loop placements install their own
+heartbeat every :data:`STATUS_PERIOD_S` while running. The watchdog measures host silence in the
+device's own running time: frames are taken before the timer tasks judge, and time the loop was
+held up (it woke over :data:`HELD_UP_S` later than it asked: an emulator that a busy or virtual
+machine paused) does not count. The loop placements install their own
 handlers: :mod:`.hostloop_device` (SETUP, INPUT and the tick clock) always, and the modules named
 in :data:`EXTENSIONS` (``"module:function"``, each called with the emulator) add theirs, e.g. the
 device loop's bulk transfers.
@@ -42,6 +45,7 @@ Handler = Callable[[Frame], None]
 Task = Callable[[float], "float | None"]
 
 STATUS_PERIOD_S = 0.1
+HELD_UP_S = 0.001  # a loop that wakes this much later than it asked was held up (not host silence)
 FIRMWARE_ID = 0x4C520001  # "LR", emulator build 1
 EXTENSIONS: list[str] = ["labrunner.rigs.device.emulated:install"]  # "module:function" installers of further handlers
 
@@ -86,6 +90,7 @@ class Emulator:
         self._thread = threading.Thread(target=self._serve, name="labrunner-emulator", daemon=True)
         self._t0 = time.monotonic()
         self._last_rx = self._last_status = self._t0
+        self._held_s = 0.0  # time the loop itself was held up since the last host frame
         self._die_at = float("inf")  # set by the first run's set-up
         install(self)
         for target in EXTENSIONS if extensions is None else extensions:
@@ -126,6 +131,7 @@ class Emulator:
         self.watchdog_s, self.rejected, self.late = float(watchdog_s), 0, 0
         self._link_rejects_at_setup = self._link_rejects()
         self._last_rx = self._last_status = time.monotonic()
+        self._held_s = 0.0
         if self._die_at == float("inf"):
             self._die_at = self._last_rx + self.faults.die_after_s
 
@@ -178,15 +184,16 @@ class Emulator:
     def _loop(self) -> None:
         faulty = self.link if isinstance(self.link, FaultyLink) else None
         while not self._stop.is_set():
+            # the tasks judge the time the loop woke, after every frame that had arrived by then: as
+            # firmware's receive interrupt queues frames before its timer tasks run, the watchdog
+            # never trips over a frame that is waiting, however long the loop was held up
+            now = time.monotonic()
             try:
-                # first what arrived while the loop was busy or preempted, as firmware's receive
-                # interrupt has it queued before its timer tasks run (no watchdog over waiting frames)
                 while (pending := self.link.recv(0.0)) is not None:
                     self._dispatch(pending)
             except LabrunnerError as exc:
                 self.errors.append(exc)
                 return
-            now = time.monotonic()
             if now >= self._die_at:
                 return  # the board lost power: silent from now on
             wake = now + 0.01
@@ -202,11 +209,13 @@ class Emulator:
             except LabrunnerError as exc:  # the host end went away
                 self.errors.append(exc)
                 return
+            if (late := time.monotonic() - wake) > HELD_UP_S:
+                self._held_s += late
             if frame is not None:
                 self._dispatch(frame)
 
     def _dispatch(self, frame: Frame) -> None:
-        self._last_rx = time.monotonic()
+        self._last_rx, self._held_s = time.monotonic(), 0.0
         try:
             if self._fault is not None:
                 code, self._fault = self._fault, None
@@ -248,14 +257,15 @@ class Emulator:
         self.send_status()
 
     def _watchdog(self, now: float) -> float | None:
-        if self.state == m.DeviceState.SAFE and self.ticking and now - self._last_rx > self.watchdog_s:
+        silent = now - self._last_rx - self._held_s  # the device's own hold-ups are nobody's silence
+        if self.state == m.DeviceState.SAFE and self.ticking and silent > self.watchdog_s:
             self.ticking = False  # safe, and nobody listens: stop sending measurements
         if self.state != m.DeviceState.RUNNING:
             return None
-        if now - self._last_rx > self.watchdog_s:
-            self.error(m.ErrorCode.WATCHDOG, now - self._last_rx)
+        if silent > self.watchdog_s:
+            self.error(m.ErrorCode.WATCHDOG, silent)
             return None
-        return self._last_rx + self.watchdog_s
+        return self._last_rx + self._held_s + self.watchdog_s
 
     def _heartbeat(self, now: float) -> float | None:
         if self.state != m.DeviceState.RUNNING:

@@ -10,7 +10,7 @@ Contract (stable; later changes are additive):
   ``BULK_ACK``) carry 1..``max_payload`` raw bytes whose layout the device-loop transfer defines.
   On CAN FD a payload is padded with zero bytes to the next valid data length (12, 16, 20, 24,
   32, 48, 64), so a bulk layout must carry its own length.
-- ``send(frame)`` sends one :class:`Frame` (ValueError for a kind this end does not send or a
+- ``send(frame)`` sends one :class:`Frame`, safe to call from several threads (ValueError for a kind this end does not send or a
   payload of the wrong size; :class:`~labrunner.errors.RigError` for a transport failure).
 - ``recv(timeout)`` returns the next frame from the peer for this node, or None after ``timeout``
   seconds; it never returns a malformed, spoofed or foreign frame: those are counted in
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import abc
 import collections
+import threading
 from dataclasses import asdict, dataclass
 
 from labrunner.rigs.transports.protocol import BULK_KINDS, FIXED_PAYLOAD, End, Frame, Kind, senders
@@ -54,6 +55,7 @@ class Link(abc.ABC):
     def __init__(self, node_id: int, end: End) -> None:
         self.node_id, self.end = int(node_id), End(end)
         self.counters = LinkCounters()
+        self._send_lock = threading.Lock()  # a host's loop and keepalive threads share the link
         self._recent: collections.deque[tuple[Kind, bytes]] = collections.deque()  # send order
         self._recent_count: collections.Counter[tuple[Kind, bytes]] = collections.Counter()  # O(1) membership
 
@@ -70,9 +72,10 @@ class Link(abc.ABC):
         if not (1 <= n <= self.max_payload if frame.kind in BULK_KINDS else n == FIXED_PAYLOAD):
             raise ValueError(f"{frame.kind.name} payload of {n} bytes on a link of max_payload {self.max_payload}")
         payload = self._wire_payload(frame.payload)
-        self._send(frame.kind, payload)
-        self.counters.sent += 1
-        self._remember((frame.kind, payload))
+        with self._send_lock:
+            self._send(frame.kind, payload)
+            self.counters.sent += 1
+            self._remember((frame.kind, payload))
 
     def _remember(self, key: tuple[Kind, bytes]) -> None:
         """Keep ``key`` among the last :data:`_RECENT` frames sent (a multiset: deque + counts)."""

@@ -21,8 +21,9 @@ DEFAULT_PRIORITY = 10  # of 1..99: above every normal thread, below the kernel's
 
 
 @contextlib.contextmanager
-def realtime(priority: int = DEFAULT_PRIORITY) -> Iterator[bool]:
-    """SCHED_FIFO at ``priority`` for the calling thread while in the block; yields whether granted."""
+def realtime(priority: int = DEFAULT_PRIORITY, freeze: bool = True) -> Iterator[bool]:
+    """SCHED_FIFO at ``priority`` for the calling thread while in the block; yields whether granted.
+    ``freeze=False`` leaves the collector alone (a helper thread of a loop that froze it)."""
     if not hasattr(os, "sched_setscheduler"):
         yield False
         return
@@ -32,9 +33,11 @@ def realtime(priority: int = DEFAULT_PRIORITY) -> Iterator[bool]:
     except OSError:
         yield False
         return
-    gc.freeze()
+    if freeze:
+        gc.freeze()
     try:
         yield True
     finally:
-        gc.unfreeze()
+        if freeze:
+            gc.unfreeze()
         os.sched_setscheduler(0, policy, param)

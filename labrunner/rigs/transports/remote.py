@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import abc
 import contextlib
+import threading
 import time
 from collections.abc import Mapping
 from dataclasses import replace
@@ -33,6 +34,7 @@ from labrunner.rigs.kinds import rig_class, rig_kinds
 from labrunner.rigs.schema import Param, validate_section
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.diagnostics import DeviceReport, HostCounters, diagnostics_record
+from labrunner.rigs.transports.keepalive import Keepalive
 from labrunner.rigs.transports.link import Link, LinkCounters
 from labrunner.rigs.transports.protocol import NODE_MAX, NODE_MIN, PROTOCOL_VERSION, Kind
 from labrunner.rigs.transports.realtime import realtime
@@ -58,6 +60,12 @@ COMMON = {
     "realtime": Param(
         False, "", "run the host loop's thread at SCHED_FIFO priority (root or CAP_SYS_NICE; ignored where not granted)"
     ),
+    "reference_table": Param(
+        False,
+        "",
+        "device loop: send the reference as a sample table read by tick index (firmware without "
+        "the setpoints, steps and sine trajectory types)",
+    ),
     "handshake_timeout_s": Param(0.5, "s", "longest wait for the device's IDENTITY", lo=0.0, lo_open=True, hi=60.0),
 }
 
@@ -80,8 +88,9 @@ class RemoteRig(Rig):
         self._link_at_setup = LinkCounters()
         self._seq = 0
         self._late_run = 0
-        self._last_send = time.monotonic()
         self._heartbeat = 0
+        self._heartbeat_lock = threading.Lock()  # the loop's thread and the keepalive thread both send them
+        self._keepalive = Keepalive(self._send_heartbeat, fifo=bool(parameters["realtime"]))
         self._realtime: contextlib.ExitStack | None = None  # SCHED_FIFO held from the first reset to close
 
     # -- the Rig contract (no noise, no per-run parameters: the base class's defaults) ------------
@@ -171,9 +180,11 @@ class RemoteRig(Rig):
 
         Frames from one sender arrive in order, so everything before the answer is older than the
         HEARTBEAT; with ``stale_errors`` an ERROR among them (of an earlier run) is counted stale."""
-        self._heartbeat += 1
+        with self._heartbeat_lock:
+            self._heartbeat += 1
+            frame = m.pack(m.Heartbeat(self._heartbeat))
         t0 = time.perf_counter()
-        self._send(m.pack(m.Heartbeat(self._heartbeat)))
+        self._send(frame)
         deadline = time.monotonic() + self.timeout_s
         while True:
             frame = self._recv_until(deadline, f"no STATUS answer to HEARTBEAT within {self.timeout_s:g} s")
@@ -187,10 +198,20 @@ class RemoteRig(Rig):
 
     def keepalive(self) -> None:
         """Send a HEARTBEAT if the host sent nothing for half a watchdog period (call while idle)."""
-        if time.monotonic() - self._last_send > 0.5 * self._watchdog_s():
+        if time.monotonic() - self._keepalive.last_send > 0.5 * self._watchdog_s():
+            try:
+                self._send_heartbeat()
+            except RigError as exc:
+                self._fail(str(exc))
+
+    def _send_heartbeat(self) -> None:
+        """One counted HEARTBEAT (from the loop's thread or the keepalive thread; RigError on a dead link)."""
+        with self._heartbeat_lock:
             self._heartbeat += 1
             self.host.heartbeats_sent += 1
-            self._send(m.pack(m.Heartbeat(self._heartbeat)))
+            frame = m.pack(m.Heartbeat(self._heartbeat))
+        self.link.send(frame)
+        self._keepalive.last_send = time.monotonic()
 
     def run_on_device(self, points, *, fs: float, duration: float, seeds, rig_safety=None) -> list:
         """Run ``points`` with the loop on the device (``loop = "device"``): one run description
@@ -213,10 +234,12 @@ class RemoteRig(Rig):
         if self.identity is not None and not self.identity.capabilities & m.Capability.HOST_LOOP:
             self._fail("the device does not serve the host loop (capabilities lack HOST_LOOP)")
         self._drain()
+        self._keepalive.start()
         self.host, self.device = HostCounters(), DeviceReport()
         self.ping(stale_errors=True)  # in step: what the device sent before this run is behind us
         self._link_at_setup = replace(self.link.counters)
         self._seq, self._late_run = 0, 0
+        self._keepalive.arm(self._watchdog_s(), int(self.parameters["max_late_ticks"]) / self.fs)
         for frame in m.setup_frames(self.fs, self._watchdog_s(), int(seeds[0])):
             self._send(frame)
         return self._collect(0, 0)
@@ -226,16 +249,20 @@ class RemoteRig(Rig):
         for ch in range(n):
             self._send(m.pack(m.Input(self._seq, ch, m.FLAG_COMMIT if ch == n - 1 else 0, float(u[0, ch]))))
         self._seq = (self._seq + 1) % 2**16
-        return self._collect(self._seq, self.k + 1)
+        y = self._collect(self._seq, self.k + 1)
+        self._keepalive.last_step = time.monotonic()
+        return y
 
     def _enter_safe_state(self, safe: np.ndarray) -> None:
         if safe.any():
+            self._keepalive.disarm()
             try:
                 self.link.send(m.pack(m.Safe(self._seq)))
             except RigError:
                 pass  # the device's watchdog puts it in its safe state when the host falls silent
 
     def _close(self) -> None:
+        self._keepalive.close()
         try:
             self.link.send(m.pack(m.Stop(self._seq)))
         except RigError:
@@ -253,7 +280,7 @@ class RemoteRig(Rig):
             self.link.send(frame)
         except RigError as exc:
             self._fail(str(exc))
-        self._last_send = time.monotonic()
+        self._keepalive.last_send = time.monotonic()
 
     def _drain(self) -> None:
         """Drop what is left of an earlier run or handshake."""
