@@ -15,7 +15,9 @@ children that draw the run plots and half the maps): 1024 runs 2.36 s CPU (2.31 
 runs 3.61 s CPU (2.68 s wall); fit 0.14 ms per run + 2.21 s fixed (was 0.49 ms + 3.2 s). The fixed
 part is pandas, matplotlib and pyarrow's imports (~0.8 s), scipy for the stability bounds and the
 differentiator's δ_t (~0.3 s), the fonts (~0.1 s) and matplotlib's drawing of five figures
-(~0.95 s, ticks and text). With one worker (``--workers 1``) the same CPU, ~0.5 s more wall.
+(~0.95 s, ticks and text). With one worker (``--workers 1``) the same CPU, ~0.4 s more wall.
+Quiet machine (load 0.3), 1000 runs, fresh process: 1.47–1.50 s wall / 2.05–2.12 s CPU, against
+2.09–2.22 s / 2.27–2.35 s before these changes (interleaved runs of both).
 """
 
 from __future__ import annotations

@@ -29,7 +29,8 @@ matplotlib, pyarrow) ~1 s, its two maps ~0.65 s and three run plots ~0.65 s (mat
 of ticks and text, not the data). Since then (load average 2.3, `--skip-10k --skip-naive`):
 analyse 3.08 s wall / 2.43 s CPU at 1000 points (run plots and half the maps drawn in forked
 children, log axes with the ticks in view only, bounds once per setting), 0.14 ms per run +
-2.2 s fixed (benchmarks/bench_analysis.py); run 2.05 s / 2.25 s.
+2.2 s fixed (benchmarks/bench_analysis.py); run 2.05 s / 2.25 s. Quiet machine (load 0.3): run 1.22 s / 1.79 s,
+analyse 1.62 s / 2.13 s, run + analyse 2.84 s wall.
 
 Run: ``python benchmarks/bench_campaign.py [--skip-10k] [--skip-naive]``.
 """

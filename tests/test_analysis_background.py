@@ -91,3 +91,14 @@ def test_plots_to_draw_are_those_not_kept(tmp_path):
         log_ns = (tmp_path / "runs" / f"{name}.mcap").stat().st_mtime_ns
         os.utime(png, ns=(log_ns + offset * 10**9, log_ns + offset * 10**9))
     assert plots_to_draw(frame, ["a", "b", "c", "d", "b"], ctx) == ["b", "c"]
+
+
+@forks
+def test_a_failed_fork_runs_the_function_here(monkeypatch):
+    def no_fork():
+        raise OSError("Resource temporarily unavailable")
+
+    monkeypatch.setattr(os, "fork", no_fork)
+    job = Background(lambda: os.getpid())
+    assert job.result() == os.getpid()
+    job.close()

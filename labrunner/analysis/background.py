@@ -1,11 +1,12 @@
 """Run one piece of the analysis in a forked child while the process goes on with the rest.
 
-``analyse`` draws the run plots (reading their logs, ~0.2 s a plot) in a child forked after
-matplotlib, pandas and the campaign are loaded, so the child pays no imports and starts at once,
-while the parent draws the maps and writes the tables; on two cores that takes the run plots off
-the analysis's wall time. The result comes back pickled through a pipe. Where there is no
-``fork`` (Windows) or when the child fails, the function simply runs in this process when its
-result is asked for: the same result, only later.
+``analyse`` draws the run plots (reading their logs, ~0.17 s a plot) in a child forked once the
+table is built, and the second half of the maps in one forked once their overlays are computed:
+the children pay no imports and start at once, while this process writes the tables and draws the
+other maps; on two cores that takes most of the drawing off the analysis's wall time. A result
+comes back pickled through a pipe. Where there is no ``fork`` (Windows) or when the child fails,
+the function simply runs in this process when its result is asked for: the same result, only
+later.
 """
 
 from __future__ import annotations
@@ -19,6 +20,20 @@ from collections.abc import Callable
 from typing import Generic, TypeVar
 
 T = TypeVar("T")
+_children = 0  # children running: the collector stays frozen until the last one is collected
+
+
+def _freeze() -> None:
+    global _children
+    gc.freeze()  # neither process's collector walks (and so copies) the objects they share
+    _children += 1
+
+
+def _unfreeze() -> None:
+    global _children
+    _children -= 1
+    if not _children:
+        gc.unfreeze()
 
 
 class Background(Generic[T]):
@@ -35,10 +50,16 @@ class Background(Generic[T]):
         read, write = os.pipe()
         for stream in (sys.stdout, sys.stderr):  # nothing buffered twice
             stream.flush()
-        gc.freeze()  # neither process's collector walks (and so copies) the objects they share
+        _freeze()
         with warnings.catch_warnings():  # 3.12+ warns on fork with threads; the child only draws and writes files
             warnings.simplefilter("ignore", DeprecationWarning)
-            pid = os.fork()
+            try:
+                pid = os.fork()
+            except OSError:  # no process to spare: run in this process when the result is asked for
+                _unfreeze()
+                os.close(read)
+                os.close(write)
+                return
         if pid == 0:  # the child: never returns into the caller's code
             code = 1
             try:
@@ -60,7 +81,7 @@ class Background(Generic[T]):
             data = pipe.read()
         _, status = os.waitpid(self._pid, 0)
         self._pid = 0
-        gc.unfreeze()
+        _unfreeze()
         if status == 0 and data:
             return pickle.loads(data)
         return self._fn()
@@ -71,4 +92,4 @@ class Background(Generic[T]):
             os.close(self._read)
             os.waitpid(self._pid, 0)
             self._pid = 0
-            gc.unfreeze()
+            _unfreeze()
