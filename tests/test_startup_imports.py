@@ -62,3 +62,15 @@ def test_a_campaign_process_runs_blas_on_one_thread_unless_the_user_says(user):
     if threads == "no-openblas":
         pytest.skip("numpy is not built with scipy-openblas here")
     assert int(threads) == int(user or 1)
+
+
+@pytest.mark.parametrize(("argv", "frozen"), [("None", True), ("['status', '/nonexistent']", False)])
+def test_only_the_program_freezes_its_objects_for_a_quick_exit(argv, frozen):
+    """``labrunner`` itself ends with its objects frozen (teardown skips the collections that walk
+    them); ``main(argv)`` called from Python, as the tests do, leaves the caller's collector alone."""
+    code = (
+        "import gc, sys\nfrom labrunner.cli import main\nsys.argv = ['labrunner', 'status', '/nonexistent']\n"
+        f"code = main({argv})\nprint(code, gc.get_freeze_count() > 0)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["2", str(frozen)]
