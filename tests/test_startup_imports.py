@@ -74,3 +74,14 @@ def test_only_the_program_freezes_its_objects_for_a_quick_exit(argv, frozen):
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["2", str(frozen)]
+
+
+def test_the_stability_bounds_and_the_valve_twin_need_no_scipy_optimize():
+    """``analyse`` evaluates closed-form bounds and a valve campaign finds its operating point with
+    :func:`labrunner.brent.brent_root`; scipy.optimize (~0.2 s) is loaded only by numerical scans."""
+    code = (
+        "import labrunner.stability as s, labrunner.rigs.sim.valve\n"
+        "s.bounds('mfc1-motor', gamma=1.0, delay=0.01, a=2.0, b=50.0)\n"
+        "s.bounds('mfc2-second-order', gamma=1.0, delay=0.01, a0=4.0, a1=1.0, b=50.0, k_d=0.5)"
+    )
+    assert _loaded(code) == []

@@ -39,8 +39,8 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.optimize import brentq
 
+from labrunner.brent import brent_root
 from labrunner.stability.roots import dsinc, first_order_crossing, roots_between, sinc, turning_points
 
 Interval = tuple[float, float]
@@ -138,8 +138,8 @@ def second_order_d_gain(a0: float, a1: float) -> tuple[Interval, ...]:
         xs = lo + (hi - lo) * np.concatenate([[1e-12], np.linspace(0.0, 1.0, _SAMPLES)[1:-1], [1.0 - 1e-12]])
         positive = np.array([width(x) for x in xs]) > 0
         for i0, i1 in _runs(positive):
-            left = lo if i0 == 0 else brentq(width, xs[i0 - 1], xs[i0], xtol=1e-15, rtol=1e-15)
-            right = hi if i1 == len(xs) - 1 else brentq(width, xs[i1], xs[i1 + 1], xtol=1e-15, rtol=1e-15)
+            left = lo if i0 == 0 else brent_root(width, xs[i0 - 1], xs[i0], xtol=1e-15, rtol=1e-15)
+            right = hi if i1 == len(xs) - 1 else brent_root(width, xs[i1], xs[i1 + 1], xtol=1e-15, rtol=1e-15)
             if found and found[-1][1] == left:
                 found[-1][1] = right
             else:

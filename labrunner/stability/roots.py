@@ -12,7 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.optimize import brentq
+
+from labrunner.brent import brent_root
 
 Fn = Callable[[np.ndarray], np.ndarray]
 
@@ -24,7 +25,7 @@ def _sign_changes(f: Fn, grid: np.ndarray) -> list[float]:
     values = f(grid)
     out: list[float] = []
     for i in np.flatnonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0):
-        out.append(brentq(lambda z: float(f(np.array(z))), grid[i], grid[i + 1], xtol=_XTOL, rtol=1e-15))
+        out.append(brent_root(lambda z: float(f(np.array(z))), grid[i], grid[i + 1], xtol=_XTOL, rtol=1e-15))
     out.extend(float(z) for z in grid[1:-1][values[1:-1] == 0.0])
     return sorted(out)
 
@@ -41,7 +42,7 @@ def roots_between(h: Fn, ends: np.ndarray) -> np.ndarray:
     roots: list[float] = []
     for i in range(len(ends) - 1):
         if values[i] * values[i + 1] < 0.0:
-            roots.append(brentq(lambda z: float(h(np.array(z))), ends[i], ends[i + 1], xtol=_XTOL, rtol=1e-15))
+            roots.append(brent_root(lambda z: float(h(np.array(z))), ends[i], ends[i + 1], xtol=_XTOL, rtol=1e-15))
         elif values[i + 1] == 0.0 and ends[i + 1] > 0.0:
             roots.append(float(ends[i + 1]))
     return np.array(roots)

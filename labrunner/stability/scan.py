@@ -11,8 +11,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.optimize import brentq, minimize_scalar
 
+from labrunner.brent import brent_root
 from labrunner.errors import InvalidParameter, check_finite
 from labrunner.stability.quasipoly import QuasiPolynomial
 from labrunner.stability.spectrum import DEFAULT_NODES, spectral_abscissa
@@ -30,6 +30,8 @@ def _extremum_crossings(
 ) -> list[float]:
     """Zeros of α hidden between samples: around each sampled local minimum with α > 0 (maximum with
     α < 0) find the extremum; if it has the other sign, bracket the zero on both sides of it."""
+    from scipy.optimize import minimize_scalar  # here: the closed-form bounds import this module
+
     out: list[float] = []
     for i in range(1, len(grid) - 1):
         v = values[i - 1 : i + 2]
@@ -42,8 +44,8 @@ def _extremum_crossings(
                     options={"xatol": tol},
                 )
                 if sign * res.fun < 0:
-                    out.append(brentq(alpha, grid[i - 1], res.x, xtol=tol, rtol=1e-14))
-                    out.append(brentq(alpha, res.x, grid[i + 1], xtol=tol, rtol=1e-14))
+                    out.append(brent_root(alpha, grid[i - 1], res.x, xtol=tol, rtol=1e-14))
+                    out.append(brent_root(alpha, res.x, grid[i + 1], xtol=tol, rtol=1e-14))
     return out
 
 
@@ -64,7 +66,7 @@ def gain_boundaries(
     values = np.array([alpha(k) for k in grid])
     stable = values < 0
     found = [
-        brentq(alpha, grid[i], grid[i + 1], xtol=tol, rtol=1e-14) for i in np.flatnonzero(stable[:-1] != stable[1:])
+        brent_root(alpha, grid[i], grid[i + 1], xtol=tol, rtol=1e-14) for i in np.flatnonzero(stable[:-1] != stable[1:])
     ]
     found += _extremum_crossings(alpha, grid, values, tol)
     return np.unique(np.array(found, dtype=float))
@@ -82,6 +84,8 @@ def stable_intervals(
 
 def _min_over_y(family: Family2, x: float, y: np.ndarray, n_nodes: int) -> float:
     """min over y of α(x, y): the best of the samples ``y``, polished by bounded Brent around it."""
+    from scipy.optimize import minimize_scalar  # here: the closed-form bounds import this module
+
     values = np.array([spectral_abscissa(family(x, float(yi)), n_nodes=n_nodes) for yi in y])
     i = int(np.argmin(values))
     lo, hi = y[max(i - 1, 0)], y[min(i + 1, len(y) - 1)]
@@ -113,7 +117,9 @@ def projected_intervals(
     grid = np.linspace(x_lo, x_hi, n_x)
     stable = np.array([m(x) for x in grid]) < 0
     tol = 1e-13 * max(abs(x_lo), abs(x_hi))
-    edges = [brentq(m, grid[i], grid[i + 1], xtol=tol, rtol=1e-14) for i in np.flatnonzero(stable[:-1] != stable[1:])]
+    edges = [
+        brent_root(m, grid[i], grid[i + 1], xtol=tol, rtol=1e-14) for i in np.flatnonzero(stable[:-1] != stable[1:])
+    ]
     bounds = np.concatenate([[x_lo] if stable[0] else [], edges, [x_hi] if stable[-1] else []])
     return [(float(a), float(b)) for a, b in zip(bounds[0::2], bounds[1::2])]
 

@@ -35,8 +35,8 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq
 
+from labrunner.brent import brent_root
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigConfig, RigInfo, Signal
 from labrunner.rigs.schema import Param
@@ -67,7 +67,7 @@ def nominal_gain(p: Mapping[str, Any], q_op: float = 5.0) -> float:
     """ρ of the ultra-local model q̇ = f + ρ i (paper 1 eq. 13) at ``q_op`` [l/min]: (∂q/∂i)/τ_m [(l/min)/(A s)]."""
     q_top = float(static_flow(p["i_max"], p))
     q_op = min(q_op, 0.5 * q_top)
-    i_op = brentq(lambda i: float(static_flow(i, p)) - q_op, p["pilot_threshold"] * p["i_max"], p["i_max"])
+    i_op = brent_root(lambda i: float(static_flow(i, p)) - q_op, p["pilot_threshold"] * p["i_max"], p["i_max"])
     di = 1e-5 * p["i_max"]
     slope = float(static_flow(i_op + di, p) - static_flow(i_op - di, p)) / (2.0 * di)
     return slope / p["main_tau"]
