@@ -220,7 +220,7 @@ def differentiators(points: Sequence[Point], fs: float, order: int) -> list[_dif
                 None if np.isnan(window[i]) else float(window[i]),
                 int(N[i]), th, str(methods[i]),
             )  # fmt: skip
-            d.weights(order)  # raises for α, β too small for this derivative order
+            d.check_weights(order)  # raises for α, β too small for this derivative order
             designs.append(d)
     except InvalidParameter as exc:
         raise _rekey(exc, "differentiator") from None

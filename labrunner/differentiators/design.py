@@ -69,6 +69,18 @@ class Differentiator:
                 raise InvalidParameter(name, f"must be > n - 1 = {order - 1} for derivative order {order}, got {value}")
         return order
 
+    def check_weights(self, order: int) -> int:
+        """Return ``order`` or raise :class:`InvalidParameter` where :meth:`weights` would refuse it,
+        without forming them (validating a campaign or reading a delay needs no kernel)."""
+        n = self.check_order(order)
+        if self.method == "trapezoidal" and min(self.alpha, self.beta) < n:
+            raise InvalidParameter(
+                "method",
+                f"trapezoidal samples the window ends, where g^({n}) is infinite; needs "
+                f"min(alpha, beta) >= {n} (or use midpoint/analytic), got {min(self.alpha, self.beta)}",
+            )
+        return n
+
     def kernel(self, order: int, tau: np.ndarray) -> np.ndarray:
         """Continuous kernel derivative g⁽ⁿ⁾(τ) of (2.2) at τ [s] (0 outside [0, T]) [1/s^{n+1}]."""
         n = self.check_order(order)
@@ -92,7 +104,7 @@ class Differentiator:
         held at its mid-interval sample, as AlgDiff's "analytic"). Φ_n = t_sⁿ/n!·Σ_j w[j](−j)ⁿ makes
         the estimate exact for x(t) = tⁿ/n! (thesis (2.4)).
         """
-        n = self.check_order(order)
+        n = self.check_weights(order)
         cached = self._cache.get(n)
         if cached is not None:
             return cached
@@ -102,12 +114,6 @@ class Differentiator:
         elif self.method == "analytic":
             raw = np.diff(kernel_u(a, b, N, th, n - 1, np.arange(ns + 1) / ns))
         else:
-            if min(a, b) < n:
-                raise InvalidParameter(
-                    "method",
-                    f"trapezoidal samples the window ends, where g^({n}) is infinite; needs "
-                    f"min(alpha, beta) >= {n} (or use midpoint/analytic), got {min(a, b)}",
-                )
             raw = kernel_u(a, b, N, th, n, np.arange(ns + 1) / ns)
             raw[0] *= 0.5
             raw[-1] *= 0.5

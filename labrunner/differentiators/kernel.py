@@ -71,10 +71,10 @@ def default_theta(alpha: float, beta: float, N: int) -> float:
     """ϑ for N > 0: the largest root of P_{N+1}^{(α,β)}, which minimises the delay while keeping the
     higher degree of exactness (AlgDiff's default; Othmane et al. 2022, Sec. 4.1). For N = 0 the
     equivalent ϑ = (β−α)/(α+β+2) (root of P_1) makes δ_t = (1−ϑ)T/2 agree with (2.3)."""
-    from scipy import special
-
     if N == 0:
         return (beta - alpha) / (alpha + beta + 2.0)
+    from scipy import special  # here: N = 0 (reading a delay, as analyse does) needs none
+
     roots, _ = special.roots_jacobi(N + 1, alpha, beta)
     return float(np.max(roots))
 
@@ -87,8 +87,8 @@ def log_cutoff_product(alpha: float, beta: float, N: int, theta: float) -> float
     (as AlgDiff's ``computeTfromWc``), evaluated in log-gamma form relative to the i = 0 term.
     Returns −inf where ϑ makes the asymptote vanish (no cutoff is defined).
     """
-    from scipy import special
-
+    if N:  # N = 0 (only P_0 = 1 below, as when analyse reads a delay) needs no scipy.special (~0.1 s)
+        from scipy import special
     mu = 1.0 + min(alpha, beta)
     kappa = abs(alpha - beta)
     sigma = 1.0 if beta >= alpha else -1.0
@@ -100,7 +100,8 @@ def log_cutoff_product(alpha: float, beta: float, N: int, theta: float) -> float
         else:
             log_ci = math.log(2 * mu + kappa + 2 * i - 1) + math.lgamma(2 * mu + kappa + i - 1)
         term = math.exp(log_ci - math.lgamma(mu + kappa + i) - ref)
-        term *= special.eval_jacobi(i, mu - 1, mu + kappa - 1, sigma * theta)
+        if i:  # P_0 = 1
+            term *= special.eval_jacobi(i, mu - 1, mu + kappa - 1, sigma * theta)
         r += term
         s += (-1) ** i * term
     q_rel = max(abs(r), abs(s)) if kappa == 0 else abs(r)
