@@ -96,7 +96,7 @@ def campaign_batch(point: dict, batch: int, ticks: int) -> Callable[[], None]:
             duration=ticks / FS,
             seeds=list(range(batch)),
             rig_safety=rig.config.safety,
-            progress=live.hook(0),
+            progress=live.hook(live.Address(0, 0)),
         )
         bad = [r.outcome.status for r in results if r.outcome.status != "completed"]
         assert not bad, f"benchmark runs must complete, got {bad[:3]}"
