@@ -8,6 +8,10 @@ discretised by Tustin's method with prewarping, then run as batched state-space 
   the continuous one exactly (Oppenheim & Schafer Sec. 5.1.3);
 - :func:`series`, :func:`parallel`: connections of discrete systems;
 - :class:`StreamingSS`: B runs × C channels of one discrete system each, one tick at a time.
+
+The three designs are written out here in numpy (Butterworth's poles, the controllable canonical
+form, the bilinear transform) rather than taken from ``scipy.signal``, whose import (~0.4 s) was
+most of a plate campaign's start-up; tests/test_plate_filters.py checks them against it.
 """
 
 from __future__ import annotations
@@ -15,7 +19,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy import signal
 
 StateSpace = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # (A, B, C, D)
 
@@ -29,14 +32,22 @@ def lowpass_tf(order: int, omega: float) -> tuple[np.ndarray, np.ndarray]:
     """Butterworth low-pass of ``order`` with cutoff ``omega`` [rad/s]; order 0 is 1."""
     if order == 0:
         return np.array([1.0]), np.array([1.0])
-    return signal.butter(order, omega, analog=True)
+    m = np.arange(1 - order, order, 2)
+    poles = -omega * np.exp(1j * np.pi * m / (2 * order))  # left half of the circle of radius ω
+    return np.array([omega**order]), np.poly(poles).real
 
 
 def tf_ss(num: np.ndarray, den: np.ndarray) -> StateSpace:
     """State space of a SISO transfer function (a static gain has no states)."""
     if len(den) == 1:
         return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[0] / den[0]]])
-    return signal.tf2ss(num, den)
+    n = len(den) - 1  # controllable canonical form of num/den, proper (len(num) <= len(den))
+    num = np.concatenate([np.zeros(n + 1 - len(num)), num]) / den[0]
+    den = np.asarray(den, dtype=float) / den[0]
+    A = np.vstack([-den[1:], np.eye(n - 1, n)])
+    B = np.eye(n, 1)
+    C = (num[1:] - num[0] * den[1:]).reshape(1, n)
+    return A, B, C, np.array([[num[0]]])
 
 
 def identity(n: int = 1) -> StateSpace:
@@ -49,8 +60,13 @@ def tustin(ss: StateSpace, fs: float, omega_warp: float) -> StateSpace:
     if len(ss[0]) == 0:
         return ss
     dt = 2.0 * np.tan(omega_warp / (2.0 * fs)) / omega_warp  # s = (2/dt)(z − 1)/(z + 1) is exact at omega_warp
-    A, B, C, D, _ = signal.cont2discrete(ss, dt, method="bilinear")
-    return A, B, C, D
+    A, B, C, D = ss
+    eye = np.eye(len(A))
+    back = eye - 0.5 * dt * A  # x[k+1] − x[k] = dt·(A (x[k+1] + x[k])/2 + B w)
+    Ad = np.linalg.solve(back, eye + 0.5 * dt * A)
+    Bd = np.linalg.solve(back, dt * B)
+    Cd = np.linalg.solve(back.T, C.T).T
+    return Ad, Bd, Cd, D + 0.5 * C @ Bd
 
 
 def series(first: StateSpace, second: StateSpace) -> StateSpace:
