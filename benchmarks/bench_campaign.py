@@ -19,18 +19,19 @@
 Wall times on a shared machine are longer than CPU times; both are printed (CPU: the command's
 process and the workers it waited for).
 
-Last measured (2-core machine shared with other sessions, load average 2.4): commit + scheduling
-0.15 ms per run; engine 0.93 ms CPU per run (B = 500); 1000 points run 3.36 s wall / 3.08 s CPU,
-analyse 3.69 s / 3.15 s, naive script 24.1 s / 23.2 s → 3.4× wall, 3.7× CPU (target 10×: missed);
-10 000 points 19.5 + 8.1 = 27.5 s wall, runner 79 MB flat, analyse 281 MB; analyse 0.49 ms per
-run + 3.2 s fixed. Where the 1000-point campaign's ~6 s CPU goes: the engine ~0.75 s and the
-log writer ~1 s in the workers; the runner's imports and plan ~0.8 s; analyse's imports (pandas,
-matplotlib, pyarrow) ~1 s, its two maps ~0.65 s and three run plots ~0.65 s (matplotlib's drawing
-of ticks and text, not the data). Since then (load average 2.3, `--skip-10k --skip-naive`):
-analyse 3.08 s wall / 2.43 s CPU at 1000 points (run plots and half the maps drawn in forked
-children, log axes with the ticks in view only, bounds once per setting), 0.14 ms per run +
-2.2 s fixed (benchmarks/bench_analysis.py); run 2.05 s / 2.25 s. Quiet machine (load 0.3): run 1.22 s / 1.79 s,
-analyse 1.62 s / 2.13 s, run + analyse 2.84 s wall.
+Last measured (2-core machine, idle but for this benchmark; figures vary by ±0.3 s between
+trials): commit + scheduling 0.11 ms per run; engine 0.59–0.62 ms CPU per run (B = 500); 1000
+points run 1.23–1.43 s wall, analyse 1.62–1.63 s wall (first analysis of the directory), naive
+numpy-style script 29.7–29.9 s → 9.9–10.5× wall, 15–16× CPU (target 10×: met in one of two
+full runs; four more trials of run + analyse alone took 3.05–3.47 s, i.e. 8.6–9.8×); 10 000
+points 9.2 + 2.4 = 11.6 s wall, runner 79 MB flat, analyse 226 MB. What is left of the 1000-point
+campaign's ~3.9 s CPU: analyse's imports (pandas, matplotlib, pyarrow; ~0.56 s, serial) and
+matplotlib's drawing of five figures (~1 s CPU: ticks, legends, text); run's start-up (~0.36 s
+to the first batch, ~0.17 s of it scipy.special for the differentiator weights) and per run
+0.5–0.67 ms engine + 0.5 ms log write in each of two workers. Changes behind these figures:
+the program freezes its objects before exit (interpreter teardown's collections took 0.35 s of
+an analysis); the stability bounds use labrunner.brent, not scipy.optimize; reading a delay
+needs no differentiator kernel.
 
 Run: ``python benchmarks/bench_campaign.py [--skip-10k] [--skip-naive]``.
 """
