@@ -59,7 +59,7 @@ def measure(campaign: spec.Campaign, label: str, configs: list[dict], repeat: in
             duration=duration,
             seeds=list(range(len(configs))),
             rig_safety=campaign.rig_safety,
-            progress=live.hook(0),
+            progress=live.hook(live.Address(0, 0)),
         )
         w1, c1 = time.perf_counter(), time.process_time()
         with tempfile.TemporaryDirectory() as tmp:
