@@ -28,7 +28,9 @@ from pathlib import Path
 from motor_campaign import motor_campaign
 
 HEAVY = ("scipy", "matplotlib", "pandas", "dask", "distributed")
-GRID_1000 = '"controller.gamma" = { log10 = [1.0, 3.0], num = 40 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 25 }\n'
+GRID_1000 = (
+    '"controller.gamma" = { log10 = [1.0, 3.0], num = 40 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 25 }\n'
+)
 PLATE = Path(__file__).resolve().parents[1] / "campaigns" / "plate-paper" / "fig07-kp-kd.toml"
 CAMPAIGN = motor_campaign("startup", levels="[0.0, 20.0]", hold=0.5, duration=0.1)  # 20 samples ≥ the 14-sample window
 # Run in the command's process: when labrunner.engine is loaded (in a worker), report the time
