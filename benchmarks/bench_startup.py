@@ -71,41 +71,27 @@ def best_wall(args: list[str], cwd: Path, repeat: int) -> float:
     return best
 
 
-def first_batch(work: Path, path: Path, repeat: int) -> tuple[float, float]:
+def first_batch(work: Path, path: Path, repeat: int, workers: int = 1) -> tuple[float, float]:
     """Best of ``repeat``: launch → the first run_batch call in a worker, wall time [s] and the CPU
-    time the runner and that worker spent until then [s] (what the wall time is on an idle machine)."""
+    time the runner and that worker spent until then [s] (what the wall time is on an idle machine).
+    The campaign is stopped there (SIGKILL: its workers die with it), as only its start is timed."""
     best, best_cpu = float("inf"), float("inf")
-    for i in range(repeat):
-        out = work / f"first{i}"
-        t0 = time.time()
-        proc = subprocess.run(
-            [sys.executable, "-c", HOOK, "run", str(path), "--out", str(out), "--workers", "1"],
-            cwd=work,
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        line = next(line for line in proc.stderr.splitlines() if line.startswith("first batch at"))
-        stamp, cpu = map(float, line.split()[-2:])
-        best, best_cpu = min(best, stamp - t0), min(best_cpu, cpu)
-    return best, best_cpu
-
-
-def first_batch_of(work: Path, path: Path, repeat: int) -> float:
-    """Best of ``repeat``: launch → the first run_batch call in a worker of a full campaign [s]; the
-    campaign is stopped there (SIGKILL: its workers die with it), as only its start is timed."""
-    best = float("inf")
     for i in range(repeat):
         out = work / f"{path.stem}-{i}"
         t0 = time.time()
-        args = [sys.executable, "-c", HOOK, "run", str(path), "--out", str(out), "--workers", "2"]
+        args = [sys.executable, "-c", HOOK, "run", str(path), "--out", str(out), "--workers", str(workers)]
         with subprocess.Popen(args, cwd=work, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) as proc:
+            seen = []
             for line in proc.stderr:  # type: ignore[union-attr]
                 if line.startswith("first batch at"):
-                    best = min(best, float(line.split()[-2]) - t0)
+                    stamp, cpu = map(float, line.split()[-2:])
+                    best, best_cpu = min(best, stamp - t0), min(best_cpu, cpu)
                     break
+                seen.append(line)
+            else:
+                raise SystemExit(f"{path.name} never started a batch: {''.join(seen)[-2000:]}")
             proc.kill()
-    return best
+    return best, best_cpu
 
 
 def imports(args: list[str], cwd: Path) -> tuple[float, list[tuple[str, float]], set[str]]:
@@ -158,7 +144,8 @@ def main() -> None:
         big = work / "motor-1000.toml"
         big.write_text(motor_campaign("motor1000", levels="[0.0, 20.0, 0.0]", hold=1.0, grid=GRID_1000))
         for label, campaign in (("1000-point motor", big), ("plate (fig07, 49 points)", PLATE)):
-            print(f"  {label} campaign: first batch {first_batch_of(work, campaign, args.repeat):.3f} s after launch")
+            wall, _ = first_batch(work, campaign, args.repeat, workers=2)
+            print(f"  {label} campaign: first batch {wall:.3f} s after launch")
         total, top, _ = imports(
             ["-m", "labrunner", "run", str(path), "--out", str(work / "imports"), "--workers", "1"], work
         )

@@ -2,12 +2,13 @@
 
 The stability bounds and the valve twin's operating point need only this one root finder; keeping
 it here spares ``labrunner analyse`` and a valve campaign the ~0.2 s import of ``scipy.optimize``
-(benchmarks/bench_startup.py). It stops on the same criterion as ``scipy.optimize.brentq``: the
+(tests/test_startup_imports.py checks it is not loaded). It stops on the same criterion as ``scipy.optimize.brentq``: the
 bracket's half-width below ``(xtol + rtol·|x|)/2``; tests/test_brent.py checks it against that.
 """
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 
 from labrunner.errors import InvalidParameter
@@ -16,7 +17,7 @@ MAX_ITER = 200  # bisection alone halves a bracket of 1e3 to 1e-15 in 60 steps
 
 
 def brent_root(
-    f: Callable[[float], float], a: float, b: float, *, xtol: float = 2e-12, rtol: float = 4 * 2.220446049250313e-16
+    f: Callable[[float], float], a: float, b: float, *, xtol: float = 2e-12, rtol: float = 4 * sys.float_info.epsilon
 ) -> float:
     """A root of ``f`` in [a, b], where ``f(a)`` and ``f(b)`` differ in sign (or one is zero).
 

@@ -13,8 +13,8 @@ import pytest
 HEAVY = ("pandas", "matplotlib", "scipy.optimize", "dask", "distributed")
 
 
-def _loaded(code: str) -> list[str]:
-    probe = f"{code}\nimport json, sys\nprint(json.dumps([m for m in {HEAVY!r} if m in sys.modules]))"
+def _loaded(code: str, modules: tuple[str, ...] = HEAVY) -> list[str]:
+    probe = f"{code}\nimport json, sys\nprint(json.dumps([m for m in {modules!r} if m in sys.modules]))"
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -90,9 +90,4 @@ def test_the_stability_bounds_and_the_valve_twin_need_no_scipy_optimize():
 def test_a_plate_campaign_designs_its_filters_without_scipy_signal():
     """The plate controllers' notch, low-pass and Tustin designs are numpy (checked against
     scipy.signal in tests/test_plate_filters.py); importing scipy.signal took ~0.4 s of start-up."""
-    probe = (
-        "import sys, labrunner.control.plate, labrunner.control.plate_mbc\n"
-        "print([m for m in sys.modules if m.startswith('scipy.signal')])"
-    )
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]"
+    assert _loaded("import labrunner.control.plate, labrunner.control.plate_mbc", ("scipy.signal",)) == []
