@@ -133,6 +133,12 @@ def wait_for(predicate, timeout: float, interval: float = 0.05) -> bool:
     return False
 
 
+def _without_provenance(outcome: dict | None) -> dict | None:
+    """An outcome record less ``recovered``: a run whose log was published before a kill and
+    adopted on resume is the same run, only committed later."""
+    return outcome if outcome is None else {k: v for k, v in outcome.items() if k != "recovered"}
+
+
 def comparable(rows: list[dict]) -> list[tuple]:
     """What must agree between two runs of one campaign: states, outcomes and metrics per point."""
     return [
@@ -141,7 +147,7 @@ def comparable(rows: list[dict]) -> list[tuple]:
             r["parameters"],
             r["state"],
             r["outcome"],
-            json.loads(r["outcome_json"] or "null"),
+            _without_provenance(json.loads(r["outcome_json"] or "null")),
             r["rms_error"],
             r["input_energy"],
             r["max_abs_input"],

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from labrunner.campaign.ledger import Ledger, RunRecord, fsync_dir
 from labrunner.campaign.worker import RUNS_DIR, TMP_PREFIX, final_path
+from labrunner.engine import Outcome
 
 QUARANTINE_DIR = "quarantine"
 
@@ -89,6 +90,14 @@ def verify_log(path: Path, point_id: str) -> tuple[dict | None, str]:
     return {"outcome": dict(log.outcome), "metrics": dict(log.metadata.get("metrics", {})), "run": run}, ""
 
 
+def outcome_record(logged: dict) -> dict:
+    """A log's outcome as the worker commits it: the log keeps only the fields that are set (and
+    its sample count), the ledger every field of :class:`~labrunner.engine.Outcome` (recovery
+    and ``repair`` both commit runs from their logs)."""
+    keys = [f.name for f in fields(Outcome)]
+    return Outcome(**{k: logged[k] for k in keys if k in logged}).as_dict()
+
+
 def recover(ledger: Ledger) -> Recovery:
     """Bring the directory and the ledger into agreement (see the module docstring)."""
     directory = ledger.directory
@@ -103,8 +112,7 @@ def recover(ledger: Ledger) -> Recovery:
         if path.exists():
             found, reason = verify_log(path, pid)
             if found is not None:
-                outcome = {**found["outcome"], "recovered": True}
-                outcome.pop("n_samples", None)
+                outcome = {**outcome_record(found["outcome"]), "recovered": True}
                 ledger.commit(
                     RunRecord(
                         point_id=pid,

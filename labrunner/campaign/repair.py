@@ -24,9 +24,8 @@ from typing import Any
 from labrunner.campaign import integrity, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, RunRecord, fsync_dir
 from labrunner.campaign.lock import DirectoryLock
-from labrunner.campaign.recovery import QUARANTINE_DIR, verify_log
+from labrunner.campaign.recovery import QUARANTINE_DIR, outcome_record, verify_log
 from labrunner.campaign.worker import final_path
-from labrunner.engine import Outcome
 from labrunner.errors import InvalidParameter
 
 COPY = "campaign.toml"
@@ -155,11 +154,7 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
             if found is None:
                 report.rejected.append(f"{final_path(p.id)}: {reason}")
                 continue
-            outcome = {
-                **Outcome(str(found["outcome"].get("status"))).as_dict(),
-                **found["outcome"],
-            }  # logs leave None out
-            outcome.pop("n_samples", None)
+            outcome = outcome_record(found["outcome"])
             run = found["run"]
             restored.append(
                 (
