@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from labrunner._ufunc import clip, count_nonzero
-from labrunner.differentiators import StreamingFIR, design, pad_taps
+from labrunner.differentiators import Differentiator, StreamingFIR, design, pad_taps
 from labrunner.rigs.base import RigInfo
 from labrunner.safety_config import SafetyConfig
 
@@ -61,15 +61,16 @@ class SafetyMonitor:
         self.fs = float(fs)
         self.n_inputs = len(rig_info.inputs)
         self._max_du_dt = np.array([np.inf if c.max_du_dt is None else c.max_du_dt for c in configs])
-        self._rate: StreamingFIR | None = None
+        self._rate: StreamingFIR | None = None  # formed by the first reset from these designs
+        self._rate_designs: list[Differentiator] = []
         if np.isfinite(self._max_du_dt).any():
-            by_design: dict[tuple[float, float, float], np.ndarray] = {}  # one design per distinct (α, β, ω_c)
+            by_design: dict[tuple[float, float, float], Differentiator] = {}  # one per distinct (α, β, ω_c)
             for c in configs:
                 key = (c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)
                 if key not in by_design:
-                    by_design[key] = design(alpha=key[0], beta=key[1], omega_c=key[2], fs=self.fs).weights(1)
-            per_run = pad_taps([by_design[(c.du_dt_alpha, c.du_dt_beta, c.du_dt_omega_c)] for c in configs])  # (B, L)
-            self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
+                    by_design[key] = design(alpha=key[0], beta=key[1], omega_c=key[2], fs=self.fs)
+                    by_design[key].check_weights(1)
+                self._rate_designs.append(by_design[key])
         self._out_lo, self._out_hi = self._bounds(configs, rig_info.outputs, "output_bounds")
         self._in_lo, self._in_hi = self._bounds(configs, rig_info.inputs, "input_bounds")
         self._has_output_bounds = bool(np.isfinite(self._out_lo).any() or np.isfinite(self._out_hi).any())
@@ -106,6 +107,9 @@ class SafetyMonitor:
 
     def reset(self, u0: np.ndarray) -> None:
         """Start the rate estimator from a steady input ``u0`` (B, n_inputs)."""
+        if self._rate_designs and self._rate is None:  # its taps, once: a monitor built only to validate needs none
+            per_run = pad_taps([d.weights(1) for d in self._rate_designs])  # (B, L)
+            self._rate = StreamingFIR(np.repeat(per_run, self.n_inputs, axis=0))
         if self._rate is not None:
             self._rate.reset(self.B * self.n_inputs, fill=np.asarray(u0, float).reshape(-1))
         self.verdicts = [None] * self.B

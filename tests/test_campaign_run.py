@@ -6,6 +6,7 @@ import json
 import os
 import signal
 import socket
+import sys
 import tomllib
 
 import pytest
@@ -314,6 +315,22 @@ def test_default_workers_are_all_cores():
 
     with open_executor(real_rig=False, workers=None, url=None) as handle:
         assert handle.slots == len(os.sched_getaffinity(0)) == handle.executor._max_workers
+
+
+def _worker_modules() -> list[str]:
+    from labrunner.campaign.executors import WORKER_MODULES
+
+    return [m for m in WORKER_MODULES if m in sys.modules]
+
+
+def test_the_pool_forks_its_workers_when_opened_and_they_load_the_engine_themselves():
+    """The runner opens the pool before it validates the points: every worker exists at once and
+    imports what a batch needs in its initializer, before its first task."""
+    from labrunner.campaign.executors import WORKER_MODULES, open_executor
+
+    with open_executor(real_rig=False, workers=2, url=None) as handle:
+        assert len(handle.executor._processes) == 2
+        assert handle.executor.submit(_worker_modules).result() == list(WORKER_MODULES)
 
 
 def test_each_log_is_written_fsynced_and_renamed_before_its_row_is_committed(project, monkeypatch):

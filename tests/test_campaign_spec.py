@@ -353,18 +353,21 @@ def test_bad_metrics_windows_name_the_key(body, field):
 @settings(max_examples=200, deadline=None)
 @given(n=st.integers(1, 30_000), slots=st.integers(1, 32), samples=st.integers(1, 200_000))
 def test_batches_are_as_large_as_cost_and_memory_allow_and_keep_every_worker_busy(n, slots, samples):
-    """Every point in exactly one batch, in grid order; sizes differ by one at most; none above
-    the memory budget; the largest batch is that of ⌈n / (slots·m)⌉·slots equal batches, m the
-    smallest of the cost model's and the memory budget's sizes (so no worker idles while another
-    runs a batch of its own at the end)."""
+    """Every point in exactly one batch; sizes differ by one at most; none above the memory
+    budget; the largest batch is that of ⌈n / (slots·m)⌉·slots equal batches, m the smallest of
+    the cost model's and the memory budget's sizes (so no worker idles while another runs a batch
+    of its own at the end); batch j of c holds the points j, j + c, … (each samples the whole grid)."""
     from labrunner.campaign import scheduler
 
     rows = [{"batch_key": f'["rig", 200.0, {samples / 200.0}, [], 0]', "seq": i} for i in range(n)]
     batches = scheduler.make_batches(rows, slots)
-    assert [r["seq"] for _, b in batches for r in b] == list(range(n))
+    assert sorted(r["seq"] for _, b in batches for r in b) == list(range(n))
+    assert all([r["seq"] for r in b] == list(range(j, n, len(batches))) for j, (_, b) in enumerate(batches))
     sizes = [len(b) for _, b in batches]
     by_memory = max(1, scheduler.BATCH_MEMORY_BYTES // (samples * scheduler._BYTES_PER_SAMPLE))
     m = min(by_memory, math.ceil(9 * scheduler.TICK_OVERHEAD_S / scheduler.RUN_TICK_S))
     assert max(sizes) - min(sizes) <= 1 and max(sizes) <= by_memory
     assert max(sizes) == math.ceil(n / (slots * math.ceil(n / (slots * m))))
-    assert [len(b) for _, b in scheduler.make_batches(rows, slots, requested=7)][0] == min(7, n)
+    requested = scheduler.make_batches(rows, slots, requested=7)
+    assert [r["seq"] for _, b in requested for r in b] == list(range(n))  # in grid order
+    assert len(requested[0][1]) == min(7, n)

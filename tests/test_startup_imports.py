@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -91,3 +92,12 @@ def test_a_plate_campaign_designs_its_filters_without_scipy_signal():
     """The plate controllers' notch, low-pass and Tustin designs are numpy (checked against
     scipy.signal in tests/test_plate_filters.py); importing scipy.signal took ~0.4 s of start-up."""
     assert _loaded("import labrunner.control.plate, labrunner.control.plate_mbc", ("scipy.signal",)) == []
+
+
+def test_validating_a_campaign_evaluates_no_kernel():
+    """The plan builds every point's controller and safety monitor to check it; their tap vectors
+    are formed by the first reset, in the workers (which load scipy.special while the runner
+    validates): the runner itself needs no scipy.special (~0.2 s)."""
+    quickstart = Path(__file__).resolve().parents[1] / "campaigns" / "quickstart.toml"
+    code = f"from labrunner.campaign import spec\nspec.plan(spec.load({str(quickstart)!r}))"
+    assert _loaded(code, ("scipy.special",)) == []

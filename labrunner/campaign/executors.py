@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import importlib
 import multiprocessing
 import os
 import signal
@@ -46,6 +47,9 @@ DASK_PORT = 8786  # the Dask scheduler's default port
 CONNECT_TIMEOUT_S = 5.0  # reaching a Dask scheduler before anything is created
 _PR_SET_PDEATHSIG = 1
 QUEUE_DEPTH = 2  # batches in flight per slot
+#: Imported by each pool worker as it starts: the engine, the log writer and the kernels'
+#: special functions (~0.3 s), loaded in parallel with the parent's validation of the campaign.
+WORKER_MODULES = ("labrunner.engine", "labrunner.logs.writer", "scipy.special")
 
 
 class InProcessExecutor(Executor):
@@ -81,16 +85,12 @@ class ExecutorHandle:
     def in_process(self) -> bool:
         return isinstance(self.executor, InProcessExecutor)
 
-    @property
-    def forks(self) -> bool:
-        """Whether a submit may fork workers (signals must be blocked around it)."""
-        return isinstance(self.executor, ProcessPoolExecutor)
-
 
 def _init_worker(lock_fd: int | None, ticks: Any = None) -> None:
     """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it lets running batches finish or
     kills the workers), die with the parent, drop the inherited lock descriptor, keep the live
-    channel's shared array."""
+    channel's shared array, and import what every batch needs (:data:`WORKER_MODULES`) while
+    the parent still validates the campaign."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # blocked by the parent while it forked us
@@ -102,6 +102,12 @@ def _init_worker(lock_fd: int | None, ticks: Any = None) -> None:
         with contextlib.suppress(OSError):
             os.close(lock_fd)
     live.install(ticks)
+    for module in WORKER_MODULES:
+        importlib.import_module(module)
+
+
+def _started() -> None:
+    """The pool's first task: submitting it forks the workers (see :func:`_pool`)."""
 
 
 def parse_executor_url(url: str) -> tuple[str, int]:
@@ -145,13 +151,19 @@ def _kill(processes: Any) -> None:
 
 
 def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
+    """A fork pool whose workers are forked now, with the stop signals blocked until their
+    initializer ignores them (a fork pool forks every worker at its first submit)."""
     n = workers or len(os.sched_getaffinity(0))
-    _preload_worker_modules()
     context = multiprocessing.get_context("fork")
     ticks = live.LiveTicks(QUEUE_DEPTH * n, context)
     pool = ProcessPoolExecutor(
         max_workers=n, mp_context=context, initializer=_init_worker, initargs=(lock_fd, ticks.array)
     )
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        pool.submit(_started)
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
     abandoned = False
 
     def abandon() -> None:
@@ -198,13 +210,6 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
     finally:
         with contextlib.suppress(Exception):
             client.close(timeout=5)
-
-
-def _preload_worker_modules() -> None:
-    """Import what every batch needs (the engine, the log writer) before the pool forks: the
-    workers inherit it instead of each importing it again (~0.1–0.2 s CPU per worker)."""
-    import labrunner.engine  # noqa: F401
-    import labrunner.logs.writer  # noqa: F401
 
 
 @contextlib.contextmanager

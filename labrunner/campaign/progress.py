@@ -67,7 +67,7 @@ class _Reporter(abc.ABC):
 
             reporter = self
 
-            class _Bar(tqdm):  # no monitor thread: the process pool forks after the bar exists
+            class _Bar(tqdm):  # no monitor thread: analyse forks its drawing children after the bar exists
                 monitor_interval = 0
 
                 @property

@@ -22,7 +22,7 @@ from typing import TextIO
 
 from labrunner import __version__
 from labrunner.campaign import integrity, recovery, spec
-from labrunner.campaign.executors import check_executor_url, open_executor
+from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
@@ -147,43 +147,63 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
     check_executor_url(opts.executor, reach=False)
     campaign = spec.load(file)
-    points, checksum = spec.plan(campaign)
     directory = Path(out) if out else default_directory(campaign)
     if dry:
-        if campaign.guided is not None:
-            from labrunner.campaign import guided_run
+        return None, _dry_run(campaign, directory, opts)
+    with _early_pool(campaign, opts) as pool:
+        points, checksum = spec.plan(campaign)
+        _check_new_directory(directory, campaign.name, checksum)
+        check_executor_url(opts.executor)  # reached before the directory exists
+        directory.mkdir(parents=True, exist_ok=True)
+        with DirectoryLock(directory, "run") as lock:
+            _check_new_directory(directory, campaign.name, checksum)  # again, now that nobody else can create it
+            meta = {
+                "campaign": campaign.name,
+                "campaign_file": campaign.source,
+                "campaign_path": str(Path(file).resolve()),
+                "plan_checksum": checksum,
+                "points": str(len(points)),
+                "rig": campaign.rig,
+                "created_at": repr(time.time()),
+                "created_by": f"labrunner {__version__} on {socket.gethostname()}",
+                **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
+            }
+            points_rows = ((p.seq, p.id, p.parameters, p.batch_key) for p in points)
+            ledger = Ledger.create(directory, meta=meta, points=points_rows)
+            del points, points_rows
+            _write_copy(directory, campaign.source)  # the ledger exists first: it is what marks the campaign
+            (directory / RUNS_DIR).mkdir(exist_ok=True)
+            with ledger:
+                return _execute(campaign, ledger, lock, opts, "run", pool), str(directory)
 
-            slots = opts.workers or len(os.sched_getaffinity(0)) if campaign.rig_info.simulated else 1
-            text = guided_run.dry_run(campaign, points, slots)
-        else:
-            text = dry_run(campaign, points, opts)
-        try:
-            _check_new_directory(directory, campaign.name, checksum)
-        except CampaignError as exc:
-            text += f"\nnote: `labrunner run` would refuse: {exc}"
-        return None, text
-    _check_new_directory(directory, campaign.name, checksum)
-    check_executor_url(opts.executor)  # reached before the directory exists
-    directory.mkdir(parents=True, exist_ok=True)
-    with DirectoryLock(directory, "run") as lock:
-        _check_new_directory(directory, campaign.name, checksum)  # again, now that nobody else can create it
-        meta = {
-            "campaign": campaign.name,
-            "campaign_file": campaign.source,
-            "campaign_path": str(Path(file).resolve()),
-            "plan_checksum": checksum,
-            "points": str(len(points)),
-            "rig": campaign.rig,
-            "created_at": repr(time.time()),
-            "created_by": f"labrunner {__version__} on {socket.gethostname()}",
-            **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
-        }
-        ledger = Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in points))
-        del points
-        _write_copy(directory, campaign.source)  # the ledger exists first: it is what marks the campaign
-        (directory / RUNS_DIR).mkdir(exist_ok=True)
-        with ledger:
-            return _execute(campaign, ledger, lock, opts, "run"), str(directory)
+
+def _dry_run(campaign: spec.Campaign, directory: Path, opts: Options) -> str:
+    """``labrunner run --dry-run``: what would run, and whether ``run`` would refuse the directory."""
+    points, checksum = spec.plan(campaign)
+    if campaign.guided is not None:
+        from labrunner.campaign import guided_run
+
+        slots = opts.workers or len(os.sched_getaffinity(0)) if campaign.rig_info.simulated else 1
+        text = guided_run.dry_run(campaign, points, slots)
+    else:
+        text = dry_run(campaign, points, opts)
+    try:
+        _check_new_directory(directory, campaign.name, checksum)
+    except CampaignError as exc:
+        text += f"\nnote: `labrunner run` would refuse: {exc}"
+    return text
+
+
+def _early_pool(
+    campaign: spec.Campaign, opts: Options, lock_fd: int | None = None
+) -> contextlib.AbstractContextManager[ExecutorHandle | None]:
+    """The local process pool of a simulated campaign, forked before the slow part of starting
+    (validating every point, settling a crash) so that its workers load the engine meanwhile, on
+    the other cores; None for a real rig or Dask, whose executor :func:`_execute` opens itself
+    once the campaign is known to be good."""
+    if opts.executor or not campaign.rig_info.simulated:
+        return contextlib.nullcontext()
+    return open_executor(real_rig=False, workers=opts.workers, url=None, lock_fd=lock_fd)
 
 
 def _check_unchanged(ledger: Ledger) -> spec.Campaign:
@@ -230,17 +250,27 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
         campaign = _check_unchanged(ledger)
-        _write_copy(ledger.directory, ledger.meta()["campaign_file"])
-        report = recovery.recover(ledger)
-        print(f"resume {directory}: {report.describe()}", file=stream)
-        if retry_failed:
-            failed = [r["id"] for r in ledger.rows(("failed",))]
-            ledger.replan(failed)
-            print(f"retrying {len(failed)} failed point(s)", file=stream)
-        return _execute(campaign, ledger, lock, opts, "resume"), str(directory)
+        with _early_pool(campaign, opts, lock.fd) as pool:  # its workers load while a crash is settled
+            _write_copy(ledger.directory, ledger.meta()["campaign_file"])
+            report = recovery.recover(ledger)
+            print(f"resume {directory}: {report.describe()}", file=stream)
+            if retry_failed:
+                failed = [r["id"] for r in ledger.rows(("failed",))]
+                ledger.replan(failed)
+                print(f"retrying {len(failed)} failed point(s)", file=stream)
+            return _execute(campaign, ledger, lock, opts, "resume", pool), str(directory)
 
 
-def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts: Options, command: str) -> Outcome:
+def _execute(
+    campaign: spec.Campaign,
+    ledger: Ledger,
+    lock: DirectoryLock,
+    opts: Options,
+    command: str,
+    pool: ExecutorHandle | None,
+) -> Outcome:
+    """Run what the ledger has left on ``pool`` (see :func:`_early_pool`) or on the executor
+    the options name; record the session and its end."""
     ledger.start_session(command)
     c = ledger.counts()
     total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
@@ -257,7 +287,11 @@ def _execute(campaign: spec.Campaign, ledger: Ledger, lock: DirectoryLock, opts:
     try:
         with (
             StopSignals() as signals,
-            open_executor(real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd) as handle,
+            (
+                contextlib.nullcontext(pool)
+                if pool is not None
+                else open_executor(real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd)
+            ) as handle,
         ):
             scheduler = Scheduler(
                 campaign,

@@ -91,7 +91,14 @@ def batch_size(group_points: int, slots: int, samples: int, requested: int | Non
 
 
 def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> list[tuple[str, list[Any]]]:
-    """Cut ledger rows (grid order) into batches of compatible points; deterministic."""
+    """Cut ledger rows (grid order) into batches of compatible points; deterministic.
+
+    Automatic sizes are equal (differing by one at most) and *strided*: batch j of a group of
+    ``count`` takes its points j, j + count, j + 2·count, … so that every batch samples the whole
+    group. Runs cost more or less by where they lie in the grid (a run that aborts early leaves
+    a shorter log), and contiguous batches would hand one worker the costly end of a grid while
+    the other idles. A requested size cuts the group in grid order, the last batch taking the rest.
+    """
     groups: dict[str, list[Any]] = {}
     for row in rows:
         groups.setdefault(row["batch_key"], []).append(row)
@@ -100,11 +107,10 @@ def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> l
         _, fs, duration, *_ = json.loads(key)
         size = batch_size(len(members), slots, round(fs * duration), requested)
         count = math.ceil(len(members) / size)
-        if requested is None:  # automatic: equal sizes (differing by one at most), none above size
-            cuts = [len(members) * j // count for j in range(count + 1)]
-        else:  # as asked, the last batch takes the rest
-            cuts = [*range(0, len(members), size), len(members)]
-        out += [(key, members[lo:hi]) for lo, hi in zip(cuts, cuts[1:])]
+        if requested is None:
+            out += [(key, members[j::count]) for j in range(count)]
+        else:
+            out += [(key, members[lo : lo + size]) for lo in range(0, len(members), size)]
     return out
 
 
@@ -193,16 +199,12 @@ class Scheduler:
         ids = [r.point_id for r in task.runs]
         self.ledger.claim(ids)
         h = self.handle
-        try:  # a Ctrl-C must not reach a worker before its initializer ignores it (it stays pending here)
-            if h.forks:
-                signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
             signals.interruptible = h.in_process
             try:
                 future = h.executor.submit(self.batch_fn, task)
             finally:
                 signals.interruptible = False
-                if h.forks:
-                    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
         except KeyboardInterrupt:  # a real rig's run, stopped by a second Ctrl-C: its points stay claimed
             raise
         except Exception as exc:  # the executor refused the batch (broken pool, lost cluster): nothing ran

@@ -88,11 +88,9 @@ class MFCEstimator:
             np.broadcast_to(np.reshape(gamma, (B, -1)) if np.ndim(gamma) else gamma, (B, C)), dtype=float
         )
         self._unit_gamma = bool(np.all(self.gamma == 1.0))
-        # tap vectors per run: y (shifted by ε), e (one per filter), v
-        taps = [
-            [np.concatenate([[0.0], d.weights(order)]), *(d.weights(k) for k in range(order)), d.weights(0)]
-            for d in designs
-        ]
+        for d in designs:  # the taps themselves are formed by the first reset (:meth:`_start`)
+            d.check_weights(order)
+        self._designs = designs
         # one buffer: f̂, ê^(0..n−1), then the products of y and v. The filters on e write straight
         # into ê^(k) (the filtered outputs when e = y: the reference terms come off in place), and
         # the estimates sit side by side in :attr:`block` for the logs.
@@ -104,6 +102,17 @@ class MFCEstimator:
         self._tmp = np.zeros((B, C))
         self._tmp_e = np.zeros((order, B, C))
         self._shared = B * C >= SHARED_MIN_ROWS and all(d == designs[0] for d in designs)
+        self._hist: History | None = None
+
+    def _start(self) -> None:
+        """Form the tap vectors and the histories, once: a controller built only to validate a
+        campaign's points evaluates no kernel (nor imports scipy.special)."""
+        order = self.order
+        # tap vectors per run: y (shifted by ε), e (one per filter), v
+        taps = [
+            [np.concatenate([[0.0], d.weights(order)]), *(d.weights(k) for k in range(order)), d.weights(0)]
+            for d in self._designs
+        ]
         if self._shared:
             self._init_shared(taps[0])
         else:
@@ -150,6 +159,8 @@ class MFCEstimator:
     def reset(self, y0: np.ndarray, r0: np.ndarray | float = 0.0, v0: np.ndarray | float = 0.0) -> None:
         """Pre-fill the histories as a stationary past: y ≡ y0, y_r ≡ r0 (filtered errors only;
         r0 = y0 gives the thesis's zero initial error profile), v ≡ v0 (each (B, C) or scalar)."""
+        if self._hist is None:
+            self._start()
         fill = np.empty((3, self.batch, self.channels))
         fill[0] = y0
         fill[1] = y0 - self._m * r0
