@@ -98,7 +98,7 @@ def _unit(log: RunLog, names: list[str]) -> tuple[str, float]:
     """The panel's unit label and the factor its data is drawn with (air gaps in mm, as the
     papers show them: metres below 0.1 m are drawn in millimetres)."""
     units = [u for u in dict.fromkeys(log.channels.get(n, {}).get("unit", "") for n in names) if u]
-    if units == ["m"] and np.nanmax(np.abs(log.frame[names].to_numpy()), initial=0.0) < 0.1:
+    if units == ["m"] and np.nanmax(np.abs([log.signal(n) for n in names]), initial=0.0) < 0.1:
         return "mm", 1e3
     return ", ".join(units), 1.0
 
@@ -111,7 +111,7 @@ def _draw(ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray, sc
         colour = colours.setdefault(base, f"C{len(colours) % 10}")
         ax.plot(
             t,
-            scale * log.frame[name].to_numpy(),
+            scale * log.signal(name),
             style,
             color=colour,
             lw=lw if style == "-" else 1.3 * lw,
@@ -168,7 +168,7 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     if not isinstance(log, RunLog):
         log = read_run(log)
     panels = _panels(log) or [("signals", [(n, "-") for n in log.signals])]
-    t = log.frame.index.to_numpy()
+    t = log.t
     t_abort, t_end, zoom_end = _abort_window(log, t)
     context = t_abort is not None and zoom_end < t_end
     heights = [1.8] * len(panels) + ([0.9] if context else [])

@@ -72,25 +72,24 @@ def test_figures_drawn_in_children_equal_those_drawn_here(tmp_path):
 
 def test_plots_to_draw_are_those_not_kept(tmp_path):
     """A run plot newer than its log is kept (not drawn, no child forked for it); a missing or
-    older one is drawn; a point without a log has nothing to draw."""
-    from types import SimpleNamespace
-
-    import pandas as pd
-
-    from labrunner.analysis.figures import plot_path, plots_to_draw
+    older one is drawn; a point without a log has nothing to draw; each point once, in order."""
+    from labrunner.analysis.run_plots import items, plot_path, to_draw
 
     (tmp_path / "runs").mkdir()
     for name in ("a", "b", "c"):
         (tmp_path / "runs" / f"{name}.mcap").write_bytes(b"log")
-    ctx = SimpleNamespace(directory=tmp_path, out=tmp_path / "report")
-    frame = pd.DataFrame({"id": ["a", "b", "c", "d"], "log_path": ["runs/a.mcap", "runs/b.mcap", "runs/c.mcap", None]})
+    out = tmp_path / "report"
+    logs = {"a": "runs/a.mcap", "b": "runs/b.mcap", "c": "runs/c.mcap", "d": None}
     for name, offset in (("a", 10), ("b", -10)):  # a's plot newer than its log, b's older
-        png = plot_path(ctx.out, name)
+        png = plot_path(out, name)
         png.parent.mkdir(parents=True, exist_ok=True)
         png.write_bytes(b"png")
         log_ns = (tmp_path / "runs" / f"{name}.mcap").stat().st_mtime_ns
         os.utime(png, ns=(log_ns + offset * 10**9, log_ns + offset * 10**9))
-    assert plots_to_draw(frame, ["a", "b", "c", "d", "b"], ctx) == ["b", "c"]
+    plots = items(logs, ["a", "b", "c", "d", "b"], tmp_path, out)
+    assert [p[0] for p in plots] == ["a", "b", "c"]
+    assert plots[1] == ("b", tmp_path / "runs" / "b.mcap", out / "plots" / "b.png")
+    assert to_draw(plots) == ["b", "c"]
 
 
 @forks
@@ -101,4 +100,41 @@ def test_a_failed_fork_runs_the_function_here(monkeypatch):
     monkeypatch.setattr(os, "fork", no_fork)
     job = Background(lambda: os.getpid())
     assert job.result() == os.getpid()
+    job.close()
+
+
+def _prepared() -> list[str]:
+    """In an ahead child: what its ``prepare`` left behind, and where it runs."""
+    return [os.environ.get("PREPARED", ""), str(os.getpid())]
+
+
+@forks
+def test_an_ahead_child_prepares_first_and_runs_the_function_sent_to_it_later():
+    job = Background.ahead(lambda: os.environ.__setitem__("PREPARED", "yes"))
+    job.start(_prepared)
+    prepared, pid = job.result()
+    assert prepared == "yes" and int(pid) != os.getpid() and "PREPARED" not in os.environ
+
+
+@forks
+def test_an_ahead_child_that_fails_to_prepare_or_gets_nothing_to_do():
+    job = Background.ahead(lambda: os._exit(3))  # as if its imports had crashed the child
+    job.start(_prepared)
+    assert job.result() == ["", str(os.getpid())]  # run here instead
+    idle = Background.ahead(lambda: None)
+    pid = idle._pid
+    idle.close()  # no task: the child sees the pipe closed and exits
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)
+
+
+@forks
+def test_without_fork_an_ahead_function_runs_here(monkeypatch):
+    def no_fork():
+        raise OSError("Resource temporarily unavailable")
+
+    monkeypatch.setattr(os, "fork", no_fork)
+    job = Background.ahead(lambda: None)
+    job.start(_prepared)
+    assert job.result() == ["", str(os.getpid())]
     job.close()

@@ -177,7 +177,7 @@ def test_lines_that_miss_the_map_say_so_in_the_legend():
 def test_valve_theory_adds_the_sensor_delay_and_uses_rho_in_the_unit_of_gamma():
     """Paper 1's γ is in m³/(A s²) while the twin's flow is in l/min: the overlay's ρ must be the
     twin's ρ in that unit (rho_si), and the 50 ms flow-sensor delay adds to δ_t in the loop."""
-    from labrunner.analysis.analyse import Theories
+    from labrunner.analysis.context import Theories
     from labrunner.campaign import spec
     from labrunner.rigs import registry
 
@@ -197,7 +197,7 @@ def test_kp_kd_map_of_the_shipped_campaign_carries_the_corrected_bounds():
     lines of its map, checked against the spectral-abscissa solver (an independent method) and
     drawn as artists on the map."""
     from labrunner import stability
-    from labrunner.analysis.analyse import Theories
+    from labrunner.analysis.context import Theories
     from labrunner.analysis.figures import axis_of, grid_forms, map_overlays
     from labrunner.campaign import spec
 

@@ -10,8 +10,9 @@ import pytest
 from matplotlib.image import imread
 from test_campaign_support import campaign_text
 
-from labrunner.analysis.analyse import Theories, load_campaign, varying_axes
+from labrunner.analysis.context import Theories
 from labrunner.analysis.figures import axis_of, map_overlays
+from labrunner.analysis.selection import load_campaign, varying_axes
 from labrunner.campaign.ledger import Ledger
 from labrunner.cli import main
 

@@ -101,3 +101,10 @@ def test_validating_a_campaign_evaluates_no_kernel():
     quickstart = Path(__file__).resolve().parents[1] / "campaigns" / "quickstart.toml"
     code = f"from labrunner.campaign import spec\nspec.plan(spec.load({str(quickstart)!r}))"
     assert _loaded(code, ("scipy.special",)) == []
+
+
+def test_analyse_forks_its_plotting_child_before_pandas_and_matplotlib():
+    """``labrunner.analysis.analyse`` imports neither (its function forks the run plots' child
+    first); that child's preparation loads matplotlib and the log reader but no pandas."""
+    assert _loaded("import labrunner.analysis.analyse") == []
+    assert _loaded("from labrunner.analysis import run_plots\nrun_plots.prepare()") == ["matplotlib"]

@@ -1,23 +1,25 @@
 """Run one piece of the analysis in a forked child while the process goes on with the rest.
 
-``analyse`` draws the run plots (reading their logs, ~0.17 s a plot) in a child forked once the
-table is built, and the second half of the maps in one forked once their overlays are computed:
-the children pay no imports and start at once, while this process writes the tables and draws the
-other maps; on two cores that takes most of the drawing off the analysis's wall time. A result
-comes back pickled through a pipe. Where there is no ``fork`` (Windows) or when the child fails,
-the function simply runs in this process when its result is asked for: the same result, only
-later.
+``analyse`` draws the run plots (reading their logs, ~0.17 s a plot) in a child forked *ahead*,
+before it imports pandas and matplotlib (:meth:`Background.ahead`): the child loads matplotlib
+on the other core meanwhile, then draws the plots the table names, sent to it pickled. The second
+half of the maps is drawn in a child forked once their overlays are computed: it pays no imports
+and starts at once, while this process writes the tables and draws the other maps; on two cores
+that takes most of the drawing off the analysis's wall time. A result comes back pickled through
+a pipe. Where there is no ``fork`` (Windows) or when the child fails, the function simply runs in
+this process when its result is asked for: the same result, only later.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import os
 import pickle
 import sys
 import warnings
 from collections.abc import Callable
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 T = TypeVar("T")
 _children = 0  # children running: the collector stays frozen until the last one is collected
@@ -39,14 +41,46 @@ def _unfreeze() -> None:
 class Background(Generic[T]):
     """``fn()`` in a forked child (if ``fork``); :meth:`result` waits for it and returns its value."""
 
-    def __init__(self, fn: Callable[[], T]) -> None:
+    def __init__(self, fn: Callable[[], T] | None) -> None:
         self._fn = fn
         self._pid = 0
         self._read = -1
-        if hasattr(os, "fork"):
-            self._start()
+        self._send = -1  # an ahead child's task pipe, until :meth:`start`
+        if fn is not None and hasattr(os, "fork"):
+            self._fork(lambda: fn)
 
-    def _start(self) -> None:
+    @classmethod
+    def ahead(cls, prepare: Callable[[], object]) -> Background[Any]:
+        """A child forked now, before its function exists: it runs ``prepare()`` (imports,
+        on another core) and then waits for the function :meth:`start` sends it."""
+        job: Background[Any] = cls(None)
+        if hasattr(os, "fork"):
+            task, job._send = os.pipe()
+
+            def receive() -> Callable[[], Any]:
+                os.close(job._send)
+                prepare()
+                with os.fdopen(task, "rb") as pipe:
+                    return pickle.load(pipe)  # EOFError (exit 1) when closed without a task
+
+            job._fork(receive)
+            os.close(task)
+            if not job._pid:  # no fork: the function will run here
+                os.close(job._send)
+                job._send = -1
+        return job
+
+    def start(self, fn: Callable[[], T]) -> None:
+        """Hand an :meth:`ahead` child its function: a small one that pickles by name (a
+        module-level function or a ``functools.partial`` of one)."""
+        self._fn = fn
+        if self._send >= 0:
+            with contextlib.suppress(BrokenPipeError), os.fdopen(self._send, "wb") as pipe:
+                pickle.dump(fn, pipe)  # a child that died already: result() runs fn here
+            self._send = -1
+
+    def _fork(self, task: Callable[[], Callable[[], T]]) -> None:
+        """Fork a child that runs the function ``task()`` returns and pickles its result to a pipe."""
         read, write = os.pipe()
         for stream in (sys.stdout, sys.stderr):  # nothing buffered twice
             stream.flush()
@@ -65,8 +99,9 @@ class Background(Generic[T]):
             try:
                 gc.disable()
                 os.close(read)
+                fn = task()
                 with os.fdopen(write, "wb") as pipe:
-                    pickle.dump(self._fn(), pipe)
+                    pickle.dump(fn(), pipe)
                 code = 0
             finally:
                 os._exit(code)
@@ -75,6 +110,7 @@ class Background(Generic[T]):
 
     def result(self) -> T:
         """The child's result; if there is no child or it failed, ``fn()`` run here."""
+        assert self._fn is not None, "start() an ahead child before asking for its result"
         if not self._pid:
             return self._fn()
         with os.fdopen(self._read, "rb") as pipe:
@@ -87,7 +123,11 @@ class Background(Generic[T]):
         return self._fn()
 
     def close(self) -> None:
-        """Wait for a child whose result is no longer wanted (the analysis failed before it)."""
+        """Wait for a child whose result is no longer wanted (the analysis failed before it, or
+        an ahead child had nothing to do)."""
+        if self._send >= 0:
+            os.close(self._send)
+            self._send = -1
         if self._pid:
             os.close(self._read)
             os.waitpid(self._pid, 0)

@@ -3,7 +3,7 @@
 Map layout follows the thesis: x = γ, y = k_p for the first-order MFC (Fig. 3.10); x = k_p,
 y = k_d for the second-order MFC (Fig. 3.14); other pairs in grid order. Overlays are drawn only
 where they are valid for every point of the map (one controller kind, one δ_t, and for k_p–k_d
-one γ). Run plots reuse :func:`labrunner.runplot.plot_run`.
+one γ). Run plots: :mod:`.run_plots`.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from labrunner.analysis import png
 from labrunner.analysis.context import Context, Theories, parameter_records
 from labrunner.analysis.maps import Axis, axis_label, cell_edges, is_log_spaced, map_figure, sweep_figure
 from labrunner.analysis.overlays import (
@@ -28,7 +29,6 @@ from labrunner.analysis.overlays import (
     kp_kd_lines,
     sweep_lines,
 )
-from labrunner.errors import LabrunnerError
 
 
 def map_metrics(error: str, frame: pd.DataFrame | None = None) -> tuple[tuple[str, str, str], ...]:
@@ -77,7 +77,6 @@ MAX_FACETS = 12  # maps per metric when a grid has more than two axes
 PAIRS = (("controller.gamma", "controller.k_p"), ("controller.k_p", "controller.k_d"))
 GAINS = {"controller.gamma": "gamma", "controller.k_p": "k_p", "controller.k_d": "k_d"}
 _SYMBOLS = {"gamma": "γ", "k_p": "k_p", "k_d": "k_d"}
-DPI = 110
 
 
 def _with_unit(text: str, unit: str) -> str:
@@ -170,28 +169,6 @@ def mark_outside(lines: Sequence[OverlayLine], x: Axis, y: Axis) -> list[Overlay
     return [replace(line, label=f"{line.label} (outside the map)") if _outside(line, x, y) else line for line in lines]
 
 
-#: zlib level of the PNGs: 3 encodes a map in ~20 instead of ~30 ms (level 6) for files within a few per cent.
-PNG_COMPRESSION = 3
-
-
-def _save(fig, path: Path) -> Path:
-    """Save atomically (temporary name, then rename): a killed analysis leaves no half a PNG."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, dpi=DPI, format="png", pil_kwargs={"compress_level": PNG_COMPRESSION})
-    tmp.replace(path)
-    return path
-
-
-def warm_text() -> None:
-    """Load the fonts and mathtext's grammar (the log axes' 10^k labels, the run plots' Ω_r) now:
-    called before the run plots' child is forked, so that it shares them instead of loading them
-    again (~65 ms of its ~0.55 s)."""
-    from matplotlib.font_manager import FontProperties
-    from matplotlib.mathtext import MathTextParser
-
-    MathTextParser("agg").parse(r"$\mathdefault{10^{2}}$", DPI, FontProperties())
-
-
 #: A figure to draw: (PNG path, caption, a function that makes the figure).
 Job = tuple[Path, str, Callable[[], Figure]]
 
@@ -248,55 +225,4 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Job]
 
 def draw(jobs: Sequence[Job]) -> list[tuple[Path, str]]:
     """Draw and save each job's figure: (PNG path, caption) each."""
-    return [(_save(make(), path), caption) for path, caption, make in jobs]
-
-
-PLOTS_DIR = "plots"  # run plots, one per point: <out>/plots/<id>.png
-
-
-def plot_path(out: Path, point_id: str) -> Path:
-    return out / PLOTS_DIR / f"{point_id}.png"
-
-
-def _kept(log: Path, png: Path) -> bool:
-    """Whether the run plot ``png`` is newer than its ``log`` (then it is not drawn again)."""
-    return png.is_file() and png.stat().st_mtime_ns >= log.stat().st_mtime_ns
-
-
-def plots_to_draw(frame: pd.DataFrame, ids: Sequence[str], ctx: Context) -> list[str]:
-    """The ``ids`` whose run plot :func:`draw_runs` would draw (not kept, a log to draw it from)."""
-    logs = dict(zip(frame["id"], frame["log_path"]))
-    todo = []
-    for point_id in dict.fromkeys(ids):
-        rel = logs.get(point_id)
-        try:
-            if isinstance(rel, str) and not _kept(ctx.directory / rel, plot_path(ctx.out, point_id)):
-                todo.append(point_id)
-        except OSError:
-            pass
-    return todo
-
-
-def draw_runs(
-    frame: pd.DataFrame, ids: Sequence[str], ctx: Context, tick: Callable[[int], None] | None = None
-) -> dict[str, Path]:
-    """Time-series plot of each run in ``ids`` (thesis Figs. 3.12, 3.20) as ``plots/<id>.png``;
-    a plot newer than its log is kept as it is; unreadable logs are skipped."""
-    from labrunner.runplot import plot_run
-
-    logs = dict(zip(frame["id"], frame["log_path"]))
-    out: dict[str, Path] = {}
-    for point_id in dict.fromkeys(ids):
-        rel = logs.get(point_id)
-        if isinstance(rel, str):
-            log, png = ctx.directory / rel, plot_path(ctx.out, point_id)
-            try:
-                if not _kept(log, png):
-                    png.parent.mkdir(parents=True, exist_ok=True)
-                    _save(plot_run(log), png)
-                out[point_id] = png
-            except (LabrunnerError, OSError, ValueError, KeyError):
-                pass
-        if tick:
-            tick(1)
-    return out
+    return [(png.save(make(), path), caption) for path, caption, make in jobs]

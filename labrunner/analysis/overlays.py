@@ -16,7 +16,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from matplotlib import patheffects
 
 #: Stability cases per controller kind: (ultra-local case, model case).
 CASES = {"mfc1": ("mfc1-ultralocal", "mfc1-motor"), "mfc2": ("mfc2-ultralocal", "mfc2-motor")}
@@ -28,8 +27,14 @@ EQUATIONS = {
     "mfc2-motor": "(2.58)–(2.59), corrected",
 }
 _COLOURS = {"ultralocal": "#ff4fd8", "motor": "red"}
-#: A thin dark outline keeps the white nominal-gain line visible on light cells and in the legend.
-_OUTLINE = (patheffects.Stroke(linewidth=3.2, foreground="black"), patheffects.Normal())
+
+
+def _outline() -> tuple[object, ...]:
+    """A thin dark outline: it keeps the white nominal-gain line visible on light cells and in
+    the legend (matplotlib imported here: ``analyse`` loads this module before it needs it)."""
+    from matplotlib import patheffects
+
+    return (patheffects.Stroke(linewidth=3.2, foreground="black"), patheffects.Normal())
 
 
 @dataclass(frozen=True)
@@ -174,7 +179,7 @@ def gamma_kp_lines(theory: Theory, gammas: np.ndarray) -> list[OverlayLine]:
                 "white",
                 "-",
                 "nominal-gain",
-                {"path_effects": _OUTLINE},
+                {"path_effects": _outline()},
             )
         )
     return lines

@@ -9,6 +9,7 @@ up to the first incomplete one — all complete chunks survive.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import math
@@ -45,11 +46,14 @@ _CHANNEL_ID = struct.Struct("<H")
 _MESSAGE_HEADER = 22  # channel id, sequence, log time, publish time
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RunLog:
-    """One run read back: ``frame`` has index ``t`` [s] and one float64 column per signal."""
+    """One run read back: ``data`` holds one float64 row per signal (``names``), sample k at
+    t = k / fs; :attr:`frame` is the same as a pandas table (index ``t`` [s], one column per
+    signal), built when first asked for, so that plotting a run needs no pandas."""
 
-    frame: pd.DataFrame
+    data: np.ndarray  # (signals, samples)
+    names: tuple[str, ...]  # the signals, in the order of the rows of ``data``
     metadata: dict[str, dict[str, Any]]  # every metadata record but ``outcome``, JSON-decoded
     outcome: dict[str, Any] | None  # None: the run never finished (torn file)
     torn: bool  # no footer/summary: salvaged by the stream reader
@@ -60,11 +64,30 @@ class RunLog:
 
     @property
     def n_samples(self) -> int:
-        return len(self.frame)
+        return self.data.shape[1]
 
     @property
     def signals(self) -> list[str]:
-        return [str(c) for c in self.frame.columns]
+        return list(self.names)
+
+    @property
+    def t(self) -> np.ndarray:
+        """Sample times k / fs [s] (the index of :attr:`frame`)."""
+        return np.arange(self.n_samples) / self.fs
+
+    def signal(self, name: str) -> np.ndarray:
+        """One signal's samples (a row of ``data``); KeyError for a signal the run does not log."""
+        try:
+            return self.data[self.names.index(name)]
+        except ValueError:
+            raise KeyError(name) from None
+
+    @functools.cached_property
+    def frame(self) -> pd.DataFrame:
+        import pandas as pd
+
+        index = pd.Index(self.t, name="t")
+        return pd.DataFrame(self.data.T, index=index, columns=list(self.names), copy=False)
 
     def summary(self) -> dict[str, Any]:
         """What ``labrunner inspect --json`` prints (strict JSON: non-finite floats as strings)."""
@@ -181,13 +204,9 @@ class _Frame:
             self.data[self.rows[name], first : first + len(values)] = values
         self.n = max(self.n, stop)
 
-    def frame(self, fs: float) -> pd.DataFrame:
-        """Index ``t`` = k / fs [s], one column per signal (in order of first appearance)."""
-        import pandas as pd
-
-        data = self.data[:, : self.n] if self.n == self.data.shape[1] else np.ascontiguousarray(self.data[:, : self.n])
-        index = pd.Index(np.arange(self.n) / fs, name="t")
-        return pd.DataFrame(data.T, index=index, columns=list(self.rows), copy=False)
+    def samples(self) -> np.ndarray:
+        """(signals, samples covered), one row per signal in order of first appearance."""
+        return self.data[:, : self.n] if self.n == self.data.shape[1] else np.ascontiguousarray(self.data[:, : self.n])
 
 
 class _ChunkReader:
@@ -299,7 +318,8 @@ def read_run(path: str | os.PathLike[str]) -> RunLog:
     outcome = records.pop("outcome", None)
     stated = records.get("run", {}).get("fs", math.nan)
     fs = frame.fs if math.isfinite(frame.fs) else float(stated)
-    return RunLog(frame.frame(fs), records, outcome, torn, fs, records["channels"], attachments, damaged)
+    names = tuple(frame.rows)
+    return RunLog(frame.samples(), names, records, outcome, torn, fs, records["channels"], attachments, damaged)
 
 
 def _check_records(records: dict[str, dict[str, Any]], path: str | os.PathLike[str]) -> None:

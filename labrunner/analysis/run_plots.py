@@ -1,0 +1,74 @@
+"""The run plots of an analysis (thesis Figs. 3.12, 3.20): ``plots/<id>.png`` drawn from each
+chosen run's log by :func:`labrunner.runplot.plot_run`; a plot newer than its log is kept.
+
+Neither this module nor drawing a plot needs pandas: ``analyse`` forks the child that draws them
+before it imports pandas and matplotlib itself; the child loads matplotlib meanwhile
+(:func:`prepare`) and draws as soon as the table has named the runs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+from labrunner.analysis import png
+from labrunner.errors import LabrunnerError
+
+PLOTS_DIR = "plots"  # run plots, one per point: <out>/plots/<id>.png
+
+#: A plot to draw: (point id, its log, its PNG).
+Item = tuple[str, Path, Path]
+
+
+def plot_path(out: Path, point_id: str) -> Path:
+    return out / PLOTS_DIR / f"{point_id}.png"
+
+
+def items(logs: Mapping[str, object], ids: Sequence[str], directory: Path, out: Path) -> list[Item]:
+    """The plots of ``ids`` (once each, in order) that have a log (``logs``: id → path in ``directory``)."""
+    return [
+        (point_id, directory / rel, plot_path(out, point_id))
+        for point_id in dict.fromkeys(ids)
+        if isinstance(rel := logs.get(point_id), str)
+    ]
+
+
+def _kept(log: Path, plot: Path) -> bool:
+    """Whether ``plot`` is newer than its ``log`` (then it is not drawn again)."""
+    return plot.is_file() and plot.stat().st_mtime_ns >= log.stat().st_mtime_ns
+
+
+def to_draw(plots: Sequence[Item]) -> list[str]:
+    """The ids among ``plots`` whose plot :func:`draw` would draw (not kept, a log to draw it from)."""
+    todo = []
+    for point_id, log, plot in plots:
+        try:
+            if not _kept(log, plot):
+                todo.append(point_id)
+        except OSError:
+            pass
+    return todo
+
+
+def prepare() -> None:
+    """What drawing needs, loaded ahead (in the child forked for the plots)."""
+    import labrunner.runplot  # noqa: F401 - matplotlib and the log reader
+
+    png.warm_text()
+
+
+def draw(plots: Sequence[Item], tick: Callable[[int], None] | None = None) -> dict[str, Path]:
+    """Draw each plot not kept; the PNG of every plot there is, by id (unreadable logs are skipped)."""
+    from labrunner.runplot import plot_run
+
+    out: dict[str, Path] = {}
+    for point_id, log, plot in plots:
+        try:
+            if not _kept(log, plot):
+                plot.parent.mkdir(parents=True, exist_ok=True)
+                png.save(plot_run(log), plot)
+            out[point_id] = plot
+        except (LabrunnerError, OSError, ValueError, KeyError):
+            pass
+        if tick:
+            tick(1)
+    return out

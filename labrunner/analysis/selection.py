@@ -1,0 +1,150 @@
+"""What an analysis reads off its metrics table: the campaign the ledger keeps, the grid axes
+that vary, the units of gains and metrics, the outcome counts, the best, worst and first aborted
+runs and the runs ``--plot`` asks for."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from labrunner.analysis import agreement as agreement_mod
+from labrunner.campaign import spec
+from labrunner.campaign.progress import FINISHED, OUTCOMES
+from labrunner.campaign.spec import Campaign
+from labrunner.control.mfc import GAMMA_UNITS
+from labrunner.errors import InvalidParameter, LabrunnerError
+
+
+def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Campaign | None, str]:
+    """The :class:`~labrunner.campaign.spec.Campaign` kept in the ledger, or (None, why not)."""
+    text = meta.get("campaign_file")
+    if not text:
+        return None, "the ledger keeps no copy of the campaign file"
+    source = meta.get("campaign_path")
+    try:
+        return spec.from_text(text, source_path=Path(source) if source else None), ""
+    except LabrunnerError as exc:
+        return None, f"the campaign file could not be loaded again: {exc}"
+
+
+def varying_axes(frame: pd.DataFrame, campaign: Campaign | None) -> list[str]:
+    """Numeric grid axes with more than one value (the first axis of each zipped group)."""
+    if campaign is not None:
+        keys = [group[0].key for group in campaign.grid.groups]
+    else:
+        keys = [c for c in frame.columns if "." in c]
+    out = []
+    for key in keys:
+        if key in frame.columns and pd.api.types.is_numeric_dtype(frame[key]) and frame[key].nunique() > 1:
+            out.append(key)
+    return out
+
+
+def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Campaign | None) -> str:
+    """Unit of a logged signal: the log's own record, else the rig's signal of that name, else (a
+    controlled output that is no rig output, i.e. the difference quotient (2.34) of one) the rig
+    output's unit per second."""
+    unit = str(channels.get(name, {}).get("unit") or "")
+    if unit or campaign is None:
+        return unit
+    signals = {s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
+    if name in signals:
+        return signals[name]
+    outputs = campaign.rig_info.outputs
+    return f"{outputs[0].unit}/s" if outputs and outputs[0].unit else ""
+
+
+def table_units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> dict[str, str]:
+    """Units of the gains and metrics, from the first readable log's channel record."""
+    from labrunner.analysis.maps import gain_units  # matplotlib: after the run plots' child has its work
+    from labrunner.logs import read_metadata
+
+    for path in frame["log_path"].dropna().head(5):
+        try:
+            channels = read_metadata(directory / path).get("channels", {})
+        except (LabrunnerError, OSError, ValueError):
+            continue
+        errors = [c for c, i in channels.items() if i.get("role") == "error"]
+        inputs = [c for c, i in channels.items() if i.get("role") == "input"]
+        e_unit = _signal_unit(errors[0][2:], channels, campaign) if errors else ""
+        u_unit = _signal_unit(inputs[0], channels, campaign) if inputs else ""
+        units = {
+            "rms_error": e_unit,
+            "max_abs_input": u_unit,
+            "input_energy": f"{u_unit}²" if u_unit else "",
+            "max_current": "A",
+        }
+        kind = campaign.base.get("controller", {}).get("kind") if campaign is not None else None
+        order = {"mfc1": 1, "mfc1-ff": 1, "mfc2": 2}.get(str(kind))
+        if order and e_unit and u_unit:
+            units.update(gain_units(order, e_unit, u_unit))
+            output = campaign.base.get("controller", {}).get("output")
+            units["controller.gamma"] = GAMMA_UNITS.get(output, units["controller.gamma"])
+        return units
+    return {}
+
+
+def counts(frame: pd.DataFrame) -> dict[str, Any]:
+    """Points, finished runs, points per outcome word (:data:`~labrunner.campaign.progress.OUTCOMES`),
+    and ``oscillating``: completed runs the oscillation detector flags (observed unstable)."""
+    found = frame["outcome"].value_counts()
+    outcomes = {w: int(found.get(w, 0)) for w in OUTCOMES}
+    return {
+        "points": int(len(frame)),
+        "runs": sum(outcomes[w] for w in FINISHED),
+        "outcomes": outcomes,
+        "oscillating": int((agreement_mod.observed_outcome(frame) == "oscillating").sum()),
+    }
+
+
+def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
+    """Best and worst completed run (by RMS of e) and the first aborted run (in grid order)."""
+    done = frame[(frame["outcome"] == "completed") & np.isfinite(frame["rms_error"].to_numpy(dtype=float))]
+    out: dict[str, pd.Series] = {}
+    if not done.empty:
+        out["best"] = done.loc[done["rms_error"].idxmin()]
+        out["worst completed"] = done.loc[done["rms_error"].idxmax()]
+    aborted = frame[frame["outcome"] == "aborted"]
+    if not aborted.empty:
+        out["first aborted"] = aborted.loc[aborted["seq"].idxmin()]
+    return out
+
+
+def plot_selection(frame: pd.DataFrame, plot: Sequence[str]) -> list[str]:
+    """Point ids the ``--plot`` words choose: ``all``, an outcome word (``aborted``, ...) or ids."""
+    ids: list[str] = []
+    known = set(frame["id"])
+    for word in plot:
+        if word == "all":
+            chosen = frame["id"]
+        elif word in OUTCOMES:
+            chosen = frame.loc[frame["outcome"] == word, "id"]
+        elif word in known:
+            chosen = [word]
+        else:
+            raise InvalidParameter(
+                "--plot", f"must be 'all', an outcome ({', '.join(FINISHED)}) or a point id, got {word!r}"
+            )
+        ids += [i for i in chosen if i not in ids]
+    return ids
+
+
+def best_run(frame: pd.DataFrame) -> dict[str, Any] | None:
+    best = chosen_runs(frame).get("best")
+    if best is None:
+        return None
+    params = {k: _plain(best[k]) for k in frame.columns if "." in k and pd.notna(best[k])}
+    return {
+        "id": best["id"],
+        "params": params,
+        "rms": float(best["rms_error"]),
+        "input_energy": float(best["input_energy"]),
+    }
+
+
+def _plain(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
