@@ -47,6 +47,19 @@ def test_states_move_planned_claimed_terminal_and_never_twice(tmp_path):
         assert (rows["p1"]["state"], rows["p1"]["attempts"]) == ("aborted", 1)
 
 
+def test_a_batch_commits_in_one_transaction_all_or_none(tmp_path):
+    """A batch's runs go in together; one that is not claimed (committed before) refuses the
+    whole batch, so that nothing of it is half-committed."""
+    with _ledger(tmp_path) as led:
+        led.claim(["p0", "p1", "p2"])
+        led.commit(_record("p0"))
+        with pytest.raises(CampaignError, match="p0 is not in state claimed"):
+            led.commit(_record("p1", "aborted"), _record("p0"), _record("p2"))
+        assert led.counts() == {"planned": 0, "claimed": 2, "done": 1, "aborted": 0, "failed": 0}
+        led.commit(_record("p1", "aborted"), _record("p2"))
+        assert led.counts() == {"planned": 0, "claimed": 0, "done": 2, "aborted": 1, "failed": 0}
+
+
 def test_unclaim_restores_attempts(tmp_path):
     with _ledger(tmp_path) as led:
         led.claim(["p0"])

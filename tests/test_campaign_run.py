@@ -352,11 +352,12 @@ def test_each_log_is_written_fsynced_and_renamed_before_its_row_is_committed(pro
             events.append(("rename", f"{Path(src).name}>{Path(dst).name}"))
         return replace(src, dst)
 
-    def on_commit(self, record, **kw):
-        final = self.directory / record.log_path
-        assert final.is_file() and not list(final.parent.glob(f".tmp-{record.point_id}-*"))
-        events.append(("commit", record.point_id))
-        return commit(self, record, **kw)
+    def on_commit(self, *records, **kw):
+        for record in records:
+            final = self.directory / record.log_path
+            assert final.is_file() and not list(final.parent.glob(f".tmp-{record.point_id}-*"))
+            events.append(("commit", record.point_id))
+        return commit(self, *records, **kw)
 
     monkeypatch.setattr(worker, "_fsync", lambda p: (events.append(("fsync", Path(p).name)), fsync(p))[1])
     monkeypatch.setattr(worker, "fsync_dir", lambda d: (events.append(("fsync_dir", Path(d).name)), fsync_dir(d))[1])

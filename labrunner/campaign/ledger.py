@@ -314,40 +314,41 @@ class Ledger:
                 ((i,) for i in ids),
             )
 
-    def commit(self, record: RunRecord, *, from_states: Sequence[str] = ("claimed",)) -> None:
-        """claimed → terminal for one run, in one transaction; refuses a second commit."""
-        state = STATE_OF_OUTCOME[record.outcome]
-        m = record.metrics
+    def commit(self, *records: RunRecord, from_states: Sequence[str] = ("claimed",)) -> None:
+        """claimed → terminal for each run (a batch's runs: one transaction for all); refuses a
+        second commit of any, and then commits none of them."""
         marks = ",".join("?" * len(from_states))
         with self._txn():
-            cur = self.db.execute(
-                "UPDATE points SET state = ?, outcome = ?, outcome_json = ?, rms_error = ?, input_energy = ?,"
-                " max_abs_input = ?, metrics_json = ?, log_path = ?, host = ?, pid = ?, finished_at = ?, engine_s = ?,"
-                f" write_s = ?, publish_s = ? WHERE id = ? AND state IN ({marks})",
-                (
-                    state,
-                    record.outcome,
-                    json.dumps(dict(record.outcome_record), sort_keys=True),
-                    m.get("rms_error"),
-                    m.get("input_energy"),
-                    m.get("max_abs_input"),
-                    json.dumps({k: _plain(v) for k, v in m.items()}) if m else None,
-                    record.log_path,
-                    record.host,
-                    record.pid,
-                    record.finished_at,
-                    record.engine_s,
-                    record.write_s,
-                    record.publish_s,
-                    record.point_id,
-                    *from_states,
-                ),
-            )
-            if cur.rowcount != 1:
-                raise CampaignError(
-                    f"ledger: point {record.point_id} is not in state {'/'.join(from_states)}; not committed twice"
+            for record in records:
+                m = record.metrics
+                cur = self.db.execute(
+                    "UPDATE points SET state = ?, outcome = ?, outcome_json = ?, rms_error = ?, input_energy = ?,"
+                    " max_abs_input = ?, metrics_json = ?, log_path = ?, host = ?, pid = ?, finished_at = ?,"
+                    f" engine_s = ?, write_s = ?, publish_s = ? WHERE id = ? AND state IN ({marks})",
+                    (
+                        STATE_OF_OUTCOME[record.outcome],
+                        record.outcome,
+                        json.dumps(dict(record.outcome_record), sort_keys=True),
+                        m.get("rms_error"),
+                        m.get("input_energy"),
+                        m.get("max_abs_input"),
+                        json.dumps({k: _plain(v) for k, v in m.items()}) if m else None,
+                        record.log_path,
+                        record.host,
+                        record.pid,
+                        record.finished_at,
+                        record.engine_s,
+                        record.write_s,
+                        record.publish_s,
+                        record.point_id,
+                        *from_states,
+                    ),
                 )
-            if self.session is not None:
+                if cur.rowcount != 1:
+                    raise CampaignError(
+                        f"ledger: point {record.point_id} is not in state {'/'.join(from_states)}; not committed twice"
+                    )
+            if self.session is not None and records:
                 self.db.execute("UPDATE sessions SET last_at = ? WHERE n = ?", (time.time(), self.session))
 
     def add_points(self, points: Iterable[tuple[str, Mapping[str, Any], str]]) -> int:

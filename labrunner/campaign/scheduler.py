@@ -256,8 +256,8 @@ class Scheduler:
                 out.stop_reason = out.stop_reason or f"a worker failed: {type(exc).__name__}: {exc}"
                 return
             result: BatchResult = future.result()
+            self.ledger.commit(*result.records)
             for record in result.records:
-                self.ledger.commit(record)
                 out.committed += 1
                 counted += 1
                 if self.progress:
