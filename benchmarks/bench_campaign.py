@@ -1,6 +1,7 @@
 """Whole-campaign benchmarks (issues 6 and 14); prints figures.
 
-1. Per-run orchestration overhead: ledger commit (one transaction per run), publishing a log
+1. Per-run orchestration overhead: ledger commit (a one-run transaction; a campaign commits a
+   batch's runs in one), publishing a log
    (fsync, rename, directory fsync; measured inside the workers of a real campaign) and scheduling
    (claim, resolve, submit, collect; measured with a no-op batch function). Target: median ≤ 5 ms.
 2. The engine alone, in this process, on one batch of the campaign's size (CPU time per run).
@@ -287,15 +288,15 @@ def main() -> None:
         total_wall, total_cpu = run["wall_s"] + analysis["wall_s"], run["cpu_s"] + analysis["cpu_s"]
         print(f"  run + analyse      {total_wall:6.2f} s wall, {total_cpu:6.2f} s CPU")
         if not args.skip_naive:
-            for style, what in (
-                ("numpy", "the script most researchers write"),
-                ("floats", "a tuned per-sample script"),
+            for style, what, target in (
+                ("numpy", "the script most researchers write", " (target >= 10x)"),
+                ("floats", "a tuned per-sample script", ""),
             ):
                 ref = naive(work, 40, 25, style)
                 print(f"  {ref['line']} (process: {ref['wall_s']:.2f} s wall, {ref['cpu_s']:.2f} s CPU)")
                 print(
                     f"    speed-up over {what}: {ref['wall_s'] / total_wall:.1f}x wall, "
-                    f"{ref['cpu_s'] / total_cpu:.1f}x CPU (target >= 10x)"
+                    f"{ref['cpu_s'] / total_cpu:.1f}x CPU{target}"
                 )
         if not args.skip_10k:
             r10k = run_and_analyse(work, "bench10k", 100, 100)

@@ -1,12 +1,12 @@
 """Scheduling a campaign's planned points onto an executor, committing each finished run.
 
 Points that can share a lockstep batch (same rig, f_s, duration and non-numeric choices such as
-the controller kind — see :mod:`labrunner.campaign.checks`) are cut into batches in grid order
-and submitted to an executor (:mod:`labrunner.campaign.executors`: a local process pool, a Dask
-cluster, or in-process for a real rig).
+the controller kind — see :mod:`labrunner.campaign.checks`) are cut into batches (strided over
+the grid: :func:`make_batches`) and submitted to an executor (:mod:`labrunner.campaign.executors`:
+a local process pool, a Dask cluster, or in-process for a real rig).
 
-A batch's points are claimed in one transaction when it is submitted; each run's row is
-committed when its batch returns (the worker has published the logs by then). While batches
+A batch's points are claimed in one transaction when it is submitted, and its runs' rows are
+committed in one when it returns (the worker has published the logs by then). While batches
 run, the share of their ticks done (:mod:`labrunner.campaign.live`) goes to the progress as
 run-equivalents in flight, so its rate and ETA hold from the first second.
 
