@@ -20,19 +20,20 @@
 Wall times on a shared machine are longer than CPU times; both are printed (CPU: the command's
 process and the workers it waited for).
 
-Last measured (2-core machine, idle but for this benchmark; figures vary by ±0.3 s between
-trials): commit + scheduling 0.11 ms per run; engine 0.59–0.62 ms CPU per run (B = 500); 1000
-points run 1.23–1.43 s wall, analyse 1.62–1.63 s wall (first analysis of the directory), naive
-numpy-style script 29.7–29.9 s → 9.9–10.5× wall, 15–16× CPU (target 10×: met in one of two
-full runs; four more trials of run + analyse alone took 3.05–3.47 s, i.e. 8.6–9.8×); 10 000
-points 9.2 + 2.4 = 11.6 s wall, runner 79 MB flat, analyse 226 MB. What is left of the 1000-point
-campaign's ~3.9 s CPU: analyse's imports (pandas, matplotlib, pyarrow; ~0.56 s, serial) and
-matplotlib's drawing of five figures (~1 s CPU: ticks, legends, text); run's start-up (~0.36 s
-to the first batch, ~0.17 s of it scipy.special for the differentiator weights) and per run
-0.5–0.67 ms engine + 0.5 ms log write in each of two workers. Changes behind these figures:
-the program freezes its objects before exit (interpreter teardown's collections took 0.35 s of
-an analysis); the stability bounds use labrunner.brent, not scipy.optimize; reading a delay
-needs no differentiator kernel.
+Last measured (2-core machine, idle but for this benchmark; the VM's speed drifts: the same
+code's run + analyse took 2.4-3.3 s over an afternoon): six full runs gave 11.1x, 11.6x, 9.9x,
+9.2x, 10.7x, 10.5x (run 1.22-1.64 s, analyse 1.42-1.63 s, naive numpy-style script 29.6-30.6 s;
+12-15x in CPU time); against 32ccd80, interleaved on the same machine, run + analyse medians
+were 2.76 vs 3.29 s, 3.03 vs 3.28 s and 2.43 vs 2.74 s (6, 6 and 8 trials each). 10 000 points
+8.4 + 2.5 = 10.8 s wall, runner 61 MB flat, analyse 220 MB; analyse 0.11 ms per run + 1.3 s
+fixed. What is left of the 1000-point campaign's ~4.1-4.7 s of CPU: analyse's imports (pandas
+~0.35 s in the process, matplotlib ~0.25 s in it and again in the run plots' child) and
+matplotlib's drawing (~0.3 s a map, ~0.13 s a run plot: ticks, text, markers); run's start
+(imports and the plan, ~0.45 s, while the workers load the engine) and per run ~0.6 ms engine +
+~0.5 ms log write in each of two workers. Changes behind these figures: the pool is forked
+before the plan and its workers load the engine meanwhile; validation forms no tap vectors (no
+scipy.special in the runner); strided batches end together; one transaction commits a batch;
+the run plots' child is forked before analyse imports pandas and matplotlib.
 
 Run: ``python benchmarks/bench_campaign.py [--skip-10k] [--skip-naive]``.
 """

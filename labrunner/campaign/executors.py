@@ -11,7 +11,8 @@ that adds the two things supervision needs beyond ``submit``:
 
 Executors:
 
-- a local process pool (default; ``--workers N``, default all cores), workers forked, ignoring
+- a local process pool (default; ``--workers N``, default all cores), workers forked as soon as
+  the pool opens (they import what a batch needs while the runner validates the campaign), ignoring
   SIGINT/SIGTERM (the parent decides what Ctrl-C means) and killed if the parent dies
   (``PR_SET_PDEATHSIG``), reporting their batches' ticks through a shared array
   (:mod:`labrunner.campaign.live`);
