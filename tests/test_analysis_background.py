@@ -123,7 +123,7 @@ def test_an_ahead_child_that_fails_to_prepare_or_gets_nothing_to_do():
     assert job.result() == ["", str(os.getpid())]  # run here instead
     idle = Background.ahead(lambda: None)
     pid = idle._pid
-    idle.close()  # no task: the child sees the pipe closed and exits
+    idle.close()  # no task: the child is stopped (it was only preparing) and reaped
     with pytest.raises(ChildProcessError):
         os.waitpid(pid, os.WNOHANG)
 

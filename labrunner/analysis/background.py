@@ -16,6 +16,7 @@ import contextlib
 import gc
 import os
 import pickle
+import signal
 import sys
 import warnings
 from collections.abc import Callable
@@ -123,11 +124,14 @@ class Background(Generic[T]):
         return self._fn()
 
     def close(self) -> None:
-        """Wait for a child whose result is no longer wanted (the analysis failed before it, or
-        an ahead child had nothing to do)."""
+        """Wait for a child whose result is no longer wanted (the analysis failed before it); an
+        ahead child that was given nothing to do is stopped at once (it only imports)."""
         if self._send >= 0:
             os.close(self._send)
             self._send = -1
+            if self._pid:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self._pid, signal.SIGKILL)
         if self._pid:
             os.close(self._read)
             os.waitpid(self._pid, 0)
