@@ -6,6 +6,7 @@ import json
 import os
 import signal
 import socket
+import subprocess
 import sys
 import tomllib
 
@@ -315,6 +316,38 @@ def test_default_workers_are_all_cores():
 
     with open_executor(real_rig=False, workers=None, url=None) as handle:
         assert handle.slots == len(os.sched_getaffinity(0)) == handle.executor._max_workers
+
+
+_INTERRUPTED_SHUTDOWN = """
+import os, signal
+from concurrent.futures import ProcessPoolExecutor
+from labrunner.campaign.executors import open_executor
+shutdown = ProcessPoolExecutor.shutdown
+def pressed(self, *args, **kwargs):
+    os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while the pool shuts down
+    return shutdown(self, *args, **kwargs)
+ProcessPoolExecutor.shutdown = pressed
+try:
+    with open_executor(real_rig=False, workers=2, url=None) as handle:
+        pids = list(handle.executor._processes)
+except KeyboardInterrupt:
+    gone = []
+    for pid in pids:
+        try:
+            os.kill(pid, 0)
+            gone.append(False)
+        except ProcessLookupError:
+            gone.append(True)
+    print("interrupted", gone)
+"""
+
+
+def test_a_ctrl_c_while_the_pool_shuts_down_waits_until_its_workers_are_down():
+    """The pool outlives the runner's signal handling (it is opened before the plan): a Ctrl-C
+    during its shutdown is held until the workers are joined, then raised; the process exits
+    (it hung in multiprocessing's exit handler, joining workers nobody had stopped)."""
+    out = subprocess.run([sys.executable, "-c", _INTERRUPTED_SHUTDOWN], capture_output=True, text=True, timeout=60)
+    assert out.stdout.split("\n")[0] == "interrupted [True, True]", out.stderr
 
 
 def _worker_modules() -> list[str]:

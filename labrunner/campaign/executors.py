@@ -151,20 +151,28 @@ def _kill(processes: Any) -> None:
                 process.kill()
 
 
+@contextlib.contextmanager
+def _stop_signals_held() -> Iterator[None]:
+    """SIGINT/SIGTERM held back (pending) meanwhile: forking the workers and shutting them down
+    are not cut half-way by a KeyboardInterrupt (which would leave workers nobody joins)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+
+
 def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
-    """A fork pool whose workers are forked now, with the stop signals blocked until their
-    initializer ignores them (a fork pool forks every worker at its first submit)."""
+    """A fork pool whose workers are forked now (a fork pool forks every worker at its first
+    submit), the stop signals held until their initializer ignores them. The runner opens it
+    before its own signal handling starts and shuts it down after that ends: a Ctrl-C then
+    raises KeyboardInterrupt, held until the workers are down."""
     n = workers or len(os.sched_getaffinity(0))
     context = multiprocessing.get_context("fork")
     ticks = live.LiveTicks(QUEUE_DEPTH * n, context)
     pool = ProcessPoolExecutor(
         max_workers=n, mp_context=context, initializer=_init_worker, initargs=(lock_fd, ticks.array)
     )
-    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
-    try:
-        pool.submit(_started)
-    finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
     abandoned = False
 
     def abandon() -> None:
@@ -173,11 +181,14 @@ def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
         _kill(getattr(pool, "_processes", None))
 
     try:
+        with _stop_signals_held():
+            pool.submit(_started)
         yield ExecutorHandle(pool, n, abandon=abandon, live=ticks)
     finally:
-        if abandoned or getattr(pool, "_broken", False):  # a broken pool SIGTERMs its workers: they ignore it
-            _kill(getattr(pool, "_processes", None))
-        pool.shutdown(wait=True, cancel_futures=True)
+        with _stop_signals_held():
+            if abandoned or getattr(pool, "_broken", False):  # a broken pool SIGTERMs its workers: they ignore it
+                _kill(getattr(pool, "_processes", None))
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
