@@ -21,12 +21,13 @@ Wall times on a shared machine are longer than CPU times; both are printed (CPU:
 process and the workers it waited for).
 
 Last measured (2-core machine, idle but for this benchmark; the VM's speed drifts: the same
-code's run + analyse took 2.4-3.3 s over an afternoon): six full runs gave 11.1x, 11.6x, 9.9x,
-9.2x, 10.7x, 10.5x (run 1.22-1.64 s, analyse 1.42-1.63 s, naive numpy-style script 29.6-30.6 s;
-12-15x in CPU time); against 32ccd80, interleaved on the same machine, run + analyse medians
-were 2.76 vs 3.29 s, 3.03 vs 3.28 s and 2.43 vs 2.74 s (6, 6 and 8 trials each). 10 000 points
-8.4 + 2.5 = 10.8 s wall, runner 61 MB flat, analyse 220 MB; analyse 0.11 ms per run + 1.3 s
-fixed. What is left of the 1000-point campaign's ~4.1-4.7 s of CPU: analyse's imports (pandas
+code's run + analyse took 2.4-3.7 s over an afternoon): eight single-trial runs gave 11.1x,
+11.6x, 9.9x, 9.2x, 10.7x, 10.5x, 9.6x, 9.9x and a three-trial run, late and slow, 8.8-9.3x
+(run 1.22-1.64 s, analyse 1.42-2.05 s, naive numpy-style script 29.6-32.4 s; 11-15x in CPU
+time); against 32ccd80, interleaved on the same machine, run + analyse medians were 2.76 vs
+3.29 s, 3.03 vs 3.28 s and 2.43 vs 2.74 s (6, 6 and 8 trials each). 10 000 points 7.9-8.4 +
+2.5-2.6 s = 10.6-10.8 s wall, runner 61 MB flat, analyse 220-227 MB; analyse 0.07-0.11 ms per
+run + 1.3-2.0 s fixed. What is left of the 1000-point campaign's ~4.1-4.7 s of CPU: analyse's imports (pandas
 ~0.35 s in the process, matplotlib ~0.25 s in it and again in the run plots' child) and
 matplotlib's drawing (~0.3 s a map, ~0.13 s a run plot: ticks, text, markers); run's start
 (imports and the plan, ~0.45 s, while the workers load the engine) and per run ~0.6 ms engine +

@@ -175,7 +175,9 @@ def test_a_sigkilled_host_puts_the_device_safe_within_three_periods(tmp_path):
         while device.state == DeviceState.RUNNING and time.monotonic() < deadline:
             time.sleep(0.001)
         assert device.state == DeviceState.SAFE and device.last_error == ErrorCode.WATCHDOG
-        assert device.safe_at - t_kill <= 3 / 200.0 + 2e-3  # 3 periods, plus the device's wake-up
+        # 3 periods, plus the emulator thread's wake-up: up to a period on a loaded 2-core VM (2 ms
+        # was exceeded by 3 ms once in a CI-like run, with nothing else of the test changed)
+        assert device.safe_at - t_kill <= 3 / 200.0 + 1 / 200.0
         assert device.rig.is_safe.all()
 
 
