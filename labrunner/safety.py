@@ -54,7 +54,8 @@ class _Screen:
 
 
 class SafetyMonitor:
-    """All monitors of a batch of B runs; ``check`` once per tick returns newly tripped runs."""
+    """All monitors of a batch of B runs; ``check`` once per tick returns newly tripped runs.
+    :meth:`reset` starts them (and forms the du/dt estimator's taps) before the first ``check``."""
 
     def __init__(self, configs: Sequence[SafetyConfig], rig_info: RigInfo, fs: float) -> None:
         self.B = len(configs)
@@ -133,7 +134,7 @@ class SafetyMonitor:
             d_off = self._der_screen(np.dot(y, self._der_weights_T, out=self._der_values))
             flagged = flagged or (count_nonzero(d_off) > 0 and self._active_hit(d_off, active))
         rate = None
-        if self._rate is not None:
+        if self._rate_designs:  # never skipped unstarted: without reset() there is no estimator to step
             # the estimator sees non-finite inputs as 0 (a NaN would stay in its window for good)
             x = np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0) if odd else u
             rate = np.abs(self._rate.step(np.reshape(x, -1)), out=self._rate_abs)

@@ -63,7 +63,8 @@ class MFCEstimator:
     ``gamma``: the input gain γ per run (B,) or per run and channel (B, C) (for a gain that
     varies in time, such as paper 2's γ_i(y) = γ_{i,0}/y, pass v := γ(t)·i and γ = 1, since
     (24b) filters the product); ``filter_error``: per run (B,) or for all, filter the error
-    (thesis (2.36)) or only the measurement (paper 2 eq. (25)).
+    (thesis (2.36)) or only the measurement (paper 2 eq. (25)). :meth:`reset` (which forms the
+    tap vectors) comes before the first :meth:`step`.
     """
 
     def __init__(
