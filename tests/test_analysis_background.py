@@ -7,7 +7,7 @@ import sys
 import pytest
 from test_analysis_support import make_campaign
 
-from labrunner.analysis.analyse import analyse
+from labrunner.analysis.analyse import BACKGROUND_PLOTS, analyse
 from labrunner.analysis.background import Background
 
 forks = pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
@@ -55,7 +55,7 @@ def test_close_waits_for_an_unwanted_child():
 
 @forks
 def test_figures_drawn_in_children_equal_those_drawn_here(tmp_path):
-    """workers=2: the run plots and the second map come from forked children; byte for byte the
+    """workers=2: the figures come from the drawing child and the child it forks; byte for byte the
     files one process draws, and the same summary."""
     make_campaign(tmp_path)
     here = analyse(tmp_path, tmp_path / "one", workers=1, progress=False)
@@ -68,6 +68,19 @@ def test_figures_drawn_in_children_equal_those_drawn_here(tmp_path):
     assert {k: v for k, v in here.items() if k not in paths} == {k: v for k, v in child.items() if k not in paths}
     text = [open(s["report"], encoding="utf-8").read() for s in (here, child)]
     assert text[0].replace(str(tmp_path / "one"), "OUT") == text[1].replace(str(tmp_path / "two"), "OUT")
+
+
+@forks
+def test_many_run_plots_are_drawn_here_while_the_child_draws_the_maps(tmp_path):
+    """More run plots than the drawing child takes (--plot all): this process draws them, with
+    progress, while the child draws the maps; the same files as one process draws."""
+    make_campaign(tmp_path)
+    here = analyse(tmp_path, tmp_path / "one", workers=1, plot=["all"], progress=False)
+    child = analyse(tmp_path, tmp_path / "two", workers=2, plot=["all"], progress=False)
+    assert len(child["run_plots"]) == len(here["run_plots"]) > BACKGROUND_PLOTS and len(child["maps"]) == 2
+    for a, b in zip(here["maps"] + here["run_plots"], child["maps"] + child["run_plots"]):
+        assert os.path.basename(a) == os.path.basename(b)
+        assert open(a, "rb").read() == open(b, "rb").read()
 
 
 def test_plots_to_draw_are_those_not_kept(tmp_path):

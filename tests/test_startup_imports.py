@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import subprocess
 import sys
 from pathlib import Path
@@ -103,8 +104,41 @@ def test_validating_a_campaign_evaluates_no_kernel():
     assert _loaded(code, ("scipy.special",)) == []
 
 
-def test_analyse_forks_its_plotting_child_before_pandas_and_matplotlib():
-    """``labrunner.analysis.analyse`` imports neither (its function forks the run plots' child
+def test_analyse_forks_its_drawing_child_before_pandas_and_matplotlib():
+    """``labrunner.analysis.analyse`` imports neither (its function forks the drawing child
     first); that child's preparation loads matplotlib and the log reader but no pandas."""
     assert _loaded("import labrunner.analysis.analyse") == []
-    assert _loaded("from labrunner.analysis import run_plots\nrun_plots.prepare()") == ["matplotlib"]
+    assert _loaded("from labrunner.analysis import drawing\ndrawing.prepare()") == ["matplotlib"]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork: the analysis draws its figures itself")
+def test_with_two_workers_the_analysis_never_loads_matplotlib_and_its_drawing_child_no_pandas(tmp_path, monkeypatch):
+    """The drawing child gets the maps as plain data (numpy arrays, no table): it draws them
+    without pandas, and the analysis, which only computes them, never loads matplotlib (~0.2 s).
+    With one worker the analysis draws everything itself, so it loads both."""
+    from test_analysis_support import make_campaign
+
+    from labrunner.analysis import figures
+    from labrunner.analysis.analyse import analyse
+
+    make_campaign(tmp_path / "c")
+    for workers, expected in ((2, ["pandas"]), (1, ["pandas", "matplotlib"])):
+        code = (
+            "from labrunner.analysis.analyse import analyse\n"
+            f"s = analyse({str(tmp_path / 'c')!r}, {str(tmp_path / f'out{workers}')!r}, workers={workers}, progress=False)\n"
+            "assert len(s['maps']) == 2 and len(s['run_plots']) == 3, s"
+        )
+        assert _loaded(code) == expected
+    jobs = []
+    monkeypatch.setattr(figures, "map_jobs", lambda *a, _f=figures.map_jobs: jobs.extend(_f(*a)) or jobs)
+    analyse(tmp_path / "c", tmp_path / "here", workers=1, progress=False)
+    (tmp_path / "jobs.pkl").write_bytes(pickle.dumps(jobs))
+    drawn = {job.path: job.path.read_bytes() for job in jobs}
+    for path in drawn:
+        path.unlink()
+    code = (
+        "import pickle\nfrom labrunner.analysis import drawing\n"
+        f"drawing.draw([], pickle.loads(open({str(tmp_path / 'jobs.pkl')!r}, 'rb').read()))"
+    )
+    assert _loaded(code) == ["matplotlib"]
+    assert len(drawn) == 2 and {path: path.read_bytes() for path in drawn} == drawn

@@ -7,11 +7,12 @@ thesis, else grid order; further axes become facets); draw RMS and energy maps (
 with the stability overlays that fit (:mod:`.overlays`); plot the best, the worst completed, the
 first aborted run and any runs asked for (the only logs read then); compare outcomes with the
 theory (:mod:`.agreement`); write the report. Returns the summary that ``--json`` prints. With
-more than one worker the run plots and the second half of the maps are drawn in forked children
-(:mod:`.background`) while this process draws the rest.
+more than one worker the figures are drawn in a child forked ahead (:mod:`.drawing`) while this
+process writes the tables and compares with the theory.
 
-This module imports nothing heavy: :func:`analyse` forks the run plots' child *before* it
-imports pandas and matplotlib, so that the child loads matplotlib on the other core meanwhile.
+This module imports nothing heavy: :func:`analyse` forks the drawing child *before* it imports
+pandas, so that the child loads matplotlib on the other core meanwhile; this process then hands
+it the maps as plain data (:class:`~.drawing.FigureJob`) and never loads matplotlib itself.
 """
 
 from __future__ import annotations
@@ -22,13 +23,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from labrunner.analysis import run_plots
+from labrunner.analysis import drawing, run_plots
 from labrunner.analysis.background import Background
 from labrunner.errors import InvalidParameter
 
 __all__ = ["analyse"]
 
-#: Run plots drawn in a forked child while the maps are drawn (more: in this process, with progress).
+#: Run plots drawn by the drawing child with the maps (more: in this process, with progress).
 BACKGROUND_PLOTS = 8
 
 
@@ -56,7 +57,7 @@ def analyse(
     if error not in ("e", "e_hat"):
         raise InvalidParameter("error", f"must be 'e' or 'e_hat', got {error!r}")
     concurrent = (workers or os.cpu_count() or 1) > 1
-    plotter = Background.ahead(run_plots.prepare) if concurrent else None  # before the imports below
+    plotter = Background.ahead(drawing.prepare) if concurrent else None  # before the imports below
     try:
         return _analyse(Path(directory), out, workers, margin, error, recompute, plot, stream, progress, plotter)
     finally:
@@ -128,16 +129,7 @@ def _analyse(
     extra = selection.plot_selection(frame, plot)
     ids = list(dict.fromkeys([*(row["id"] for row in chosen.values()), *extra]))
     plots_of = run_plots.items(dict(zip(frame["id"], frame["log_path"])), ids, directory, out)
-    # Two cores: the run plots (the usual few; many, --plot all, are drawn here with progress) are
-    # drawn by the child forked ahead, from now; the second half of the maps in one forked once
-    # their overlays are computed; this process draws the rest and writes the tables meanwhile.
-    drawing = None
-    if plotter is not None and len(plots_of) <= BACKGROUND_PLOTS and run_plots.to_draw(plots_of):
-        plotter.start(functools.partial(run_plots.draw, plots_of))
-        drawing = plotter
-    elif plotter is not None:  # nothing for it to draw, or many plots (drawn here, with progress)
-        plotter.close()
-    from labrunner.analysis import agreement as agreement_mod, campaign_report, figures, png
+    from labrunner.analysis import agreement as agreement_mod, campaign_report, figures
     from labrunner.analysis.context import Context, Theories
 
     ctx = Context(
@@ -149,36 +141,35 @@ def _analyse(
         selection.table_units(frame, directory, campaign),
         "ê" if error == "e_hat" else "e",
     )
-    concurrent = plotter is not None
-    if concurrent:
-        png.warm_text()  # fonts and mathtext loaded once, for this process and the maps' child
-    children: list[Background] = []
-    try:
-        csv, parquet = table_mod.write_table(built.frame, out, directory)
-        advance()
-        step("maps")
-        theories = Theories(campaign)
-        jobs = figures.map_jobs(frame, ctx, theories)
-        half = len(jobs) // 2 if concurrent else 0
-        if half:
-            children.append(Background(lambda: figures.draw(jobs[-half:])))
-        maps = figures.draw(jobs[: len(jobs) - half]) + (children[-1].result() if half else [])
-        advance()
-        agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
-        sections, guided = [], None
-        if campaign is not None and campaign.guided is not None:  # the walk and its step counts
-            from labrunner.campaign import guided_report
+    theories = Theories(campaign)
+    jobs = figures.map_jobs(frame, ctx, theories)
+    # Two cores: the child forked ahead draws the maps and the usual few run plots from now (with a
+    # child of its own: drawing.draw) while this process writes the tables and compares with the
+    # theory; many run plots (--plot all) are drawn here, with progress, while it draws the maps.
+    many = plotter is not None and len(plots_of) > BACKGROUND_PLOTS
+    if plotter is not None:
+        plotter.start(functools.partial(drawing.draw, [] if many else plots_of, jobs))
+    csv, parquet = table_mod.write_table(built.frame, out, directory)
+    advance()
+    step("maps")
+    agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
+    sections, guided = [], None
+    if campaign is not None and campaign.guided is not None:  # the walk and its step counts
+        from labrunner.campaign import guided_report
 
-            sections, guided = guided_report.sections(campaign, rows, out)
-        step("run plots", len(plots_of))
-        if drawing is not None:
-            plots = drawing.result()
-            advance(len(plots_of))
-        else:
-            plots = run_plots.draw(plots_of, tick=advance)
-    finally:
-        for child in children:
-            child.close()
+        sections, guided = guided_report.sections(campaign, rows, out)
+    if plotter is None:  # one process: the maps, then the run plots with progress
+        maps, _ = drawing.draw([], jobs, split=False)
+    elif not many:
+        maps, plots = plotter.result()
+    advance()
+    step("run plots", len(plots_of))
+    if plotter is None or many:
+        plots = run_plots.draw(plots_of, tick=advance)
+    else:
+        advance(len(plots_of))
+    if many:
+        maps, _ = plotter.result()
     step("report")
     summary = {
         **selection.counts(frame),

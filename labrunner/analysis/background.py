@@ -1,11 +1,10 @@
 """Run one piece of the analysis in a forked child while the process goes on with the rest.
 
-``analyse`` draws the run plots (reading their logs, ~0.17 s a plot) in a child forked *ahead*,
-before it imports pandas and matplotlib (:meth:`Background.ahead`): the child loads matplotlib
-on the other core meanwhile, then draws the plots the table names, sent to it pickled. The second
-half of the maps is drawn in a child forked once their overlays are computed: it pays no imports
-and starts at once, while this process writes the tables and draws the other maps; on two cores
-that takes most of the drawing off the analysis's wall time. A result comes back pickled through
+``analyse`` draws its figures in a child forked *ahead*, before it imports pandas
+(:meth:`Background.ahead`): the child loads matplotlib on the other core meanwhile, then draws
+the run plots and maps the table names, sent to it pickled as plain data; it forks a child of
+its own (a plain :class:`Background`) for part of the maps, which pays no imports and starts at
+once (:mod:`.drawing`). A result comes back pickled through
 a pipe. Where there is no ``fork`` (Windows) or when the child fails, the function simply runs in
 this process when its result is asked for: the same result, only later.
 """

@@ -4,23 +4,24 @@ Map layout follows the thesis: x = γ, y = k_p for the first-order MFC (Fig. 3.1
 y = k_d for the second-order MFC (Fig. 3.14); other pairs in grid order. Overlays are drawn only
 where they are valid for every point of the map (one controller kind, one δ_t, and for k_p–k_d
 one γ). Run plots: :mod:`.run_plots`.
+
+This module loads no matplotlib: a map is computed here (grid, overlays) as a
+:class:`~.drawing.FigureJob` of plain data, which :mod:`.maps` draws (:mod:`.drawing`: in the
+child that draws the figures, or here).
 """
 
 from __future__ import annotations
 
-import functools
 import itertools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
-from labrunner.analysis import png
 from labrunner.analysis.context import Context, Theories, parameter_records
-from labrunner.analysis.maps import Axis, axis_label, cell_edges, is_log_spaced, map_figure, sweep_figure
+from labrunner.analysis.drawing import FigureJob
+from labrunner.analysis.map_data import Axis, Points, axis_label, cell_edges, is_log_spaced
 from labrunner.analysis.overlays import (
     OverlayLine,
     Theory,
@@ -169,15 +170,11 @@ def mark_outside(lines: Sequence[OverlayLine], x: Axis, y: Axis) -> list[Overlay
     return [replace(line, label=f"{line.label} (outside the map)") if _outside(line, x, y) else line for line in lines]
 
 
-#: A figure to draw: (PNG path, caption, a function that makes the figure).
-Job = tuple[Path, str, Callable[[], Figure]]
-
-
-def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Job]:
+def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[FigureJob]:
     """The RMS and energy maps (2-D grids) or the sweep plot (1-D) as figures to draw, their
-    overlays computed now (the theory, once), the drawing left to :func:`draw` (so that a forked
-    process can draw some of them)."""
-    jobs: list[Job] = []
+    overlays computed now (the theory, once), the drawing left to :mod:`.drawing` (so that a
+    forked process can draw them)."""
+    jobs: list[FigureJob] = []
     name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
     units, forms = ctx.units, grid_forms(ctx.campaign)
     if len(ctx.axes) == 1:
@@ -193,8 +190,17 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Job]
             note = f"\n{theory.delay_note()}" + (f", {others}" if others else "")
         columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in map_metrics(ctx.error)]
         title = f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}"
-        sweep = functools.partial(sweep_figure, frame, x, columns, title=title, overlays=lines)
-        return [(ctx.out / "sweep.png", f"RMS of {ctx.error} and input energy over {x.label}", sweep)]
+        names = [c for c, _ in columns]
+        points = Points.of(frame, [key, *names, *(f"{c}_until_abort" for c in names)])
+        return [
+            FigureJob(
+                ctx.out / "sweep.png",
+                f"RMS of {ctx.error} and input energy over {x.label}",
+                "sweep_figure",
+                (points, x, columns),
+                {"title": title, "overlays": lines},
+            )
+        ]
     if len(ctx.axes) < 2:
         return jobs
     kx, ky = choose_pair(ctx.axes)
@@ -207,22 +213,15 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Job]
         for column, title, label in map_metrics(ctx.error, rows):
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
-            figure = functools.partial(
-                map_figure,
-                rows,
-                x,
-                y,
-                column,
-                title=f"{head}\n{sub}" if sub else head,
-                colour_label=_with_unit(label, units.get(column, "")),
-                overlays=lines,
-            )
+            kwargs = {
+                "title": f"{head}\n{sub}" if sub else head,
+                "colour_label": _with_unit(label, units.get(column, "")),
+                "overlays": lines,
+            }
             tag = f"_{i + 1}" if extra else ""
             caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
-            jobs.append((ctx.out / f"map_{column}{tag}.png", caption, figure))
+            points = Points.of(rows, [kx, ky, column])
+            jobs.append(
+                FigureJob(ctx.out / f"map_{column}{tag}.png", caption, "map_figure", (points, x, y, column), kwargs)
+            )
     return jobs
-
-
-def draw(jobs: Sequence[Job]) -> list[tuple[Path, str]]:
-    """Draw and save each job's figure: (PNG path, caption) each."""
-    return [(png.save(make(), path), caption) for path, caption, make in jobs]

@@ -11,16 +11,14 @@ metric covers only part of the run, or a limit cycle, and would mislead the colo
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import matplotlib
 import numpy as np
-import pandas as pd
 from matplotlib import colors, patheffects, ticker
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from labrunner.analysis.agreement import observed_outcome
+from labrunner.analysis.map_data import Axis, Points, cell_edges, grid_image
 from labrunner.analysis.overlays import OverlayLine
 
 #: Marker style per run outcome: (label, marker, face colour, edge colour).
@@ -34,90 +32,6 @@ MARKERS = {
 
 #: A thin white halo keeps the black crosses visible on the dark end of the colour map.
 _HALO = [patheffects.withStroke(linewidth=2.4, foreground="white")]
-
-#: Outcomes whose metric describes the whole run and may colour a cell.
-COLOURED = ("completed", "no-motion")
-
-
-@dataclass(frozen=True)
-class Axis:
-    """One grid axis: the dotted campaign key, its values, log10 spacing, a label with its unit."""
-
-    key: str
-    values: np.ndarray
-    log: bool
-    label: str
-
-
-def gain_units(order: int, output_unit: str, input_unit: str) -> dict[str, str]:
-    """SI units of γ, k_p, k_d for an MFC law of ``order`` (1: ẏ = f + ρu; 2: ÿ = f + ρu)."""
-    gamma = f"{output_unit}/({input_unit}·s)" if order == 1 else f"{output_unit}/({input_unit}·s²)"
-    if output_unit == "rad/s" and order == 1:
-        gamma = f"rad/({input_unit}·s²)"
-    return {"controller.gamma": gamma, "controller.k_p": "1/s" if order == 1 else "1/s²", "controller.k_d": "1/s"}
-
-
-_NAMES = {
-    "controller.gamma": "input gain γ",
-    "controller.k_p": "proportional gain k_p",
-    "controller.k_d": "differential gain k_d",
-    "differentiator.alpha": "α",
-    "differentiator.beta": "β",
-    "differentiator.omega_c": "cutoff ω_c",
-    "differentiator.N": "N",
-    "fs": "sampling frequency f_s",
-}
-_UNITS = {"differentiator.omega_c": "rad/s", "fs": "Hz"}
-
-
-def axis_label(key: str, units: dict[str, str] | None = None) -> str:
-    """Readable label with its SI unit for a dotted campaign key (thesis symbols)."""
-    unit = {**_UNITS, **(units or {})}.get(key)
-    name = _NAMES.get(key, key)
-    return f"{name} [{unit}]" if unit else name
-
-
-def is_log_spaced(values: np.ndarray) -> bool:
-    """Whether sorted axis values (a grid axis of listed values) are evenly spaced in log10 and span > 1 decade."""
-    v = np.asarray(values, dtype=float)
-    if v.size < 2 or np.any(v <= 0) or v[-1] / v[0] <= 10:
-        return False
-    steps = np.diff(np.log10(v))
-    return v.size == 2 or bool(np.allclose(steps, steps[0], rtol=1e-6))
-
-
-def cell_edges(values: np.ndarray, log: bool) -> np.ndarray:
-    """Edges of the cells centred on sorted ``values`` (geometric midpoints on a log axis)."""
-    v = np.log10(values) if log else np.asarray(values, dtype=float)
-    if v.size == 1:
-        half = 0.5 if log else max(abs(v[0]) * 0.1, 0.5)
-        edges = np.array([v[0] - half, v[0] + half])
-    else:
-        mid = 0.5 * (v[1:] + v[:-1])
-        edges = np.concatenate([[2 * v[0] - mid[0]], mid, [2 * v[-1] - mid[-1]]])
-    return 10.0**edges if log else edges
-
-
-def grid_index(values: np.ndarray, axis_values: np.ndarray) -> np.ndarray:
-    """Index of each value on the (sorted) axis, matched to the nearest axis value."""
-    ref = np.log10(axis_values) if np.all(axis_values > 0) else axis_values
-    val = np.log10(values) if np.all(axis_values > 0) else values
-    pos = np.clip(np.searchsorted(ref, val), 1, max(len(ref) - 1, 1))
-    if len(ref) == 1:
-        return np.zeros(len(values), dtype=int)
-    left, right = ref[pos - 1], ref[pos]
-    return np.where(np.abs(val - left) <= np.abs(val - right), pos - 1, pos)
-
-
-def grid_image(table: pd.DataFrame, x: Axis, y: Axis, column: str) -> np.ndarray:
-    """(len(y), len(x)) array of ``column`` on the grid; NaN where a cell must stay uncoloured."""
-    z = np.full((len(y.values), len(x.values)), np.nan)
-    ok = observed_outcome(table).isin(COLOURED).to_numpy() & np.isfinite(table[column].to_numpy(dtype=float))
-    sub = table[ok]
-    ix = grid_index(sub[x.key].to_numpy(dtype=float), x.values)
-    iy = grid_index(sub[y.key].to_numpy(dtype=float), y.values)
-    z[iy, ix] = sub[column].to_numpy(dtype=float)
-    return z
 
 
 def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
@@ -140,21 +54,29 @@ def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
     return colors.Normalize(vmin=0.0, vmax=1.0)
 
 
-def draw_markers(ax: Axes, table: pd.DataFrame, x_key: str, y_key: str | None, y_column: str | None = None) -> None:
-    """Scatter one marker per run, styled by its observed outcome; each one labelled collection."""
-    observed = observed_outcome(table)
+def draw_markers(ax: Axes, points: Points, x_key: str, y_key: str) -> None:
+    """Scatter one marker per run at (``x_key``, ``y_key``), styled by its observed outcome; each
+    outcome one labelled collection."""
     for outcome, (label, marker, face, edge) in MARKERS.items():
-        sub = table[observed == outcome]
-        if sub.empty:
+        mine = points.outcome == outcome
+        if not mine.any():
             continue
-        yv = sub[y_key] if y_key else sub[y_column]
         style = {"c": face, "edgecolors": edge} if marker != "x" else {"c": face, "path_effects": _HALO}
-        ax.scatter(sub[x_key], yv, marker=marker, s=28, linewidths=1.0, label=label, zorder=4, **style)
+        ax.scatter(
+            points[x_key][mine],
+            points[y_key][mine],
+            marker=marker,
+            s=28,
+            linewidths=1.0,
+            label=label,
+            zorder=4,
+            **style,
+        )
 
 
 def draw_heatmap(
     ax: Axes,
-    table: pd.DataFrame,
+    points: Points,
     x: Axis,
     y: Axis,
     column: str,
@@ -164,7 +86,7 @@ def draw_heatmap(
     overlays: Sequence[OverlayLine] = (),
 ):
     """Draw ``column`` over the (x, y) grid with markers and overlay lines; return the mesh."""
-    z = grid_image(table, x, y, column)
+    z = grid_image(points, x, y, column)
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="#d9d9d9")
     norm = colour_norm(z, log_colour)
     mesh = ax.pcolormesh(
@@ -184,7 +106,7 @@ def draw_heatmap(
         ax.set_yscale("log")
     xlim = cell_edges(x.values, x.log)[[0, -1]]
     ylim = cell_edges(y.values, y.log)[[0, -1]]
-    draw_markers(ax, table, x.key, y.key)
+    draw_markers(ax, points, x.key, y.key)
     for line in overlays:
         line.draw(ax)
     ax.set_xlim(*xlim)
@@ -239,7 +161,7 @@ def visible_ticks_only(fig: Figure) -> None:
 
 
 def map_figure(
-    table: pd.DataFrame,
+    points: Points,
     x: Axis,
     y: Axis,
     column: str,
@@ -252,7 +174,7 @@ def map_figure(
     """A figure with one heat map and a legend of markers and overlays below it."""
     fig = Figure(figsize=(7.5, 6.4))
     ax = fig.add_subplot()
-    draw_heatmap(ax, table, x, y, column, colour_label=colour_label, log_colour=log_colour, overlays=overlays)
+    draw_heatmap(ax, points, x, y, column, colour_label=colour_label, log_colour=log_colour, overlays=overlays)
     ax.set_title(title)
     handles, labels = ax.get_legend_handles_labels()
     _frame(fig, title, len(handles), 2)
@@ -275,7 +197,7 @@ def _frame(fig: Figure, title: str, entries: int, ncols: int) -> None:
 
 
 def sweep_figure(
-    table: pd.DataFrame,
+    points: Points,
     x: Axis,
     columns: Sequence[tuple[str, str]],
     *,
@@ -286,14 +208,18 @@ def sweep_figure(
     run's marker at its ``<column>_until_abort`` value, the metric of its run up to the abort)."""
     fig = Figure(figsize=(7.5, 2.6 * len(columns) + 0.8))
     axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
-    ordered = table.sort_values(x.key)
+    ordered = points.where(np.argsort(points[x.key], kind="quicksort"))  # as pandas' sort_values
+    ok = ordered.where(ordered.coloured())
     for ax, (column, label) in zip(axes, columns):
-        ok = ordered[observed_outcome(ordered).isin(COLOURED)]
         ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2)
         until = f"{column}_until_abort"
-        marked = ordered.assign(**{column: ordered[column].fillna(ordered[until])}) if until in ordered else ordered
-        draw_markers(ax, marked[np.isfinite(marked[column].to_numpy(dtype=float))], x.key, None, column)
-        positive = ok[column].to_numpy(dtype=float)
+        value = ordered[column]
+        if until in ordered:
+            value = np.where(np.isnan(value), ordered[until], value)
+        shown = np.isfinite(value)
+        marked = Points({x.key: ordered[x.key][shown], column: value[shown]}, ordered.outcome[shown])
+        draw_markers(ax, marked, x.key, column)
+        positive = ok[column]
         positive = positive[np.isfinite(positive) & (positive > 0)]
         if positive.size and positive.max() / positive.min() > 100:
             ax.set_yscale("log")

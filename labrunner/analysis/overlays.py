@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,7 +31,8 @@ _COLOURS = {"ultralocal": "#ff4fd8", "motor": "red"}
 
 def _outline() -> tuple[object, ...]:
     """A thin dark outline: it keeps the white nominal-gain line visible on light cells and in
-    the legend (matplotlib imported here: ``analyse`` loads this module before it needs it)."""
+    the legend (matplotlib imported here, where a line is drawn: ``analyse`` computes the lines in
+    a process that draws none)."""
     from matplotlib import patheffects
 
     return (patheffects.Stroke(linewidth=3.2, foreground="black"), patheffects.Normal())
@@ -47,7 +48,7 @@ class OverlayLine:
     color: str
     linestyle: str = "-"
     gid: str = ""
-    style: Mapping[str, object] = field(default_factory=dict)
+    outline: bool = False  # a thin dark outline (:func:`_outline`)
 
     def draw(self, ax) -> None:
         kw = {
@@ -57,8 +58,9 @@ class OverlayLine:
             "gid": self.gid,
             "linewidth": 1.8,
             "zorder": 3,
-            **self.style,
         }
+        if self.outline:
+            kw["path_effects"] = _outline()
         if self.y is None:
             ax.axvline(float(self.x), **kw)
         elif self.x is None:
@@ -179,7 +181,7 @@ def gamma_kp_lines(theory: Theory, gammas: np.ndarray) -> list[OverlayLine]:
                 "white",
                 "-",
                 "nominal-gain",
-                {"path_effects": _outline()},
+                outline=True,
             )
         )
     return lines

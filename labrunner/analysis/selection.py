@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner.analysis import agreement as agreement_mod
+from labrunner.analysis.map_data import gain_units
 from labrunner.campaign import spec
 from labrunner.campaign.progress import FINISHED, OUTCOMES
 from labrunner.campaign.spec import Campaign
@@ -60,7 +61,6 @@ def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign:
 
 def table_units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> dict[str, str]:
     """Units of the gains and metrics, from the first readable log's channel record."""
-    from labrunner.analysis.maps import gain_units  # matplotlib: after the run plots' child has its work
     from labrunner.logs import read_metadata
 
     for path in frame["log_path"].dropna().head(5):
