@@ -129,7 +129,7 @@ def _analyse(
     extra = selection.plot_selection(frame, plot)
     ids = list(dict.fromkeys([*(row["id"] for row in chosen.values()), *extra]))
     plots_of = run_plots.items(dict(zip(frame["id"], frame["log_path"])), ids, directory, out)
-    from labrunner.analysis import agreement as agreement_mod, campaign_report, figures
+    from labrunner.analysis import agreement as agreement_mod, figures
     from labrunner.analysis.context import Context, Theories
 
     ctx = Context(
@@ -171,6 +171,8 @@ def _analyse(
     if many:
         maps, _ = plotter.result()
     step("report")
+    from labrunner.analysis import campaign_report  # here: after the drawing child has its work
+
     summary = {
         **selection.counts(frame),
         "best": selection.best_run(frame),

@@ -210,7 +210,9 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Figu
         lines, note = map_overlays(rows, x, y, theories)
         lines = mark_outside(lines, x, y)
         rows = with_db_columns(rows, units)
-        for column, title, label in map_metrics(ctx.error, rows):
+        metrics = map_metrics(ctx.error, rows)
+        points = Points.of(rows, [kx, ky, *(column for column, _, _ in metrics)])  # one copy for the facet's maps
+        for column, title, label in metrics:
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
             kwargs = {
@@ -220,7 +222,6 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Figu
             }
             tag = f"_{i + 1}" if extra else ""
             caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
-            points = Points.of(rows, [kx, ky, column])
             jobs.append(
                 FigureJob(ctx.out / f"map_{column}{tag}.png", caption, "map_figure", (points, x, y, column), kwargs)
             )
