@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -220,3 +221,33 @@ def test_a_broken_pipe_elsewhere_is_not_hidden(monkeypatch, capsys):
     monkeypatch.setattr(differentiator_cmd, "run", broken)
     assert main(["differentiator", "--alpha", "9", "--beta", "9", "--omega-c", "200", "--fs", "200"]) == 1
     assert capsys.readouterr().err == "labrunner differentiator: error: /dev/rig0: Broken pipe\n"
+
+
+def test_a_window_whose_normalisation_vanishes_is_refused(capsys, tmp_path):
+    """α = 3, β = 1 at n_s = 2: the second mid-point u = 3/4 = α/(α+β) is the kernel's peak, where
+    g′ = 0, so Φ_1 = −g′(3/4)·t_s = 0 and the weights would be inf/nan. The design, the command and
+    a campaign refuse it, naming the window and the shortest one that works; order 0 is fine."""
+    from labrunner.errors import InvalidParameter
+
+    d = design(alpha=3, beta=1, omega_c=400, fs=200)
+    assert d.n_s == 2 and d.check_weights(0) == 0 and np.isclose(d.weights(0).sum(), 1.0)
+    for check in (d.weights, d.check_weights):
+        with pytest.raises(InvalidParameter, match=r"n_s = 2 samples .* order 1 .* needs n_s >= 3") as err:
+            check(1)
+        assert err.value.field == "window"
+    assert np.isfinite(design(alpha=3, beta=1, window=3 / 200, fs=200).weights(1)).all()
+    assert main(["differentiator", "--alpha", "3", "--beta", "1", "--omega-c", "400", "--fs", "200"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "window: n_s = 2 samples cannot estimate derivative order 1" in err
+    root = os.path.join(os.path.dirname(__file__), "..")
+    text = open(os.path.join(root, "campaigns", "quickstart.toml"), encoding="utf-8").read()
+    text = (
+        text.replace("alpha = 9", "alpha = 3")
+        .replace("beta = 9", "beta = 1")
+        .replace("omega_c = 200.0 ", "omega_c = 400.0 ")
+    )
+    shutil.copytree(os.path.join(root, "rigs"), tmp_path / "rigs")
+    (tmp_path / "short.toml").write_text(text)
+    assert main(["run", str(tmp_path / "short.toml"), "--out", str(tmp_path / "out")]) == 2
+    assert "differentiator.window: n_s = 2 samples" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # refused before anything was created

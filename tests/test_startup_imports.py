@@ -95,10 +95,10 @@ def test_a_plate_campaign_designs_its_filters_without_scipy_signal():
     assert _loaded("import labrunner.control.plate, labrunner.control.plate_mbc", ("scipy.signal",)) == []
 
 
-def test_validating_a_campaign_evaluates_no_kernel():
-    """The plan builds every point's controller and safety monitor to check it; their tap vectors
-    are formed by the first reset, in the workers (which load scipy.special while the runner
-    validates): the runner itself needs no scipy.special (~0.2 s)."""
+def test_validating_a_campaign_needs_no_scipy_special():
+    """The plan builds every point's controller and safety monitor to check it, and each distinct
+    differentiator's weights (a window whose normalisation vanishes is refused there): an N = 0
+    kernel is evaluated without scipy.special (~0.2 s), so the runner imports none."""
     quickstart = Path(__file__).resolve().parents[1] / "campaigns" / "quickstart.toml"
     code = f"from labrunner.campaign import spec\nspec.plan(spec.load({str(quickstart)!r}))"
     assert _loaded(code, ("scipy.special",)) == []

@@ -89,8 +89,9 @@ class MFCEstimator:
             np.broadcast_to(np.reshape(gamma, (B, -1)) if np.ndim(gamma) else gamma, (B, C)), dtype=float
         )
         self._unit_gamma = bool(np.all(self.gamma == 1.0))
-        for d in designs:  # the taps themselves are formed by the first reset (:meth:`_start`)
-            d.check_weights(order)
+        for d in designs:  # every normalisation the taps divide by (the tap vectors: the first reset)
+            for k in range(order + 1):
+                d.check_weights(k)
         self._designs = designs
         # one buffer: f̂, ê^(0..n−1), then the products of y and v. The filters on e write straight
         # into ê^(k) (the filtered outputs when e = y: the reference terms come off in place), and
@@ -107,7 +108,8 @@ class MFCEstimator:
 
     def _start(self) -> None:
         """Form the tap vectors and the histories, once: a controller built only to validate a
-        campaign's points evaluates no kernel (nor imports scipy.special)."""
+        campaign's points has checked its designs' weights (cached on the shared designs) but
+        builds no histories."""
         order = self.order
         # tap vectors per run: y (shifted by ε), e (one per filter), v
         taps = [

@@ -70,8 +70,20 @@ class Differentiator:
         return order
 
     def check_weights(self, order: int) -> int:
-        """Return ``order`` or raise :class:`InvalidParameter` where :meth:`weights` would refuse it,
-        without forming them (validating a campaign or reading a delay needs no kernel)."""
+        """Return ``order`` or raise :class:`InvalidParameter` where :meth:`weights` would refuse it.
+
+        Forms the weights (cached) where their normalisation Φ_n could vanish — a window of a few
+        samples, or an under-resolved kernel, can sample g⁽ⁿ⁾ where its terms cancel — so that
+        validating a campaign refuses such a design before anything runs. Not for n = 0 and N = 0,
+        whose Φ_0 is a sum of positive terms: reading a delay forms nothing.
+        """
+        n = self._refuse(order)
+        if n or self.N:
+            self.weights(n)
+        return n
+
+    def _refuse(self, order: int) -> int:
+        """``order``, checked against α, β and the discretisation (no kernel evaluated)."""
         n = self.check_order(order)
         if self.method == "trapezoidal" and min(self.alpha, self.beta) < n:
             raise InvalidParameter(
@@ -104,11 +116,29 @@ class Differentiator:
         held at its mid-interval sample, as AlgDiff's "analytic"). Φ_n = t_sⁿ/n!·Σ_j w[j](−j)ⁿ makes
         the estimate exact for x(t) = tⁿ/n! (thesis (2.4)).
         """
-        n = self.check_weights(order)
+        n = self._refuse(order)
         cached = self._cache.get(n)
         if cached is not None:
             return cached
-        a, b, N, th, ns = self.alpha, self.beta, self.N, self.theta, self.n_s
+        raw, phi = self._raw(n, self.n_s)
+        if not _normalisable(raw, phi, n, self.fs):
+            longer = next(
+                (m for m in range(self.n_s + 1, self.n_s + 65) if _normalisable(*self._raw(n, m), n, self.fs)), None
+            )
+            need = f"n_s >= {longer} (window >= {longer / self.fs:.6g} s)" if longer else "a longer window"
+            raise InvalidParameter(
+                "window",
+                f"n_s = {self.n_s} samples cannot estimate derivative order {n} with the {self.method} rule: the "
+                f"normalisation Phi_{n} of (2.4) vanishes; needs {need}, i.e. a lower omega_c",
+            )
+        w = raw / phi
+        w.setflags(write=False)
+        self._cache[n] = w
+        return w
+
+    def _raw(self, n: int, ns: int) -> tuple[np.ndarray, float]:
+        """(w_n up to its scale, Φ_n from the same values) of (2.4) for a window of ``ns`` samples."""
+        a, b, N, th = self.alpha, self.beta, self.N, self.theta
         if self.method == "midpoint":
             raw = kernel_u(a, b, N, th, n, (np.arange(ns) + 0.5) / ns)
         elif self.method == "analytic":
@@ -119,11 +149,15 @@ class Differentiator:
             raw[-1] *= 0.5
         # The scale t_s/T^{n+1} of w_n cancels in w_n/Φ_n, so Φ is formed from the raw values.
         j = np.arange(raw.size, dtype=float)
-        phi = float(np.sum(raw * (-j / self.fs) ** n)) / math.factorial(n)  # pairwise sum, no BLAS threads
-        w = raw / phi
-        w.setflags(write=False)
-        self._cache[n] = w
-        return w
+        return raw, float(np.sum(raw * (-j / self.fs) ** n)) / math.factorial(n)  # pairwise sum, no BLAS threads
+
+
+def _normalisable(raw: np.ndarray, phi: float, n: int, fs: float) -> bool:
+    """Whether Φ_n is a usable divisor: finite and not lost to cancellation (a window of a few
+    samples can sample g⁽ⁿ⁾ where its terms cancel exactly, e.g. α = 3, β = 1, n = 1 at n_s = 2:
+    the second mid-point falls on the kernel's peak, where g′ = 0)."""
+    scale = float(np.sum(np.abs(raw * (np.arange(raw.size) / fs) ** n))) / math.factorial(n)
+    return math.isfinite(phi) and abs(phi) > 1e-9 * scale
 
 
 def whole_samples(x: float) -> int:

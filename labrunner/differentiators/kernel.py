@@ -20,8 +20,69 @@ import math
 
 import numpy as np
 
-# scipy.special (~0.3 s to import) is imported in the functions that evaluate the kernel: loading a
-# campaign (analyse, status) imports this module without designing a differentiator.
+# The kernel needs no scipy.special (~0.15-0.3 s to import), so that validating a campaign can form
+# every design's weights (a window whose normalisation vanishes is refused before anything runs):
+# x·log(y) and the Jacobi polynomials are evaluated here exactly as scipy.special.xlogy and
+# eval_jacobi evaluate them (bit-identical: tests/test_differentiators_kernel.py). scipy.special is
+# imported only for the antiderivative (k = −1: betainc), the roots of P_{N+1} (ϑ for N > 0) and
+# polynomial degrees of 20 and more.
+
+_BINOM_PRODUCT = 20  # scipy.special.binom(n, k) multiplies out integer k below this; above, a beta function
+
+
+def _log(v: float) -> float:
+    """libm's log (math.log) with log(0) = −inf and log(v < 0) = nan, as C's log."""
+    if v > 0.0:
+        return math.log(v)
+    return -math.inf if v == 0.0 else math.nan
+
+
+def xlogy(a: float, y: np.ndarray) -> np.ndarray:
+    """a·log(y), 0 where a = 0 (unless y is nan), elementwise: scipy.special.xlogy. Through libm's
+    log one value at a time: numpy's own log differs from it in the last bit on AVX-512 machines."""
+    y = np.asarray(y, dtype=float)
+    if a == 0.0:
+        return np.where(np.isnan(y), np.nan, 0.0)
+    return np.array([a * _log(v) for v in y.ravel().tolist()], dtype=float).reshape(y.shape)
+
+
+def _binom(n: float, k: int) -> float:
+    """The binomial coefficient C(n, k) for a real n and an integer 0 <= k < 20, by the product
+    formula (with its symmetry for a positive integer n) that scipy.special.binom uses there."""
+    kx = float(k)
+    if n == math.floor(n) and kx > math.floor(n) / 2 and n > 0:
+        kx = math.floor(n) - kx
+    num = den = 1.0
+    for i in range(1, int(kx) + 1):
+        num *= i + n - kx
+        den *= i
+        if abs(num) > 1e50:
+            num /= den
+            den = 1.0
+    return num / den
+
+
+def jacobi(n: int, alpha: float, beta: float, x: np.ndarray | float) -> np.ndarray | float:
+    """P_n^{(α,β)}(x) for an integer degree n >= 0 (α, β > −1): the three-term recurrence of
+    scipy.special.eval_jacobi's integer-degree loop, term by term in its order of operations."""
+    if n >= _BINOM_PRODUCT or abs(n + alpha) <= 1e-8:  # scipy's binom takes its beta-function branch
+        from scipy import special
+
+        return special.eval_jacobi(n, alpha, beta, x)
+    if n == 0:
+        return np.ones_like(x, dtype=float) if np.ndim(x) else 1.0
+    if n == 1:
+        return 0.5 * (2 * (alpha + 1) + (alpha + beta + 2) * (x - 1))
+    d = (alpha + beta + 2) * (x - 1) / (2 * (alpha + 1))
+    p = d + 1
+    for kk in range(n - 1):
+        k = kk + 1.0
+        t = 2 * k + alpha + beta
+        d = ((t * (t + 1) * (t + 2)) * (x - 1) * p + 2 * k * (k + beta) * (t + 2) * d) / (
+            2 * (k + alpha + 1) * (k + alpha + beta + 1) * t
+        )
+        p = d + p
+    return _binom(n + alpha, n) * p
 
 
 def log_rho(alpha: float, beta: float, i: int) -> float:
@@ -43,25 +104,25 @@ def kernel_u(alpha: float, beta: float, N: int, theta: float, k: int, u: np.ndar
     window and 1 after it. At u ∈ {0, 1} the factor u^{α−k} follows x^0 = 1 and 0^{a<0} = inf
     (a kernel derivative that is singular at the window ends).
     """
-    from scipy import special
-
     u = np.asarray(u, dtype=float)
     inside = (u >= 0.0) & (u <= 1.0)
     uc = np.clip(u, 0.0, 1.0)
     nu = 1.0 - 2.0 * uc
     a, b = alpha - k, beta - k
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        log_w = special.xlogy(a, uc) + special.xlogy(b, 1.0 - uc)
+        log_w = xlogy(a, uc) + xlogy(b, 1.0 - uc)
         lr0 = log_rho(alpha, beta, 0)
         total = np.zeros_like(uc)
         first = 1 if k == -1 else 0
         for i in range(first, N + 1):
-            c = special.eval_jacobi(i, alpha, beta, theta) * math.exp(
+            c = jacobi(i, alpha, beta, theta) * math.exp(
                 log_rho(alpha, beta, i) - lr0 + math.lgamma(i + k + 1) - math.lgamma(i + 1)
             )
-            total = total + c * special.eval_jacobi(i + k, a, b, nu)
+            total = total + c * jacobi(i + k, a, b, nu)
         out = np.exp(log_w + lr0) * total if N >= first else np.zeros_like(uc)
     if k == -1:
+        from scipy import special
+
         out = out + special.betainc(alpha + 1.0, beta + 1.0, uc)
         return np.where(u < 0.0, 0.0, np.where(u > 1.0, 1.0, out))
     return np.where(inside, out, 0.0)
