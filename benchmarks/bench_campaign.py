@@ -267,8 +267,8 @@ def naive(work: Path, n_gamma: int, n_kp: int, style: str) -> dict:
     return {"wall_s": r["wall_s"], "cpu_s": r["cpu_s"], "line": r["stdout"].strip()}
 
 
-def _mb(kb: int) -> str:
-    return f"{kb / 1024:.0f} MB"
+def _mb(kb: int | None) -> str:
+    return "not sampled" if kb is None else f"{kb / 1024:.0f} MB"
 
 
 def main() -> None:
@@ -342,9 +342,7 @@ def main() -> None:
                 f"analyse {_mb(analysis['peak_parent_kb'])}, with its workers {_mb(analysis['peak_total_kb'])} "
                 "(target: parent <= 300 MB)"
             )
-            print(
-                "  runner RSS at 10 % / 50 % / 90 % of the runs: " + " / ".join(_mb(at.get(p, 0)) for p in (10, 50, 90))
-            )
+            print("  runner RSS at 10 % / 50 % / 90 % of the runs: " + " / ".join(_mb(at.get(p)) for p in (10, 50, 90)))
             per_run = (analysis["wall_s"] - r1k["analyse"]["wall_s"]) / (r10k["n"] - r1k["n"])
             fixed = r1k["analyse"]["wall_s"] - r1k["n"] * per_run
             print(

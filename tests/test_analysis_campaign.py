@@ -145,6 +145,15 @@ def test_torn_missing_unreadable_and_quarantined_files_are_reported(tmp_path):
     g, kp = points[1]["params"]["controller.gamma"], points[1]["params"]["controller.k_p"]
     assert outcome_of(g, kp) == "aborted" and row["rms_error_until_abort"] == pytest.approx(expected_metrics(g, kp)[0])
     assert bool(table[table["id"] == points[0]["id"]]["torn"].iloc[0])
+    # the table itself says which logs no longer back their rows, in both files, after log_path, torn
+    for frame in (table, pd.read_csv(d / "report" / "metrics.csv")):
+        state = dict(zip(frame["id"], frame["log_state"]))
+        assert [state[p["id"]] for p in points[:3]] == ["torn", "missing", "unreadable"]
+        assert {state[p["id"]] for p in points[3:]} == {"ok"}
+        assert list(frame.columns).index("log_state") == list(frame.columns).index("log_path") + 2
+    again = analyse(d, workers=1)  # from the cache of the first analysis: the same states
+    assert {(p["kind"], p["path"]) for p in again["problems"]} == kinds
+    assert pd.read_parquet(d / "report" / "metrics.parquet")["log_state"].tolist() == table["log_state"].tolist()
 
 
 def test_unfinished_campaign_and_cli_json(tmp_path, capsys):

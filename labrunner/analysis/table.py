@@ -36,7 +36,18 @@ from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 
 #: Columns that identify a point and its run, in this order at the left of the table.
-ID_COLUMNS = ("seq", "id", "outcome", "monitor", "abort_time", "abort_value", "attempts", "log_path", "torn")
+ID_COLUMNS = (
+    "seq",
+    "id",
+    "outcome",
+    "monitor",
+    "abort_time",
+    "abort_value",
+    "attempts",
+    "log_path",
+    "torn",
+    "log_state",
+)
 #: Suffix of the columns that hold an aborted run's metrics (over the run up to its abort).
 UNTIL_ABORT = "_until_abort"
 #: Columns that tell whether a cached row still matches its log file.
@@ -316,7 +327,20 @@ def build_table(
     frame["metrics_version"] = METRICS_VERSION
     for rec in frame.loc[frame["torn"], ["id", "log_path"]].to_dict("records"):
         problems.append({"path": rec["log_path"], "kind": "torn", "detail": f"point {rec['id']}: salvaged a torn log"})
+    frame["log_state"] = log_states(frame["log_path"], problems)
     return CampaignTable(frame, problems, n_read=len(read))
+
+
+#: ``log_state`` of a row whose log is fine; the others are the problems' kinds.
+LOG_OK = "ok"
+
+
+def log_states(log_paths: pd.Series, problems: Sequence[Mapping[str, str]]) -> pd.Series:
+    """Per row: "ok", or what is wrong with its log ("missing", "unreadable", "torn"), or empty
+    where the point has none (a failed run, an unfinished point) — so that the table alone says
+    which metrics a log no longer backs."""
+    kinds = {p["path"]: p["kind"] for p in problems if p["kind"] in ("missing", "unreadable", "torn")}
+    return log_paths.map(lambda rel: kinds.get(rel, LOG_OK) if isinstance(rel, str) else None)
 
 
 def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory: Path) -> list[dict[str, str]]:
