@@ -83,6 +83,20 @@ def test_many_run_plots_are_drawn_here_while_the_child_draws_the_maps(tmp_path):
         assert open(a, "rb").read() == open(b, "rb").read()
 
 
+@forks
+def test_with_nothing_to_draw_the_drawing_child_is_stopped_not_waited_for(tmp_path, monkeypatch):
+    """One point (no map) analysed again, its run plot kept: the child is given nothing (it would
+    be waited for while it loads matplotlib) and the plot is still in the summary."""
+    make_campaign(tmp_path, gammas=(10.0,), k_ps=(1.0,))
+    started = []
+    start = Background.start
+    monkeypatch.setattr(Background, "start", lambda self, fn: started.append(fn) or start(self, fn))
+    first = analyse(tmp_path, workers=2, progress=False)
+    assert not first["maps"] and len(first["run_plots"]) == 1 and len(started) == 1
+    again = analyse(tmp_path, workers=2, progress=False)
+    assert again["run_plots"] == first["run_plots"] and len(started) == 1
+
+
 def test_plots_to_draw_are_those_not_kept(tmp_path):
     """A run plot newer than its log is kept (not drawn, no child forked for it); a missing or
     older one is drawn; a point without a log has nothing to draw; each point once, in order."""

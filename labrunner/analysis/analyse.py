@@ -147,6 +147,9 @@ def _analyse(
     # child of its own: drawing.draw) while this process writes the tables and compares with the
     # theory; many run plots (--plot all) are drawn here, with progress, while it draws the maps.
     many = plotter is not None and len(plots_of) > BACKGROUND_PLOTS
+    if plotter is not None and not jobs and not run_plots.to_draw([] if many else plots_of):
+        plotter.close()  # nothing for it to draw (no map, the plots kept): not waited for
+        plotter = many = None
     if plotter is not None:
         plotter.start(functools.partial(drawing.draw, [] if many else plots_of, jobs))
     csv, parquet = table_mod.write_table(built.frame, out, directory)

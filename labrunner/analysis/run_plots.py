@@ -58,12 +58,12 @@ def prepare() -> None:
 
 def draw(plots: Sequence[Item], tick: Callable[[int], None] | None = None) -> dict[str, Path]:
     """Draw each plot not kept; the PNG of every plot there is, by id (unreadable logs are skipped)."""
-    from labrunner.runplot import plot_run
-
     out: dict[str, Path] = {}
     for point_id, log, plot in plots:
         try:
             if not _kept(log, plot):
+                from labrunner.runplot import plot_run  # matplotlib: only when a plot is drawn
+
                 plot.parent.mkdir(parents=True, exist_ok=True)
                 png.save(plot_run(log), plot)
             out[point_id] = plot
