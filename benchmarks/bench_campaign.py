@@ -21,20 +21,17 @@ Wall times on a shared machine are longer than CPU times; both are printed (CPU:
 process and the workers it waited for).
 
 Last measured (2-core machine, idle but for this benchmark; the VM's speed drifts: the same
-code's run + analyse took 2.4-3.7 s over an afternoon): eight single-trial runs gave 11.1x,
-11.6x, 9.9x, 9.2x, 10.7x, 10.5x, 9.6x, 9.9x and a three-trial run, late and slow, 8.8-9.3x
-(run 1.22-1.64 s, analyse 1.42-2.05 s, naive numpy-style script 29.6-32.4 s; 11-15x in CPU
-time); against 32ccd80, interleaved on the same machine, run + analyse medians were 2.76 vs
-3.29 s, 3.03 vs 3.28 s and 2.43 vs 2.74 s (6, 6 and 8 trials each). 10 000 points 7.9-8.4 +
-2.5-2.6 s = 10.6-10.8 s wall, runner 61 MB flat, analyse 220-227 MB; analyse 0.07-0.11 ms per
-run + 1.3-2.0 s fixed. What is left of the 1000-point campaign's ~4.1-4.7 s of CPU: analyse's imports (pandas
-~0.35 s in the process, matplotlib ~0.25 s in it and again in the run plots' child) and
-matplotlib's drawing (~0.3 s a map, ~0.13 s a run plot: ticks, text, markers); run's start
-(imports and the plan, ~0.45 s, while the workers load the engine) and per run ~0.6 ms engine +
-~0.5 ms log write in each of two workers. Changes behind these figures: the pool is forked
-before the plan and its workers load the engine meanwhile; validation forms no tap vectors (no
-scipy.special in the runner); strided batches end together; one transaction commits a batch;
-the run plots' child is forked before analyse imports pandas and matplotlib.
+code's run + analyse took 2.0-2.4 s over an afternoon): six full runs of three trials each gave
+12.7x, 13.0x, 13.9x, 12.9x, 15.1x and 13.4x (every trial 12.6-15.3x; run 1.0-1.2 s, analyse
+1.0-1.2 s, naive numpy-style script 28.2-30.1 s; 15-17x in CPU time). 10 000 points 9.4 + 2.0 s
+= 11.4 s wall, runner 62 MB flat, analyse 197 MB; analyse 0.10 ms per run + 1.0 s fixed. What
+is left of the 1000-point campaign's ~3.5 s of CPU: analyse's pandas import (~0.3 s, in the
+process, before it can hand the figures over) and matplotlib (~0.35 s to import, in the drawing
+child, meanwhile), the drawing (~0.16 s a map, ~0.12 s a run plot, in two processes); run's start
+(imports and the plan, ~0.4 s, while the workers load the engine) and per run ~0.5 ms engine +
+~0.5 ms log write in each of two workers. Until 2026-12-02 the commands were timed at this
+script's next 0.2 s poll after their exit, which added 0.1 s to each on average; they are now
+timed at their exit.
 
 Run: ``python benchmarks/bench_campaign.py [--skip-10k] [--skip-naive] [--trials 3]`` (the
 1000-point campaign is run ``--trials`` times; its median trial is reported in full, with the
