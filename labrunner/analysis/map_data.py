@@ -54,9 +54,6 @@ class Points:
     def __contains__(self, column: str) -> bool:
         return column in self.columns
 
-    def __len__(self) -> int:
-        return len(self.outcome)
-
     def where(self, mask: np.ndarray) -> Points:
         """The runs where ``mask`` (boolean, or an index array in the order wanted) holds."""
         return Points({c: v[mask] for c, v in self.columns.items()}, self.outcome[mask])
