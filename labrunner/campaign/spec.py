@@ -17,7 +17,7 @@ import dataclasses
 import hashlib
 import re
 import tomllib
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -305,9 +305,9 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         logging=_logging(doc.get("logging", {})),
     )
     if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
-        from labrunner.campaign import guided
+        from labrunner.campaign import procedures
 
-        procedure = guided.parse(doc["guided"], campaign)
+        procedure = procedures.parse(doc["guided"], campaign)
         campaign = dataclasses.replace(campaign, guided=procedure, grid=Grid(procedure.axes()))
     return campaign
 
@@ -379,9 +379,7 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     comment edit keeps a campaign resumable while any change of what would run does not.
     """
     if campaign.guided is not None:
-        from labrunner.campaign import guided_run
-
-        return guided_run.plan(campaign)
+        return _plan_guided(campaign)
     checker = StaticChecker(campaign.rig_config)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
@@ -409,3 +407,49 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     for *_, d in checked:
         digest.update(d.encode())
     return points, digest.hexdigest()
+
+
+def check_points(campaign: Campaign, points: Sequence[Mapping[str, Any]], first_seq: int = 0) -> list[PlannedPoint]:
+    """Statically check points as :func:`plan` checks a grid (a guided campaign's rounds); their ids
+    are those of the points as proposed, their parameters include ``[derived]`` values."""
+    checker = StaticChecker(campaign.rig_config)
+    checked: dict[int, tuple[dict[str, Any], dict[str, Any], float]] = {}
+    for n, point in enumerate(points):
+        params, config = campaign.expand(dict(point))
+        for (seq, p, c), duration in checker.add(n, params, config):
+            checked[seq] = (p, c, duration)
+    for (seq, p, c), duration in checker.flush():
+        checked[seq] = (p, c, duration)
+    out = []
+    for n, point in enumerate(points):
+        params, config, duration = checked[n]
+        config["campaign"]["duration"] = duration
+        out.append(
+            PlannedPoint(
+                first_seq + n, point_id(campaign.name, point), params, batch_key(campaign.rig, config, checker.split)
+            )
+        )
+    return out
+
+
+def _plan_guided(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
+    """A guided campaign's first round and plan checksum (procedure, base configuration, the checked
+    extreme points of the search space and the first round); later rounds follow from the outcomes
+    (:mod:`labrunner.campaign.guided_run`)."""
+    from labrunner.campaign.guided import advance
+
+    procedure = campaign.guided
+    corners = check_points(campaign, procedure.corners())
+    first = check_points(campaign, list(advance(procedure, campaign.name, {}).next))
+    digest = hashlib.sha256(
+        canonical_json(
+            {
+                "name": campaign.name,
+                "rig": campaign.rig,
+                "procedure": procedure.identity(),
+                "base": campaign.resolve({}),
+                "points": [[p.parameters, p.batch_key] for p in (*corners, *first)],
+            }
+        ).encode()
+    )
+    return first, digest.hexdigest()
