@@ -28,7 +28,7 @@ from labrunner.campaign.progress import Progress
 from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals
 from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
-from labrunner.errors import CampaignError, LabrunnerError
+from labrunner.errors import CampaignError, InvalidParameter, LabrunnerError
 
 CAMPAIGN_COPY = "campaign.toml"
 
@@ -91,7 +91,9 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
     check_executor_url(opts.executor, reach=False)
     campaign = spec.load(file)
-    directory = Path(out) if out else default_directory(campaign)
+    if out is not None and not str(out).strip():
+        raise InvalidParameter("--out", f"must be a path, got {str(out)!r}")
+    directory = Path(out) if out is not None else default_directory(campaign)
     if dry:
         return None, _dry_run(campaign, directory, opts)
     with _early_pool(campaign, opts) as pool:

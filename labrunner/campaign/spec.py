@@ -16,14 +16,14 @@ import copy
 import dataclasses
 import hashlib
 import re
-import tomllib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from labrunner import inputfile
 from labrunner.campaign import expressions, grid as gridmod
-from labrunner.campaign.checks import StaticChecker, batch_key
+from labrunner.campaign.checks import MAX_SEED, StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
 from labrunner.errors import InvalidParameter, check_finite, check_number, check_positive
 from labrunner.rigs import config as rigconfig
@@ -191,11 +191,7 @@ def _require(field_name: str, value: Any, kind: type | tuple[type, ...], what: s
 
 def parse(text: str, *, source_path: Path | None = None) -> dict[str, Any]:
     """TOML text → dict, with a one-line error naming the line on a syntax error."""
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        where = source_path.name if source_path else "campaign"
-        raise InvalidParameter(where, f"is not valid TOML: {exc}") from None
+    return inputfile.loads_toml(text, source_path.name if source_path else "campaign")
 
 
 def _resolve_rig(value: Any, source_path: Path | None, root: Path) -> tuple[str, Path | None]:
@@ -243,8 +239,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     info.check_fs(fs, "campaign.fs")
     duration = check_positive("campaign.duration", head["duration"], strict=True) if "duration" in head else None
     seed = _require("campaign.seed", head.get("seed", 0), int, "an integer")
-    if seed < 0:
-        raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
+    if not 0 <= seed <= MAX_SEED:
+        raise InvalidParameter("campaign.seed", f"must be an integer in [0, 2**63 - 1], got {seed}")
     base = {s: doc.get(s, {}) for s in SECTIONS}
     for section in SECTIONS:
         _check_finite_leaves(section, base[section])
@@ -363,13 +359,7 @@ def load_rig_file(ref: str | Path, root: Path) -> RigConfig:
 def load(path: str | Path, *, root: Path | None = None) -> Campaign:
     """Read and validate a campaign file (structure only; see :func:`plan` for the per-point checks)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InvalidParameter("FILE", f"campaign file {str(path)!r} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InvalidParameter("FILE", f"cannot read {str(path)!r}: {exc}") from None
-    return from_text(text, source_path=path, root=root)
+    return from_text(inputfile.read_text(path, "FILE", "campaign file"), source_path=path, root=root)
 
 
 def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:

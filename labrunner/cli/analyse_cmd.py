@@ -10,7 +10,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from labrunner.cli.argtypes import positive_int
+from labrunner.cli.argtypes import path_text, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,8 +24,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "index.html with a sortable table of all runs linking to their logs and plots."
         ),
     )
-    p.add_argument("directory", metavar="DIR", help="campaign directory (holds ledger.sqlite)")
-    p.add_argument("--out", metavar="DIR", help="output directory (default: DIR/report)")
+    p.add_argument("directory", type=path_text, metavar="DIR", help="campaign directory (holds ledger.sqlite)")
+    p.add_argument("--out", type=path_text, metavar="DIR", help="output directory (default: DIR/report)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument(
         "--workers",

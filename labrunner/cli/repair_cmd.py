@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -16,7 +18,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Then `labrunner resume DIR` runs what is left."
         ),
     )
-    p.add_argument("directory", metavar="DIR", help="campaign directory")
+    p.add_argument("directory", type=path_text, metavar="DIR", help="campaign directory")
     p.add_argument(
         "--campaign",
         metavar="FILE",
