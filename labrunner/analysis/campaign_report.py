@@ -110,7 +110,9 @@ def _outcome_section(summary: Mapping[str, Any]) -> Section:
     return Section("Outcomes", paragraphs=paragraphs, facts=facts)
 
 
-def _interval(bounds: Mapping[str, Any], key: str) -> str:
+def _interval(bounds: Mapping[str, Any] | None, key: str) -> str:
+    if bounds is None:
+        return "no theory here (outside its domain)"
     value = bounds.get(key)
     if value is None:
         return "none stable"
