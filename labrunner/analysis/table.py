@@ -384,7 +384,8 @@ def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory:
         {
             "path": str(r["moved_to"]),
             "kind": "quarantined",
-            "detail": f"point {r['point_id']}: {r['reason']} (was {r['original']}, {r['bytes']} bytes)",
+            "detail": ("" if r["point_id"] is None else f"point {r['point_id']}: ")
+            + f"{r['reason']} (was {r['original']}, {r['bytes']} bytes)",
         }
         for r in quarantine_rows
     ]

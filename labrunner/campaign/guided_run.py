@@ -51,7 +51,7 @@ def execute(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome]
     with contextlib.nullcontext(signals) if signals is not None else StopSignals() as signals:
         _rounds(campaign, ledger, run_round, total, signals)  # Ctrl-C between rounds: stop before the next
     total.elapsed_s = time.monotonic() - t0
-    total.counts = ledger.counts()
+    total.counts = ledger.by_outcome()  # outcome words, as the scheduler reports them (not states)
     return total
 
 

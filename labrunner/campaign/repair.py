@@ -119,8 +119,9 @@ def _quarantine(path: Path, directory: Path) -> str:
     return moved
 
 
-def repair(directory: str | Path, *, campaign_file: str | Path | None = None) -> Repaired:
-    """Rebuild ``DIR/ledger.sqlite`` (see the module docstring); takes the directory's lock."""
+def repair(directory: str | Path, *, campaign_file: str | Path | None = None, force: bool = False) -> Repaired:
+    """Rebuild ``DIR/ledger.sqlite`` (see the module docstring); takes the directory's lock. A
+    ledger that passes every integrity check is left alone unless ``force``."""
     directory = Path(directory)
     if not directory.is_dir():
         raise InvalidParameter(
@@ -138,6 +139,12 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
         )
     with DirectoryLock(directory, "repair"):
         meta, failed, sessions, quarantine, problem = _old_ledger(path)
+        if not problem and not force:
+            raise InvalidParameter(
+                "DIR",
+                f"the ledger of {str(directory)!r} is sound (every integrity check passes): nothing to repair; "
+                f"`labrunner resume {directory}` continues it, `labrunner repair --force {directory}` rebuilds it anyway",
+            )
         campaign = _campaign(directory, meta, campaign_file)
         if campaign.guided is not None:
             raise InvalidParameter(

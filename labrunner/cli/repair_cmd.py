@@ -24,13 +24,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="FILE",
         help="the original campaign file, when its rig is a path relative to it and the old ledger is lost",
     )
+    p.add_argument("--force", action="store_true", help="rebuild a ledger that passes every integrity check too")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
     from labrunner.campaign.repair import repair
 
-    report = repair(args.directory, campaign_file=args.campaign)
+    report = repair(args.directory, campaign_file=args.campaign, force=args.force)
     print(f"repair {args.directory}: {report.describe()}")
     for line in report.rejected:
         print(f"  unusable log {line}")
