@@ -48,9 +48,9 @@ def read_text(path: str | os.PathLike, field: str, what: str) -> str:
         ) from None
 
 
-def loads_toml(text: str, field: str) -> dict[str, Any]:
+def loads_toml(text: str, field: str, prefix: str = "") -> dict[str, Any]:
     """TOML text → dict; a syntax error or nesting deeper than :data:`MAX_NESTING` is one
-    :class:`InvalidParameter` on ``field`` naming the line or the key."""
+    :class:`InvalidParameter` on ``field`` naming the line, or on ``prefix`` + the key."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -62,7 +62,7 @@ def loads_toml(text: str, field: str) -> dict[str, Any]:
         key, node, depth = stack.pop()
         if depth > MAX_NESTING:
             raise InvalidParameter(
-                key.strip(".") or field, f"nests arrays or tables {depth} levels deep; at most {MAX_NESTING}"
+                f"{prefix}{key}" if key else field, f"nests arrays or tables {depth} levels deep; at most {MAX_NESTING}"
             )
         if isinstance(node, dict):
             stack.extend((f"{key}.{k}" if key else k, v, depth + 1) for k, v in node.items())

@@ -188,6 +188,11 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
     check_executor_url(opts.executor, reach=False)
     with Ledger.open_readonly(directory):  # a missing, foreign or damaged ledger: exit 2 before the lock file is made
         pass
+    runs = directory / RUNS_DIR
+    if runs.exists() and not runs.is_dir():
+        raise CampaignError(
+            f"{runs} is a file, not the directory of the campaign's run logs: move it away, then resume"
+        )
     check_executor_url(opts.executor)
     stream = opts.stream or sys.stderr
     with DirectoryLock(directory, "resume") as lock, Ledger.open(directory) as ledger:

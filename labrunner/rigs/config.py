@@ -182,7 +182,7 @@ def load_rig_config(name_or_path: str | os.PathLike, search: Iterable[str | os.P
     """Find, parse and validate a rig file (see :func:`resolve_rig_file` for the lookup)."""
     path = resolve_rig_file(name_or_path, search)
     source = _display(path)
-    data = inputfile.loads_toml(inputfile.read_text(path, source, "rig file"), source)
+    data = inputfile.loads_toml(inputfile.read_text(path, source, "rig file"), source, f"{source}: ")
     return config_from_dict(data, source=source, default_name=path.stem)
 
 
