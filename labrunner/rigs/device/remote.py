@@ -99,6 +99,7 @@ def run_on_device(
             "link": {k: now[k] - then[k] for k in now},
             "firmware_id": rig.identity.firmware_id,
             "device_loop": result.diagnostics,
+            "law_check": result.diagnostics.get("law_check"),  # docs/control-laws.md § The host's check
         }
         results.append(result)
     return results
