@@ -48,6 +48,7 @@ COMMANDS = (
     "reproduce",
     "emulate",
     "check-rig",
+    "vectors",
 )
 
 
