@@ -49,6 +49,7 @@ COMMANDS = (
     "emulate",
     "check-rig",
     "vectors",
+    "conform",
 )
 
 
