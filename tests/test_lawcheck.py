@@ -153,3 +153,34 @@ def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults,
         assert status["first_diverged"]["flag"].startswith("diverged@tick ")
         report = Path(summary["report"]).read_text()
         assert "the device did not run the law" in report and "diverged@tick" in report
+
+
+SHIPPED = sorted((ROOT / "campaigns").rglob("*.toml"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", SHIPPED, ids=[str(p.relative_to(ROOT / "campaigns")) for p in SHIPPED])
+def test_the_emulated_device_passes_the_check_on_every_shipped_campaign(path):
+    """Each shipped campaign's first point as a device-loop run (the reference executor on its
+    twin), its first 4000 ticks at most: the law check passes."""
+    from labrunner.campaign import spec
+    from labrunner.errors import InvalidParameter
+
+    campaign = spec.load(path)
+    if campaign.guided is not None:
+        pytest.skip("a guided campaign chooses its points while it runs")
+    _, point = next(campaign.points())
+    rig = load_rig(campaign.rig_ref)
+    fs = campaign.fs
+    duration = min(campaign.duration or 4000 / fs, 4000 / fs)
+    try:
+        data = description.build(point, rig.info, fs=fs, duration=duration, seed=2, rig_safety=campaign.rig_safety)
+    except InvalidParameter as exc:  # per-run rig parameters (the fault campaigns): no device runs them
+        assert "rig_parameters" in str(exc)
+        pytest.skip(str(exc))
+    run = executor.execute(data, rig)
+    outcome = to_result(point, rig.info, fs, run.verdict, run.columns, {}).outcome
+    law = lawcheck.check(
+        point, rig.info, run.columns, outcome, fs=fs, duration=duration, seed=2, rig_safety=campaign.rig_safety
+    )
+    assert law.flag == "ok", law.detail

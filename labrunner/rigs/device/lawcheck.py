@@ -9,11 +9,13 @@ estimates — and the verdict with what the device sent. The flag is ``ok``, ``d
 
 **Tolerance.** The device computes from its float64 measurement y; the host sees y rounded to
 float32 (≤ ½ ulp each), and every column it compares is float32 too. How far that rounding can
-move a column is measured, not guessed: the law is run three times in one batch, on the logged
-y and on y with ±1 float32 ulp of random sign added to every sample (twice the rounding's
-worst case per sample), and a column's tolerance at tick k is ``TOLERANCE_FACTOR`` × the largest
-spread of those runs within k's block of ``BLOCK`` ticks and the blocks either side, plus 2
-float32 ulp of the value itself. Columns the
+move a column is measured, not guessed: the law is run four times in one batch, on the logged
+y, on y with ±1 float32 ulp of random sign added to every sample, and on y ± 1 ulp (twice the
+rounding's worst case per sample: uncorrelated errors of a moving signal, and the errors all
+alike of a signal at rest, which a long filter does not average away). A column's tolerance at
+tick k is ``TOLERANCE_FACTOR`` × the largest spread of those runs from the logged y's run, from
+tick 0 to the end of the ``BLOCK`` ticks after k's block (errors persist: the estimators sum
+the applied inputs that carry them), plus 2 float32 ulp of the value itself. Columns the
 measurement does not reach (references, an open loop's input) keep the 2 ulp. A firmware that
 computes the law in float64, as the documents ask (docs/control-laws.md), passes with margin; a
 law that differs by more than the rounding's effect is caught at its first tick.
@@ -35,7 +37,6 @@ from labrunner.rigs.device.replay import replay, stack_signals
 
 #: tolerance = this × the spread the float32 rounding of y causes, + 2 ulp (module docstring)
 TOLERANCE_FACTOR = 4.0
-DITHERS = 2  #: replays with y dithered by ±1 float32 ulp
 BLOCK = 64  #: ticks per block of the spread's envelope (:func:`_envelope`)
 
 
@@ -86,8 +87,9 @@ def check(
     channels = engine.channel_names(info, controller)
     names = column_names(channels)
     y = rows[:, [names.index(s) for s in channels["outputs"]]]  # type: ignore[union-attr]
-    rng = np.random.default_rng(0)
-    tables = [y] + [y + rng.choice([-1.0, 1.0], y.shape) * _ulp32(y) for _ in range(DITHERS)]
+    ulp = _ulp32(y)
+    signs = np.random.default_rng(0).choice([-1.0, 1.0], y.shape)
+    tables = [y, y + signs * ulp, y + ulp, y - ulp]  # rounding errors uncorrelated, and all alike (a signal at rest)
     runs = replay(point, info, np.stack(tables), fs=fs, duration=duration, seed=seed, rig_safety=rig_safety)
     law = [stack_signals(r, names) for r in runs]
     n = min(rows.shape[0], *(len(x) for x in law))
@@ -129,17 +131,16 @@ def check(
 
 
 def _envelope(spread: np.ndarray) -> np.ndarray:
-    """Per tick, the largest spread within the tick's block of :data:`BLOCK` ticks and its two
-    neighbours: the local size of the rounding's effect (one dithered tick may be small by chance)."""
+    """Per tick k, the largest spread from tick 0 up to the end of the block of :data:`BLOCK`
+    ticks after k's: rounding errors persist (the estimators sum the applied inputs, which carry
+    them, over their whole window), and one dithered tick may be small by chance."""
     n, c = spread.shape
     blocks = -(-n // BLOCK)
     padded = np.zeros((blocks * BLOCK, c))
     padded[:n] = spread
-    peak = padded.reshape(blocks, BLOCK, c).max(axis=1)
-    near = peak.copy()
-    near[1:] = np.maximum(near[1:], peak[:-1])
-    near[:-1] = np.maximum(near[:-1], peak[1:])
-    return np.repeat(near, BLOCK, axis=0)[:n]
+    peak = np.maximum.accumulate(padded.reshape(blocks, BLOCK, c).max(axis=1), axis=0)
+    peak[:-1] = peak[1:]  # the next block's too
+    return np.repeat(peak, BLOCK, axis=0)[:n]
 
 
 def _on(monitor: str | None) -> str:
