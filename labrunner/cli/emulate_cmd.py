@@ -12,10 +12,13 @@ import argparse
 import math
 
 from labrunner.cli.argtypes import numeric
-from labrunner.rigs.device import PROTOCOL_FAULTS
 
 _probability = numeric(float, "in [0, 1]")
 _non_negative = numeric(float, ">= 0")
+#: device-loop protocol faults (labrunner.rigs.device.emulated.DeviceLoop.protocol_faults), for
+#: ``labrunner conform``'s own tests: it runs a description whose CRC-32 fails, or of another
+#: version; it goes on after the host's SAFE/STOP; it has no host-silence watchdog
+PROTOCOL_FAULTS = ("no-crc-check", "any-version", "ignore-stop", "no-watchdog")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
