@@ -36,7 +36,7 @@ def test_every_description_conform_sends_to_be_refused_is_refused_by_the_referen
         "bad CRC", "another version", "bad magic", "wrong length", "unknown record", "unknown controller kind",
         "wrong channel counts",
     ]  # fmt: skip
-    for what, data in broken[:5]:
+    for _, data in broken[:5]:
         with pytest.raises(DescriptionError):
             description.decode(data)
     assert description.decode(broken[5][1]).kind == "????"  # decodes: the device refuses the kind

@@ -88,6 +88,21 @@ def test_a_verdict_the_law_does_not_reach_is_caught():
     assert law.column == "verdict" and law.tick == len(rows) - 1
 
 
+def test_a_monitor_the_safety_routine_does_not_have_is_caught():
+    rows, outcome = _device("motor-aborted")
+    law = _check("motor-aborted", rows, dataclasses.replace(outcome, monitor="overspeed"))
+    assert law.flag == f"diverged@tick {len(rows) - 1}" and "'overspeed' is none of the safety routine's" in law.detail
+
+
+def test_the_monitors_a_run_can_name_are_the_documented_list():
+    from labrunner.safety import MONITORS
+
+    text = (ROOT / "docs" / "control-laws.md").read_text()
+    assert all(f"`{name}`" in text for name in MONITORS)
+    _, outcome = _device("motor-aborted")
+    assert outcome.monitor == "du_dt" and outcome.monitor in MONITORS
+
+
 def test_a_failed_run_is_checked_up_to_its_last_sample_and_an_empty_one_not_at_all():
     rows, outcome = _device("motor-mfc2")
     failed = dataclasses.replace(outcome, status="failed", message="stopped by the host")

@@ -31,7 +31,8 @@ class DeviceLoop:
         self.emulator = emulator
         #: controller key → factor: a deliberately wrong law (``labrunner emulate --fault-law``)
         self.law_fault: dict[str, float] = {}
-        #: protocol faults a broken firmware might have (``labrunner emulate --fault-protocol``: no-crc-check, any-version, ignore-stop, no-watchdog)
+        #: protocol faults a broken firmware might have (``labrunner emulate --fault-protocol``:
+        #: no-crc-check, any-version, ignore-stop, no-watchdog)
         self.protocol_faults: set[str] = set()
         self.session = session.DeviceSession(self._send, self._recv, emulator.link.max_payload, self._execute)
 

@@ -34,6 +34,7 @@ from labrunner.rigs.base import RigInfo
 from labrunner.rigs.device.columns import column_names
 from labrunner.rigs.device.lawflag import DIVERGED, NOT_CHECKED, OK
 from labrunner.rigs.device.replay import replay, stack_signals
+from labrunner.safety import MONITORS
 
 #: tolerance = this × the spread the float32 rounding of y causes, + 2 ulp (module docstring)
 TOLERANCE_FACTOR = 4.0
@@ -115,6 +116,11 @@ def check(
             f"tolerance {tolerance[k, c]:.3g}",
             worst,
         )  # fmt: skip
+    base = (outcome.monitor or "").partition(":")[0]
+    if outcome.status == "aborted" and base not in MONITORS:
+        k = rows.shape[0] - 1
+        detail = f"the device's monitor {outcome.monitor!r} is none of the safety routine's ({', '.join(MONITORS)})"
+        return LawCheck(f"{DIVERGED}@tick {k}", k, "verdict", detail=detail, worst_ratio=worst)
     if outcome.status != "failed":  # a failed run (stopped, a link fault) has no verdict of the law's to match
         mine = (outcome.status, outcome.monitor or None, rows.shape[0])
         theirs = [(r.outcome.status, r.outcome.monitor, r.n_samples) for r in runs]
