@@ -5,8 +5,9 @@ Checks, each passed or failed with a one-line detail (docs/control-laws.md, docs
 * ``handshake``: IDENTITY answers HELLO and announces DEVICE_LOOP;
 * ``vector <case>``: every conformance vector of the device's rig kind, run in the sensor-table
   mode (the device reads y[k] from the description, nothing moves): the device must log the
-  table's y, the host's law check must pass on its rows (the tolerance of docs/control-laws.md)
-  and the verdict must be the vector's;
+  table's y, the host's law check must pass on its rows — recomputed from the exact float64
+  table, so the tolerance is float64 rounding in another order and the float32 of the logged
+  values, far tighter than a plant run's — and the verdict must be the vector's;
 * ``reject <what>``: a description with a bad CRC-32, another version, a bad magic, a wrong
   length, an unknown record type, an unknown controller kind or the wrong channel counts must be
   answered by REJECT;
@@ -113,7 +114,7 @@ def _vector(rig, name: str) -> Check:
         problems.append("the logged y is not the sensor table (does the device read SENSOR_TABLE?)")
     law = lawcheck.check(
         case.point, info, rows, outcome, fs=case.fs, duration=case.duration, seed=case.seed,
-        rig_safety=vectors.rig_safety(case),
+        rig_safety=vectors.rig_safety(case), measured=vector.rows[:, y],
     )  # fmt: skip
     if not law.ok:
         problems.append(f"law {law.flag}: {law.detail}")
