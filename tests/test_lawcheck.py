@@ -154,6 +154,8 @@ def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults,
         (tmp_path / "campaign.toml").write_text(CAMPAIGN)
         done = _labrunner("run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out"))
     assert done.returncode == 0, done.stderr
+    said = done.stderr if flag == "diverged" else done.stdout  # labrunner run's own last line
+    assert f"law check (device loop): {2 if flag == 'ok' else 0} ok, {2 if flag != 'ok' else 0} diverged" in said
     status = json.loads(_labrunner("status", str(tmp_path / "out"), "--json").stdout)["law_check"]
     assert status[flag] == 2 and sum(status[k] for k in ("ok", "diverged", "not-checked")) == 2
     text = _labrunner("status", str(tmp_path / "out")).stdout
