@@ -49,6 +49,15 @@ def test_the_vectors_of_each_rig_kind():
     assert len(conform.cases_for("plate")) == 5
 
 
+def test_an_unknown_case_is_refused_in_one_line_before_the_link_opens():
+    done = subprocess.run(
+        [sys.executable, "-m", "labrunner", "conform", str(ROOT / "rigs" / "dcmotor-can.toml"), "--case", "plate-mbc"],
+        capture_output=True, text=True, cwd=ROOT,
+    )  # fmt: skip
+    assert done.returncode == 2 and "--case: must be one of mfc1-motor-velocity" in done.stderr
+    assert "for a dcmotor, got 'plate-mbc'" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+
+
 def test_a_rig_file_without_a_device_is_refused_in_one_line(tmp_path):
     done = subprocess.run(
         [sys.executable, "-m", "labrunner", "conform", str(ROOT / "rigs" / "dcmotor-sim.toml")],

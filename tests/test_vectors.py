@@ -61,3 +61,20 @@ def test_an_implementation_from_the_document_reproduces_the_vector(case):
             assert verdict[key] == pytest.approx(float(want[key]), rel=1e-9), key
     else:
         assert want["monitor"] == "nan" and math.isnan(float(want["time"]))
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--case", "pid-motor"], "--case: must be one of mfc1-motor-velocity, "),
+        (["--out", "FILE"], "exists and is not a directory"),
+    ],
+)
+def test_bad_arguments_give_one_line_and_write_nothing(tmp_path, args, message):
+    (tmp_path / "FILE").write_text("x")
+    argv = ["--out", str(tmp_path / "new")] + [str(tmp_path / a) if a == "FILE" else a for a in args]
+    done = subprocess.run(
+        [sys.executable, "-m", "labrunner", "vectors", *argv], capture_output=True, text=True, cwd=ROOT
+    )
+    assert done.returncode == 2 and message in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "new").exists() and (tmp_path / "FILE").read_text() == "x"
