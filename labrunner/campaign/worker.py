@@ -67,6 +67,7 @@ class BatchResult:
 
     records: list[RunRecord] = field(default_factory=list)
     stop: str = ""  # non-empty: the reason to stop the campaign
+    failure_limit: int = 0  # the rig's max_consecutive_failures: points in a row failed that stop it (0: none)
 
 
 def final_path(point_id: str) -> str:
@@ -121,9 +122,11 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     ``run_batch`` defaults to :func:`labrunner.engine.run_batch`, or to the rig's
     ``run_on_device`` when its loop runs on the device (tests inject fakes). A rig that
     cannot be opened asks the parent to stop and leaves the points claimed (nothing ran; ``resume``
-    reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
-    asks the parent to stop (architecture: "stop-campaign"), publishing the logs up to the failure
-    when the engine attached them (``exc.results``); any other exception marks the batch's
+    reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed,
+    publishing the logs up to the failure when the engine attached them (``exc.results``); the
+    campaign goes on when the rig's ``recover()`` finds the device answering a fresh handshake in
+    its safe state, else the parent stops (architecture: "stop-campaign"). ``failure_limit`` tells
+    the parent the rig's ``max_consecutive_failures``. Any other exception marks the batch's
     points failed with the message (they have no log) and the campaign goes on. The ticks done go
     to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass.
     """
@@ -138,23 +141,30 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     except Exception as exc:  # no rig, no campaign: stop; nothing ran, so the points stay claimed for resume
         out.stop = f"rig {task.rig!r} cannot be opened: {type(exc).__name__}: {exc}"
         return out
+    out.failure_limit = int(getattr(rig, "parameters", {}).get("max_consecutive_failures", 0))
     try:
         with rig:
-            results = list(
-                (run_batch or _batch_runner(rig, report))(
-                    [r.config for r in task.runs],
-                    rig,
-                    fs=task.fs,
-                    duration=task.duration,
-                    seeds=[r.seed for r in task.runs],
-                    rig_safety=task.rig_safety,
+            try:
+                results = list(
+                    (run_batch or _batch_runner(rig, report))(
+                        [r.config for r in task.runs],
+                        rig,
+                        fs=task.fs,
+                        duration=task.duration,
+                        seeds=[r.seed for r in task.runs],
+                        rig_safety=task.rig_safety,
+                    )
                 )
-            )
+            except RigError as exc:
+                exc.after = _recover(rig)
+                raise
     except RigError as exc:  # the engine hands over the failed runs' logs up to the failure when it has them
-        out.stop = f"rig {task.rig!r}: {exc}"
+        after = getattr(exc, "after", "")  # None: the device is back in its safe state, the campaign goes on
+        if after is not None:
+            out.stop = f"rig {task.rig!r}: {exc}" + (f"; {after}" if after else "")
         partial = getattr(exc, "results", None)
         if not partial:
-            return _failed(task, out, out.stop, host, pid)
+            return _failed(task, out, f"rig {task.rig!r}: {exc}", host, pid)
         results = list(partial)
     except Exception as exc:  # bad configuration or a crash: the batch's points fail, the campaign goes on
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
@@ -168,6 +178,20 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
             f"publishing the logs of batch {task.runs[0].point_id}… failed: {type(exc).__name__}: {exc}"
         ) from None
     return out
+
+
+def _recover(rig: Any) -> str | None:
+    """After a RigError: None when the device answered a fresh handshake in its safe state (the
+    point fails, the campaign goes on); else why the campaign stops ("" for a rig that has no way
+    to check itself: the failure alone says it)."""
+    recover = getattr(rig, "recover", None)
+    if recover is None:
+        return ""
+    try:
+        recover()
+    except RigError as exc:
+        return str(exc)
+    return None
 
 
 def _batch_runner(rig: Any, report: Callable[[int], None] | None) -> Callable[..., Sequence[Any]]:

@@ -41,18 +41,20 @@ class DeviceLoop:
             return None
         if frame.kind in _IN:
             return _IN[frame.kind], frame.payload
+        self.emulator.seq = self.session.ticks_done  # STATUS's seq during a run: the ticks done
         self.emulator._dispatch(frame)  # HELLO, HEARTBEAT, SAFE, STOP: the core's answers
         return (session.STOP if frame.kind in (Kind.SAFE, Kind.STOP) else None), frame.payload
 
-    def _execute(self, data: bytes, hook, on_accept) -> executor.DeviceRun:
+    def _execute(self, data: bytes, hook, on_accept, tick) -> executor.DeviceRun:
         emulator = self.emulator
 
         def accepted(description) -> None:
             emulator.state, emulator.seq = m.DeviceState.RUNNING, 0
+            emulator.arm_death()
             on_accept(description)
 
         try:
-            return executor.execute(data, emulator.rig, hook, accepted)
+            return executor.execute(data, emulator.rig, hook, accepted, tick)
         finally:
             emulator.state = m.DeviceState.IDLE
 

@@ -91,7 +91,7 @@ class Emulator:
         self._t0 = time.monotonic()
         self._last_rx = self._last_status = self._t0
         self._held_s = 0.0  # time the loop itself was held up since the last host frame
-        self._die_at = float("inf")  # set by the first run's set-up
+        self._die_at = float("inf")  # set when the first run begins (arm_death)
         install(self)
         for target in EXTENSIONS if extensions is None else extensions:
             module, _, function = target.partition(":")
@@ -132,8 +132,14 @@ class Emulator:
         self._link_rejects_at_setup = self._link_rejects()
         self._last_rx = self._last_status = time.monotonic()
         self._held_s = 0.0
+        self.arm_death()
+
+    def arm_death(self) -> None:
+        """A run began: the first one starts the fault injection's ``die_after_s`` clock."""
         if self._die_at == float("inf"):
-            self._die_at = self._last_rx + self.faults.die_after_s
+            self._die_at = time.monotonic() + self.faults.die_after_s
+            if isinstance(self.link, FaultyLink):
+                self.link.silent_from = self._die_at
 
     def go_safe(self) -> None:
         if self.state == m.DeviceState.RUNNING:
