@@ -47,6 +47,7 @@ class DeviceLoop:
 
     def _execute(self, data: bytes, hook, on_accept, tick) -> executor.DeviceRun:
         emulator = self.emulator
+        emulator.end_run()  # a host-loop run set up before ends here, its clock and watchdog with it
 
         def accepted(description) -> None:
             emulator.state, emulator.seq = m.DeviceState.RUNNING, 0

@@ -256,11 +256,15 @@ class Emulator:
         self.send_status()
 
     def _stop_run(self, frame: Frame) -> None:
+        self.end_run()
+        self.send_status()
+
+    def end_run(self) -> None:
+        """STOP, or a device-loop run beginning: the safe input, the host loop's clock and watchdog stopped, idle."""
         if self.state != m.DeviceState.IDLE:
             self.rig.safe_state()
             self.state = m.DeviceState.IDLE
-        self.ticking = False
-        self.send_status()
+        self.ticking, self.watchdog_s = False, float("inf")
 
     def _watchdog(self, now: float) -> float | None:
         silent = now - self._last_rx - self._held_s  # the device's own hold-ups are nobody's silence
