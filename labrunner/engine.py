@@ -9,7 +9,7 @@ Outcomes: ``completed``; ``aborted`` (a safety monitor tripped: monitor, time, v
 threshold); ``no-motion`` (completed, but the load never moved beyond the sensor resolution, or
 the flow never rose above its threshold); ``failed`` (an exception: its message; a
 :class:`~labrunner.errors.RigError` is re-raised after the runs are built, with them in
-``exc.results``, so the worker keeps their logs up to the failure and stops the campaign). The same code
+``exc.results``, so the worker keeps their logs up to the failure, then checks the rig). The same code
 drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``. A
 ``progress`` hook hears the ticks done at most :data:`PROGRESS_CALLS` times a batch (the
 campaign's live progress, :mod:`labrunner.campaign.live`); it costs one integer comparison a tick.
@@ -238,7 +238,7 @@ def run_batch(
             outcome = Outcome("completed")
         metrics = run_metrics(signals, roles, fs=float(fs), windows=parse_windows(points[i].get("metrics")))
         results.append(RunResult(outcome, signals, float(fs), channels, metrics))
-    if rig_error is not None:  # the worker publishes these logs of the failed runs, then stops the campaign
+    if rig_error is not None:  # the worker publishes these logs of the failed runs, then checks the rig
         rig_error.results = results
         raise rig_error
     return results

@@ -52,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=_non_negative,
         default=math.inf,
         metavar="S",
-        help="fall silent for good S seconds into the first run",
+        help="fall silent for good S seconds after the first run began (host loop: SETUP; device loop: ACCEPT)",
     )
     p.add_argument("--seed", type=numeric(int, ">= 0"), default=0, help="seed of the fault injection")
     p.add_argument(
