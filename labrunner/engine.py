@@ -56,7 +56,8 @@ class Outcome:
 class RunResult:
     """One run: outcome, signals (name → (K,) float64; sample k at k/fs), channel roles, metrics,
     and ``diagnostics`` a rig reports about the run (a device loop's timing and transfer), logged
-    as the MCAP's ``diagnostics`` metadata."""
+    as the MCAP's ``diagnostics`` metadata; a real device's own timestamps (``device_clock``) are
+    logged as the signal ``t_device``."""
 
     outcome: Outcome
     signals: dict[str, np.ndarray]
@@ -64,6 +65,7 @@ class RunResult:
     channels: dict[str, object]  # role group → names, and "units" (see channel_names)
     metrics: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, object] = field(default_factory=dict)
+    device_clock: np.ndarray | None = None  # a real device's time of each sample [s since tick 0]; None: a twin
 
     @property
     def n_samples(self) -> int:

@@ -13,6 +13,7 @@ import time
 import uuid
 from dataclasses import replace
 
+import numpy as np
 import pytest
 from test_campaign_support import campaign_text, ledger_rows, write
 
@@ -24,7 +25,7 @@ from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.emulator import Emulator, device_link, twin_for
 from labrunner.rigs.transports.faults import LinkFaults
-from tests.deviceloop_points import MOTOR_SAFETY, POINTS
+from tests.deviceloop_points import MOTOR_SAFETY, POINTS, assert_same_as_twin
 from tests.test_deviceloop_link import emulator_process, rig_file, rig_toml
 
 LONG = 40.0  # s: a motor run the emulated device computes for about a second, streaming its samples
@@ -92,10 +93,11 @@ def test_a_device_that_was_silent_for_a_while_answers_a_fresh_handshake_and_runs
             [result] = rig.run_on_device([point], fs=fs, duration=duration, seeds=[11], rig_safety=safety)
     finally:
         emulator.stop()
-    assert caught.value.results[0].outcome.status == "failed"
-    from tests.deviceloop_points import assert_same_as_twin
-
+    partial = caught.value.results[0]
+    assert partial.outcome.status == "failed" and len(partial.device_clock) == partial.n_samples
     assert_same_as_twin(result, "motor-mfc1", 11)
+    # the emulated device's clock is virtual: tick k at k/f_s exactly, from each SAMPLES block's time
+    np.testing.assert_allclose(result.device_clock, np.arange(result.n_samples) / 200.0, rtol=0, atol=1e-9)
 
 
 def test_recover_refuses_a_device_that_reported_its_own_protection():
@@ -178,3 +180,57 @@ def test_a_dead_host_loop_device_stops_the_campaign_saying_the_rig_may_not_be_sa
     assert "does not answer a fresh handshake" in err and "may not be in its safe state" in err
     states = [r["state"] for r in ledger_rows(project / "data" / "dead")]
     assert states.count("failed") == 1 and states.count("planned") == 8
+
+
+# -- timing a user sees: late ticks and overruns in status, analyse, metrics.csv and the report ---------
+
+
+def test_late_ticks_and_overruns_show_in_status_analyse_metrics_csv_and_the_report(project, capsys):
+    """A host loop whose device answers 6 ms late at 200 Hz (5 ms periods): its inputs miss their
+    deadlines, the device holds them and flags the ticks LATE. Every view shows the counts the runs'
+    own diagnostics records hold (read from the MCAPs: the reference)."""
+    import pandas as pd
+
+    config = _virtual(rig_file("motor-mfc1", "can"))
+    config["parameters"].update(loop="host", timeout_s=0.1, watchdog_periods=200, max_late_ticks=1_000_000)
+    config["parameters"].pop("data_bitrate"), config["parameters"].pop("fd")
+    write(project / "rigs" / "slow.toml", rig_toml(config))
+    grid = '"controller.k_p" = { values = [10.0, 20.0] }'
+    path = write(project / "slow.toml", campaign_text(name="slow", rig="rigs/slow.toml", grid=grid, duration=1.0))
+    emulator = Emulator(
+        twin_for(config_from_dict(config)), device_link(config_from_dict(config)), faults=LinkFaults(delay_ms=6.0)
+    ).start()
+    try:
+        assert main(["run", str(path)]) == 0
+    finally:
+        emulator.stop()
+    directory = project / "data" / "slow"
+    rows = ledger_rows(directory)
+    runs = [read_run(str(directory / r["log_path"])) for r in rows]
+    logs = {r["id"]: log.metadata["diagnostics"]["host"] for r, log in zip(rows, runs)}
+    for log in runs:  # the device's own clock, second channel: its trailers' timestamps, from tick 0
+        t = log.frame["t_device"].to_numpy()
+        assert log.channels["t_device"] == {"role": "signal", "unit": "s"} and t[0] == 0.0
+        assert np.all(np.diff(t) > 0) and t[-1] >= (len(t) - 1) / 200.0 - 1e-3  # paced; an overrun slips it later
+    late = {k: d["late_ticks"] for k, d in logs.items()}
+    over = {k: d["overruns"] for k, d in logs.items()}
+    assert all(n > 0 for n in late.values())
+    capsys.readouterr()
+    assert main(["status", str(directory), "--json"]) == 0
+    timing = json.loads(capsys.readouterr().out)["timing"]
+    assert timing == {
+        "runs": 2,
+        "late_ticks": sum(late.values()),
+        "overruns": sum(over.values()),
+        "runs_with_late_ticks": 2,
+        "runs_with_overruns": sum(n > 0 for n in over.values()),
+    }
+    assert main(["status", str(directory)]) == 0
+    assert f"timing on the rig: {sum(late.values())} late tick(s) in 2 run(s)" in capsys.readouterr().out
+    assert main(["analyse", str(directory)]) == 0
+    out = capsys.readouterr().out
+    assert f"timing on the rig: {sum(late.values())} late tick(s) in 2 run(s)" in out
+    table = pd.read_csv(directory / "report" / "metrics.csv")
+    assert dict(zip(table["id"], table["late_ticks"])) == late and dict(zip(table["id"], table["overruns"])) == over
+    report = (directory / "report" / "index.html").read_text()
+    assert f"{sum(late.values())} late tick(s) in 2 run(s)" in report

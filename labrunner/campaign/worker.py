@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
 from labrunner.errors import CampaignError, RigError
@@ -170,6 +172,8 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
         return _failed(task, out, detail, host, pid)
     diagnostics = rig.diagnostics() if hasattr(rig, "diagnostics") else None  # a real rig's link record (B = 1)
+    if hasattr(rig, "device_clock") and len(results) == 1 and results[0].device_clock is None:  # a host loop
+        results[0].device_clock = rig.device_clock()
     engine_s = (time.perf_counter() - t0) / max(len(task.runs), 1)
     try:
         _publish_all(task, results, out, engine_s, host, pid, rig_record, start_time, diagnostics)
@@ -241,12 +245,13 @@ def _publish_all(
             record = getattr(result, "diagnostics", None) or diagnostics  # a device loop's record is per run
             if record is not None:
                 metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
+            signals, channels = with_device_clock(result)
             write_run(
                 tmp,
                 metadata=metadata,
-                signals=result.signals,
+                signals=signals,
                 outcome=outcome,
-                prefix=prefixes.get(list(result.signals), result.channels),
+                prefix=prefixes.get(list(signals), channels),
                 start_time=start_time,
             )
             written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1))
@@ -278,6 +283,22 @@ def _publish_all(
                 publish_s=publish_s,
             )
         )
+
+
+def with_device_clock(result: Any) -> tuple[dict[str, Any], Mapping[str, Any]]:
+    """A run's signals and channels to log: a real device's timestamps (``device_clock``) added as
+    the signal ``t_device`` [s] (role *signal*; NaN where a sample has none), the log time staying
+    the tick grid start + k/f_s."""
+    clock = getattr(result, "device_clock", None)
+    if clock is None:
+        return result.signals, result.channels
+    n = result.n_samples
+    t = np.full(n, np.nan)
+    t[: min(n, len(clock))] = np.asarray(clock, float)[:n]
+    channels = dict(result.channels)
+    channels["signals"] = [*channels.get("signals", []), "t_device"]
+    channels["units"] = {**channels.get("units", {}), "t_device": "s"}
+    return {**result.signals, "t_device": t}, channels
 
 
 def _failed(task: BatchTask, out: BatchResult, message: str, host: str, pid: int) -> BatchResult:

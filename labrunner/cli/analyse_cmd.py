@@ -118,6 +118,10 @@ def run(args: argparse.Namespace) -> int:
         )
         if agree["false_unstable"] and not agree["observed_unstable"]:
             print("  no run was aborted, so no outcome can confirm a predicted instability: read the RMS map")
+    if "timing" in summary:
+        from labrunner.campaign.rig_timing import timing_line
+
+        print(timing_line(summary["timing"]))
     for problem in summary["problems"]:
         print(f"{problem['kind']}: {problem['path']}: {problem['detail']}")
     print(f"report: {summary['report']}")

@@ -29,6 +29,7 @@ def _clock(seconds: float | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from labrunner.campaign.progress import format_counts
+    from labrunner.campaign.rig_timing import timing_line
     from labrunner.campaign.status import status
 
     st = status(args.directory)
@@ -42,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"  elapsed {_clock(st['elapsed_s'])} over {st['sessions']} session(s), {rate}, estimated {_clock(st['estimate_s'])} left"
     )
+    if "timing" in st:
+        print("  " + timing_line(st["timing"]))
     if "guided" in st:  # what the procedure decided so far
         from labrunner.campaign.guided_run import status_lines
 

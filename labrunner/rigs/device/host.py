@@ -129,12 +129,14 @@ def run(
         d = description.decode(data)
         diagnostics = {"loop": "device", "description_bytes": len(data), "columns": d.n_columns, "streamed": d.stream}
         try:
-            verdict, rows, transfer = session.run_on_device(
-                send, recv, max_payload, data, d.ticks, d.n_columns, dead_s=dead_s
+            verdict, rows, clock, transfer = session.run_on_device(
+                send, recv, max_payload, data, d.ticks, d.n_columns, d.fs, dead_s=dead_s
             )
         except session.RunFailed as exc:
             failed = blocks.Verdict("failed", len(exc.rows), len(exc.rows), 0, message=f"RigError: {exc}")
-            exc.results = [*results, to_result(point, rig_info, fs, failed, exc.rows, diagnostics)]
+            partial = to_result(point, rig_info, fs, failed, exc.rows, diagnostics)
+            partial.device_clock = exc.clock
+            exc.results = [*results, partial]
             raise
         diagnostics.update(
             ticks=verdict.ticks,
@@ -143,5 +145,7 @@ def run(
             device_compute_s=verdict.compute_ns / 1e9,
             **transfer.as_dict(),
         )
-        results.append(to_result(point, rig_info, fs, verdict, rows, diagnostics))
+        result = to_result(point, rig_info, fs, verdict, rows, diagnostics)
+        result.device_clock = clock
+        results.append(result)
     return results

@@ -37,11 +37,12 @@ Recv = Callable[[float], "tuple[str | None, bytes] | None"]
 
 
 class RunFailed(RigError):
-    """A device-loop run the host gave up on: the reason, and the ``rows`` that had arrived (its partial log)."""
+    """A device-loop run the host gave up on: the reason, the ``rows`` that had arrived (its
+    partial log) and their device ``clock``."""
 
-    def __init__(self, message: str, rows: np.ndarray) -> None:
+    def __init__(self, message: str, rows: np.ndarray, clock: np.ndarray) -> None:
         super().__init__(message)
-        self.rows = rows
+        self.rows, self.clock = rows, clock
 
 
 class HostStop(Exception):
@@ -74,20 +75,22 @@ def run_on_device(
     description: bytes,
     n_ticks: int,
     n_columns: int,
+    fs: float,
     *,
     dead_s: float = DEAD_S,
     stall_s: float = STALL_S,
     heartbeat_s: float = 0.25,
-) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
+) -> tuple[blocks.Verdict, np.ndarray, np.ndarray, Transfer]:
     """Host side of one run: send ``description``, collect the samples and the verdict; a
     HEARTBEAT goes out whenever the host sent nothing for ``heartbeat_s`` (the device's watchdog).
 
-    Returns the verdict, the (n_samples, n_columns) float32 rows and the transfer's figures.
+    Returns the verdict, the (n_samples, n_columns) float32 rows, the device's time of each row
+    [s] (a SAMPLES block's first-tick time, then 1/f_s a tick) and the transfer's figures.
     Raises :class:`RunFailed` (a RigError holding the rows that arrived) when the device refuses
     the description, sends no bulk frame for ``dead_s`` (dead or hung), completes no block either
     way for ``stall_s`` (a link too lossy), sends samples that do not fit the run, or the link fails.
     """
-    run = _HostRun(send, recv, max_payload, n_ticks, n_columns, heartbeat_s)
+    run = _HostRun(send, recv, max_payload, n_ticks, n_columns, fs, heartbeat_s)
     parts = _slices(description, run.tx.body_limit)
     for i, part in enumerate(parts):
         run.tx.queue(blocks.DESCRIPTION, part, bulk.FLAG_LAST if i == len(parts) - 1 else 0)
@@ -99,26 +102,30 @@ def run_on_device(
     except RigError as exc:
         with contextlib.suppress(RigError):
             run.rx.cancel()  # the device stops resending this run's results
-        raise RunFailed(str(exc), run.rows[: run.covered]) from None
+        raise RunFailed(str(exc), run.rows[: run.covered], run.clock[: run.covered]) from None
     end = time.monotonic()
     out = run.out
     out.bytes_to_device, out.blocks_resent = run.tx.bytes_sent, run.tx.resent
     out.received = run.rx.counters.as_dict()
     out.accept_s = (run.accepted or end) - t0
     out.run_s = end - (run.accepted or t0)
-    return verdict, run.rows[: run.covered], out
+    return verdict, run.rows[: run.covered], run.clock[: run.covered], out
 
 
 class _HostRun:
     """The host's end of one run: its two bulk streams, the rows that arrived, the timers."""
 
-    def __init__(self, send: Send, recv: Recv, max_payload: int, n_ticks: int, n_columns: int, heartbeat_s: float):
+    def __init__(
+        self, send: Send, recv: Recv, max_payload: int, n_ticks: int, n_columns: int, fs: float, heartbeat_s: float
+    ):
         self.send, self.recv, self.heartbeat_s = send, recv, heartbeat_s
         self.last_tx = time.monotonic()
         transfer = secrets.randbelow(2**16)  # this run's; the device answers under it
         self.tx = bulk.Sender(lambda p: self._sent(TO_DEVICE, p), max_payload, bulk.TO_DEVICE, transfer)
         self.rx = bulk.Receiver(lambda p: self._sent(ACK, p), bulk.TO_HOST, transfer=transfer)
         self.rows = np.full((n_ticks, n_columns), np.nan, np.float32)
+        self.clock = np.full(n_ticks, np.nan)  # the device's time of each row [s]
+        self.fs = fs
         self.covered = 0  # rows up to here arrived (SAMPLES blocks come in tick order)
         self.accepted: float | None = None  # when ACCEPT arrived (monotonic)
         self.out = Transfer()
@@ -187,10 +194,11 @@ class _HostRun:
                 )
             self.accepted = now
         elif block.kind == blocks.SAMPLES:
-            first, chunk, _ = blocks.decode_samples(block.body)
+            first, chunk, t_us = blocks.decode_samples(block.body)
             if first != self.covered or first + len(chunk) > n_ticks or chunk.shape[1] != n_columns:
                 raise RigError(f"SAMPLES block for ticks {first}..{first + len(chunk) - 1} after {self.covered} ticks")
             self.rows[first : first + len(chunk)] = chunk
+            self.clock[first : first + len(chunk)] = t_us * 1e-6 + np.arange(len(chunk)) / self.fs
             self.covered += len(chunk)
         elif block.kind == blocks.VERDICT:
             return blocks.Verdict.decode(block.body)

@@ -96,6 +96,7 @@ class RemoteRig(Rig):
         self._keepalive = Keepalive(self._send_heartbeat, fifo=bool(parameters["realtime"]))
         self._realtime: contextlib.ExitStack | None = None  # SCHED_FIFO held from the first reset to close
         self._device_fault = False  # the device reported ERROR DEVICE_FAULT (recover() refuses to go on)
+        self._clock: list[float] = []  # the device's timestamp of each tick of the run [s], u32 µs unwrapped
 
     # -- the Rig contract (no noise, no per-run parameters: the base class's defaults) ------------
     @classmethod
@@ -178,6 +179,10 @@ class RemoteRig(Rig):
             loop=self.loop,
             firmware_id=self.identity.firmware_id if self.identity else None,
         )
+
+    def device_clock(self) -> np.ndarray:
+        """The device's timestamp of each tick of the last host-loop run [s since its tick 0]."""
+        return np.array(self._clock)
 
     def ping(self, stale_errors: bool = False) -> float:
         """Round trip [s] of one HEARTBEAT to the device's STATUS answer (RigError after ``timeout_s``).
@@ -269,7 +274,7 @@ class RemoteRig(Rig):
         self.host, self.device = HostCounters(), DeviceReport()
         self.ping(stale_errors=True)  # in step: what the device sent before this run is behind us
         self._link_at_setup = replace(self.link.counters)
-        self._seq, self._late_run = 0, 0
+        self._seq, self._late_run, self._clock = 0, 0, []
         self._keepalive.arm(self._watchdog_s(), int(self.parameters["max_late_ticks"]) / self.fs)
         for frame in m.setup_frames(self.fs, self._watchdog_s(), int(seeds[0])):
             self._send(frame)
@@ -384,7 +389,11 @@ class RemoteRig(Rig):
     def _tick_end(self, msg: m.TickEnd, tick: int) -> None:
         late, overrun = bool(msg.flags & m.FLAG_LATE), bool(msg.flags & m.FLAG_OVERRUN)
         self.host.note_tick(tick, late, overrun)
-        self.device.device_time_s = msg.timestamp_us * 1e-6
+        stamp = msg.timestamp_us * 1e-6
+        while self._clock and stamp < self._clock[-1]:  # timestamp_us wrapped (every 71.6 min)
+            stamp += 2**32 * 1e-6
+        self._clock.append(stamp)
+        self.device.device_time_s = stamp
         self._late_run = self._late_run + 1 if late else 0
         if self._late_run > int(self.parameters["max_late_ticks"]):
             self._fail(
