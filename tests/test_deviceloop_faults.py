@@ -132,8 +132,9 @@ def test_emulate_die_after_acts_in_the_device_loop():
 
 
 def _host_loop_rig(project, limit: int) -> tuple[dict, str]:
-    """A host-loop motor rig file on a virtual bus (its device, served with ``drop=0.05``, loses a
-    frame within a run's first ticks: every run fails; a handshake, asking up to three times, gets through)."""
+    """A host-loop motor rig file on a virtual bus. Served with ``drop=0.05`` its device loses a frame
+    within a run's first ticks (every run fails; a handshake, asking up to three times, gets through);
+    with ``delay_ms=6`` at 200 Hz every input misses its tick (11 late ticks in a row fail a run)."""
     config = _virtual(rig_file("motor-mfc1", "can"))
     config["parameters"].update(loop="host", timeout_s=0.05, watchdog_periods=200, max_consecutive_failures=limit)
     config["parameters"].pop("data_bitrate"), config["parameters"].pop("fd")
@@ -141,14 +142,21 @@ def _host_loop_rig(project, limit: int) -> tuple[dict, str]:
     return config, str(path)
 
 
-@pytest.mark.parametrize("limit, failed", [(2, 2), (10, 4)])
-def test_a_lost_frame_fails_one_point_with_its_log_and_the_campaign_goes_on_until_n_in_a_row(
-    project, capsys, limit, failed
+@pytest.mark.parametrize(
+    "faults, limit, failed, reason",
+    [
+        (LinkFaults(drop=0.05, seed=4), 2, 2, ""),  # a lost frame: "tick k incomplete", "no complete measurement", ...
+        (LinkFaults(drop=0.05, seed=4), 10, 4, ""),
+        (LinkFaults(delay_ms=6.0), 2, 2, "late ticks in a row at 200 Hz"),  # late frames: inputs miss their ticks
+    ],
+)
+def test_a_lost_or_late_frame_fails_one_point_with_its_log_and_the_campaign_goes_on_until_n_in_a_row(
+    project, capsys, faults, limit, failed, reason
 ):
     config, _ = _host_loop_rig(project, limit)
     grid = '"controller.k_p" = { values = [10.0, 20.0, 30.0, 40.0] }'
     path = write(project / "flaky.toml", campaign_text(name="flaky", rig="rigs/flaky.toml", grid=grid))
-    emulator = _serve(config, LinkFaults(drop=0.05, seed=4))
+    emulator = _serve(config, faults)
     try:
         code = main(["run", str(path)])
     finally:
@@ -158,8 +166,8 @@ def test_a_lost_frame_fails_one_point_with_its_log_and_the_campaign_goes_on_unti
     states = [r["state"] for r in rows]
     assert states.count("failed") == failed and states.count("planned") == 4 - failed, err
     for row in rows[:failed]:
-        outcome = json.loads(row["outcome_json"])
-        assert outcome["message"].startswith("RigError: rig 'dcmotor-can': ")  # a tick or an answer lost
+        message = json.loads(row["outcome_json"])["message"]
+        assert message.startswith("RigError: rig 'dcmotor-can': ") and reason in message
         log = read_run(str(project / "data" / "flaky" / row["log_path"]))  # the log up to the failure
         assert log.outcome["status"] == "failed" and len(log.frame) < 400
     if failed < 4:

@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from labrunner.rigs.config import config_from_dict
 from labrunner.rigs.device import blocks, session
 from labrunner.rigs.registry import load_rig
 from labrunner.rigs.transports import messages as m
+from labrunner.rigs.transports.faults import LinkFaults
+from labrunner.rigs.transports.protocol import Kind
 from tests.deviceloop_points import POINTS, assert_same_as_twin
 from tests.test_deviceloop_faults import _serve, _virtual
 from tests.test_deviceloop_link import rig_file
@@ -94,3 +98,26 @@ def test_progress_comes_every_quarter_second_and_accept_is_block_0(monkeypatch):
     assert len(times) >= 3  # the run took over half a second: PROGRESS came
     assert max(b - a for a, b in zip(times, times[1:])) < 0.6  # 0.25 s, and a loaded machine's slack
     assert [seq for _, _, seq in arrived] == list(range(len(arrived)))  # one numbering from ACCEPT to VERDICT
+
+
+def test_host_loop_tick_numbers_wrap_at_2_16_on_both_ends():
+    """Both ends start 5 ticks before the u16 seq wraps: the run goes on through tick 65536 = seq 0
+    with every measurement the direct twin's (compared by (expected − received) mod 2¹⁶)."""
+    from test_transports import U, direct_run
+    from test_transports_faults import serve
+
+    rig, emulator = serve(LinkFaults())
+    emulator.rig.reset(
+        1, [3], 200.0
+    )  # the twin's first set-up loads its modules (~0.5 s here): not within y_0's deadline
+    try:
+        ys = [rig.reset(1, [3], 200.0)[0, 0]]
+        device = emulator.handlers[Kind.INPUT].__self__  # the host-loop service (hostloop_device)
+        rig._seq = device.k = 2**16 - 5
+        ys += [rig.step(np.array([[v]]))[0, 0] for v in U[:20]]
+        seq = rig._seq
+    finally:
+        rig.close()
+        emulator.stop()
+    assert seq == 15 and rig.host.stale == 0 and rig.host.lost_ticks == 0
+    np.testing.assert_allclose(ys, direct_run(U[:20], 3), rtol=1e-6, atol=1e-6)
