@@ -57,7 +57,7 @@ def test_a_device_loop_run_ends_a_host_loop_setup_and_its_watchdog():
             rig.handshake()
             for frame in m.setup_frames(200.0, 0.5, 3):
                 rig.link.send(frame)
-            deadline = time.monotonic() + 3.0  # the twin takes ~0.5 s to set up here
+            deadline = time.monotonic() + 3.0  # a loaded machine
             while not emulator.ticking and time.monotonic() < deadline:
                 time.sleep(0.005)
             assert emulator.ticking and emulator.state == m.DeviceState.RUNNING
