@@ -143,7 +143,8 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     except Exception as exc:  # no rig, no campaign: stop; nothing ran, so the points stay claimed for resume
         out.stop = f"rig {task.rig!r} cannot be opened: {type(exc).__name__}: {exc}"
         return out
-    out.failure_limit = int(getattr(rig, "parameters", {}).get("max_consecutive_failures", 0))
+    parameters = getattr(rig, "parameters", None)  # a remote rig file's: max_consecutive_failures
+    out.failure_limit = int(parameters.get("max_consecutive_failures", 0)) if isinstance(parameters, Mapping) else 0
     try:
         with rig:
             try:
