@@ -25,6 +25,7 @@ from labrunner.analysis.overlays import EQUATIONS
 from labrunner.analysis.report import Image, Section, write_report
 from labrunner.analysis.table import FOREIGN, UNTIL_ABORT
 from labrunner.campaign.progress import format_counts
+from labrunner.campaign.rig_timing import timing_line
 from labrunner.rigs.device import lawflag
 
 #: Metric columns of the table of all runs (the ones ranked by, then those of aborted runs).
@@ -115,6 +116,8 @@ def _outcome_section(summary: Mapping[str, Any]) -> Section:
     facts: dict[str, object] = dict(summary["outcomes"])
     if summary.get("oscillating"):
         facts["of the completed: oscillating (detector)"] = summary["oscillating"]
+    if "timing" in summary:
+        paragraphs.append(timing_line(summary["timing"]).capitalize() + " — per run in metrics.csv.")
     return Section("Outcomes", paragraphs=paragraphs, facts=facts)
 
 

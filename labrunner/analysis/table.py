@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner import run_identity
+from labrunner.campaign.rig_timing import timing_counts
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 from labrunner.rigs.device.lawflag import flag_of
@@ -55,8 +56,10 @@ ID_COLUMNS = (
 UNTIL_ABORT = "_until_abort"
 #: Columns that tell whether a cached row still matches its log file.
 CACHE_COLUMNS = ("log_size", "log_mtime_ns")
+#: A real rig's timing counts per run (:mod:`labrunner.campaign.rig_timing`; absent for a twin).
+TIMING_COLUMNS = ("late_ticks", "overruns")
 #: Integer columns (nullable where a point has no run).
-INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS)
+INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS, *TIMING_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
 METRICS_VERSION = (
     4  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort columns
@@ -216,6 +219,7 @@ def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[
                 "law_check": flag_of(outcome),  # a device-loop run's reference-law check, "" for others
                 **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
                 **metrics,
+                **timing_counts(outcome.get("diagnostics")),
             }
         )
     frame = pd.DataFrame.from_records(records) if records else pd.DataFrame(columns=list(ID_COLUMNS))
