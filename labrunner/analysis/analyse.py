@@ -100,12 +100,7 @@ def _analyse(
         meta = ledger.meta()
         quarantine = [dict(r) for r in ledger.quarantined()]
     campaign, note = selection.load_campaign(meta, directory)
-    rig_units = (
-        {s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
-        if campaign is not None
-        else {}
-    )
-    rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
+    rig_units, rig_limits = selection.rig_signals(campaign)
     advance()
     step("metrics table")
     built = table_mod.build_table(

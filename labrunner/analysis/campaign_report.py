@@ -209,7 +209,7 @@ def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[s
     abort = [c for c in ("monitor", "abort_time") if c in frame.columns and frame[c].notna().any()]
     columns = ["seq", "id", "outcome", *params, *metrics, *until, *abort, "n_samples"]
     columns = [c for c in columns if c in frame.columns]
-    head = "".join(f"<th>{html.escape(c.split('.')[-1] if '.' in c else c)}</th>" for c in columns)
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)  # the names of metrics.csv and the API
     cells = [_column_cells(frame[c]) for c in columns]
     cells.append(_link_cells(ctx.out, ctx.directory, frame["log_path"].tolist()))
     cells.append(
