@@ -199,3 +199,52 @@ def test_example_script_runs_on_a_campaign(project):
     assert out.returncode == 0, out.stderr
     assert "sweep: 12 points; parameters ['controller.gamma', 'controller.k_p']" in out.stdout
     assert "outcome completed" in out.stdout and "samples logged" in out.stdout
+
+
+def test_report_shows_a_bounded_runs_table_of_a_large_campaign(project, monkeypatch):
+    """Past TABLE_ROWS points the report's table keeps the best half by rms_error, then aborted
+    runs, then the rest in grid order, and says so; metrics.csv keeps every point."""
+    from labrunner.analysis import campaign_report
+
+    root, _ = project
+    directory = root / "data" / "sweep"
+    frame = labrunner.open_campaign(directory).table()
+    monkeypatch.setattr(campaign_report, "TABLE_ROWS", 6)
+    rows = campaign_report._table_rows(frame)
+    assert len(rows) == 6 and rows["id"].is_unique
+    assert rows["id"].iloc[:3].tolist() == frame.nsmallest(3, "rms_error")["id"].tolist()
+    aborted = frame[frame["outcome"] == "aborted"]["id"].head(1).tolist()
+    assert rows["id"].iloc[3:4].tolist() == aborted
+    _run(["analyse", str(directory), "--workers", "1"])
+    html = (directory / "report" / "index.html").read_text(encoding="utf-8")
+    assert "6 of the 12 points (the best 3 by rms_error" in html and html.count("<tr>") >= 6
+    assert len(pd.read_csv(directory / "report" / "metrics.csv")) == 12
+
+
+def _strict(text: str):
+    """json.loads that refuses NaN and Infinity, as JSON.parse, jq and Foxglove do."""
+
+    def refuse(constant: str):
+        raise ValueError(f"bare {constant} in stored JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_stored_json_is_strict(project):
+    """The ledger's JSON columns and every run log's JSON records parse as strict JSON; an
+    undefined metric (the motor twin has no current: max_current) is null there and NaN in the
+    table."""
+    root, _ = project
+    directory = root / "data" / "sweep"
+    with sqlite3.connect(directory / "ledger.sqlite") as db:
+        rows = db.execute("SELECT parameters, outcome_json, metrics_json FROM points").fetchall()
+    metrics = [_strict(m) for _, _, m in rows]
+    for parameters, outcome, _ in rows:
+        _strict(parameters), _strict(outcome)
+    assert all(m["max_current"] is None for m in metrics)
+    assert labrunner.open_campaign(directory).table()["max_current"].isna().all()
+    for log in (directory / "runs").glob("*.mcap"):
+        with open(log, "rb") as f:
+            for record in make_reader(f).iter_metadata():
+                if set(record.metadata) == {"json"}:
+                    _strict(record.metadata["json"])

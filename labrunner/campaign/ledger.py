@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from labrunner import jsontext
 from labrunner.campaign import integrity
 from labrunner.errors import CampaignError, InvalidParameter
 
@@ -254,6 +255,15 @@ class Ledger:
         marks = ",".join("?" * len(states))
         return self.db.execute(f"SELECT * FROM points WHERE state IN ({marks}) ORDER BY seq", tuple(states)).fetchall()
 
+    def iter_rows(self) -> Iterator[dict[str, Any]]:
+        """Every row in grid order as a dict, read as it is consumed (a campaign of 10^6 points
+        is never all in memory as Python objects); consume it while the ledger is open."""
+        return (dict(r) for r in self.db.execute("SELECT * FROM points ORDER BY seq"))
+
+    def ids(self) -> list[str]:
+        """The points' ids in grid order (what a plan check needs, without the rest of the rows)."""
+        return [r[0] for r in self.db.execute("SELECT id FROM points ORDER BY seq")]
+
     def quarantined(self) -> list[sqlite3.Row]:
         return self.db.execute("SELECT * FROM quarantine ORDER BY n").fetchall()
 
@@ -328,11 +338,11 @@ class Ledger:
                     (
                         STATE_OF_OUTCOME[record.outcome],
                         record.outcome,
-                        json.dumps(dict(record.outcome_record), sort_keys=True),
+                        jsontext.dumps(dict(record.outcome_record), sort_keys=True),
                         m.get("rms_error"),
                         m.get("input_energy"),
                         m.get("max_abs_input"),
-                        json.dumps({k: _plain(v) for k, v in m.items()}) if m else None,
+                        jsontext.dumps(dict(m)) if m else None,
                         record.log_path,
                         record.host,
                         record.pid,
@@ -403,11 +413,6 @@ class _Transaction:
     def _error(self, exc: sqlite3.Error) -> LedgerWriteError:
         hint = " (disk full or file-size limit?)" if "disk" in str(exc) or "full" in str(exc) else ""
         return LedgerWriteError(f"{self.path}: cannot write the ledger: {exc}{hint}")
-
-
-def _plain(value: Any) -> Any:
-    """A metric as JSON can hold it (numpy scalars as Python numbers)."""
-    return value.item() if hasattr(value, "item") else value
 
 
 def _migrate(db: sqlite3.Connection) -> None:

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
-from labrunner import __version__
+from labrunner import __version__, jsontext
 from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
 from labrunner.logs.mcap_writer import BulkWriter, Prefix, message_row, repeat_row
@@ -161,7 +161,7 @@ def encode_record(field: str, record: Mapping[str, Any]) -> dict[str, str]:
     try:
         if all(_scalar(v) for v in record.values()):
             return {str(k): _text(v) for k, v in record.items() if v is not None}
-        return {JSON_KEY: json.dumps(dict(record), default=_jsonable)}
+        return {JSON_KEY: jsontext.dumps(dict(record), default=_jsonable)}  # NaN → null: strict JSON
     except TypeError as exc:
         raise InvalidParameter(f"metadata.{field}", str(exc)) from None
 
