@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -54,20 +55,26 @@ class CampaignResults:
     def _built(self) -> tuple[pd.DataFrame, list[dict[str, str]], list[str]]:
         from labrunner.analysis import selection, table as table_mod
 
-        with Ledger.open_readonly(self.directory) as ledger:
-            rows = [dict(r) for r in ledger.rows()]
         campaign, _ = selection.load_campaign(self.meta, self.directory)
         units, limits = selection.rig_signals(campaign)
-        built = table_mod.build_table(
-            rows, self.directory, cache=table_mod.read_cache(self.directory / REPORT_DIR), units=units, limits=limits
-        )
+        with Ledger.open_readonly(self.directory) as ledger:
+            first = ledger.db.execute("SELECT parameters FROM points ORDER BY seq LIMIT 1").fetchone()
+            built = table_mod.build_table(
+                ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
+                self.directory,
+                cache=table_mod.read_cache(self.directory / REPORT_DIR),
+                units=units,
+                limits=limits,
+            )
+        # every point has the grid's keys (dotted: section.key); the first row names them in order
+        named = [k for k in (json.loads(first[0]) if first else {}) if k in built.frame.columns]
+        parameters = [*named, *(c for c in built.frame.columns if "." in c and c not in named)]
         frame = table_mod.ordered(built.frame)
-        root = self.directory.resolve()
-        frame = frame.assign(log_path=frame["log_path"].map(lambda p: str(root / p) if isinstance(p, str) else None))
-        parameters: dict[str, None] = {}
-        for row in rows:
-            parameters.update(dict.fromkeys(k for k in json.loads(row["parameters"]) if k in frame.columns))
-        return frame.reset_index(drop=True), built.problems, list(parameters)
+        root = str(self.directory.resolve())
+        frame = frame.assign(
+            log_path=frame["log_path"].map(lambda p: os.path.join(root, p) if isinstance(p, str) else None)
+        )
+        return frame.reset_index(drop=True), built.problems, parameters
 
     def table(self) -> pd.DataFrame:
         """One row per grid point: ids, outcome, parameters (dotted keys), metrics (a copy)."""
