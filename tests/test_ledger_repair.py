@@ -132,3 +132,26 @@ def test_an_unexpected_error_is_one_line_naming_the_traceback_file(monkeypatch, 
     text = open(path, encoding="utf-8").read()
     assert "Traceback (most recent call last)" in text and "an invariant" in text and "status anything" in text
     os.unlink(path)
+
+
+def test_status_checks_the_structure_and_resume_every_row(finished, capsys):
+    """``status`` (sub-second at 10^6 points) checks structure, count and grid order and counts
+    from covering indexes; the checks that read every row (ids' checksum) are resume's."""
+    copy = finished.parent / "ids-changed"
+    shutil.copytree(finished, copy)
+    db = sqlite3.connect(copy / "ledger.sqlite")
+    db.execute("UPDATE points SET id = 'ffffffffffffffff' WHERE seq = 3")
+    db.commit()
+    plans = [
+        db.execute(f"EXPLAIN QUERY PLAN {q}").fetchall()[0][3]
+        for q in (
+            "SELECT COALESCE(outcome, state), COUNT(*) FROM points GROUP BY COALESCE(outcome, state)",
+            "SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL",
+        )
+    ]
+    db.close()
+    assert all("COVERING INDEX" in plan for plan in plans), plans
+    capsys.readouterr()
+    assert main(["status", str(copy)]) == 0
+    assert main(["resume", str(copy)]) == 2
+    assert "their ids changed" in capsys.readouterr().err

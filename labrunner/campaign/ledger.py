@@ -155,6 +155,8 @@ class Ledger:
         db = _connect(tmp)
         try:
             db.executescript(_SCHEMA)
+            for index in INDEXES:
+                db.execute(index)
             db.execute("BEGIN")
             db.executemany(
                 "INSERT INTO meta (key, value) VALUES (?, ?)",
@@ -205,14 +207,15 @@ class Ledger:
         return cls(directory, db)
 
     @classmethod
-    def open_readonly(cls, directory: Path, *, verify: bool = True) -> Ledger:
-        """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written."""
+    def open_readonly(cls, directory: Path, *, verify: bool = True, thorough: bool = True) -> Ledger:
+        """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written;
+        ``thorough=False`` leaves out the checks that read every row (:mod:`.integrity`)."""
         path = ledger_path(directory)
         db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None, timeout=30.0)
         db.row_factory = sqlite3.Row
         try:
             if verify:
-                integrity.verify(db, path)
+                integrity.verify(db, path, thorough=thorough)
         except BaseException:
             db.close()
             raise
@@ -415,11 +418,22 @@ class _Transaction:
         return LedgerWriteError(f"{self.path}: cannot write the ledger: {exc}{hint}")
 
 
+#: Indexes that let ``status`` count outcomes and finished runs from small index b-trees instead of
+#: scanning every row (0.6 s at 10^5 points without them): created with a ledger, and added to an
+#: older one when it is opened for writing.
+INDEXES = (
+    "CREATE INDEX IF NOT EXISTS points_outcome ON points (outcome, state)",
+    "CREATE INDEX IF NOT EXISTS points_finished ON points (finished_at)",
+)
+
+
 def _migrate(db: sqlite3.Connection) -> None:
-    """Add the columns later versions of this schema (still version 1: only additions) have."""
+    """Add the columns and indexes later versions of this schema (still version 1: only additions) have."""
     columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
     if "metrics_json" not in columns:
         db.execute("ALTER TABLE points ADD COLUMN metrics_json TEXT")
+    for index in INDEXES:
+        db.execute(index)
 
 
 def fsync_dir(directory: Path) -> None:

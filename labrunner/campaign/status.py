@@ -16,7 +16,7 @@ from labrunner.campaign.progress import OUTCOMES
 def status(directory: str | Path) -> dict[str, Any]:
     """The ``labrunner status --json`` object (reads only)."""
     directory = Path(directory)
-    with Ledger.open_readonly(directory) as ledger:
+    with Ledger.open_readonly(directory, thorough=False) as ledger:  # sub-second at 10^6 points
         meta = ledger.meta()
         outcomes = ledger.by_outcome()
         sessions = ledger.sessions()
