@@ -134,9 +134,13 @@ def test_an_unexpected_error_is_one_line_naming_the_traceback_file(monkeypatch, 
     os.unlink(path)
 
 
-def test_status_checks_the_structure_and_resume_every_row(finished, capsys):
-    """``status`` (sub-second at 10^6 points) checks structure, count and grid order and counts
-    from covering indexes; the checks that read every row (ids' checksum) are resume's."""
+def test_status_checks_the_structure_and_resume_every_row(finished, capsys, monkeypatch):
+    """``status`` (sub-second at 10^6 points) counts from covering indexes and, above
+    FULL_CHECK_POINTS points, checks structure, count and grid order only; the checks that read
+    every row (ids' checksum) stay resume's."""
+    from labrunner.campaign import status
+
+    monkeypatch.setattr(status, "FULL_CHECK_POINTS", 5)  # this campaign's 12 points count as many
     copy = finished.parent / "ids-changed"
     shutil.copytree(finished, copy)
     db = sqlite3.connect(copy / "ledger.sqlite")
@@ -154,4 +158,7 @@ def test_status_checks_the_structure_and_resume_every_row(finished, capsys):
     capsys.readouterr()
     assert main(["status", str(copy)]) == 0
     assert main(["resume", str(copy)]) == 2
+    assert "their ids changed" in capsys.readouterr().err
+    monkeypatch.setattr(status, "FULL_CHECK_POINTS", 20_000)
+    assert main(["status", str(copy)]) == 2  # a small campaign: every check
     assert "their ids changed" in capsys.readouterr().err
