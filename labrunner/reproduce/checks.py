@@ -32,7 +32,7 @@ class Verdict:
             object.__setattr__(self, "agrees", bool(self.agrees))
 
 
-def _one(results: Results, part: str = "") -> CampaignResult:
+def single_result(results: Results, part: str = "") -> CampaignResult:
     return next(r for f, r in results.items() if part in f)
 
 
@@ -48,7 +48,7 @@ def identification(results: Results) -> Verdict:
     """Thesis Sec. 3.2's procedure on the twin's logs, plus the pooled fit with a Coulomb term."""
     from labrunner.identification import identify_logs, physical_parameters
 
-    run = _one(results)
+    run = single_result(results)
     logs = sorted((run.directory / "runs").glob("*.mcap"))
     res = identify_logs(logs, friction=True)
     phys = physical_parameters(logs[0])
@@ -76,7 +76,7 @@ THESIS_UNSTABLE = {20.0: [], 200.0: [2, 2, 2, 3], 1000.0: [2, 2, 2, 3, 3]}
 
 
 def unstable_differentiators(results: Results) -> Verdict:
-    run = _one(results)
+    run = single_result(results)
     frame = run.frame
     bad = frame[_unstable(frame)]
     fs = _fs(run)
@@ -101,7 +101,7 @@ def _spread(values: np.ndarray) -> float:
 
 def gamma_kp_map(results: Results) -> Verdict:
     """Bound agreement and the RMS spread along the grid's diagonals (constant γ/k_p on log axes)."""
-    run = _one(results)
+    run = single_result(results)
     done = _done(run.frame).copy()
     done["line"] = np.round(np.log10(done["controller.gamma"] / done["controller.k_p"]), 6)
     rows = [
@@ -132,7 +132,7 @@ def gamma_kp_map(results: Results) -> Verdict:
 
 
 def constant_ratio_lines(results: Results) -> Verdict:
-    run = _one(results)
+    run = single_result(results)
     frame = run.frame.copy()
     frame["γ/k_p"] = frame["controller.gamma"] / frame["controller.k_p"]
     frame["status"] = observed_outcome(frame)
@@ -158,7 +158,7 @@ def constant_ratio_lines(results: Results) -> Verdict:
 
 
 def bound_agreement(results: Results) -> Verdict:
-    agree = _one(results).summary["agreement"]
+    agree = single_result(results).summary["agreement"]
     if agree["share"] is None:
         return Verdict("no bound applies", None)
     table = pd.DataFrame(
@@ -189,7 +189,7 @@ def bound_agreement(results: Results) -> Verdict:
 def bound_conservative(results: Results) -> Verdict:
     """The claim that the bound predicts instability where runs are stable (below k_d,min, Fig. 3.19)."""
     verdict = bound_agreement(results)
-    agree = _one(results).summary["agreement"]
+    agree = single_result(results).summary["agreement"]
     if agree["share"] is None:
         return verdict
     n = agree["n_compared"]
@@ -201,7 +201,7 @@ def bound_conservative(results: Results) -> Verdict:
 
 def fine_kp_kd(results: Results) -> Verdict:
     verdict = bound_agreement(results)
-    done = _done(_one(results).frame)
+    done = _done(single_result(results).frame)
     if done.empty:
         return verdict
     best = done.loc[done["rms_error"].idxmin()]

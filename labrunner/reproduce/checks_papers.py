@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner.analysis.agreement import observed_outcome
-from labrunner.reproduce.checks import Results, Verdict, _one
+from labrunner.reproduce.checks import Results, Verdict, single_result
 
 #: Paper 2 Table 3 [µm]: (experiment, sensor) → (MBC, MFC v, F̄, u, i).
 PAPER_TABLE3 = {
@@ -47,9 +47,9 @@ def _walk(frame: pd.DataFrame) -> tuple[int | None, pd.Series | None]:
 
 
 def tuning_walks(results: Results) -> Verdict:
-    ff_stop, ff = _walk(_one(results, "feedforward").frame)
-    fb_stop, fb = _walk(_one(results, "feedback").frame)
-    g2 = _one(results, "guideline2").frame
+    ff_stop, ff = _walk(single_result(results, "feedforward").frame)
+    fb_stop, fb = _walk(single_result(results, "feedback").frame)
+    g2 = single_result(results, "guideline2").frame
     if ff is None or fb is None:
         return Verdict("a Polack stage found no completed run", False)
     target = float(fb["rms_error"])
@@ -61,7 +61,7 @@ def tuning_walks(results: Results) -> Verdict:
         {
             "thesis": ["aborts below 64.93", 74.98, 66, 31.62, 41, 107, "421.69 / 237.13", 54, 0.29],
             "twin": [
-                f"aborts at {_g(_one(results, 'feedforward').frame, ff_stop)}",
+                f"aborts at {_g(single_result(results, 'feedforward').frame, ff_stop)}",
                 float(ff["controller.gamma"]),
                 n_ff,
                 float(fb["controller.k_p"]),
@@ -101,7 +101,7 @@ def _g(frame: pd.DataFrame, stop: int | None) -> str:
 
 def valve_parametrisations(results: Results) -> Verdict:
     """Share of (γ, k_p) cells whose observed class (stable / unstable) equals that of No. 1."""
-    frame = _one(results).frame.copy()
+    frame = single_result(results).frame.copy()
     frame["unstable"] = observed_outcome(frame).isin(("aborted", "oscillating"))
     keys = ["controller.gamma", "controller.k_p"]
     groups = list(frame.groupby(["differentiator.alpha", "differentiator.omega_c"], sort=False))
@@ -131,7 +131,7 @@ def valve_parametrisations(results: Results) -> Verdict:
 def mfc_vs_ffc(results: Results) -> Verdict:
     rows = {}
     for name in ("mfc", "ffc"):
-        run = _one(results, f"-{name}")
+        run = single_result(results, f"-{name}")
         ends = [float(p["reference.levels"][1]) for p in run.parameters]
         rows[name.upper()] = pd.Series(run.frame["rms_error@tracking"].to_numpy(), index=ends)
     table = pd.DataFrame(rows).rename_axis("end flow [l/min]")
@@ -152,7 +152,7 @@ def _ehat(frame: pd.DataFrame, window: str | None = None) -> pd.Series:
 
 
 def plate_optimum(results: Results) -> Verdict:
-    run = _one(results)
+    run = single_result(results)
     frame = run.frame.copy()
     window = "move" if "rms_e_hat_y1@move" in frame.columns else None
     frame["ehat"] = _ehat(frame, window)
@@ -180,7 +180,7 @@ def plate_optimum(results: Results) -> Verdict:
 
 
 def plate_input_gains(results: Results) -> Verdict:
-    frame = _one(results).frame.copy()
+    frame = single_result(results).frame.copy()
     frame["ehat"] = _ehat(frame, "move")
     frame["status"] = observed_outcome(frame)
     nominal = {"v": 1.0, "force": 1.0, "u": 1.6e-5, "current": 0.04}
