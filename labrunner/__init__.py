@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from labrunner.version import __version__
 
 _RESULTS = ("open_campaign", "open_run", "Catalog", "CampaignResults", "RunResults", "OUTCOME_KEYS")
 __all__ = [

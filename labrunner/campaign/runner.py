@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from labrunner import __version__
 from labrunner.campaign import dry_run, guided_run, integrity, recovery, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
@@ -29,6 +28,7 @@ from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals
 from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
 from labrunner.errors import CampaignError, InvalidParameter, LabrunnerError
+from labrunner.version import __version__
 
 CAMPAIGN_COPY = "campaign.toml"
 

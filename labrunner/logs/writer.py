@@ -49,10 +49,11 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
-from labrunner import __version__, jsontext
+from labrunner import jsontext
 from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
 from labrunner.logs.mcap_writer import BulkWriter, Prefix, message_row, repeat_row
+from labrunner.version import __version__
 
 ROLES = ("input", "output", "controlled", "reference", "error", "estimate", "signal")
 STATUSES = ("completed", "aborted", "no-motion", "failed")  # engine.RunResult.outcome["status"]
