@@ -32,6 +32,15 @@ def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Campaign | 
         return None, f"the campaign file could not be loaded again: {exc}"
 
 
+def rig_signals(campaign: Campaign | None) -> tuple[dict[str, str], dict[str, tuple[float, float]]]:
+    """What the metrics table needs of the rig: its signals' units (for logs that record none) and
+    its inputs' limits (the oscillation detector); empty without a campaign."""
+    if campaign is None:
+        return {}, {}
+    info = campaign.rig_info
+    return {s.name: s.unit for s in (*info.inputs, *info.outputs)}, {s.name: (s.lo, s.hi) for s in info.inputs}
+
+
 def varying_axes(frame: pd.DataFrame, campaign: Campaign | None) -> list[str]:
     """Numeric grid axes with more than one value (the first axis of each zipped group)."""
     if campaign is not None:
