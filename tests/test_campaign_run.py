@@ -95,6 +95,34 @@ def test_resume_refuses_an_edited_campaign_file_but_not_a_comment(project, capsy
     assert "was edited since this campaign was planned" in err and err.count("\n") == 1
 
 
+def test_resume_trusts_the_stored_plan_only_while_its_inputs_are_unchanged(project, capsys, monkeypatch):
+    """Resume re-plans (0.2–1 ms a point: minutes at 10^6) only when the plan's inputs changed;
+    a re-plan that differs is refused."""
+    from labrunner.campaign import plan_inputs, spec
+
+    write(project / "rigs" / "bench.toml", MOTOR_RIG)
+    path = write(project / "tiny.toml", campaign_text(rig="rigs/bench.toml"))
+    assert main(["run", str(path)]) == 0
+    planned = []
+    real_plan = spec.plan
+    monkeypatch.setattr(spec, "plan", lambda c: planned.append(c) or real_plan(c))
+    assert main(["resume", "data/tiny"]) == 0 and planned == []  # inputs unchanged: not re-planned
+    text = path.read_text()
+    path.write_text("# a comment\n" + text)
+    assert main(["resume", "data/tiny"]) == 0 and planned == []  # a comment is not an input
+    path.write_text(text)
+    with monkeypatch.context() as m:
+        m.setattr(plan_inputs, "code_digest", lambda: "another labrunner")
+        assert main(["resume", "data/tiny"]) == 0 and len(planned) == 1  # re-planned: the same checksum
+    write(project / "rigs" / "bench.toml", MOTOR_RIG.replace("a = 39.44", "a = 40.0"))
+    assert main(["resume", "data/tiny"]) == 0 and len(planned) == 2  # the rig file is an input
+    monkeypatch.setattr(spec, "plan", lambda c: (real_plan(c)[0], "another plan"))
+    write(project / "rigs" / "bench.toml", MOTOR_RIG.replace("a = 39.44", "a = 41.0"))
+    capsys.readouterr()
+    assert main(["resume", "data/tiny"]) == 1  # a re-plan that differs is refused, as before
+    assert "no longer plans the same runs" in capsys.readouterr().err
+
+
 def test_real_rig_runs_in_process_one_run_at_a_time(project):
     register_rig("inprocess-motor", "test_campaign_support:InProcessMotor")
     write(project / "rigs" / "bench.toml", MOTOR_RIG.replace('kind = "dcmotor"', 'kind = "inprocess-motor"'))

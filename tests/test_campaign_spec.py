@@ -202,7 +202,7 @@ MALFORMED = {
     ),
     "enormous-grid": (
         campaign_text(
-            grid='"controller.k_p" = { log10 = [0, 2], num = 1000 }\n"controller.gamma" = { log10 = [0, 2], num = 1000 }'
+            grid='"controller.k_p" = { log10 = [0, 2], num = 1000 }\n"controller.gamma" = { log10 = [0, 2], num = 1001 }'
         ),
         "grid",
     ),
@@ -282,7 +282,7 @@ def test_malformed_campaign_fails_with_key_path_exit_2_and_creates_nothing(case,
 def test_enormous_grid_message_names_the_limit(project, capsys):
     path = write(project / "c.toml", MALFORMED["enormous-grid"][0])
     assert main(["run", str(path), "--dry-run"]) == 2
-    assert re.search(r"1,000,000 points, more than the limit of 100,000", capsys.readouterr().err)
+    assert re.search(r"1,001,000 points, more than the limit of 1,000,000", capsys.readouterr().err)
 
 
 def test_dry_run_prints_points_batches_estimate_and_creates_nothing(project, capsys):

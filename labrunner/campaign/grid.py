@@ -28,7 +28,7 @@ import numpy as np
 
 from labrunner.errors import InvalidParameter, check_finite, check_interval
 
-MAX_POINTS = 100_000  # a campaign beyond this is a typo or should be split
+MAX_POINTS = 1_000_000  # a campaign beyond this is a typo or should be split (issue 26: 10^6 runs)
 _FORMS = ("values", "linspace", "log10")
 _MAX_EXPONENT = 300.0
 

@@ -250,12 +250,15 @@ class Ledger:
         )
         return {r[0]: r[1] for r in rows}
 
-    def rows(self, states: Sequence[str] | None = None) -> list[sqlite3.Row]:
-        """Rows in grid order, optionally only those in ``states``."""
+    def rows(self, states: Sequence[str] | None = None, columns: str = "*") -> list[sqlite3.Row]:
+        """Rows in grid order, optionally only those in ``states``; ``columns`` (SQL) narrows what
+        is read (a million rows' outcome and metrics JSON are ~0.5 GB of Python strings)."""
         if states is None:
-            return self.db.execute("SELECT * FROM points ORDER BY seq").fetchall()
+            return self.db.execute(f"SELECT {columns} FROM points ORDER BY seq").fetchall()
         marks = ",".join("?" * len(states))
-        return self.db.execute(f"SELECT * FROM points WHERE state IN ({marks}) ORDER BY seq", tuple(states)).fetchall()
+        return self.db.execute(
+            f"SELECT {columns} FROM points WHERE state IN ({marks}) ORDER BY seq", tuple(states)
+        ).fetchall()
 
     def iter_rows(self) -> Iterator[dict[str, Any]]:
         """Every row in grid order as a dict, read as it is consumed (a campaign of 10^6 points

@@ -105,12 +105,19 @@ def recover(ledger: Ledger) -> Recovery:
     runs = directory / RUNS_DIR
     runs.mkdir(exist_ok=True)
     report = Recovery()
-    for tmp in sorted(runs.glob(f"{TMP_PREFIX}*")):
-        report.quarantined.append(quarantine(ledger, tmp, _tmp_point(tmp.name), "unpublished temporary log"))
-    for row in ledger.rows(("planned", "claimed")):
+    # one listing of runs/ instead of a stat a point: ~1 s rather than ~10 s at 10^6 points
+    names = {entry.name for entry in os.scandir(runs)}
+    for name in sorted(n for n in names if n.startswith(TMP_PREFIX)):
+        report.quarantined.append(quarantine(ledger, runs / name, _tmp_point(name), "unpublished temporary log"))
+
+    def exists(relative: str) -> bool:
+        folder, _, name = relative.rpartition("/")
+        return name in names if folder == RUNS_DIR else (directory / relative).exists()
+
+    for row in ledger.rows(("planned", "claimed"), "id, state"):
         pid, state = row["id"], row["state"]
-        path = directory / final_path(pid)
-        if path.exists():
+        if exists(final_path(pid)):
+            path = directory / final_path(pid)
             found, reason = verify_log(path, pid)
             if found is not None:
                 outcome = {**outcome_record(found["outcome"]), "recovered": True}
@@ -132,8 +139,8 @@ def recover(ledger: Ledger) -> Recovery:
             report.quarantined.append(quarantine(ledger, path, pid, f"published log rejected: {reason}"))
         if state == "claimed":
             report.replanned.append(pid)
-    for row in ledger.rows(("done", "aborted", "failed")):
-        if row["log_path"] and not (directory / row["log_path"]).exists():
+    for row in ledger.rows(("done", "aborted", "failed"), "id, log_path"):
+        if row["log_path"] and not exists(row["log_path"]):
             report.lost.append(row["id"])
     ledger.replan(report.replanned + report.lost)
     return report

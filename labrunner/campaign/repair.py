@@ -21,10 +21,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from labrunner.campaign import integrity, spec
+from labrunner.campaign import integrity, plan_inputs, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, RunRecord, fsync_dir
 from labrunner.campaign.lock import DirectoryLock
 from labrunner.campaign.recovery import QUARANTINE_DIR, outcome_record, verify_log
+from labrunner.campaign.status import REAL_RIG
 from labrunner.campaign.worker import final_path
 from labrunner.errors import InvalidParameter
 
@@ -202,8 +203,10 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None, fo
             "campaign": campaign.name,
             "campaign_file": campaign.source,
             "plan_checksum": checksum,
+            plan_inputs.META_KEY: plan_inputs.digest(campaign),
             "points": str(len(points)),
             "rig": campaign.rig,
+            REAL_RIG: "1" if not campaign.rig_info.simulated else "0",
             "campaign_path": meta.get("campaign_path") or str(Path(campaign_file or directory / COPY).resolve()),
             "created_at": meta.get("created_at", repr(time.time())),
             "created_by": meta.get("created_by", "repair"),

@@ -19,13 +19,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from labrunner.campaign import dry_run, guided_run, integrity, recovery, spec
+from labrunner.campaign import dry_run, guided_run, integrity, plan_inputs, recovery, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals
-from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
+from labrunner.campaign.status import REAL_RIG, status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
 from labrunner.errors import CampaignError, InvalidParameter, LabrunnerError
 from labrunner.version import __version__
@@ -108,8 +108,10 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
                 "campaign_file": campaign.source,
                 "campaign_path": str(Path(file).resolve()),
                 "plan_checksum": checksum,
+                plan_inputs.META_KEY: plan_inputs.digest(campaign),
                 "points": str(len(points)),
                 "rig": campaign.rig,
+                REAL_RIG: "1" if not campaign.rig_info.simulated else "0",
                 "created_at": repr(time.time()),
                 "created_by": f"labrunner {__version__} on {socket.gethostname()}",
                 **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
@@ -151,30 +153,31 @@ def _early_pool(
 
 
 def _check_unchanged(ledger: Ledger) -> spec.Campaign:
-    """The stored campaign, re-planned; refuse if it, or its original file, plans differently."""
+    """The stored campaign; refuse if it, or its original file, plans differently.
+
+    When the plan's inputs (file, rig file, code: :mod:`.plan_inputs`) are those stored at ``run``,
+    the plan is the stored one and the ledger's ids were checked against their creation checksum
+    on opening; otherwise the campaign is re-planned (0.2–1 ms a point) and compared."""
     meta = ledger.meta()
     lacking = [k for k in ("campaign_file", "campaign_path", "plan_checksum") if k not in meta]
     if lacking:
         raise integrity.damaged(ledger.directory / LEDGER_NAME, f"keeps no {', '.join(lacking)} to resume from")
     source_path = Path(meta["campaign_path"])
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
-    points, checksum = spec.plan(campaign)
-    if campaign.guided is None:  # a guided campaign's rows are its rounds, not the plan's points
-        integrity.check_plan(ledger.directory / LEDGER_NAME, ledger.ids(), [p.id for p in points])
-    del points
-    if checksum != meta["plan_checksum"]:
-        raise CampaignError(
-            f"the campaign stored in {ledger.directory} no longer plans the same runs (rig file or labrunner "
-            "changed?); resuming would mix two campaigns — start a new one with `labrunner run FILE --out DIR`"
-        )
+    stored = meta.get(plan_inputs.META_KEY)
+    if stored is None or plan_inputs.digest(campaign) != stored:
+        _check_replanned(ledger, campaign, meta["plan_checksum"])
     if source_path.is_file():
         text = source_path.read_text(encoding="utf-8")
         if text != meta["campaign_file"]:
             try:
-                edited = spec.plan(spec.from_text(text, source_path=source_path))[1]
+                edited = spec.from_text(text, source_path=source_path)
+                same = stored is not None and plan_inputs.digest(edited) == stored
+                if not same:
+                    same = spec.plan(edited)[1] == meta["plan_checksum"]
             except Exception:  # an edit that no longer even validates is an edit
-                edited = ""
-            if edited != checksum:
+                same = False
+            if not same:
                 raise CampaignError(
                     f"{source_path} was edited since this campaign was planned (its grid or run settings differ); "
                     f"restore it to resume, or run the edited file as a new campaign with --out"
@@ -182,11 +185,25 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     return campaign
 
 
+def _check_replanned(ledger: Ledger, campaign: spec.Campaign, checksum: str) -> None:
+    """Plan the stored campaign again: its points must be the ledger's and its checksum the stored one."""
+    points, replanned = spec.plan(campaign)
+    if campaign.guided is None:  # a guided campaign's rows are its rounds, not the plan's points
+        integrity.check_plan(ledger.directory / LEDGER_NAME, ledger.ids(), [p.id for p in points])
+    del points
+    if replanned != checksum:
+        raise CampaignError(
+            f"the campaign stored in {ledger.directory} no longer plans the same runs (rig file or labrunner "
+            "changed?); resuming would mix two campaigns — start a new one with `labrunner run FILE --out DIR`"
+        )
+
+
 def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) -> tuple[Outcome, str]:
     """``labrunner resume``: settle a crash, then run every point that is not terminal."""
     directory = Path(directory)
     check_executor_url(opts.executor, reach=False)
-    with Ledger.open_readonly(directory):  # a missing, foreign or damaged ledger: exit 2 before the lock file is made
+    # a missing or foreign ledger: exit 2 before the lock file is made (every row is checked under the lock)
+    with Ledger.open_readonly(directory, thorough=False):
         pass
     runs = directory / RUNS_DIR
     if runs.exists() and not runs.is_dir():
