@@ -123,6 +123,27 @@ def test_resume_trusts_the_stored_plan_only_while_its_inputs_are_unchanged(proje
     assert "no longer plans the same runs" in capsys.readouterr().err
 
 
+def test_status_searches_outcomes_for_law_checks_only_for_a_real_rig(project):
+    """A twin campaign's ledger says its rig is simulated, so status skips the search of every
+    outcome for device-loop law checks (~3 s at 10^6 rows); a ledger without the key is searched."""
+    import sqlite3
+
+    from labrunner.campaign.runner import status
+
+    path = write(project / "tiny.toml", campaign_text(grid='"controller.k_p" = { values = [10.0, 20.0] }'))
+    assert main(["run", str(path)]) == 0
+    db = sqlite3.connect(project / "data" / "tiny" / "ledger.sqlite")
+    assert db.execute("SELECT value FROM meta WHERE key = 'real_rig'").fetchone() == ("0",)
+    flagged = json.dumps({"status": "completed", "diagnostics": {"law_check": {"flag": "diverged"}}})
+    with db:
+        db.execute("UPDATE points SET outcome_json = ? WHERE seq = 0", (flagged,))
+    assert "law_check" not in status(project / "data" / "tiny")
+    with db:
+        db.execute("DELETE FROM meta WHERE key = 'real_rig'")
+    assert status(project / "data" / "tiny")["law_check"]["diverged"] == 1
+    db.close()
+
+
 def test_real_rig_runs_in_process_one_run_at_a_time(project):
     register_rig("inprocess-motor", "test_campaign_support:InProcessMotor")
     write(project / "rigs" / "bench.toml", MOTOR_RIG.replace('kind = "dcmotor"', 'kind = "inprocess-motor"'))
