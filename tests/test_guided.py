@@ -160,6 +160,21 @@ def test_polack_feed_forward_then_feedback():
     assert end.result.chosen.params[KP] == pytest.approx(10.0)
 
 
+def test_polack_thesis_back_off_passes_over_an_oscillating_best_gamma():
+    """Thesis Fig. 3.22: the smallest-RMS feed-forward γ oscillated, so the next best was taken."""
+
+    def plant(points):  # feed_forward_plant, with the runs at γ < 40 flagged oscillating (still completed)
+        out = feed_forward_plant(points)
+        return [{**o, "oscillating": float(p[KP] == 0.0 and 20.0 <= p[GAMMA] < 40.0)} for p, o in zip(points, out)]
+
+    # feed-forward: best completed γ = 10^1.5 = 31.6 is flagged; the best calm one is 10^1.75 = 56.2
+    end = drive(polack(back_off=None), "t", plant)
+    assert end.result.detail["gamma"] == pytest.approx(10**1.75)
+    # without the flag the rule keeps the best γ; back_off = 0 keeps it even when flagged
+    assert drive(polack(back_off=None), "t", feed_forward_plant).result.detail["gamma"] == pytest.approx(10**1.5)
+    assert drive(polack(back_off=0), "t", plant).result.detail["gamma"] == pytest.approx(10**1.5)
+
+
 def test_guideline3_start_is_the_top_of_the_ultralocal_set():
     from labrunner.stability import bounds
 

@@ -47,6 +47,7 @@ class Observation:
     status: str  # completed | aborted | no-motion | failed
     rms_error: float | None = None
     input_energy: float | None = None
+    oscillating: bool = False  # completed, but the oscillation detector flagged it (labrunner.oscillation)
 
     @property
     def tripped(self) -> bool:
@@ -292,7 +293,12 @@ def drive(
         for point, out in zip(step.next, oracle(list(step.next)), strict=True):
             pid = point_id(campaign, point)
             outcomes[pid] = Observation(
-                pid, dict(point), str(out["status"]), out.get("rms_error"), out.get("input_energy")
+                pid,
+                dict(point),
+                str(out["status"]),
+                out.get("rms_error"),
+                out.get("input_energy"),
+                out.get("oscillating") == 1.0,
             )
 
 
@@ -337,6 +343,7 @@ def engine_oracle(campaign: Any, batch: int = 64) -> Oracle:
                                 "status": r.outcome.status,
                                 "rms_error": r.metrics.get("rms_error"),
                                 "input_energy": r.metrics.get("input_energy"),
+                                "oscillating": r.metrics.get("oscillating"),
                             },
                         )
                         for i, r in zip(idx, results)

@@ -14,8 +14,12 @@ decade as in thesis Sec. 3.5.3) and stop by the rules the thesis states:
   ultra-local stability set (appendix A.4) and its k̃_d; increase k_d until the boundary (a trip),
   back off; then increase k_p until a trip or the RMS target.
 - **Polack et al. (2019)** (Sec. 3.5.3): feed-forward stage, k_p = 0 (3.11), decrease γ from a large
-  value until the loop trips, keep the γ with the smallest error; feedback stage, increase k_p from
-  a small value until the error is small enough (or the loop trips).
+  value until the loop trips, keep the γ with the smallest error — with the thesis's back-off
+  (Fig. 3.22, the default ``back_off = "oscillation"``): the smallest-error γ whose run the
+  oscillation detector does not flag (the thesis passed over 64.93 for 74.98 because the former
+  oscillated as Ω_r returned to zero); ``back_off = n`` instead takes n rungs above the smallest-error
+  γ whatever its runs did. Feedback stage: increase k_p from a small value until the error is small
+  enough (or the loop trips).
 
 A safety trip that ends a walk is the "starts oscillating" of the guidelines: the chosen point is
 then the completed run with the smallest RMS error so far (Fig. 3.11: the best runs lie at the
@@ -210,7 +214,7 @@ class Polack(Procedure):
     kp_start: float
     kp_stop: float
     per_decade: int
-    back_off: int  # ladder steps towards larger γ from the best feed-forward γ (Fig. 3.22: one)
+    back_off: int | None  # None: the thesis's rule (best γ not flagged oscillating); n: n rungs above the best γ
     rms_target: float | None
     patience: int | None
 
@@ -222,7 +226,7 @@ class Polack(Procedure):
         k0, k1 = t.number("kp_start", 0.1, lo=0.0), t.number("kp_stop", REQUIRED, lo=0.0)
         _ladder("gamma_stop", g0, g1, per_decade, True)
         _ladder("kp_stop", k0, k1, per_decade, False)
-        back_off = t.integer("back_off", 0, 0, 100)
+        back_off = None if t.raw("back_off") in (None, "oscillation") else t.integer("back_off", 0, 0, 100)
         target = t.number("rms_target", None, lo=0.0)
         patience = t.raw("patience")
         if patience is not None:
@@ -240,8 +244,11 @@ class Polack(Procedure):
         ff = yield from walk("feed-forward (k_p = 0)", [{GAMMA: g, KP: 0.0} for g in gammas])
         if ff.chosen is None:
             return Result(None, f"feed-forward stage: {ff.reason}, no completed run", _stages(ff))
-        i = max(0, gammas.index(ff.chosen.params[GAMMA]) - self.back_off)
-        gamma = gammas[i]
+        if self.back_off is None:  # thesis Fig. 3.22: pass over a best γ whose run oscillates
+            calm = [o for o in ff.seen if o.completed and not o.oscillating]
+            gamma = min(calm, key=lambda o: o.rms_error).params[GAMMA] if calm else ff.chosen.params[GAMMA]
+        else:
+            gamma = gammas[max(0, gammas.index(ff.chosen.params[GAMMA]) - self.back_off)]
         fb = yield from walk(
             f"feedback (γ = {gamma:.5g})",
             [{GAMMA: gamma, KP: k} for k in self.gains()],
