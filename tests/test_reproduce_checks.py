@@ -160,3 +160,33 @@ def test_items_state_place_claim_and_tolerance_and_the_not_reproduced_say_why():
 def test_a_calibrated_claim_is_never_an_agreement(item_id):
     item = next(i for i in ITEMS if i.id == item_id)
     assert item.calibration and "fitted" in item.calibration
+
+
+def test_walk_steps_are_counted_as_the_thesis_counts_them():
+    """Thesis Sec. 3.5.3's counting on a hand-made pair of walks: a step is a change of the setting from
+    the start to the choice. Polack: feed-forward γ 10⁴ → 10³ → 100 → 50 (chosen, 3 steps), 20 trips
+    (not a step); feedback at γ = 50: k_p 0 → 0.1 → 1 → 10 (chosen, 3 steps), 100 trips; 6 steps.
+    Guideline 2 reaches Polack's RMS (0.5) at its third run: 2 steps."""
+    from labrunner.campaign.guided import Advance, Observation, Result, WalkStep
+    from labrunner.reproduce.checks_walks import facts
+
+    def obs(i, gamma, kp, status, rms, oscillating=False):
+        return Observation(f"p{i}", {"controller.gamma": gamma, "controller.k_p": kp}, status, rms, 1.0, oscillating)
+
+    ff = [obs(0, 1e4, 0.0, "no-motion", 9.0), obs(1, 1e3, 0.0, "completed", 8.0), obs(2, 100.0, 0.0, "completed", 6.0)]
+    ff += [obs(3, 50.0, 0.0, "completed", 5.0), obs(4, 20.0, 0.0, "aborted", None)]
+    fb = [
+        obs(5, 50.0, 0.1, "completed", 3.0),
+        obs(6, 50.0, 1.0, "completed", 1.0),
+        obs(7, 50.0, 10.0, "completed", 0.5),
+    ]
+    fb += [obs(8, 50.0, 100.0, "aborted", None)]
+    walk = tuple(WalkStep("ff", o, True) for o in ff) + tuple(WalkStep("fb", o, True) for o in fb)
+    polack = Advance((), "", Result(fb[2], "tripped"), walk)
+    g2_obs = [obs(10, 1e4, 10.0, "completed", 0.9), obs(11, 1e3, 100.0, "completed", 0.6)]
+    g2_obs += [obs(12, 100.0, 1000.0, "completed", 0.45)]
+    g2 = Advance((), "", Result(g2_obs[-1], "tripped"), tuple(WalkStep("g2", o, True) for o in g2_obs))
+    f = facts(polack, g2)
+    assert f["steps"] == {"polack_ff": 3, "polack_fb": 3, "guideline2": 2}
+    assert f["ff_choice"].params["controller.gamma"] == 50.0 and f["g2"].id == "p12"
+    assert f["runs"] == {"polack": 9, "guideline2": 3}

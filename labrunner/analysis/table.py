@@ -56,7 +56,8 @@ CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
 METRICS_VERSION = (
-    4  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort columns
+    5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
+    # columns; 5: the detector's sustained-oscillation rule (periodicity)
 )
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64

@@ -42,9 +42,15 @@ def _stages(state: Any) -> dict[str, list]:
 
 
 def walks(results: Results) -> dict[str, Any]:
-    """The facts of both walks: chosen points, steps as the thesis counts them, runs made."""
+    """:func:`facts` of the two guided campaigns of ``results``."""
     polack, prun = _state(results, "polack")
     g2, grun = _state(results, "guideline2")
+    return {**facts(polack, g2), "dirs": {"polack": prun, "guideline2": grun}}
+
+
+def facts(polack: Any, g2: Any) -> dict[str, Any]:
+    """The facts of both walks (two replayed procedures, :class:`~labrunner.campaign.guided.Advance`):
+    chosen points, steps as the thesis counts them, runs made."""
     ff, fb = (list(v) for v in _stages(polack).values()) if len(_stages(polack)) == 2 else ([], [])
     ff_choice = next((o for o in ff if fb and o.params[GAMMA] == fb[0].params[GAMMA]), None)
     chosen = polack.result.chosen if polack.result else None
@@ -64,7 +70,6 @@ def walks(results: Results) -> dict[str, Any]:
         "g2": g2_obs[reach] if reach is not None else None,
         "steps": {"polack_ff": n_ff, "polack_fb": n_fb, "guideline2": reach},
         "runs": {"polack": polack.runs, "guideline2": g2.runs},
-        "dirs": {"polack": prun.directory, "guideline2": grun.directory},
     }
 
 
@@ -165,7 +170,9 @@ def input_noise(results: Results) -> Verdict:
     for key, obs in (("polack", w["chosen"]), ("guideline2", w["g2"])):
         if obs is None:
             return combine([Part("Guideline 2's input is less noisy", f"{key} chose nothing", False)])
-        log = read_run(w["dirs"][key] / "runs" / f"{obs.id}.mcap")
+        run = w["dirs"][key]
+        rel = run.frame.loc[run.frame["id"] == obs.id, "log_path"].iloc[0]
+        log = read_run(run.directory / "report" / rel)
         u = log.signal("u")
         noise[key] = float(np.sqrt(np.mean(np.diff(u[int(3.5 * log.fs) :]) ** 2)))  # at rest: after the reference
     part = Part(
