@@ -43,6 +43,7 @@ def lines_frame(rms_by_line: list[list[float]], statuses=None) -> pd.DataFrame:
                     "rms_error": value,
                     "outcome": status,
                     "oscillating": 0.0,
+                    "max_abs_input": 1.0,
                 }
             )
     return pd.DataFrame(rows)

@@ -109,6 +109,32 @@ def valve_parametrisations(results: Results) -> Verdict:
     return combine([part], table)
 
 
+def valve_lines(results: Results) -> Verdict:
+    """Paper 1 Fig. 8 / Sec. 5.2: the lines behave alike; from (C) to (B) the errors shrink; on (A) the flow
+    oscillates "but the current is not reaching its maximum value i_max yet". The lines are ordered by
+    γ/k_p: (A) the smallest ratio (the most aggressive), (C) the largest."""
+    from labrunner.reproduce.checks import ratio_lines
+
+    alike, lines = ratio_lines(results)
+    if len(lines) < 3:
+        return combine([alike], lines)
+    a, b, c = (lines.iloc[i] for i in (0, 1, 2))
+    parts = [
+        alike,
+        Part(
+            "from line (C) to (B) the errors shrink",
+            f"mean RMS(e_q) (C) {c['mean_rms']:.3g}, (B) {b['mean_rms']:.3g} l/min",
+            bool(b["mean_rms"] < c["mean_rms"]),
+        ),
+        Part(
+            "on line (A) the flow oscillates with the current below i_max",
+            f"(A) {a['classes']}, largest current {a['max_input']:.3g} A",
+            bool(a["classes"] == "unstable" and a["max_input"] < 0.99 * 1.01),
+        ),
+    ]
+    return combine(parts, lines)
+
+
 def mfc_vs_ffc(results: Results) -> Verdict:
     """Paper 1 Fig. 10: the MFC's RMS(e_q) is below the FFC's at every end value."""
     rows = {}

@@ -355,10 +355,11 @@ ITEMS: tuple[Item, ...] = (
         "paper 1",
         "Sec. 5.2, Figs. 5, 8",
         (V + "fig08-constant-ratio.toml",),
-        "Even if the parameter tuples differ by one magnitude they yield similar behaviour; from line (C) to (A) the "
-        "response changes drastically.",
-        "constant_ratio_lines",
-        "as item 3.11",
+        "Even if the parameter tuples differ by one magnitude they yield similar behaviour; (C) follows its reference "
+        "with a delay, (B) is more aggressive with smaller errors, on (A) the system starts oscillating but the "
+        "current is not reaching i_max.",
+        "valve_lines",
+        "'alike' as item 3.11; 'oscillating' by the detector's flag (labrunner.oscillation); orderings without margin",
         "The paper draws the lines only; the campaign's ratios are the pack's choice.",
     ),
     Item(
