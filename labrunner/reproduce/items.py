@@ -429,7 +429,8 @@ ITEMS: tuple[Item, ...] = (
         (P + "fig07-kp-kd.toml",),
         "k_p = 5000 1/s², k_d = 195 1/s is near a minimum of all three RMS values.",
         "plate_gains",
-        "'near': the paper's point is the argmin of each RMS(ê_j) or a grid neighbour of it (1/4-decade grid)",
+        "'near': the paper's point (the grid point within half a step of it) is the argmin of each RMS(ê_j) or a "
+        "grid neighbour of it (1/4-decade grid)",
         quick=False,
     ),
     Item(

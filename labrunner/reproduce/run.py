@@ -65,11 +65,28 @@ def run_file(path: Path, directory: Path, *, workers: int | None, stream: TextIO
         runner.resume(directory, opts)
     else:
         runner.start(path, directory, opts)
-    summary = analyse(directory, directory / "report", workers=workers)
+    summary = analyse(directory, directory / "report", workers=workers, recompute=stale_detector(directory))
     frame = pd.read_parquet(directory / "report" / "metrics.parquet").sort_values("seq").reset_index(drop=True)
     campaign = spec.load(directory / runner.CAMPAIGN_COPY, root=spec.project_root(path))
     parameters = [] if campaign.guided is not None else [params for params, _ in campaign.points()]
     return CampaignResult(str(path), directory, frame, summary, parameters)
+
+
+def stale_detector(directory: Path) -> bool:
+    """Whether runs of ``directory`` were committed by an older oscillation detector (their metrics lack
+    one of its columns): their metrics are then recomputed from the logs, so that every run of the
+    pack is judged by the same detector."""
+    import json
+
+    from labrunner.campaign.ledger import Ledger
+    from labrunner.oscillation import DETECTOR_METRICS
+
+    with Ledger.open_readonly(directory) as ledger:
+        for row in ledger.rows(("done", "aborted")):
+            metrics = json.loads(row["metrics_json"]) if row["metrics_json"] else {}
+            if "oscillating" in metrics and not set(DETECTOR_METRICS) <= set(metrics):
+                return True
+    return False
 
 
 def run_items(
