@@ -6,6 +6,8 @@ a differentiator design) to exit code 2 and every other :class:`LabrunnerError` 
 
 from __future__ import annotations
 
+import errno
+
 
 class LabrunnerError(Exception):
     """Base class of every error labrunner raises on purpose."""
@@ -86,3 +88,20 @@ def check_interval(field: str, value: object, *, what: str = "[lo, hi]", empty: 
     if not empty and lo >= hi:
         raise InvalidParameter(field, f"needs lo < hi, got [{lo:g}, {hi:g}]")
     return lo, hi
+
+
+_OS_HINTS = {
+    errno.ENOSPC: "disk full or file-size limit: free space, then continue with `labrunner resume DIR`",
+    errno.EFBIG: "disk full or file-size limit: free space, then continue with `labrunner resume DIR`",
+    errno.EDQUOT: "disk full or file-size limit: free space, then continue with `labrunner resume DIR`",
+    errno.EEXIST: "a file is where labrunner needs a directory: move or delete it",
+    errno.ENOTDIR: "a part of the path is a file, not a directory: choose another path",
+}
+
+
+def os_reason(exc: OSError) -> str:
+    """Why an OS call failed, with what to do where that is clear ("No space left on device (disk
+    full …: free space, then …)"); the caller names the path."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    hint = _OS_HINTS.get(exc.errno) if exc.errno is not None else None
+    return f"{reason} ({hint})" if hint else reason

@@ -106,7 +106,7 @@ def run_metrics(
         return out
     k = int(out["n_samples"])
     for name, (t0, t1) in (windows or {}).items():
-        lo, hi = math.ceil(t0 * fs - 1e-9), min(k, math.ceil(t1 * fs - 1e-9))
+        lo, hi = _sample_index(t0, fs, k), _sample_index(t1, fs, k)
         part = {n: np.asarray(signals[n], dtype=float)[lo:hi] for n in _names(roles)} if hi > lo else None
         values = base_metrics(part, roles) if part is not None else dict.fromkeys(out, float("nan"))
         out.update({f"{key}@{name}": v for key, v in values.items()})
@@ -114,6 +114,13 @@ def run_metrics(
         lo, hi = np.array(roles.input_limits, dtype=float).T
         out.update(detector.detect(_stack(signals, roles.inputs, k), lo, hi, fs))
     return out
+
+
+def _sample_index(t: float, fs: float, k: int) -> int:
+    """First sample at or after ``t`` [s], at most ``k``: a window may end (or start) past the run,
+    however far (``[2.5, 1e308]`` means "to the end"; ``t·fs`` may overflow to inf)."""
+    x = t * fs - 1e-9
+    return k if x >= k else math.ceil(x)
 
 
 def _names(roles: Roles) -> tuple[str, ...]:

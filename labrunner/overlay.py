@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 
 from labrunner.errors import InvalidParameter
 from labrunner.logs import RunLog, read_run
-from labrunner.runplot import _label, _number, _roles, _unit
+from labrunner.runplot import common_unit, is_number, signal_label, signal_roles
 
 MAX_RUNS = 20  # beyond this the colours repeat and the legend hides the data
 
@@ -30,7 +30,7 @@ def _labels(logs: Sequence[RunLog], names: Sequence[str]) -> list[str]:
     out = []
     for p, name in zip(params, names):
         shown = ", ".join(
-            f"{k.rsplit('.', 1)[-1]} = {p[k]:.4g}" if _number(p.get(k)) else f"{k.rsplit('.', 1)[-1]} = {p.get(k)}"
+            f"{k.rsplit('.', 1)[-1]} = {p[k]:.4g}" if is_number(p.get(k)) else f"{k.rsplit('.', 1)[-1]} = {p.get(k)}"
             for k in differ
             if k in p
         )
@@ -43,7 +43,7 @@ def plot_overlay(paths: Sequence[str | os.PathLike[str]]) -> Figure:
     if not 2 <= len(paths) <= MAX_RUNS:
         raise InvalidParameter("RUN.mcap", f"an overlay takes 2 to {MAX_RUNS} run logs, got {len(paths)}")
     logs = [read_run(p) for p in paths]
-    roles = [_roles(log) for log in logs]
+    roles = [signal_roles(log) for log in logs]
     names = set(logs[0].signals)
     outputs = [r[4:] for r in roles[0].get("reference", []) if r[4:] in names] or roles[0].get(
         "controlled", roles[0].get("output", [])
@@ -57,7 +57,7 @@ def plot_overlay(paths: Sequence[str | os.PathLike[str]]) -> Figure:
     fig = Figure(figsize=(7.5, 2.0 + 1.9 * len(panels)), layout="constrained")
     axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
     for ax, (name, kind) in zip(axes, panels):
-        unit, scale = _unit(logs[0], [name])
+        unit, scale = common_unit(logs[0], [name])
         ref = f"ref_{name}"
         if kind == "outputs" and ref in logs[0].signals:
             ax.plot(
@@ -66,7 +66,7 @@ def plot_overlay(paths: Sequence[str | os.PathLike[str]]) -> Figure:
                 "--",
                 color="black",
                 lw=1.3,
-                label=f"{_label(ref)} ({labels[0]})",
+                label=f"{signal_label(ref)} ({labels[0]})",
             )
         for i, (log, label) in enumerate(zip(logs, labels)):
             if name not in log.signals:
@@ -76,7 +76,7 @@ def plot_overlay(paths: Sequence[str | os.PathLike[str]]) -> Figure:
             out = log.outcome or {}
             if out.get("status") == "aborted" and len(t):
                 ax.plot([t[-1]], [y[-1]], "x", color=f"C{i % 10}", ms=8, mew=2)
-        ax.set_ylabel(f"{_label(name)} [{unit}]" if unit else _label(name))
+        ax.set_ylabel(f"{signal_label(name)} [{unit}]" if unit else signal_label(name))
         ax.grid(True, lw=0.4, alpha=0.6)
     axes[0].legend(loc="best", fontsize="small", ncols=2)
     axes[-1].set_xlabel("t [s]")

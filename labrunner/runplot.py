@@ -27,7 +27,7 @@ _TEX = {"omega": r"\Omega", "theta": r"\theta", "phi": r"\varphi", "psi": r"\psi
 _ABORT = "C3"
 
 
-def _label(name: str) -> str:
+def signal_label(name: str) -> str:
     """``ref_omega`` → Ω_r, ``theta`` → θ, ``f_hat_omega`` → f̂_Ω; other names unchanged."""
     if name.startswith("ref_") and name[4:] in _TEX:
         return f"${_TEX[name[4:]]}_r$"
@@ -37,7 +37,7 @@ def _label(name: str) -> str:
     return f"${_TEX[name]}$" if name in _TEX else name
 
 
-def _roles(log: RunLog) -> dict[str, list[str]]:
+def signal_roles(log: RunLog) -> dict[str, list[str]]:
     roles: dict[str, list[str]] = {}
     for name in log.signals:
         roles.setdefault(log.channels.get(name, {}).get("role", "signal"), []).append(name)
@@ -46,7 +46,7 @@ def _roles(log: RunLog) -> dict[str, list[str]]:
 
 def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
     """``[(panel title, [(signal, "-" or "--"), ...]), ...]``, empty panels left out."""
-    roles, names = _roles(log), set(log.signals)
+    roles, names = signal_roles(log), set(log.signals)
     tracked = [(ref[4:], ref) for ref in roles.get("reference", []) if ref[4:] in names]
     if tracked:
         outputs = [item for y, ref in tracked for item in ((y, "-"), (ref, "--"))]
@@ -72,7 +72,7 @@ def _title(log: RunLog) -> str:
     params = log.metadata.get("parameters") or {}
     if params:  # the grid values that make this run what it is, e.g. "(gamma = 108.6, k_p = 50)"
         shown = ", ".join(
-            f"{k.rsplit('.', 1)[-1]} = {v:.4g}" if _number(v) else f"{k.rsplit('.', 1)[-1]} = {v}"
+            f"{k.rsplit('.', 1)[-1]} = {v:.4g}" if is_number(v) else f"{k.rsplit('.', 1)[-1]} = {v}"
             for k, v in params.items()
         )
         head = f"{head} ({shown})"
@@ -82,19 +82,19 @@ def _title(log: RunLog) -> str:
     status = str(out.get("status", "?"))
     if status == "aborted":
         value, threshold = out.get("value"), out.get("threshold")
-        detail = f" ({value:.4g} vs. limit {threshold:.4g})" if _number(value) and _number(threshold) else ""
-        when = f" at t = {out['time']:.3f} s" if _number(out.get("time")) else ""
+        detail = f" ({value:.4g} vs. limit {threshold:.4g})" if is_number(value) and is_number(threshold) else ""
+        when = f" at t = {out['time']:.3f} s" if is_number(out.get("time")) else ""
         return f"{head}\naborted by {out.get('monitor', '?')}{when}{detail}"
     if status == "failed" and out.get("message"):
         return f"{head}\nfailed: {out['message']}"
     return f"{head}\n{status}"
 
 
-def _number(value: Any) -> bool:
+def is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _unit(log: RunLog, names: list[str]) -> tuple[str, float]:
+def common_unit(log: RunLog, names: list[str]) -> tuple[str, float]:
     """The panel's unit label and the factor its data is drawn with (air gaps in mm, as the
     papers show them: metres below 0.1 m are drawn in millimetres)."""
     units = [u for u in dict.fromkeys(log.channels.get(n, {}).get("unit", "") for n in names) if u]
@@ -115,7 +115,7 @@ def _draw(ax: Axes, log: RunLog, lines: list[tuple[str, str]], t: np.ndarray, sc
             style,
             color=colour,
             lw=lw if style == "-" else 1.3 * lw,
-            label=_label(name),
+            label=signal_label(name),
         )
 
 
@@ -126,17 +126,17 @@ def _abort_window(log: RunLog, t: np.ndarray) -> tuple[float | None, float, floa
     When the run reached less than two thirds of it, the panels zoom to the abort (with a margin)
     and a strip above them shows the whole planned time."""
     out = log.outcome or {}
-    t_abort = out.get("time") if out.get("status") == "aborted" and _number(out.get("time")) else None
+    t_abort = out.get("time") if out.get("status") == "aborted" and is_number(out.get("time")) else None
     t_end = float(t[-1]) if len(t) else 0.0
     planned = log.metadata.get("run", {}).get("duration")
     if t_abort is None:
         return None, t_end, t_end
-    if _number(planned):
+    if is_number(planned):
         t_end = max(t_end, float(planned))  # an aborted run on the axis of the run it should have been
     reached = max(float(t_abort), float(t[-1]) if len(t) else 0.0)
     if t_end <= 1.5 * reached:
         return float(t_abort), t_end, t_end
-    step = 1.0 / log.fs if _number(log.fs) and log.fs > 0 else 0.0
+    step = 1.0 / log.fs if is_number(log.fs) and log.fs > 0 else 0.0
     return float(t_abort), t_end, min(t_end, reached + max(0.1 * reached, 10 * step))
 
 
@@ -145,7 +145,7 @@ def _context(
 ) -> None:
     """The whole planned run in one strip: the outputs, the part never reached greyed out, the
     abort, and the window the panels below show."""
-    unit, scale = _unit(log, [n for n, _ in lines])
+    unit, scale = common_unit(log, [n for n, _ in lines])
     _draw(ax, log, lines, t, scale, 0.8)
     ax.axvspan(t_abort, t_end, color="0.9", zorder=0)
     ax.axvline(t_abort, color=_ABORT, ls=":", lw=1.5)
@@ -182,7 +182,7 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     for ax in axes[:-1]:
         ax.tick_params(labelbottom=False)
     for ax, (title, lines) in zip(axes, panels):
-        unit, scale = _unit(log, [n for n, _ in lines])
+        unit, scale = common_unit(log, [n for n, _ in lines])
         _draw(ax, log, lines, t, scale)
         if t_abort is not None and title == "inputs" and len(t):
             k = min(int(np.searchsorted(t, t_abort)), len(t) - 1)

@@ -217,7 +217,7 @@ def test_the_thesis_step_counts_on_the_motor_twin():
     walks = []
     for name in ("guideline2-case1", "polack"):
         campaign = spec.load(ROOT / "campaigns" / "guided" / f"{name}.toml")
-        simulate, cache = guided.engine_oracle(campaign, batch=100), {}
+        simulate, cache = guided_run.engine_oracle(campaign, batch=100), {}
 
         def oracle(points, proc=campaign.guided, simulate=simulate, cache=cache):
             key = lambda p: tuple(sorted(p.items()))  # noqa: E731

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from labrunner.campaign import guided, spec
+from labrunner.campaign import guided, guided_run, spec
 from labrunner.campaign.guided_refine import Refine, boundary_cells, mixed
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,7 +42,7 @@ def test_refinement_draws_the_full_grids_boundary_on_the_motor_plane_with_5x_few
     # process with the campaign's own configuration (engine_oracle); the full grid is the reference.
     campaign = spec.load(ROOT / "campaigns" / "guided" / "refine-gamma-kp.toml")
     proc = campaign.guided
-    oracle = guided.engine_oracle(campaign)
+    oracle = guided_run.engine_oracle(campaign)
     end = guided.drive(proc, campaign.name, oracle)
     n = proc.size
     full = oracle([proc.point((i, j)) for i in range(n) for j in range(n)])

@@ -88,7 +88,7 @@ def test_validation_errors_name_the_key(tmp_path, text, field, fragment):
 
 def test_invalid_toml_and_missing_files(tmp_path):
     path = write_rig(tmp_path, "broken", "[rig\nkind=")
-    assert "invalid TOML" in str(error_of(load_rig_config, path))
+    assert "is not valid TOML" in str(error_of(load_rig_config, path))
     assert error_of(load_rig_config, "nope", search=[tmp_path / "rigs"]).field == "rig"
     assert load_rig_config("valve-sim", search=[tmp_path / "rigs"]).kind == "valve"  # falls back to ./rigs
     assert error_of(load_rig_config, tmp_path / "missing.toml").field == "rig"

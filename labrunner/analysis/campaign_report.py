@@ -23,7 +23,7 @@ from labrunner.analysis.context import parameter_records
 from labrunner.analysis.figures import common_theory
 from labrunner.analysis.overlays import EQUATIONS
 from labrunner.analysis.report import Image, Section, write_report
-from labrunner.analysis.table import UNTIL_ABORT
+from labrunner.analysis.table import FOREIGN, UNTIL_ABORT
 from labrunner.campaign.progress import format_counts
 
 #: Metric columns of the table of all runs (the ones ranked by, then those of aborted runs).
@@ -110,7 +110,9 @@ def _outcome_section(summary: Mapping[str, Any]) -> Section:
     return Section("Outcomes", paragraphs=paragraphs, facts=facts)
 
 
-def _interval(bounds: Mapping[str, Any], key: str) -> str:
+def _interval(bounds: Mapping[str, Any] | None, key: str) -> str:
+    if bounds is None:
+        return "no theory here (outside its domain)"
     value = bounds.get(key)
     if value is None:
         return "none stable"
@@ -185,14 +187,16 @@ def _column_cells(values: pd.Series) -> list[str]:
     return [_cell(v) for v in values.tolist()]
 
 
-def _link_cells(out: Path, directory: Path, logs: Sequence[Any]) -> list[str]:
-    """:func:`_link` of each run's log (``"log"``; a dash for a point without one), the campaign
-    directory resolved once instead of once per run."""
+def _link_cells(out: Path, directory: Path, logs: Sequence[Any], states: Sequence[Any]) -> list[str]:
+    """:func:`_link` of each run's log (``"log"``; a dash for a point without one; no link to a
+    log that is another point's run), the campaign directory resolved once instead of once per run."""
     base = Path(os.path.relpath(directory.resolve(), out.resolve())).as_posix()
     cells = []
-    for log in logs:
+    for log, state in zip(logs, states, strict=True):
         if not isinstance(log, str):
             cells.append("<td>–</td>")
+        elif state == FOREIGN:
+            cells.append(f"<td>{FOREIGN} log</td>")
         elif (directory / log).is_file():
             cells.append(f'<td><a href="{html.escape(posixpath.normpath(posixpath.join(base, log)))}">log</a></td>')
         else:
@@ -211,7 +215,8 @@ def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[s
     columns = [c for c in columns if c in frame.columns]
     head = "".join(f"<th>{html.escape(c.split('.')[-1] if '.' in c else c)}</th>" for c in columns)
     cells = [_column_cells(frame[c]) for c in columns]
-    cells.append(_link_cells(ctx.out, ctx.directory, frame["log_path"].tolist()))
+    states = frame["log_state"].tolist() if "log_state" in frame.columns else [None] * len(frame)
+    cells.append(_link_cells(ctx.out, ctx.directory, frame["log_path"].tolist(), states))
     cells.append(
         [f"<td>{_link(ctx.out, plots[i], 'plot')}</td>" if i in plots else "<td>–</td>" for i in frame["id"].tolist()]
     )
@@ -262,7 +267,11 @@ def campaign_report(
         plot = plots.get(row["id"])
         if plot is not None:
             images.append(Image(f"{label} run", plot.read_bytes(), _run_caption(row, params, ctx.error)))
-            log = _link(ctx.out, ctx.directory / row["log_path"], "log")
+            log = (
+                f"{FOREIGN} log"
+                if row.get("log_state") == FOREIGN
+                else _link(ctx.out, ctx.directory / row["log_path"], "log")
+            )
             links.append(
                 f"{html.escape(label)}: point {html.escape(str(row['id']))} ({log}, {_link(ctx.out, plot, 'plot')})"
             )

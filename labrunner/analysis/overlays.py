@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from labrunner.errors import InvalidParameter
+
 #: Stability cases per controller kind: (ultra-local case, model case).
 CASES = {"mfc1": ("mfc1-ultralocal", "mfc1-motor"), "mfc2": ("mfc2-ultralocal", "mfc2-motor")}
 #: Thesis equations of each case, for labels.
@@ -103,9 +105,11 @@ class Theory:
         ultra, model = CASES[self.kind]
         return ([ultra] if self.rho is not None else []) + ([model] if self.has_model else [])
 
-    def bounds(self, case: str, gamma: float, k_d: float | None = None) -> dict:
+    def bounds(self, case: str, gamma: float, k_d: float | None = None) -> dict | None:
         """:func:`labrunner.stability.bounds` of ``case`` at this γ (and k_d); cached, since a grid
-        repeats each (γ, k_d) along its other axis."""
+        repeats each (γ, k_d) along its other axis. None outside the theory's domain (γ ≤ 0, k_d <
+        0, …): a grid that ``run`` accepts, or the half cell a map draws beyond its last value, may
+        reach there, and the theory then says nothing."""
         gains = {"rho": self.rho} if case.endswith("ultralocal") else {k: float(self.constants[k]) for k in ("a", "b")}
         return _bounds(
             case, float(gamma), self.delay, tuple(sorted(gains.items())), None if k_d is None else float(k_d)
@@ -125,13 +129,15 @@ class Theory:
         lo, hi = found[inverse.ravel()].T
         return lo.reshape(g.shape), hi.reshape(g.shape)
 
-    def predict(self, case: str, params: Mapping[str, float]) -> tuple[bool, float]:
+    def predict(self, case: str, params: Mapping[str, float]) -> tuple[bool, float] | None:
         """Whether ``case`` predicts a stable loop at ``params`` (gamma, k_p, k_d) and the relative
         distance to its nearest bound: min |g − bound| / bound over the gains g = k_p (and k_d)
-        and their finite, positive bounds.
+        and their finite, positive bounds; None where the theory is not defined (see :meth:`bounds`).
         """
         k_d = params.get("k_d") if case.startswith("mfc2") else None
         b = self.bounds(case, float(params["gamma"]), None if k_d is None else float(k_d))
+        if b is None:
+            return None
         checks = [(float(params["k_p"]), _interval(b, "k_p"))]
         if k_d is not None:
             checks.append((float(k_d), _interval(b, "k_d")))
@@ -141,17 +147,22 @@ class Theory:
 
 
 @functools.lru_cache(maxsize=1 << 16)
-def _bounds(case: str, gamma: float, delay: float, gains: tuple[tuple[str, float], ...], k_d: float | None) -> dict:
+def _bounds(
+    case: str, gamma: float, delay: float, gains: tuple[tuple[str, float], ...], k_d: float | None
+) -> dict | None:
     from labrunner import stability  # the solver is only needed where a map has a theory
 
     kw = dict(gains)
     if k_d is not None:
         kw["k_d"] = k_d
-    return stability.bounds(case, gamma=gamma, delay=delay, **kw)
+    try:
+        return stability.bounds(case, gamma=gamma, delay=delay, **kw)
+    except InvalidParameter:  # outside the case's domain: no bound there
+        return None
 
 
-def _interval(bounds: Mapping[str, object], key: str) -> tuple[float, float]:
-    value = bounds.get(key)
+def _interval(bounds: Mapping[str, object] | None, key: str) -> tuple[float, float]:
+    value = None if bounds is None else bounds.get(key)
     return (np.nan, np.nan) if value is None else (float(value[0]), float(value[1]))
 
 
@@ -207,11 +218,15 @@ def kp_kd_lines(theory: Theory, gamma: float, k_ds: np.ndarray) -> list[OverlayL
     return lines
 
 
-def transitions(values: np.ndarray, stable: Callable[[float], bool]) -> list[float]:
-    """Points (geometric midpoints) where ``stable`` flips along sorted, positive ``values``."""
-    flags = np.array([stable(float(v)) for v in values])
-    flips = np.flatnonzero(flags[1:] != flags[:-1])
-    return [float(np.sqrt(values[i] * values[i + 1])) for i in flips]
+def transitions(values: np.ndarray, stable: Callable[[float], bool | None]) -> list[float]:
+    """Points (geometric midpoints, arithmetic where a value is ≤ 0) where ``stable`` flips along
+    sorted ``values``; values where it is None (no theory there) are skipped, not taken as a flip."""
+    known = [(float(v), flag) for v in values if (flag := stable(float(v))) is not None]
+    return [
+        float(np.sqrt(a * b)) if a > 0 and b > 0 else (a + b) / 2
+        for (a, fa), (b, fb) in zip(known, known[1:])
+        if fa != fb
+    ]
 
 
 def sweep_lines(theory: Theory, key: str, dense: np.ndarray, fixed: Mapping[str, float]) -> list[OverlayLine]:
@@ -219,7 +234,7 @@ def sweep_lines(theory: Theory, key: str, dense: np.ndarray, fixed: Mapping[str,
     lines = []
     for case in theory.cases():
         eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
-        found = transitions(dense, lambda v: theory.predict(case, {**fixed, key: v})[0])
+        found = transitions(dense, lambda v: (p := theory.predict(case, {**fixed, key: v})) and p[0])
         lines += [
             OverlayLine(f"{eq} stability limit" if i == 0 else "_", x, None, colour, "--", f"bound:{case}:{key}")
             for i, x in enumerate(found)

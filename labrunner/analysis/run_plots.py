@@ -62,10 +62,14 @@ def draw(plots: Sequence[Item], tick: Callable[[int], None] | None = None) -> di
     for point_id, log, plot in plots:
         try:
             if not _kept(log, plot):
+                from labrunner import run_identity
+                from labrunner.logs import read_run
                 from labrunner.runplot import plot_run  # matplotlib: only when a plot is drawn
 
+                run = read_run(log)
+                run_identity.check(run.metadata, point_id, log)  # a swapped log would plot another run
                 plot.parent.mkdir(parents=True, exist_ok=True)
-                png.save(plot_run(log), plot)
+                png.save(plot_run(run), plot)
             out[point_id] = plot
         except (LabrunnerError, OSError, ValueError, KeyError):
             pass

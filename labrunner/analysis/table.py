@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from labrunner import run_identity
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 
@@ -110,6 +111,7 @@ def log_metrics(
 
     try:
         log = read_run(path)
+        named = run_identity.named_point(log.metadata)
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
         windows = parse_windows((log.metadata.get("config") or {}).get("metrics"))
@@ -119,17 +121,25 @@ def log_metrics(
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     out["torn"] = bool(log.torn)
+    out["log_point"] = named
     return out
 
 
+def _named_point(path: str) -> dict[str, Any]:
+    """``{"log_point": id}`` the log names (its metadata alone), or ``{"error": ...}``."""
+    try:
+        return {"log_point": run_identity.read_named_point(path)}
+    except (LabrunnerError, OSError, ValueError, KeyError) as exc:
+        return {"error": f"{type(exc).__name__}: {exc}"}
+
+
 def _read_many(
+    read: Callable[[str], dict[str, Any]],
     paths: Sequence[str],
     workers: int,
-    units: Mapping[str, str] | None,
-    limits: Mapping[str, tuple[float, float]] | None = None,
     tick: Callable[[int], None] | None = None,
 ) -> list[dict[str, Any]]:
-    read = functools.partial(log_metrics, units=dict(units or {}), limits=dict(limits or {}))
+    """``read(path)`` of every path, in a process pool when there are many."""
     out: list[dict[str, Any]] = []
     if workers <= 1 or len(paths) < _PARALLEL_MIN:
         for p in paths:
@@ -246,6 +256,14 @@ def _cached(cache: pd.DataFrame | None) -> dict[str, dict[str, Any]]:
     return {r["id"]: r for r in cache.to_dict("records")}
 
 
+def _proved(hit: Mapping[str, Any] | None, stat: tuple[int, int]) -> bool:
+    """Whether a cached row says its log, this same file (size, mtime), was proved to be its own."""
+    if hit is None or hit.get("log_state") != LOG_OK:
+        return False
+    size, mtime = hit.get("log_size"), hit.get("log_mtime_ns")
+    return bool(pd.notna(size) and pd.notna(mtime)) and (int(size), int(mtime)) == stat
+
+
 def _unsplit(row: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
     """A cached table row's metrics as :func:`log_metrics` gave them (aborted runs' back from
     their ``_until_abort`` columns); columns the ledger fills (``known``) left out."""
@@ -305,16 +323,30 @@ def build_table(
             read.append(i)
     if announce and read:
         announce(len(read))
-    results = _read_many([str(directory / paths[i]) for i in read], workers or os.cpu_count() or 1, units, limits, tick)
-    for i, result in zip(read, results):
+    workers = workers or os.cpu_count() or 1
+    metrics_of = functools.partial(log_metrics, units=dict(units or {}), limits=dict(limits or {}))
+    results = _read_many(metrics_of, [str(directory / paths[i]) for i in read], workers, tick)
+    # every log proves which point it is: those read now by their metadata; the others by their
+    # run record, unless the cache saw this very file (size, mtime) back its row before
+    unread = [i for i in sorted(set(stats) - set(read)) if not _proved(cached.get(frame.at[i, "id"]), stats[i])]
+    named = _read_many(_named_point, [str(directory / paths[i]) for i in unread], workers)
+    foreign: set[int] = set()
+    for i, result in [*zip(read, results), *zip(unread, named)]:
         if "error" in result:
             problems.append({"path": paths[i], "kind": "unreadable", "detail": result["error"]})
+            continue
+        problem = run_identity.describe(result.pop("log_point"), frame.at[i, "id"])
+        if problem:
+            problems.append({"path": paths[i], "kind": FOREIGN, "detail": problem})
+            foreign.add(i)
+    for i, result in zip(read, results):
+        if "error" in result or i in foreign:  # a foreign log's metrics are another point's
             continue
         if i not in missing and not recompute:  # a damaged log the ledger has whole metrics of: flag it only
             result = {"torn": result["torn"]}
         metrics[i] = result
-    for i in metrics:
-        metrics[i]["log_size"], metrics[i]["log_mtime_ns"] = stats[i]
+    for i in stats:  # which file backed each row: the next analysis trusts a file it proved
+        metrics.setdefault(i, {})["log_size"], metrics[i]["log_mtime_ns"] = stats[i]
     if metrics:
         extra = pd.DataFrame.from_dict(metrics, orient="index").reindex(frame.index)
         extra = extra.drop(columns=[c for c in ("metrics_version", *ID_COLUMNS) if c in extra.columns and c != "torn"])
@@ -334,13 +366,16 @@ def build_table(
 
 #: ``log_state`` of a row whose log is fine; the others are the problems' kinds.
 LOG_OK = "ok"
+#: ``log_state`` of a row whose log names another point (swapped or copied on disk).
+FOREIGN = "foreign"
 
 
 def log_states(log_paths: pd.Series, problems: Sequence[Mapping[str, str]]) -> pd.Series:
-    """Per row: "ok", or what is wrong with its log ("missing", "unreadable", "torn"), or empty
+    """Per row: "ok", or what is wrong with its log ("missing", "unreadable", "torn", "foreign":
+    another point's run), or empty
     where the point has none (a failed run, an unfinished point) — so that the table alone says
     which metrics a log no longer backs."""
-    kinds = {p["path"]: p["kind"] for p in problems if p["kind"] in ("missing", "unreadable", "torn")}
+    kinds = {p["path"]: p["kind"] for p in problems if p["kind"] in ("missing", "unreadable", "torn", FOREIGN)}
     return log_paths.map(lambda rel: kinds.get(rel, LOG_OK) if isinstance(rel, str) else None)
 
 
@@ -350,7 +385,8 @@ def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory:
         {
             "path": str(r["moved_to"]),
             "kind": "quarantined",
-            "detail": f"point {r['point_id']}: {r['reason']} (was {r['original']}, {r['bytes']} bytes)",
+            "detail": ("" if r["point_id"] is None else f"point {r['point_id']}: ")
+            + f"{r['reason']} (was {r['original']}, {r['bytes']} bytes)",
         }
         for r in quarantine_rows
     ]

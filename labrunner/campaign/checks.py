@@ -32,6 +32,7 @@ from labrunner.safety import SafetyMonitor
 from labrunner.safety_config import SafetyConfig
 
 MAX_SAMPLES = 10_000_000  # samples per run: beyond this a run's signals do not fit a worker's memory
+MAX_SEED = 2**63 - 1  # the simulated rigs' noise generators take int64 seeds
 MAX_FIR_WORK = 2_000_000_000  # window taps × samples per run: beyond this one run's FIR alone takes minutes
 CHUNK = 256  # points validated by one batched build
 
@@ -110,8 +111,8 @@ class StaticChecker:
                 self.rig_info.check_fs(fs, "campaign.fs")
                 self._fs.add(fs)
             seed = head["seed"]
-            if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-                raise InvalidParameter("campaign.seed", f"must be an integer >= 0, got {seed!r}")
+            if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+                raise InvalidParameter("campaign.seed", f"must be an integer in [0, 2**63 - 1], got {seed!r}")
             if head["duration"] is not None:
                 check_positive("campaign.duration", head["duration"], strict=True)
             for key, value in config.get("rig_parameters", {}).items():
@@ -164,8 +165,17 @@ class StaticChecker:
             with _at(item[1]):
                 if not 1 <= samples <= MAX_SAMPLES:
                     raise InvalidParameter(
-                        "campaign.duration", f"gives {samples} samples at {fs:g} Hz; allowed 1..{MAX_SAMPLES}"
+                        "campaign.duration",
+                        f"gives {samples:.6g} samples at {fs:g} Hz; allowed 1..{MAX_SAMPLES} (at most "
+                        f"{MAX_SAMPLES / fs:g} s)",
                     )
+                for name, t0 in _window_starts(item[2].get("metrics")):
+                    if t0 >= samples / fs:
+                        raise InvalidParameter(
+                            f"metrics.{name}",
+                            f"starts at {t0:g} s, at or after the run's end ({samples / fs:g} s): "
+                            "its metrics would all be NaN",
+                        )
                 if n_s > samples:
                     raise InvalidParameter(
                         "differentiator.omega_c",
@@ -210,3 +220,12 @@ class _at:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None and issubclass(exc_type, InvalidParameter) and self.params:
             raise InvalidParameter(exc.field, f"{exc.message} (at grid point {canonical_json(self.params)})") from None
+
+
+def _window_starts(section: Any) -> list[tuple[str, float]]:
+    """(name, t0 [s]) of the ``[metrics]`` windows of a point (validated when the file was read)."""
+    if not section:
+        return []
+    from labrunner.metrics import parse_windows
+
+    return [(name, t0) for name, (t0, _) in parse_windows(section).items()]

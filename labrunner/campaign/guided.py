@@ -4,12 +4,14 @@ A procedure is a *plan* in the Bluesky sense: a generator that yields :class:`Re
 name and the points it wants run, as parameter dicts of dotted keys) and is sent back one
 :class:`Observation` per point. It touches no rig and no ledger, so its decisions are a pure
 function of the outcomes: :func:`advance` drives a fresh plan with every outcome known so far and
-returns either the points to run next (one *round*) or the plan's :class:`Result`. The runner
-(:mod:`labrunner.campaign.guided_run`) executes each round as ordinary ledger rows, so after a
-crash the decision state is rebuilt from the ledger alone by replaying the plan.
+returns either the points to run next (one *round*) or the plan's :class:`Result`. This module
+imports nothing of the campaign but :mod:`~labrunner.campaign.grid`: the round loop above the
+runner (:mod:`labrunner.campaign.guided_run`) executes each round as ordinary ledger rows, so after
+a crash the decision state is rebuilt from the ledger alone by replaying the plan.
 
 A point asked for twice (e.g. the start of a second stage) is run once: outcomes are keyed by the
-point's stable id, the same id a grid point would have. Procedures (``[guided] procedure = …``):
+point's stable id, the same id a grid point would have. Procedures (``[guided] procedure = …``,
+the table in :mod:`labrunner.campaign.procedures`):
 ``guideline2`` (thesis Guideline 2, Sec. 3.5.1, cases 1 and 2, walk or bisection), ``guideline3``
 (Guideline 3, Sec. 3.5.2), ``polack`` (Polack et al. 2019 as thesis Sec. 3.5.3 applies it) —
 :mod:`labrunner.campaign.guided_walks`; ``refine`` (stability-boundary refinement) —
@@ -19,7 +21,6 @@ point's stable id, the same id a grid point would have. Procedures (``[guided] p
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Generator, Mapping, Sequence
@@ -28,14 +29,6 @@ from typing import Any, ClassVar
 
 from labrunner.campaign.grid import Axis, canonical_json, point_id
 from labrunner.errors import InvalidParameter, check_finite
-
-#: procedure name → "module:class"; a class is imported only when a campaign names it.
-PROCEDURES = {
-    "guideline2": "labrunner.campaign.guided_walks:Guideline2",
-    "guideline3": "labrunner.campaign.guided_walks:Guideline3",
-    "polack": "labrunner.campaign.guided_walks:Polack",
-    "refine": "labrunner.campaign.guided_refine:Refine",
-}
 
 
 @dataclass(frozen=True)
@@ -255,27 +248,6 @@ class Table:
             raise InvalidParameter(f"guided.{unknown[0]}", f"unknown key; allowed: {', '.join(sorted(self.used))}")
 
 
-def parse(table: Any, campaign: Any) -> Procedure:
-    """``[guided]`` of a campaign → its :class:`Procedure` (``campaign``: the Campaign without it)."""
-    if not isinstance(table, Mapping):
-        raise InvalidParameter("guided", f"must be a table, got {table!r}")
-    name = table.get("procedure")
-    if name not in PROCEDURES:
-        raise InvalidParameter("guided.procedure", f"must be one of {', '.join(PROCEDURES)}, got {name!r}")
-    module, _, cls = PROCEDURES[name].partition(":")
-    factory: Callable[[Table, Any], Procedure] = getattr(importlib.import_module(module), cls).from_table
-    reader = Table(table, dict(campaign.rig_info.constants))
-    procedure = factory(reader, campaign)
-    reader.done()
-    tuned = {key for point in procedure.corners() for key in point}
-    for key, _ in campaign.derived:
-        if key in tuned:
-            raise InvalidParameter(
-                f'derived."{key}"', f"is set by the {name} procedure; a key is either tuned or derived"
-            )
-    return procedure
-
-
 Oracle = Callable[[list[Mapping[str, Any]]], list[Mapping[str, Any]]]
 
 
@@ -284,7 +256,7 @@ def drive(
 ) -> Advance:
     """Run a plan to its end in-process: ``oracle(points)`` gives each point's outcome as a mapping
     with ``status`` (and ``rms_error``, ``input_energy``). For tests (a fake plant) and for quick
-    studies with :func:`engine_oracle`; campaigns go through the ledger instead."""
+    studies with :func:`labrunner.campaign.guided_run.engine_oracle`; campaigns go through the ledger instead."""
     outcomes = dict(known or {})
     while True:
         step = advance(procedure, campaign, outcomes)
@@ -300,54 +272,3 @@ def drive(
                 out.get("input_energy"),
                 out.get("oscillating") == 1.0,
             )
-
-
-def engine_oracle(campaign: Any, batch: int = 64) -> Oracle:
-    """Outcomes of points of ``campaign`` simulated in this process by :func:`labrunner.engine.run_batch`
-    (same configuration, seed and safety routine as the campaign's runs; no logs written)."""
-    from labrunner import engine
-    from labrunner.campaign.guided_run import static_checker
-    from labrunner.rigs import registry
-
-    def oracle(points: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-        configs = [campaign.expand(dict(p))[1] for p in points]
-        checker = static_checker(campaign)
-        durations = {
-            seq: d
-            for (seq, _, _), d in (
-                *(x for i, c in enumerate(configs) for x in checker.add(i, dict(points[i]), c)),
-                *checker.flush(),
-            )
-        }
-        groups: dict[float, list[int]] = {}  # runs of one lockstep batch share their length
-        for i, duration in sorted(durations.items()):
-            configs[i]["campaign"]["duration"] = duration
-            groups.setdefault(duration, []).append(i)
-        out: dict[int, Mapping[str, Any]] = {}
-        with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as rig:
-            for duration, members in groups.items():
-                for lo in range(0, len(members), batch):
-                    idx = members[lo : lo + batch]
-                    results = engine.run_batch(
-                        [configs[i] for i in idx],
-                        rig,
-                        fs=float(campaign.fs),
-                        duration=duration,
-                        seeds=[campaign.seed] * len(idx),
-                        rig_safety=campaign.rig_safety,
-                    )
-                    out.update(
-                        (
-                            i,
-                            {
-                                "status": r.outcome.status,
-                                "rms_error": r.metrics.get("rms_error"),
-                                "input_energy": r.metrics.get("input_energy"),
-                                "oscillating": r.metrics.get("oscillating"),
-                            },
-                        )
-                        for i, r in zip(idx, results)
-                    )
-        return [out[i] for i in range(len(points))]
-
-    return oracle

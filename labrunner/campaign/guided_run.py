@@ -12,69 +12,16 @@ written is proposed again, identically.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from labrunner.campaign.grid import canonical_json, point_id
-from labrunner.campaign.guided import Advance, Observation, advance
+from labrunner.campaign.grid import point_id
+from labrunner.campaign.guided import Advance, Observation, Oracle, advance
 from labrunner.campaign.ledger import TERMINAL, Ledger
 from labrunner.campaign.scheduler import Outcome
-from labrunner.campaign.spec import Campaign, PlannedPoint
-
-
-def check_points(campaign: Campaign, points: Sequence[Mapping[str, Any]], first_seq: int = 0) -> list[PlannedPoint]:
-    """Statically check points as :func:`labrunner.campaign.spec.plan` checks a grid; their ids are
-    those of the points as proposed, their parameters include ``[derived]`` values."""
-    from labrunner.campaign.checks import batch_key
-
-    checker = static_checker(campaign)
-    checked: dict[int, tuple[dict[str, Any], dict[str, Any], float]] = {}
-    for n, point in enumerate(points):
-        params, config = campaign.expand(dict(point))
-        for (seq, p, c), duration in checker.add(n, params, config):
-            checked[seq] = (p, c, duration)
-    for (seq, p, c), duration in checker.flush():
-        checked[seq] = (p, c, duration)
-    out = []
-    for n, point in enumerate(points):
-        params, config, duration = checked[n]
-        config["campaign"]["duration"] = duration
-        out.append(
-            PlannedPoint(
-                first_seq + n, point_id(campaign.name, point), params, batch_key(campaign.rig, config, checker.split)
-            )
-        )
-    return out
-
-
-def static_checker(campaign: Campaign):
-    """The grid campaigns' :class:`~labrunner.campaign.checks.StaticChecker` for ``campaign``'s rig file."""
-    from labrunner.campaign.checks import StaticChecker
-
-    return StaticChecker(campaign.rig_config)
-
-
-def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
-    """The first round's points and the plan checksum (procedure, base configuration, the checked
-    extreme points of the search space and the first round)."""
-    procedure = campaign.guided
-    corners = check_points(campaign, procedure.corners())
-    first = check_points(campaign, list(advance(procedure, campaign.name, {}).next))
-    digest = hashlib.sha256(
-        canonical_json(
-            {
-                "name": campaign.name,
-                "rig": campaign.rig,
-                "procedure": procedure.identity(),
-                "base": campaign.resolve({}),
-                "points": [[p.parameters, p.batch_key] for p in (*corners, *first)],
-            }
-        ).encode()
-    )
-    return first, digest.hexdigest()
+from labrunner.campaign.spec import Campaign, check_points
 
 
 def observations(rows: Sequence[Mapping[str, Any]]) -> dict[str, Observation]:
@@ -111,7 +58,7 @@ def execute(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome]
     with contextlib.nullcontext(signals) if signals is not None else StopSignals() as signals:
         _rounds(campaign, ledger, run_round, total, signals)  # Ctrl-C between rounds: stop before the next
     total.elapsed_s = time.monotonic() - t0
-    total.counts = ledger.counts()
+    total.counts = ledger.by_outcome()  # outcome words, as the scheduler reports them (not states)
     return total
 
 
@@ -229,28 +176,52 @@ def directory_state(directory: str | Path) -> tuple[Campaign, Advance, dict[str,
     return campaign, replay(campaign, rows), summary(campaign, rows)
 
 
-def dry_run(campaign: Campaign, first: list[PlannedPoint], slots: int) -> str:
-    """``--dry-run`` text: guided, the procedure, the maximum number of runs, an estimated time."""
-    import json
+def engine_oracle(campaign: Campaign, batch: int = 64) -> Oracle:
+    """Outcomes of points of ``campaign`` simulated in this process by :func:`labrunner.engine.run_batch`
+    (same configuration, seed and safety routine as the campaign's runs; no logs written)."""
+    from labrunner import engine
+    from labrunner.campaign.checks import StaticChecker
+    from labrunner.rigs import registry
 
-    from labrunner.campaign.runner import _estimate_sim
+    def oracle(points: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+        configs = [campaign.expand(dict(p))[1] for p in points]
+        checker = StaticChecker(campaign.rig_config)
+        durations = {
+            seq: d
+            for (seq, _, _), d in (
+                *(x for i, c in enumerate(configs) for x in checker.add(i, dict(points[i]), c)),
+                *checker.flush(),
+            )
+        }
+        groups: dict[float, list[int]] = {}  # runs of one lockstep batch share their length
+        for i, duration in sorted(durations.items()):
+            configs[i]["campaign"]["duration"] = duration
+            groups.setdefault(duration, []).append(i)
+        out: dict[int, Mapping[str, Any]] = {}
+        with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as rig:
+            for duration, members in groups.items():
+                for lo in range(0, len(members), batch):
+                    idx = members[lo : lo + batch]
+                    results = engine.run_batch(
+                        [configs[i] for i in idx],
+                        rig,
+                        fs=float(campaign.fs),
+                        duration=duration,
+                        seeds=[campaign.seed] * len(idx),
+                        rig_safety=campaign.rig_safety,
+                    )
+                    out.update(
+                        (
+                            i,
+                            {
+                                "status": r.outcome.status,
+                                "rms_error": r.metrics.get("rms_error"),
+                                "input_energy": r.metrics.get("input_energy"),
+                                "oscillating": r.metrics.get("oscillating"),
+                            },
+                        )
+                        for i, r in zip(idx, results)
+                    )
+        return [out[i] for i in range(len(points))]
 
-    procedure = campaign.guided
-    n = procedure.max_runs()
-    _, fs, duration, *_ = json.loads(first[0].batch_key)
-    lines = [
-        f"campaign {campaign.name}: guided ({procedure.name}) on rig {campaign.rig!r}, at most {n} runs",
-        f"  {procedure.describe()}",
-        f"  first round: {len(first)} point(s) × {duration:g} s at {fs:g} Hz; later rounds follow from the outcomes",
-    ]
-    if campaign.rig_info.simulated:
-        parallel = slots if len(first) > 1 else 1  # a walk runs one point per round
-        per_run = _estimate_sim(campaign, first, 1, len(first)) / len(first)
-        rounds = n if len(first) == 1 else -(-n // len(first))  # each round costs a start-up of ~0.2 s
-        lines.append(
-            f"  estimated time ≤ {per_run * n / parallel + 0.2 * rounds:.0f} s for {n} runs on {parallel} worker(s) "
-            f"(≤ {n * duration:g} s of simulated time)"
-        )
-    else:
-        lines.append(f"  estimated time ≤ {n * (duration + 2.0):.0f} s on the real rig (one run at a time)")
-    return "\n".join(lines)
+    return oracle

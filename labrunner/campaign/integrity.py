@@ -22,6 +22,7 @@ from pathlib import Path
 
 from labrunner.errors import InvalidParameter
 
+SCHEMA_VERSION = "1"  # of the ledger's tables; the ledger writes it into ``meta``
 TABLES = ("meta", "points", "quarantine", "sessions")
 POINT_COLUMNS = ("seq", "id", "parameters", "batch_key", "state", "outcome", "outcome_json", "log_path", "attempts")
 META_KEYS = ("schema_version", "campaign", "points")  # resume also needs campaign_file and plan_checksum
@@ -44,8 +45,6 @@ def damaged(path: Path, problem: str) -> LedgerDamaged:
 
 def problem(db: sqlite3.Connection) -> str:
     """What is wrong with the ledger open in ``db`` ("" if nothing)."""
-    from labrunner.campaign.ledger import SCHEMA_VERSION
-
     try:
         tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
         missing = [t for t in TABLES if t not in tables]

@@ -30,7 +30,6 @@ from labrunner.campaign import integrity
 from labrunner.errors import CampaignError, InvalidParameter
 
 LEDGER_NAME = "ledger.sqlite"
-SCHEMA_VERSION = "1"
 STATES = ("planned", "claimed", "done", "aborted", "failed")
 TERMINAL = ("done", "aborted", "failed")
 STATE_OF_OUTCOME = {"completed": "done", "no-motion": "done", "aborted": "aborted", "failed": "failed"}
@@ -157,7 +156,7 @@ class Ledger:
             db.execute("BEGIN")
             db.executemany(
                 "INSERT INTO meta (key, value) VALUES (?, ?)",
-                [("schema_version", SCHEMA_VERSION), *sorted(meta.items())],
+                [("schema_version", integrity.SCHEMA_VERSION), *sorted(meta.items())],
             )
             ids = hashlib.sha256()
 

@@ -60,7 +60,7 @@ class _Reporter(abc.ABC):
         self.stream = stream or sys.stderr
         self.interval_s = interval_s
         self.started = time.monotonic()
-        self._last_line = self.started
+        self._last_line, self._last_text = self.started, ""
         self._bar = None
         if self.stream.isatty() if bar is None else bar:
             from tqdm import tqdm
@@ -108,7 +108,8 @@ class _Reporter(abc.ABC):
 
     def line(self) -> str:
         rate = self.rate()
-        eta = (self.total - self.position) / rate if rate > 0 else float("nan")
+        left = self.total - self.position
+        eta = 0.0 if left <= 0 else left / rate if rate > 0 else float("nan")  # nothing left: no "?"
         detail = f" ({self.detail()})" if self.detail() else ""
         return (
             f"{self.label}: {self.finished}/{self.total}{detail} {_rate(rate)} {self.unit}s/s, "
@@ -130,7 +131,7 @@ class _Reporter(abc.ABC):
 
     def write(self, message: str) -> None:
         """A message that does not break the bar."""
-        self._last_line = time.monotonic()
+        self._last_line, self._last_text = time.monotonic(), message
         if self._bar is not None:
             self._bar.write(message, file=self.stream)
         else:
@@ -140,7 +141,9 @@ class _Reporter(abc.ABC):
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-        print(self.line(), file=self.stream, flush=True)
+        line = self.line()
+        if line != self._last_text:  # a session with nothing to do printed it already
+            print(line, file=self.stream, flush=True)
 
 
 class Progress(_Reporter):

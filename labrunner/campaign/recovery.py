@@ -73,6 +73,7 @@ def _tmp_point(name: str) -> str | None:
 def verify_log(path: Path, point_id: str) -> tuple[dict | None, str]:
     """(log summary, "") if ``path`` is a complete log of ``point_id``, else (None, reason)."""
     from labrunner.logs import read_run
+    from labrunner.run_identity import mismatch, named_point
 
     try:
         log = read_run(path)
@@ -85,8 +86,8 @@ def verify_log(path: Path, point_id: str) -> tuple[dict | None, str]:
         return None, f"damaged: {log.damaged}"
     if log.outcome is None:
         return None, "no outcome record"
-    if run.get("point_id") != point_id:
-        return None, f"names point {run.get('point_id')!r}"
+    if mismatch(log.metadata, point_id):
+        return None, f"names point {named_point(log.metadata)!r}"
     return {"outcome": dict(log.outcome), "metrics": dict(log.metadata.get("metrics", {})), "run": run}, ""
 
 

@@ -102,6 +102,25 @@ def _campaign(directory: Path, meta: dict[str, str], source: str | Path | None) 
     return spec.from_text(text, source_path=path)
 
 
+def _sound(path: Path) -> bool:
+    """Whether the ledger passes every integrity check and every log it names exists (then a
+    repair would only replace a good ledger by a copy of it)."""
+    if not path.is_file():
+        return False
+    try:
+        db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+    except sqlite3.Error:
+        return False
+    with contextlib.closing(db):
+        if integrity.problem(db):
+            return False
+        try:
+            logs = [r[0] for r in db.execute("SELECT log_path FROM points WHERE log_path IS NOT NULL")]
+        except sqlite3.Error:
+            return False
+    return all((path.parent / log).is_file() for log in logs)
+
+
 def _quarantine(path: Path, directory: Path) -> str:
     """Move the old ledger and its -wal/-shm into quarantine/; return the ledger's new relative path."""
     qdir = directory / QUARANTINE_DIR
@@ -119,8 +138,9 @@ def _quarantine(path: Path, directory: Path) -> str:
     return moved
 
 
-def repair(directory: str | Path, *, campaign_file: str | Path | None = None) -> Repaired:
-    """Rebuild ``DIR/ledger.sqlite`` (see the module docstring); takes the directory's lock."""
+def repair(directory: str | Path, *, campaign_file: str | Path | None = None, force: bool = False) -> Repaired:
+    """Rebuild ``DIR/ledger.sqlite`` (see the module docstring); takes the directory's lock. A
+    ledger that passes every integrity check is left alone unless ``force``."""
     directory = Path(directory)
     if not directory.is_dir():
         raise InvalidParameter(
@@ -135,6 +155,13 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None) ->
             "DIR",
             f"{str(directory)!r} has neither {COPY} nor a ledger keeping the campaign: "
             "nothing to rebuild the grid from",
+        )
+    if not force and _sound(path):  # before the lock: a refused repair touches nothing
+        raise InvalidParameter(
+            "DIR",
+            f"the ledger of {str(directory)!r} is sound (every integrity check passes, every run's log is there): "
+            "nothing to repair; "
+            f"`labrunner resume {directory}` continues it, `labrunner repair --force {directory}` rebuilds it anyway",
         )
     with DirectoryLock(directory, "repair"):
         meta, failed, sessions, quarantine, problem = _old_ledger(path)

@@ -10,7 +10,6 @@ refuses a campaign whose file changed what would run, settles what a crash left 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import socket
 import sqlite3
@@ -21,15 +20,15 @@ from pathlib import Path
 from typing import TextIO
 
 from labrunner import __version__
-from labrunner.campaign import integrity, recovery, spec
+from labrunner.campaign import dry_run, guided_run, integrity, recovery, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
 from labrunner.campaign.progress import Progress
-from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals, make_batches
+from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals
 from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
-from labrunner.errors import CampaignError, LabrunnerError
+from labrunner.errors import CampaignError, InvalidParameter, LabrunnerError
 
 CAMPAIGN_COPY = "campaign.toml"
 
@@ -88,66 +87,13 @@ def _write_copy(directory: Path, text: str) -> None:
     os.replace(tmp, directory / CAMPAIGN_COPY)
 
 
-def dry_run(campaign: spec.Campaign, points: list[spec.PlannedPoint], opts: Options) -> str:
-    """Point count, batches and an estimated time, as text; creates nothing."""
-    slots = 1 if not campaign.rig_info.simulated else (opts.workers or len(os.sched_getaffinity(0)))
-    rows = [{"batch_key": p.batch_key, "id": p.id} for p in points]
-    batches = make_batches(rows, slots, 1 if not campaign.rig_info.simulated else opts.batch_size)
-    groups: dict[str, list[int]] = {}
-    for key, members in batches:
-        groups.setdefault(key, []).append(len(members))
-    lines = [f"campaign {campaign.name}: {len(points)} points on rig {campaign.rig!r}, {len(batches)} batches"]
-    total_s = 0.0
-    for key, sizes in groups.items():
-        _, fs, duration, choices, _ = json.loads(key)
-        kind = dict(choices).get("controller.kind")
-        lines.append(
-            f"  {sum(sizes)} points × {duration:g} s at {fs:g} Hz ({kind}): {len(sizes)} batches of ≤ {max(sizes)}"
-        )
-        total_s += sum(sizes) * duration
-    if campaign.rig_info.simulated:
-        est = _estimate_sim(campaign, points, slots, max(groups[next(iter(groups))]))
-        lines.append(f"  estimated time ≈ {est:.0f} s on {slots} worker(s) ({total_s:g} s of simulated time)")
-    else:
-        from labrunner.rigs.device.plan import upload_s
-
-        upload = upload_s(campaign, points)  # a device loop's samples sent after each run
-        lines.append(
-            f"  estimated time ≈ {total_s + upload + 2.0 * len(points):.0f} s on the real rig (one run at a time"
-            + (f"; {upload:.0f} s of it sending samples after the runs)" if upload else ")")
-        )
-    return "\n".join(lines)
-
-
-def _estimate_sim(campaign: spec.Campaign, points: list[spec.PlannedPoint], slots: int, size: int) -> float:
-    """Time one batch of the first group in-process (nothing written) and extrapolate."""
-    from labrunner import engine
-    from labrunner.rigs import registry
-
-    group = [p for p in points if p.batch_key == points[0].batch_key]
-    first = group[:: max(1, len(group) // min(size, 16))][: min(size, 16)]  # spread: early aborts end a batch early
-    _, fs, duration, *_ = json.loads(first[0].batch_key)
-    configs = []
-    for p in first:
-        config = campaign.resolve(p.parameters)
-        config["campaign"]["duration"] = duration
-        configs.append(config)
-    probe_s = min(duration, max(0.5, 2000.0 / fs))  # a prefix of each run is enough to time the ticks
-    t0 = time.perf_counter()
-    with registry.load_rig(campaign.rig_ref, search=campaign.rig_search) as rig:
-        engine.run_batch(
-            configs, rig, fs=fs, duration=probe_s, seeds=[campaign.seed] * len(configs), rig_safety=campaign.rig_safety
-        )
-    per_run_sample = (time.perf_counter() - t0) / (len(first) * fs * probe_s)
-    samples = sum(fs_d[0] * fs_d[1] for fs_d in (json.loads(p.batch_key)[1:3] for p in points))
-    return per_run_sample * samples / slots + 0.01 * len(points)
-
-
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
     check_executor_url(opts.executor, reach=False)
     campaign = spec.load(file)
-    directory = Path(out) if out else default_directory(campaign)
+    if out is not None and not str(out).strip():
+        raise InvalidParameter("--out", f"must be a path, got {str(out)!r}")
+    directory = Path(out) if out is not None else default_directory(campaign)
     if dry:
         return None, _dry_run(campaign, directory, opts)
     with _early_pool(campaign, opts) as pool:
@@ -180,13 +126,11 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
 def _dry_run(campaign: spec.Campaign, directory: Path, opts: Options) -> str:
     """``labrunner run --dry-run``: what would run, and whether ``run`` would refuse the directory."""
     points, checksum = spec.plan(campaign)
+    slots = opts.workers or len(os.sched_getaffinity(0)) if campaign.rig_info.simulated else 1
     if campaign.guided is not None:
-        from labrunner.campaign import guided_run
-
-        slots = opts.workers or len(os.sched_getaffinity(0)) if campaign.rig_info.simulated else 1
-        text = guided_run.dry_run(campaign, points, slots)
+        text = dry_run.guided_text(campaign, points, slots)
     else:
-        text = dry_run(campaign, points, opts)
+        text = dry_run.grid_text(campaign, points, slots, opts.batch_size)
     try:
         _check_new_directory(directory, campaign.name, checksum)
     except CampaignError as exc:
@@ -244,6 +188,11 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
     check_executor_url(opts.executor, reach=False)
     with Ledger.open_readonly(directory):  # a missing, foreign or damaged ledger: exit 2 before the lock file is made
         pass
+    runs = directory / RUNS_DIR
+    if runs.exists() and not runs.is_dir():
+        raise CampaignError(
+            f"{runs} is a file, not the directory of the campaign's run logs: move it away, then resume"
+        )
     check_executor_url(opts.executor)
     stream = opts.stream or sys.stderr
     with DirectoryLock(directory, "resume") as lock, Ledger.open(directory) as ledger:
@@ -304,8 +253,6 @@ def _execute(
             if campaign.guided is None:
                 out = scheduler.run()
             else:  # rounds: the procedure proposes, the scheduler runs
-                from labrunner.campaign import guided_run
-
                 out = guided_run.execute(campaign, ledger, scheduler.run, signals)
         reason = (
             "abandoned"

@@ -16,14 +16,14 @@ import copy
 import dataclasses
 import hashlib
 import re
-import tomllib
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from labrunner import inputfile
 from labrunner.campaign import expressions, grid as gridmod
-from labrunner.campaign.checks import StaticChecker, batch_key
+from labrunner.campaign.checks import MAX_SEED, StaticChecker, batch_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
 from labrunner.errors import InvalidParameter, check_finite, check_number, check_positive
 from labrunner.rigs import config as rigconfig
@@ -191,11 +191,7 @@ def _require(field_name: str, value: Any, kind: type | tuple[type, ...], what: s
 
 def parse(text: str, *, source_path: Path | None = None) -> dict[str, Any]:
     """TOML text → dict, with a one-line error naming the line on a syntax error."""
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        where = source_path.name if source_path else "campaign"
-        raise InvalidParameter(where, f"is not valid TOML: {exc}") from None
+    return inputfile.loads_toml(text, source_path.name if source_path else "campaign")
 
 
 def _resolve_rig(value: Any, source_path: Path | None, root: Path) -> tuple[str, Path | None]:
@@ -243,8 +239,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
     info.check_fs(fs, "campaign.fs")
     duration = check_positive("campaign.duration", head["duration"], strict=True) if "duration" in head else None
     seed = _require("campaign.seed", head.get("seed", 0), int, "an integer")
-    if seed < 0:
-        raise InvalidParameter("campaign.seed", f"must be >= 0, got {seed}")
+    if not 0 <= seed <= MAX_SEED:
+        raise InvalidParameter("campaign.seed", f"must be an integer in [0, 2**63 - 1], got {seed}")
     base = {s: doc.get(s, {}) for s in SECTIONS}
     for section in SECTIONS:
         _check_finite_leaves(section, base[section])
@@ -305,9 +301,9 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         logging=_logging(doc.get("logging", {})),
     )
     if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
-        from labrunner.campaign import guided
+        from labrunner.campaign import procedures
 
-        procedure = guided.parse(doc["guided"], campaign)
+        procedure = procedures.parse(doc["guided"], campaign)
         campaign = dataclasses.replace(campaign, guided=procedure, grid=Grid(procedure.axes()))
     return campaign
 
@@ -363,13 +359,7 @@ def load_rig_file(ref: str | Path, root: Path) -> RigConfig:
 def load(path: str | Path, *, root: Path | None = None) -> Campaign:
     """Read and validate a campaign file (structure only; see :func:`plan` for the per-point checks)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InvalidParameter("FILE", f"campaign file {str(path)!r} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InvalidParameter("FILE", f"cannot read {str(path)!r}: {exc}") from None
-    return from_text(text, source_path=path, root=root)
+    return from_text(inputfile.read_text(path, "FILE", "campaign file"), source_path=path, root=root)
 
 
 def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
@@ -379,9 +369,7 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     comment edit keeps a campaign resumable while any change of what would run does not.
     """
     if campaign.guided is not None:
-        from labrunner.campaign import guided_run
-
-        return guided_run.plan(campaign)
+        return _plan_guided(campaign)
     checker = StaticChecker(campaign.rig_config)
     checked: list[tuple[int, dict[str, Any], float, str]] = []
 
@@ -409,3 +397,49 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     for *_, d in checked:
         digest.update(d.encode())
     return points, digest.hexdigest()
+
+
+def check_points(campaign: Campaign, points: Sequence[Mapping[str, Any]], first_seq: int = 0) -> list[PlannedPoint]:
+    """Statically check points as :func:`plan` checks a grid (a guided campaign's rounds); their ids
+    are those of the points as proposed, their parameters include ``[derived]`` values."""
+    checker = StaticChecker(campaign.rig_config)
+    checked: dict[int, tuple[dict[str, Any], dict[str, Any], float]] = {}
+    for n, point in enumerate(points):
+        params, config = campaign.expand(dict(point))
+        for (seq, p, c), duration in checker.add(n, params, config):
+            checked[seq] = (p, c, duration)
+    for (seq, p, c), duration in checker.flush():
+        checked[seq] = (p, c, duration)
+    out = []
+    for n, point in enumerate(points):
+        params, config, duration = checked[n]
+        config["campaign"]["duration"] = duration
+        out.append(
+            PlannedPoint(
+                first_seq + n, point_id(campaign.name, point), params, batch_key(campaign.rig, config, checker.split)
+            )
+        )
+    return out
+
+
+def _plan_guided(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
+    """A guided campaign's first round and plan checksum (procedure, base configuration, the checked
+    extreme points of the search space and the first round); later rounds follow from the outcomes
+    (:mod:`labrunner.campaign.guided_run`)."""
+    from labrunner.campaign.guided import advance
+
+    procedure = campaign.guided
+    corners = check_points(campaign, procedure.corners())
+    first = check_points(campaign, list(advance(procedure, campaign.name, {}).next))
+    digest = hashlib.sha256(
+        canonical_json(
+            {
+                "name": campaign.name,
+                "rig": campaign.rig,
+                "procedure": procedure.identity(),
+                "base": campaign.resolve({}),
+                "points": [[p.parameters, p.batch_key] for p in (*corners, *first)],
+            }
+        ).encode()
+    )
+    return first, digest.hexdigest()

@@ -11,13 +11,14 @@ parent's memory does not grow with the number of runs.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import secrets
 import socket
 import time
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ from typing import Any
 
 from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
-from labrunner.errors import CampaignError, RigError
+from labrunner.errors import CampaignError, RigError, os_reason
 
 RUNS_DIR = "runs"
 TMP_PREFIX = ".tmp-"
@@ -93,7 +94,20 @@ def _fsync(path: Path) -> None:
 
 def _fsync_all(paths: list[Path]) -> None:
     for path in paths:
-        _fsync(path)
+        with naming(path):
+            _fsync(path)
+
+
+@contextlib.contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """An OSError without a file name (a write or fsync of an open file: ENOSPC, EIO) gets
+    ``path``, so that the message says which file could not be written, not which batch."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+        raise
 
 
 def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> dict[str, dict[str, Any]]:
@@ -164,10 +178,15 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     try:
         _publish_all(task, results, out, engine_s, host, pid, rig_record, start_time, diagnostics)
     except Exception as exc:  # re-raised as a plain, picklable error: the parent stops the campaign
-        raise CampaignError(
-            f"publishing the logs of batch {task.runs[0].point_id}… failed: {type(exc).__name__}: {exc}"
-        ) from None
+        raise CampaignError(_publish_error(exc)) from None
     return out
+
+
+def _publish_error(exc: Exception) -> str:
+    """One line naming the file a batch's logs failed on, and why (a full disk: how to go on)."""
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"cannot write the run log {exc.filename}: {os_reason(exc)}"
+    return f"publishing the run logs failed: {type(exc).__name__}: {exc}"
 
 
 def _batch_runner(rig: Any, report: Callable[[int], None] | None) -> Callable[..., Sequence[Any]]:
@@ -217,14 +236,15 @@ def _publish_all(
             record = getattr(result, "diagnostics", None) or diagnostics  # a device loop's record is per run
             if record is not None:
                 metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
-            write_run(
-                tmp,
-                metadata=metadata,
-                signals=result.signals,
-                outcome=outcome,
-                prefix=prefixes.get(list(result.signals), result.channels),
-                start_time=start_time,
-            )
+            with naming(tmp):
+                write_run(
+                    tmp,
+                    metadata=metadata,
+                    signals=result.signals,
+                    outcome=outcome,
+                    prefix=prefixes.get(list(result.signals), result.channels),
+                    start_time=start_time,
+                )
             written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1))
             group.append(tmp)
             if len(group) == _FSYNC_GROUP or i == len(task.runs) - 1:  # fsynced while the next ones are written

@@ -19,7 +19,6 @@ saying where its full traceback was written, exit 1. A reader that closes the pi
 from __future__ import annotations
 
 import argparse
-import errno
 import gc
 import importlib
 import os
@@ -31,7 +30,7 @@ import traceback
 from collections.abc import Sequence
 
 from labrunner import __version__
-from labrunner.errors import InvalidParameter, LabrunnerError
+from labrunner.errors import InvalidParameter, LabrunnerError, os_reason
 
 # Sub-command modules, in the order ``--help`` lists them.
 COMMANDS = (
@@ -144,9 +143,7 @@ def _main(argv: Sequence[str] | None) -> int:
 
 def os_error(exc: OSError) -> str:
     """One line for an environment failure, naming the path: "PATH: No space left on device"."""
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
-        reason += " (disk full or file-size limit: free space, then continue with `labrunner resume DIR`)"
+    reason = os_reason(exc)
     paths = [p for p in (exc.filename, exc.filename2) if p is not None]
     return ": ".join([*map(str, paths), reason]) if paths else reason
 

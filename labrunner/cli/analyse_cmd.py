@@ -6,11 +6,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
-from labrunner.cli.argtypes import positive_int
+from labrunner.cli.argtypes import path_text, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,8 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "index.html with a sortable table of all runs linking to their logs and plots."
         ),
     )
-    p.add_argument("directory", metavar="DIR", help="campaign directory (holds ledger.sqlite)")
-    p.add_argument("--out", metavar="DIR", help="output directory (default: DIR/report)")
+    p.add_argument("directory", type=path_text, metavar="DIR", help="campaign directory (holds ledger.sqlite)")
+    p.add_argument("--out", type=path_text, metavar="DIR", help="output directory (default: DIR/report)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument(
         "--workers",
@@ -77,8 +76,10 @@ def run(args: argparse.Namespace) -> int:
     from labrunner.analysis.analyse import analyse
     from labrunner.errors import InvalidParameter
 
-    if args.out is not None and os.path.exists(args.out) and not os.path.isdir(args.out):
-        raise InvalidParameter("--out", f"{args.out!r} exists and is not a directory")
+    if args.out is not None:  # the path itself, or a folder above it, being a file
+        blocked = next((p for p in (Path(args.out), *Path(args.out).parents) if p.exists() and not p.is_dir()), None)
+        if blocked is not None:
+            raise InvalidParameter("--out", f"{str(blocked)!r} exists and is not a directory")
     if not (0.0 <= args.margin < 1.0):
         raise InvalidParameter("--margin", f"must be in [0, 1), got {args.margin}")
     from labrunner.campaign.ledger import Ledger

@@ -35,3 +35,11 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
     return value
+
+
+def path_text(text: str) -> str:
+    """argparse type: a file or directory path, not empty (``--out ""`` would otherwise mean the
+    default directory, or the working directory, without a word)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must be a path, got {text!r}")
+    return text

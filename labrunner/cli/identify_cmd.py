@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -18,7 +20,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "runs/*.mcap."
         ),
     )
-    p.add_argument("logs", nargs="+", metavar="LOG", help="run logs (.mcap) or campaign directories")
+    p.add_argument("logs", nargs="+", type=path_text, metavar="LOG", help="run logs (.mcap) or campaign directories")
     p.add_argument("--input", metavar="NAME", help="input channel (default: the rig's first input)")
     p.add_argument("--output", metavar="NAME", help="angle channel (default: the first measurement named theta*)")
     p.add_argument(

@@ -8,6 +8,8 @@ import argparse
 import json
 from typing import Any
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -15,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="summarise one run log (MCAP)",
         description="Print a run log's outcome, sample count, rate, signals and metadata.",
     )
-    parser.add_argument("path", metavar="RUN.mcap", help="run log to read")
+    parser.add_argument("path", type=path_text, metavar="RUN.mcap", help="run log to read")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
 

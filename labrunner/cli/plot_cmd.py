@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -15,7 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Draw a run's outputs with their references, its inputs and estimates over time; with several "
         "logs, overlay their outputs and inputs, each run labelled by the grid values that differ.",
     )
-    parser.add_argument("paths", nargs="+", metavar="RUN.mcap", help="run log(s) to draw (2-20 are overlaid)")
+    parser.add_argument(
+        "paths", nargs="+", type=path_text, metavar="RUN.mcap", help="run log(s) to draw (2-20 are overlaid)"
+    )
     parser.add_argument(
         "-o",
         "--output",

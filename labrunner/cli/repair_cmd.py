@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -16,19 +18,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Then `labrunner resume DIR` runs what is left."
         ),
     )
-    p.add_argument("directory", metavar="DIR", help="campaign directory")
+    p.add_argument("directory", type=path_text, metavar="DIR", help="campaign directory")
     p.add_argument(
         "--campaign",
         metavar="FILE",
         help="the original campaign file, when its rig is a path relative to it and the old ledger is lost",
     )
+    p.add_argument("--force", action="store_true", help="rebuild a ledger that passes every integrity check too")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
     from labrunner.campaign.repair import repair
 
-    report = repair(args.directory, campaign_file=args.campaign)
+    report = repair(args.directory, campaign_file=args.campaign, force=args.force)
     print(f"repair {args.directory}: {report.describe()}")
     for line in report.rejected:
         print(f"  unusable log {line}")

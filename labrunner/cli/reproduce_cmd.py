@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from labrunner.reproduce.items import ITEMS
@@ -26,7 +28,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="reduced grids and shortened references (a few minutes on 2 cores; the longest plate runs left out)",
     )
     p.add_argument("--only", nargs="+", metavar="FIG", help="run only these figures/tables (ids as listed above)")
-    p.add_argument("--out", default="data/reproduce", metavar="DIR", help="output directory (default: data/reproduce)")
+    p.add_argument(
+        "--out",
+        default="data/reproduce",
+        type=path_text,
+        metavar="DIR",
+        help="output directory (default: data/reproduce)",
+    )
     p.add_argument("--workers", type=int, metavar="N", help="worker processes (default: all cores)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.set_defaults(func=run)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from labrunner.cli.argtypes import path_text
 from labrunner.cli.run_cmd import add_execution_options, one_blas_thread, report
 
 
@@ -17,7 +18,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "or when the campaign file was edited."
         ),
     )
-    p.add_argument("directory", metavar="DIR", help="campaign directory (as given to or made by `labrunner run`)")
+    p.add_argument(
+        "directory", type=path_text, metavar="DIR", help="campaign directory (as given to or made by `labrunner run`)"
+    )
     add_execution_options(p)
     p.add_argument("--retry-failed", action="store_true", help="run points that ended 'failed' again")
     p.set_defaults(func=run)

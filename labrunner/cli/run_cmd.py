@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from labrunner.cli.argtypes import positive_int
+from labrunner.cli.argtypes import path_text, positive_int
 from labrunner.errors import CampaignError
 
 
@@ -40,8 +40,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "campaign ([guided]) runs its tuning procedure in rounds, each next point chosen from the outcomes so far."
         ),
     )
-    p.add_argument("file", metavar="FILE", help="campaign file (TOML), e.g. campaigns/quickstart.toml")
-    p.add_argument("--out", metavar="DIR", help="campaign directory (default: data/<name>/)")
+    p.add_argument("file", type=path_text, metavar="FILE", help="campaign file (TOML), e.g. campaigns/quickstart.toml")
+    p.add_argument("--out", type=path_text, metavar="DIR", help="campaign directory (default: data/<name>/)")
     add_execution_options(p)
     p.add_argument("--dry-run", action="store_true", help="print points, batches and an estimated time; create nothing")
     p.set_defaults(func=run)

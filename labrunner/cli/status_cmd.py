@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -15,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "for points not run yet), its elapsed time and an estimate of the time left."
         ),
     )
-    p.add_argument("directory", metavar="DIR", help="campaign directory")
+    p.add_argument("directory", type=path_text, metavar="DIR", help="campaign directory")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 

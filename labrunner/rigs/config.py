@@ -17,7 +17,6 @@ are re-exported here for the modules that describe rig files.
 from __future__ import annotations
 
 import os
-import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -25,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from labrunner import inputfile
 from labrunner.errors import InvalidParameter, check_finite, check_interval
 from labrunner.rigs.base import Faults, RigConfig, RigInfo, Signal
 from labrunner.rigs.kinds import rig_class
@@ -182,10 +182,7 @@ def load_rig_config(name_or_path: str | os.PathLike, search: Iterable[str | os.P
     """Find, parse and validate a rig file (see :func:`resolve_rig_file` for the lookup)."""
     path = resolve_rig_file(name_or_path, search)
     source = _display(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise InvalidParameter(source, f"invalid TOML: {exc}") from None
+    data = inputfile.loads_toml(inputfile.read_text(path, source, "rig file"), source, f"{source}: ")
     return config_from_dict(data, source=source, default_name=path.stem)
 
 
