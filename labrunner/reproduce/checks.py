@@ -353,3 +353,29 @@ def safety_off(results: Results) -> Verdict:
         ),
     ]
     return combine(parts, merged[[*keys, "predicted_stable", "observed", "off"]].round(4))
+
+
+def safety_off_low_kd(results: Results) -> Verdict:
+    """Fig. 3.18 (twin only, γ_θ = 1.1 b, k_d ≤ 10 1/s, safety routine off): the points (2.58)–(2.59) call
+    unstable reach ±12 V (the detector's saturated oscillation or pinned input); those it calls stable
+    oscillate around the reference for lack of damping (the detector flags them) instead of settling."""
+    run = one(results)
+    _, frame = bound_parts(run, "motor", "")
+    frame = frame.merge(run.frame[[KP, KD, "limit_hits_per_s", "pinned_share"]], on=[KP, KD], suffixes=("", "_x"))
+    beyond = frame[~frame["predicted_stable"].astype(bool) & frame["far"]]
+    inside = frame[frame["predicted_stable"].astype(bool) & frame["far"]]
+    at_limits = (beyond["limit_hits_per_s"] >= 2.0) | (beyond["pinned_share"] >= 0.5)
+    ringing = inside["observed"] != "completed"
+    parts = [
+        Part(
+            "the points the bound calls unstable reach ±12 V",
+            f"{int(at_limits.sum())} of {len(beyond)} at the limits",
+            bool(at_limits.all()) if len(beyond) else None,
+        ),
+        Part(
+            "the points the bound calls stable oscillate for lack of damping",
+            f"{int(ringing.sum())} of {len(inside)} flagged oscillating",
+            bool(ringing.all()) if len(inside) else None,
+        ),
+    ]
+    return combine(parts, frame[[KP, KD, "predicted_stable", "observed", "limit_hits_per_s"]].round(4))

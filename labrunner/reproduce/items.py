@@ -225,14 +225,23 @@ ITEMS: tuple[Item, ...] = (
         _TWIN_IS_MODEL,
         {T + "fig3-17-angle-kp-kd-gamma-1.1b.toml": _KP_KD},
     ),
-    _not(
+    Item(
         "3.18",
-        "Two runs of Fig. 3.17 without the safety routine",
+        "Fig. 3.17's rows k_d ≤ 10 1/s without the safety routine (twin only)",
         "thesis",
         "Sec. 3.5.2, Fig. 3.18",
-        "Both oscillate around the reference; the one predicted unstable reaches ±12 V, the other lacks damping.",
-        "not reproduced: the two points are marked only by squares in Fig. 3.17 (not printed); item 3.17 tests the "
-        "region they stand for, with the safety routine on.",
+        (T + "fig3-18-safety-off.toml",),
+        "Without the safety routine both runs oscillate around the reference: the one (2.58)–(2.59) consider "
+        "unstable reaches ±12 V; the one they consider stable does not show a stable closed loop (insufficient "
+        "damping).",
+        "safety_off_low_kd",
+        "every point more than one grid step from the bound; '±12 V': the detector's saturated oscillation "
+        "(≥ 2 limit hits per second) or pinned input; 'oscillates': the detector's flag",
+        "Run on the twin only, over every point of the rows: the thesis made two runs (their squares are not printed).",
+        {
+            T + "fig3-18-safety-off.toml": '"controller.k_p" = { log10 = [0.0, 4.0], num = 9 }\n'
+            '"controller.k_d" = { log10 = [0.0, 1.0], num = 5 }'
+        },
     ),
     Item(
         "3.19",
