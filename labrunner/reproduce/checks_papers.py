@@ -365,3 +365,36 @@ def table3(results: Results) -> Verdict:
     ]
     note = f"experiments run: {', '.join(ran)}; {colours} of {4 * len(twin)} cells have the paper's colour (not part of the verdict)"
     return combine(parts, pd.DataFrame(rows), note)
+
+
+def fault_minima(results: Results) -> Verdict:
+    """Paper 2 Fig. 13 / Sec. 4.4.1 (abrupt constant actuator fault on i_1 at 2.5 s): min ê_1 of MFC law (14)
+    is −114.1 µm, "significantly smaller" than the MBC's −184.1 µm, "for all MFC algorithms"."""
+    from labrunner.logs import read_run
+
+    def minimum(run, row) -> float:
+        log = read_run(run.directory / "report" / row["log_path"])
+        return float(log.signal("e_hat_y1")[int(2.5 * log.fs) :].min()) * 1e6
+
+    mbc = one(results, "actuator-offset-mbc")
+    mfc = one(results, "actuator-offset-mfc")
+    base = minimum(mbc, mbc.frame.iloc[0])
+    laws = {row["controller.input"]: minimum(mfc, row) for _, row in mfc.frame.iterrows()}
+    table = pd.DataFrame(
+        {"paper [µm]": [-184.1, -114.1, math.nan, math.nan, math.nan], "twin [µm]": [base, *(laws[k] for k in LAWS)]},
+        index=list(COLUMNS),
+    )
+    parts = [
+        Part(
+            "min ê_1 of MFC law (14) is significantly smaller than the MBC's (−114.1 vs −184.1 µm)",
+            f"{laws['v']:.1f} vs {base:.1f} µm",
+            abs(laws["v"]) < abs(base),
+        ),
+        Part(
+            "this can be seen for all MFC algorithms",
+            ", ".join(f"{k} {v:.1f}" for k, v in laws.items()) + " µm",
+            all(abs(v) < abs(base) for v in laws.values()),
+        ),
+        Part("back at 2 mm after about 150 ms", "the paper gives no criterion for 'back'; not judged", None),
+    ]
+    return combine(parts, table.round(1).reset_index(names="controller"))
