@@ -54,4 +54,4 @@ def test_quick_pack_verdicts_on_the_twins(quick):
     for departing in ("3.3", "3.8", "3.21", "table3"):  # Tables 3.1/3.2; Polack's stages; the sensor fault
         assert items[departing]["verdict"] == "disagrees", (departing, items[departing]["measured"])
     assert "DISAGREES" in items["table3"]["measured"] and "MBC beats MFC v" in items["table3"]["measured"]
-    assert items["valve-6"]["verdict"] == "not testable" and items["A.1"]["verdict"] == "not reproduced"
+    assert items["valve-6"]["verdict"] == "not testable" and items["3.12"]["verdict"] == "not reproduced"

@@ -320,62 +320,37 @@ def kd_min_conservative(results: Results) -> Verdict:
     return combine(parts, below[[KP, KD, "predicted_stable", "observed", "rms_error"]].round(4))
 
 
-def safety_off(results: Results) -> Verdict:
-    """Fig. 3.16 (twin only): with the safety routine off, the runs it aborted inside the bounds are stable
-    and the runs beyond the bound switch between ±12 V (input at its limits: the detector's pinned or
-    saturated oscillation)."""
-    on = next(r for f, r in results.items() if "safety-off" not in f)
-    off = next(r for f, r in results.items() if "safety-off" in f)
-    _, pred = bound_parts(on, "motor", "")
-    keys = [KP, KD]
-    cols = {
-        "outcome": "outcome_off",
-        "oscillating": "oscillating_off",
-        "limit_hits_per_s": "hits_off",
-        "pinned_share": "pinned_off",
-    }
-    merged = pred.merge(off.frame[[*keys, *cols]].rename(columns=cols), on=keys)
-    flagged = (merged["outcome_off"] == "completed") & (merged["oscillating_off"] == 1.0)
-    merged["off"] = merged["outcome_off"].where(~flagged, "oscillating")
-    inside = merged[merged["predicted_stable"].astype(bool) & (merged["observed"] == "aborted") & merged["far"]]
-    beyond = merged[~merged["predicted_stable"].astype(bool) & merged["far"]]
-    at_limits = (beyond["hits_off"] >= 2.0) | (beyond["pinned_off"] >= 0.5)
-    parts = [
-        Part(
-            "the runs aborted inside the bounds are stable without the safety routine",
-            f"{int((inside['off'] == 'completed').sum())} of {len(inside)} stable",
-            bool((inside["off"] == "completed").all()) if len(inside) else None,
-        ),
-        Part(
-            "beyond the bound the input switches between ±12 V",
-            f"{int(at_limits.sum())} of {len(beyond)} at the limits",
-            bool(at_limits.all()) if len(beyond) else None,
-        ),
-    ]
-    return combine(parts, merged[[*keys, "predicted_stable", "observed", "off"]].round(4))
+def a8_validation(results: Results) -> Verdict:
+    """App. A.1, Fig. A.1: on line (A) of Fig. 3.11 (the smallest γ_Ω/k_p) the two sides of (A.8),
+    f̂_Ω ≈ −a Ω̂ + (b − γ_Ω) û (η̂ ≈ 0, a, b of Sec. 3.2), differ less the larger γ_Ω. Ω̂ and û are the run's
+    Ω and u through the differentiator's order-0 filter, aligned as in (3.4) (samples k − j − 1)."""
+    from labrunner.campaign import runner, spec
+    from labrunner.differentiators.design import design
+    from labrunner.logs import read_run
 
-
-def safety_off_low_kd(results: Results) -> Verdict:
-    """Fig. 3.18 (twin only, γ_θ = 1.1 b, k_d ≤ 10 1/s, safety routine off): the points (2.58)–(2.59) call
-    unstable reach ±12 V (the detector's saturated oscillation or pinned input); those it calls stable
-    oscillate around the reference for lack of damping (the detector flags them) instead of settling."""
     run = one(results)
-    _, frame = bound_parts(run, "motor", "")
-    frame = frame.merge(run.frame[[KP, KD, "limit_hits_per_s", "pinned_share"]], on=[KP, KD], suffixes=("", "_x"))
-    beyond = frame[~frame["predicted_stable"].astype(bool) & frame["far"]]
-    inside = frame[frame["predicted_stable"].astype(bool) & frame["far"]]
-    at_limits = (beyond["limit_hits_per_s"] >= 2.0) | (beyond["pinned_share"] >= 0.5)
-    ringing = inside["observed"] != "completed"
-    parts = [
-        Part(
-            "the points the bound calls unstable reach ±12 V",
-            f"{int(at_limits.sum())} of {len(beyond)} at the limits",
-            bool(at_limits.all()) if len(beyond) else None,
-        ),
-        Part(
-            "the points the bound calls stable oscillate for lack of damping",
-            f"{int(ringing.sum())} of {len(inside)} flagged oscillating",
-            bool(ringing.all()) if len(inside) else None,
-        ),
-    ]
-    return combine(parts, frame[[KP, KD, "predicted_stable", "observed", "limit_hits_per_s"]].round(4))
+    campaign = spec.load(run.directory / runner.CAMPAIGN_COPY)
+    section = campaign.base["differentiator"]
+    w0 = design(
+        alpha=section["alpha"], beta=section["beta"], N=section["N"], omega_c=section["omega_c"], fs=float(campaign.fs)
+    ).weights(0)
+    frame = run.frame.copy()
+    frame["line"] = np.round(np.log10(frame[GAMMA] / frame[KP]), 3)
+    line_a = frame[frame["line"] == frame["line"].min()].sort_values(GAMMA)
+    rows = []
+    for _, r in line_a.iterrows():
+        log = read_run(run.directory / "report" / r["log_path"])
+        omega, u, f_hat = log.signal("omega"), log.signal("u"), log.signal("f_hat_omega")
+        past = np.arange(len(w0)) + 1  # x[k − j − 1], j = 0 .. L − 1
+        k = np.arange(len(w0) + 1, len(u))
+        rhs = -39.44 * (omega[k[:, None] - past] @ w0) + (108.55 - r[GAMMA]) * (u[k[:, None] - past] @ w0)
+        mismatch = float(np.sqrt(np.mean((f_hat[k] - rhs) ** 2) / np.mean(f_hat[k] ** 2)))
+        rows.append({"γ_Ω": r[GAMMA], "k_p": r[KP], "RMS(f̂ − rhs)/RMS(f̂)": mismatch})
+    table = pd.DataFrame(rows)
+    values = table["RMS(f̂ − rhs)/RMS(f̂)"].to_numpy()
+    part = Part(
+        "along line (A) the two sides of (A.8) differ less as γ_Ω increases",
+        " > ".join(f"{v:.1%}" for v in values) + f" at γ_Ω = {', '.join(f'{g:.4g}' for g in table['γ_Ω'])}",
+        bool(len(values) > 1 and np.all(np.diff(values) < 0)),
+    )
+    return combine([part], table.round(4))

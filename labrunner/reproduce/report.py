@@ -15,7 +15,7 @@ from typing import Any, TextIO
 import pandas as pd
 
 from labrunner.analysis.report import Image, Section, write_report
-from labrunner.reproduce import checks, checks_papers, checks_walks
+from labrunner.reproduce import checks, checks_papers, checks_twin_only, checks_walks
 from labrunner.reproduce.items import QUICK_SKIP, Item, select
 from labrunner.reproduce.run import CampaignResult, run_items
 from labrunner.reproduce.verdict import Verdict
@@ -25,7 +25,7 @@ _VERDICT = {True: "agrees", False: "DISAGREES", None: "not testable on the twin"
 
 
 def _check(name: str) -> Callable[[dict[str, CampaignResult]], Verdict]:
-    for module in (checks, checks_walks, checks_papers):
+    for module in (checks, checks_twin_only, checks_walks, checks_papers):
         if hasattr(module, name):
             return getattr(module, name)
     raise AttributeError(f"no check {name!r}")
