@@ -90,18 +90,21 @@ def check_interval(field: str, value: object, *, what: str = "[lo, hi]", empty: 
     return lo, hi
 
 
-_OS_HINTS = {
-    errno.ENOSPC: "disk full or file-size limit: free space, then continue with `labrunner resume DIR`",
-    errno.EFBIG: "disk full or file-size limit: free space, then continue with `labrunner resume DIR`",
-    errno.EDQUOT: "disk full or file-size limit: free space, then continue with `labrunner resume DIR`",
-    errno.EEXIST: "a file is where labrunner needs a directory: move or delete it",
-    errno.ENOTDIR: "a part of the path is a file, not a directory: choose another path",
+_FULL = ("disk full or file-size limit", "free space, then continue with `labrunner resume DIR`")
+_OS_HINTS = {  # errno → (what it means here, what to do)
+    errno.ENOSPC: _FULL,
+    errno.EFBIG: _FULL,
+    errno.EDQUOT: _FULL,
+    errno.EEXIST: ("a file is where labrunner needs a directory", "move or delete it"),
+    errno.ENOTDIR: ("a part of the path is a file, not a directory", "choose another path"),
 }
 
 
-def os_reason(exc: OSError) -> str:
-    """Why an OS call failed, with what to do where that is clear ("No space left on device (disk
-    full …: free space, then …)"); the caller names the path."""
+def os_reason(exc: OSError, *, advice: bool = True) -> str:
+    """Why an OS call failed, with what it means and (``advice``) what to do where that is clear:
+    "No space left on device (disk full …: free space, then …)"; the caller names the path."""
     reason = exc.strerror or str(exc) or type(exc).__name__
     hint = _OS_HINTS.get(exc.errno) if exc.errno is not None else None
-    return f"{reason} ({hint})" if hint else reason
+    if hint is None:
+        return reason
+    return f"{reason} ({hint[0]}: {hint[1]})" if advice else f"{reason} ({hint[0]})"

@@ -23,7 +23,20 @@ from labrunner.differentiators import Differentiator, StreamingFIR, design, pad_
 from labrunner.rigs.base import RigInfo
 from labrunner.safety_config import SafetyConfig
 
-__all__ = ["SafetyConfig", "SafetyMonitor", "Verdict"]
+__all__ = ["MONITORS", "SafetyConfig", "SafetyMonitor", "Verdict"]
+
+#: every monitor a verdict may name, in the order verdicts take precedence (docs/control-laws.md);
+#: the bounds monitors and du_dt add ":<signal>" when their group has more than one signal
+MONITORS = (
+    "non_finite_input",
+    "non_finite_output",
+    "output_low",
+    "output_high",
+    "input_low",
+    "input_high",
+    "du_dt",
+    "run_time",
+)
 
 
 @dataclass(frozen=True)

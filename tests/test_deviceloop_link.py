@@ -112,6 +112,7 @@ def test_device_loop_across_processes_gives_the_twin_result(name, medium):
     assert_same_as_twin(result, name, 11)
     d = result.diagnostics
     assert d["loop"] == "device" and d["device_loop"]["ticks"] == result.n_samples and d["device_loop"]["overruns"] == 0
+    assert d["law_check"]["flag"] == "ok", d["law_check"]  # the host's reference-law check (docs/control-laws.md)
     assert d["device_loop"]["device_run_s"] == pytest.approx(result.n_samples / result.fs)
     assert d["device_loop"]["bytes_to_host"] >= result.n_samples * 4 * len(result.channels["inputs"])
     link = linkload.from_rig(config["rig"]["kind"], config["parameters"])

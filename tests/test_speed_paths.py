@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from labrunner.campaign.spec import copy_tree
+from labrunner.campaign.config_tree import copy_tree
 
 
 def test_copy_tree_is_deepcopy_of_toml_data():

@@ -26,6 +26,7 @@ from typing import Any, TextIO
 from labrunner.analysis import drawing, run_plots
 from labrunner.analysis.background import Background
 from labrunner.errors import InvalidParameter
+from labrunner.rigs.device import lawflag
 
 __all__ = ["analyse"]
 
@@ -185,6 +186,7 @@ def _analyse(
         "problems": problems,
         "metrics": [str(csv), str(parquet)],
         "logs_read": built.n_read,
+        "law_check": lawflag.summary(zip(frame["id"], frame["law_check"])) if "law_check" in frame else None,
     }
     if guided is not None:
         summary["guided"] = guided

@@ -25,6 +25,7 @@ from labrunner.analysis.overlays import EQUATIONS
 from labrunner.analysis.report import Image, Section, write_report
 from labrunner.analysis.table import FOREIGN, UNTIL_ABORT
 from labrunner.campaign.progress import format_counts
+from labrunner.rigs.device import lawflag
 
 #: Metric columns of the table of all runs (the ones ranked by, then those of aborted runs).
 METRICS = ("rms_error", "rms_error_hat", "input_energy", "max_abs_input", "max_current")
@@ -104,6 +105,13 @@ def _outcome_section(summary: Mapping[str, Any]) -> Section:
         )
     else:
         paragraphs.append("No stability case applies to this campaign (or no run finished), so no agreement is given.")
+    law = summary.get("law_check")
+    if law:
+        paragraphs.append(
+            lawflag.line(law) + ". Each device-loop run's logged inputs, references and estimates were recomputed "
+            "from its logged measurements by the reference law (docs/control-laws.md); a diverged run's "
+            "outcome is the firmware's, not the law's."
+        )
     facts: dict[str, object] = dict(summary["outcomes"])
     if summary.get("oscillating"):
         facts["of the completed: oscillating (detector)"] = summary["oscillating"]
@@ -211,6 +219,7 @@ def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[s
         c + UNTIL_ABORT for c in metrics if c + UNTIL_ABORT in frame.columns and frame[c + UNTIL_ABORT].notna().any()
     ]
     abort = [c for c in ("monitor", "abort_time") if c in frame.columns and frame[c].notna().any()]
+    abort += [c for c in ("law_check",) if c in frame.columns and frame[c].fillna("").astype(bool).any()]
     columns = ["seq", "id", "outcome", *params, *metrics, *until, *abort, "n_samples"]
     columns = [c for c in columns if c in frame.columns]
     head = "".join(f"<th>{html.escape(c.split('.')[-1] if '.' in c else c)}</th>" for c in columns)

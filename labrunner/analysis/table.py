@@ -35,6 +35,7 @@ import pandas as pd
 from labrunner import run_identity
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
+from labrunner.rigs.device.lawflag import flag_of
 
 #: Columns that identify a point and its run, in this order at the left of the table.
 ID_COLUMNS = (
@@ -48,6 +49,7 @@ ID_COLUMNS = (
     "log_path",
     "torn",
     "log_state",
+    "law_check",
 )
 #: Suffix of the columns that hold an aborted run's metrics (over the run up to its abort).
 UNTIL_ABORT = "_until_abort"
@@ -212,6 +214,7 @@ def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[
                 "attempts": r["attempts"],
                 "log_path": r["log_path"],
                 "torn": False,
+                "law_check": flag_of(outcome),  # a device-loop run's reference-law check, "" for others
                 **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
                 **metrics,
             }

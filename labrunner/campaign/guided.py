@@ -5,9 +5,10 @@ name and the points it wants run, as parameter dicts of dotted keys) and is sent
 :class:`Observation` per point. It touches no rig and no ledger, so its decisions are a pure
 function of the outcomes: :func:`advance` drives a fresh plan with every outcome known so far and
 returns either the points to run next (one *round*) or the plan's :class:`Result`. This module
-imports nothing of the campaign but :mod:`~labrunner.campaign.grid`: the round loop above the
-runner (:mod:`labrunner.campaign.guided_run`) executes each round as ordinary ledger rows, so after
-a crash the decision state is rebuilt from the ledger alone by replaying the plan.
+imports nothing of the campaign but :mod:`~labrunner.campaign.grid` and
+:mod:`~labrunner.campaign.expressions`: the round loop over the scheduler
+(:mod:`labrunner.campaign.guided_run`) executes each round as ordinary ledger rows, so after a
+crash the decision state is rebuilt from the ledger alone by replaying the plan.
 
 A point asked for twice (e.g. the start of a second stage) is run once: outcomes are keyed by the
 point's stable id, the same id a grid point would have. Procedures (``[guided] procedure = …``,

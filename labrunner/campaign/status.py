@@ -11,6 +11,7 @@ from typing import Any
 from labrunner.campaign.ledger import Ledger
 from labrunner.campaign.lock import holder
 from labrunner.campaign.progress import OUTCOMES
+from labrunner.rigs.device import lawflag
 
 
 def status(directory: str | Path) -> dict[str, Any]:
@@ -23,6 +24,13 @@ def status(directory: str | Path) -> dict[str, Any]:
         quarantined = len(ledger.quarantined())
         finished = ledger.db.execute("SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL").fetchone()[0]
         guided = _guided(meta, ledger) if "guided" in meta else None
+        law = lawflag.summary(
+            ledger.db.execute(
+                "SELECT id, json_extract(outcome_json, '$.diagnostics.law_check.flag') FROM points "
+                "WHERE json_valid(outcome_json) AND json_extract(outcome_json, '$.diagnostics.law_check.flag') "
+                "IS NOT NULL ORDER BY seq"
+            )
+        )
     running = holder(directory)
     now = time.time()
     elapsed = 0.0
@@ -45,6 +53,7 @@ def status(directory: str | Path) -> dict[str, Any]:
         "running": None if running is None else {"host": running.host, "pid": running.pid},
         "sessions": len(sessions),
         **({"guided": guided} if guided is not None else {}),
+        **({"law_check": law} if law is not None else {}),
     }
 
 

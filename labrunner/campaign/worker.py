@@ -185,7 +185,7 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
 def _publish_error(exc: Exception) -> str:
     """One line naming the file a batch's logs failed on, and why (a full disk: how to go on)."""
     if isinstance(exc, OSError) and exc.filename is not None:
-        return f"cannot write the run log {exc.filename}: {os_reason(exc)}"
+        return f"cannot write the run log {exc.filename}: {os_reason(exc, advice=False)}"  # the stop says: resume
     return f"publishing the run logs failed: {type(exc).__name__}: {exc}"
 
 

@@ -47,6 +47,8 @@ COMMANDS = (
     "reproduce",
     "emulate",
     "check-rig",
+    "vectors",
+    "conform",
 )
 
 

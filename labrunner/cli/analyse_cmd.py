@@ -119,6 +119,10 @@ def run(args: argparse.Namespace) -> int:
         )
         if agree["false_unstable"] and not agree["observed_unstable"]:
             print("  no run was aborted, so no outcome can confirm a predicted instability: read the RMS map")
+    if summary.get("law_check"):
+        from labrunner.rigs.device.lawflag import line
+
+        print(line(summary["law_check"]))
     for problem in summary["problems"]:
         print(f"{problem['kind']}: {problem['path']}: {problem['detail']}")
     print(f"report: {summary['report']}")

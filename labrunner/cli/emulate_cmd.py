@@ -15,6 +15,10 @@ from labrunner.cli.argtypes import numeric
 
 _probability = numeric(float, "in [0, 1]")
 _non_negative = numeric(float, ">= 0")
+#: device-loop protocol faults (labrunner.rigs.device.emulated.DeviceLoop.protocol_faults), for
+#: ``labrunner conform``'s own tests: it runs a description whose CRC-32 fails, or of another
+#: version; it goes on after the host's SAFE/STOP; it has no host-silence watchdog
+PROTOCOL_FAULTS = ("no-crc-check", "any-version", "ignore-stop", "no-watchdog")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -54,6 +58,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="fall silent for good S seconds into the first run",
     )
+    p.add_argument(
+        "--fault-law",
+        type=_law_fault,
+        action="append",
+        default=[],
+        metavar="KEY=FACTOR",
+        help="run a deliberately wrong law in the device loop: multiply controller.KEY by FACTOR where a point "
+        "sets it (e.g. gamma=1.02); the host's law check must catch it",
+    )
+    p.add_argument(
+        "--fault-protocol",
+        choices=PROTOCOL_FAULTS,
+        action="append",
+        default=[],
+        help="a device-loop protocol fault (for testing `labrunner conform`): run descriptions with a bad CRC-32 "
+        "or another version, go on after SAFE/STOP, or have no host-silence watchdog",
+    )
     p.add_argument("--seed", type=numeric(int, ">= 0"), default=0, help="seed of the fault injection")
     p.add_argument(
         "--realtime",
@@ -61,6 +82,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run the device's loop at SCHED_FIFO priority (root or CAP_SYS_NICE), like firmware on a timer",
     )
     p.set_defaults(func=main)
+
+
+def _law_fault(text: str) -> tuple[str, float]:
+    """``KEY=FACTOR`` of ``--fault-law``: a controller key and a finite factor."""
+    key, eq, value = text.partition("=")
+    try:
+        factor = float(value)
+    except ValueError:
+        factor = math.nan
+    if not (eq and key.isidentifier() and math.isfinite(factor)):
+        raise argparse.ArgumentTypeError(f"needs KEY=FACTOR with a controller key and a finite number, got {text!r}")
+    return key, factor
 
 
 def main(args: argparse.Namespace) -> int:
@@ -100,7 +133,10 @@ def main(args: argparse.Namespace) -> int:
         print(f"port {port}", flush=True)
     else:
         link = device_link(config)
-    emulator = Emulator(twin_for(config), link, paced=not args.free_run, faults=faults, realtime=args.realtime).start()
+    emulator = Emulator(twin_for(config), link, paced=not args.free_run, faults=faults, realtime=args.realtime)
+    emulator.device_loop.law_fault = dict(args.fault_law)
+    emulator.device_loop.protocol_faults = set(args.fault_protocol)
+    emulator.start()
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     pacing = ("free-running" if args.free_run else "paced") + (", real-time" if emulator.realtime else "")

@@ -52,6 +52,7 @@ def report(outcome, directory: str, command: str) -> int:
     from labrunner.campaign.progress import format_counts
 
     print(f"{directory}: {format_counts(outcome.counts)} ({outcome.committed} runs in {outcome.elapsed_s:.1f} s)")
+    _law_check_line(directory)
     if outcome.stop_reason:
         retry = (
             f" (`labrunner resume --retry-failed {directory}` reruns the failed points too)"
@@ -63,6 +64,16 @@ def report(outcome, directory: str, command: str) -> int:
         print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
         return 130
     return 0
+
+
+def _law_check_line(directory: str) -> None:
+    """A device-loop campaign's law check (docs/control-laws.md), on stderr when a run diverged."""
+    from labrunner.campaign.status import status
+    from labrunner.rigs.device.lawflag import DIVERGED, line
+
+    law = status(directory).get("law_check")
+    if law:
+        print(line(law), file=sys.stderr if law[DIVERGED] else sys.stdout)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -44,6 +44,10 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"  elapsed {_clock(st['elapsed_s'])} over {st['sessions']} session(s), {rate}, estimated {_clock(st['estimate_s'])} left"
     )
+    if "law_check" in st:  # device-loop runs: did the device run the law?
+        from labrunner.rigs.device.lawflag import line
+
+        print(f"  {line(st['law_check'])}")
     if "guided" in st:  # what the procedure decided so far
         from labrunner.campaign.guided_run import status_lines
 

@@ -27,6 +27,7 @@ from labrunner.control.trajectories import Setpoints, Sine, Steps, Table, Trajec
 from labrunner.differentiators import design as design_rate
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigInfo
+from labrunner.rigs.device import lawrecords
 from labrunner.rigs.device.columns import column_count
 from labrunner.safety import SafetyConfig
 
@@ -88,6 +89,9 @@ class Description:
     derived: np.ndarray | None = None  # (n_derived, n_outputs) weights
     stream: bool = False  # send the samples during the run
     filters: dict[str, np.ndarray] = field(default_factory=dict)  # name → (n + m, p + n) tick matrix
+    law: dict[str, np.ndarray] = field(default_factory=dict)  # LAW records: name → (rows, columns)
+    motion: tuple[int, int, float] | None = None  # MOTION: output index, rule, threshold
+    sensor_table: np.ndarray | None = None  # SENSOR_TABLE (n, n_outputs): y from the host, no plant
 
     def point(self) -> dict[str, object]:
         """The campaign point these sections came from (what the engine's factory reads)."""
@@ -148,11 +152,13 @@ def build(
     rig_safety: Mapping[str, object] | None = None,
     watchdog_s: float = 0.5,
     reference_table: bool = False,
+    sensor_table: np.ndarray | None = None,
 ) -> bytes:
     """The encoded description of one resolved ``point``; raises InvalidParameter for what the
     device loop cannot run (unknown kind, per-run rig parameters, values without an encoding).
     ``reference_table`` sends every trajectory as its sample table (firmware without the compact
-    trajectory types). The STREAM flag is clear: :func:`with_stream` sets it where the link has
+    trajectory types); ``sensor_table`` (n, n_outputs) has the device read y[k] from it instead
+    of its sensors (conformance runs). The STREAM flag is clear: :func:`with_stream` sets it where the link has
     room for the samples."""
     kind = str(dict(point.get("controller") or {}).get("kind"))
     if kind not in DEVICE_KINDS:
@@ -232,6 +238,18 @@ def build(
     for name, f in _streaming_filters(controller).items():
         raw = name.encode("ascii")
         records.append(_record(R_FILTER, struct.pack("<BHBB", len(raw), f.n, f.m, f.p) + raw + _f64(f._M[0])))
+    records += [
+        _record(lawrecords.R_LAW, lawrecords.encode(lawrecords.R_LAW, c))
+        for c in sorted(lawrecords.law_constants(controller).items())
+    ]
+    records.append(
+        _record(lawrecords.R_MOTION, lawrecords.encode(lawrecords.R_MOTION, lawrecords.motion_rule(config, rig_info)))
+    )
+    if sensor_table is not None:
+        table = np.asarray(sensor_table, float)
+        if table.ndim != 2 or table.shape[1] != len(rig_info.outputs) or not 0 < len(table) < 2**32:
+            raise InvalidParameter("sensor_table", f"needs (rows ≥ 1, {len(rig_info.outputs)}), got {table.shape}")
+        records.append(_record(lawrecords.R_SENSOR_TABLE, lawrecords.encode(lawrecords.R_SENSOR_TABLE, table)))
     body = b"".join(records)
     head = HEADER.pack(MAGIC, VERSION, HEADER.size, len(body), 0, len(records))
     return head + body + struct.pack("<I", zlib.crc32(head + body))
@@ -330,6 +348,8 @@ def decode(data: bytes) -> Description:
                 name = value[5 : 5 + n_name].decode("ascii")
                 matrix = np.frombuffer(value, "<f8", (n + m) * (p + n), 5 + n_name).reshape(n + m, p + n)
                 out["filters"][name] = matrix.copy()  # type: ignore[index]
+            elif kind in (lawrecords.R_SENSOR_TABLE, lawrecords.R_MOTION, lawrecords.R_LAW):
+                lawrecords.decode_into(kind, value, out)
             else:
                 raise DescriptionError(f"unknown record type {kind}")
     except (struct.error, ValueError, KeyError, IndexError) as exc:

@@ -10,7 +10,12 @@ The run's clock is virtual (see :mod:`labrunner.rigs.device.executor`): pacing d
 
 from __future__ import annotations
 
+import dataclasses
+import struct
+import zlib
+
 from labrunner.rigs.device import executor, session
+from labrunner.rigs.device.description import VERSION
 from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.faults import FaultyLink
 from labrunner.rigs.transports.protocol import Frame, Kind
@@ -24,6 +29,11 @@ class DeviceLoop:
 
     def __init__(self, emulator) -> None:
         self.emulator = emulator
+        #: controller key → factor: a deliberately wrong law (``labrunner emulate --fault-law``)
+        self.law_fault: dict[str, float] = {}
+        #: protocol faults a broken firmware might have (``labrunner emulate --fault-protocol``:
+        #: no-crc-check, any-version, ignore-stop, no-watchdog)
+        self.protocol_faults: set[str] = set()
         self.session = session.DeviceSession(self._send, self._recv, emulator.link.max_payload, self._execute)
 
     def on_frame(self, frame: Frame) -> None:
@@ -42,19 +52,32 @@ class DeviceLoop:
         if frame.kind in _IN:
             return _IN[frame.kind], frame.payload
         self.emulator._dispatch(frame)  # HELLO, HEARTBEAT, SAFE, STOP: the core's answers
-        return (session.STOP if frame.kind in (Kind.SAFE, Kind.STOP) else None), frame.payload
+        stop = frame.kind in (Kind.SAFE, Kind.STOP) and "ignore-stop" not in self.protocol_faults
+        return (session.STOP if stop else None), frame.payload
 
     def _execute(self, data: bytes, hook, on_accept) -> executor.DeviceRun:
         emulator = self.emulator
 
         def accepted(description) -> None:
             emulator.state, emulator.seq = m.DeviceState.RUNNING, 0
+            if "no-watchdog" in self.protocol_faults:
+                description = dataclasses.replace(description, watchdog_s=float("inf"))
             on_accept(description)
 
+        data = self._broken(data)
         try:
-            return executor.execute(data, emulator.rig, hook, accepted)
+            return executor.execute(data, emulator.rig, hook, accepted, self.law_fault)
         finally:
             emulator.state = m.DeviceState.IDLE
+
+    def _broken(self, data: bytes) -> bytes:
+        """The description as a firmware with :attr:`protocol_faults` would take it."""
+        if len(data) < 8 or not self.protocol_faults & {"no-crc-check", "any-version"}:
+            return data
+        body = bytearray(data[:-4])
+        if "any-version" in self.protocol_faults:
+            struct.pack_into("<H", body, 4, VERSION)
+        return bytes(body) + struct.pack("<I", zlib.crc32(body))
 
 
 def install(emulator) -> DeviceLoop:
@@ -63,4 +86,5 @@ def install(emulator) -> DeviceLoop:
     emulator.handlers[Kind.BULK_TO_DEVICE] = service.on_frame
     emulator.handlers[Kind.BULK_ACK] = service.on_frame
     emulator.capabilities |= m.Capability.DEVICE_LOOP
+    emulator.device_loop = service
     return service

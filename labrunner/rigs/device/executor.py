@@ -25,7 +25,7 @@ from labrunner import engine
 from labrunner.control import factory
 from labrunner.control.trajectories import Reference
 from labrunner.rigs.base import Rig
-from labrunner.rigs.device import blocks
+from labrunner.rigs.device import blocks, lawrecords
 from labrunner.rigs.device.columns import column_names, to_columns
 from labrunner.rigs.device.description import (
     DEVICE_KINDS,
@@ -39,6 +39,8 @@ from labrunner.rigs.device.description import (
     rig_safety,
     trajectory_record,
 )
+from labrunner.rigs.device.replay import ReplayRig
+from labrunner.safety import SafetyConfig
 
 #: ``hook(first_tick, columns)``: every 1024 ticks during the run, float32 rows of those ticks
 Hook = Callable[[int, np.ndarray], None]
@@ -96,6 +98,18 @@ def _check(description: Description, rig: Rig) -> tuple[dict[str, object], Refer
         not np.array_equal(mine[k], description.filters[k]) for k in mine
     ):
         raise DescriptionError("filter matrices differ from the point's controller")
+    law = lawrecords.law_constants(controller)
+    if law.keys() != description.law.keys() or any(not np.array_equal(law[k], description.law[k]) for k in law):
+        raise DescriptionError("law constants differ from the point's controller")
+    try:
+        config = SafetyConfig.from_sections(info, rig_safety(description), dict(point.get("safety") or {}))
+    except Exception as exc:
+        raise DescriptionError(f"the description's safety sections do not build: {exc}") from None
+    if description.motion != lawrecords.motion_rule(config, info):
+        raise DescriptionError("the no-motion rule differs from the point's")
+    table = description.sensor_table
+    if table is not None and table.shape[1] != len(info.outputs):
+        raise DescriptionError(f"sensor table of {table.shape[1]} outputs; this {info.kind} has {len(info.outputs)}")
     rows = reference.trajectories[0]
     sent = description.trajectories
     expected = [
@@ -111,13 +125,26 @@ def _check(description: Description, rig: Rig) -> tuple[dict[str, object], Refer
 
 
 def execute(
-    data: bytes, rig: Rig, hook: Hook | None = None, on_accept: Callable[[Description], None] | None = None
+    data: bytes,
+    rig: Rig,
+    hook: Hook | None = None,
+    on_accept: Callable[[Description], None] | None = None,
+    law_fault: Mapping[str, float] | None = None,
 ) -> DeviceRun:
     """Decode, check and run one description on ``rig`` (B = 1); raises DescriptionError for a
     description the device refuses (before the rig moves). ``on_accept(description)`` is called
-    once it is checked, before the first tick."""
+    once it is checked, before the first tick. A description with a sensor table runs on that
+    table instead of the rig (nothing moves). ``law_fault`` (controller key → factor) makes the
+    device run a deliberately wrong law — the emulator's ``--fault-law``: each key the point's
+    controller section sets is multiplied by its factor after the checks."""
     description = decode(data)
     channels, reference = _check(description, rig)
+    point = description.point()
+    for key, factor in (law_fault or {}).items():
+        if key in point["controller"]:
+            point["controller"][key] = float(point["controller"][key]) * factor  # type: ignore[index]
+    if description.sensor_table is not None:
+        rig = ReplayRig(rig.info, description.sensor_table[None], hold_last=True)
     if on_accept is not None:
         on_accept(description)
     sink = None
@@ -128,7 +155,7 @@ def execute(
 
     t0 = time.perf_counter_ns()
     result = engine.run_batch(
-        [description.point()],
+        [point],
         rig,
         fs=description.fs,
         duration=description.duration,

@@ -18,7 +18,7 @@ from labrunner import engine
 from labrunner.control import factory
 from labrunner.metrics import parse_windows, run_metrics
 from labrunner.rigs.base import RigInfo
-from labrunner.rigs.device import blocks, description, session
+from labrunner.rigs.device import blocks, description, lawcheck, session
 from labrunner.rigs.device.columns import column_names, from_columns
 from labrunner.rigs.transports import linkload
 
@@ -120,7 +120,7 @@ def run(
         reference_table=reference_table,
     )
     results = []
-    for point, data in zip(points, descriptions):
+    for point, seed, data in zip(points, seeds, descriptions):
         d = description.decode(data)
         verdict, rows, transfer = session.run_on_device(
             send, recv, max_payload, data, d.ticks, d.n_columns, silence_s=silence_s
@@ -136,5 +136,10 @@ def run(
             "device_compute_s": verdict.compute_ns / 1e9,
             **transfer.as_dict(),
         }
-        results.append(to_result(point, rig_info, fs, verdict, rows, diagnostics))
+        result = to_result(point, rig_info, fs, verdict, rows, diagnostics)
+        law = lawcheck.check(
+            point, rig_info, rows, result.outcome, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety
+        )
+        result.diagnostics["law_check"] = law.as_dict()
+        results.append(result)
     return results

@@ -30,20 +30,9 @@ def watchdog_s(parameters: Mapping[str, Any], fs: float) -> float:
     return max(float(parameters["watchdog_periods"]) / fs, DEVICE_WATCHDOG_MIN_S)
 
 
-def run_on_device(
-    rig,
-    points: Sequence[Mapping[str, object]],
-    *,
-    fs: float,
-    duration: float,
-    seeds: Sequence[int],
-    rig_safety: Mapping[str, object] | None = None,
-) -> list[RunResult]:
-    """Run ``points`` one after the other on ``rig``'s device (a RemoteRig with ``loop = "device"``)."""
-    if rig.identity is None:
-        rig.handshake()
-    if not rig.identity.capabilities & m.Capability.DEVICE_LOOP:
-        rig._fail("the device does not run a device loop (capabilities lack DEVICE_LOOP)")
+def adapters(rig) -> tuple[session.Send, session.Recv]:
+    """The bulk session's ``send`` and ``recv`` over ``rig``'s link: bulk frames both ways, a
+    HEARTBEAT for the session's keep-alive; an ERROR frame raises RigError, a STATUS is kept."""
     link = rig.link
     beats = [0]
 
@@ -73,6 +62,25 @@ def run_on_device(
             rig._status(m.unpack(frame))
         return None, frame.payload
 
+    return send, recv
+
+
+def run_on_device(
+    rig,
+    points: Sequence[Mapping[str, object]],
+    *,
+    fs: float,
+    duration: float,
+    seeds: Sequence[int],
+    rig_safety: Mapping[str, object] | None = None,
+) -> list[RunResult]:
+    """Run ``points`` one after the other on ``rig``'s device (a RemoteRig with ``loop = "device"``)."""
+    if rig.identity is None:
+        rig.handshake()
+    if not rig.identity.capabilities & m.Capability.DEVICE_LOOP:
+        rig._fail("the device does not run a device loop (capabilities lack DEVICE_LOOP)")
+    link = rig.link
+    send, recv = adapters(rig)
     spec = linkload.from_rig(rig.KIND, rig.parameters)
     wd = watchdog_s(rig.parameters, fs)
     results = []
@@ -99,6 +107,7 @@ def run_on_device(
             "link": {k: now[k] - then[k] for k in now},
             "firmware_id": rig.identity.firmware_id,
             "device_loop": result.diagnostics,
+            "law_check": result.diagnostics.get("law_check"),  # docs/control-laws.md § The host's check
         }
         results.append(result)
     return results

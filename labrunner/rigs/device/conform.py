@@ -1,0 +1,266 @@
+"""``labrunner conform RIG.toml``: does a device-loop device run the documented laws and protocol?
+
+Checks, each passed or failed with a one-line detail (docs/control-laws.md, docs/device-loop.md):
+
+* ``handshake``: IDENTITY answers HELLO and announces DEVICE_LOOP;
+* ``vector <case>``: every conformance vector of the device's rig kind, run in the sensor-table
+  mode (the device reads y[k] from the description, nothing moves): the device must log the
+  table's y, the host's law check must pass on its rows — recomputed from the exact float64
+  table, so the tolerance is float64 rounding in another order and the float32 of the logged
+  values, far tighter than a plant run's — and the verdict must be the vector's;
+* ``reject <what>``: a description with a bad CRC-32, another version, a bad magic, a wrong
+  length, an unknown record type, an unknown controller kind or the wrong channel counts must be
+  answered by REJECT;
+* ``hello version``: a HELLO of another protocol version must be answered by ERROR VERSION;
+* ``STOP mid-run``, ``SAFE mid-run``: the run must end *failed* soon after the host's STOP or
+  SAFE, with the device no longer running;
+* ``watchdog``: a host silent for longer than the description's watchdog must end the run *failed*.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+import zlib
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from labrunner.errors import RigError
+from labrunner.rigs.base import RigConfig
+from labrunner.rigs.device import description, lawcheck, session, vectors
+from labrunner.rigs.device.host import to_result
+from labrunner.rigs.device.remote import adapters
+from labrunner.rigs.registry import load_rig
+from labrunner.rigs.transports import messages as m
+from labrunner.rigs.transports.protocol import PROTOCOL_VERSION, Kind
+
+STOP_AFTER_S = 0.5  #: the host's STOP / SAFE (or silence) starts this long after the run's first answer
+ANSWER_S = 3.0  #: a stopped run's verdict must come within this long of the STOP
+LONG_TICKS = 60_000  #: ticks of the run that STOP, SAFE and the watchdog interrupt
+WATCHDOG_S = 1.0  #: the interrupted run's watchdog; the host stays silent for 2.5 × this
+
+
+@dataclass(frozen=True)
+class Check:
+    """One conformance check: its name, whether it passed, and what was seen."""
+
+    name: str
+    passed: bool
+    detail: str
+
+    def as_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+def cases_for(kind: str) -> list[str]:
+    """The conformance vectors of a rig kind (``dcmotor``, ``valve``, ``plate``)."""
+    return [name for name, case in vectors.CASES.items() if load_rig(case.rig).info.kind == kind]
+
+
+def conform(config: RigConfig, cases: Sequence[str] | None = None, protocol: bool = True) -> list[Check]:
+    """Every check against the device of the rig file ``config`` (a can or serial rig)."""
+    rig = load_rig(config)
+    with rig:
+        try:
+            ident = rig.handshake()
+        except RigError as exc:
+            return [Check("handshake", False, str(exc))]
+        loop = bool(ident.capabilities & m.Capability.DEVICE_LOOP)
+        checks = [
+            Check("handshake", loop, f"firmware {ident.firmware_id:#010x}, DEVICE_LOOP {'yes' if loop else 'no'}")
+        ]
+        if not loop:
+            return checks
+        names = list(cases) if cases is not None else cases_for(rig.info.kind)
+        checks += [_vector(rig, name) for name in names]
+        if protocol and names:
+            base = vectors.build(vectors.CASES[names[0]])
+            checks += [_reject(rig, what, bad, base.data) for what, bad in _broken(base.data)]
+            checks.append(_hello_version(rig))
+            long_run = _long_run(vectors.CASES[names[0]])
+            checks += [_interrupted(rig, long_run, how) for how in ("STOP", "SAFE", "watchdog")]
+    return checks
+
+
+def _run(rig, data: bytes, send_hook=None, recv_hook=None, like: bytes | None = None) -> tuple:
+    """(verdict, rows) of one description on the device; RigError for a refusal or a dead link.
+    ``like``: the good description a broken ``data`` was made from (its ticks and columns)."""
+    rig._drain()
+    send, recv = adapters(rig)
+    d = description.decode(data if like is None else like)
+    if send_hook is not None:
+        send = send_hook(send)
+    if recv_hook is not None:
+        recv = recv_hook(recv)
+    verdict, rows, _ = session.run_on_device(send, recv, rig.link.max_payload, data, d.ticks, d.n_columns)
+    return verdict, rows
+
+
+def _vector(rig, name: str) -> Check:
+    case = vectors.CASES[name]
+    vector = vectors.build(case)
+    info = load_rig(case.rig).info
+    try:
+        verdict, rows = _run(rig, vector.data)
+    except RigError as exc:
+        return Check(f"vector {name}", False, str(exc))
+    outcome = to_result(case.point, info, case.fs, verdict, rows, {}).outcome
+    problems = []
+    y = [vector.columns.index(s.name) for s in info.outputs]
+    n = min(len(rows), len(vector.rows))
+    if not np.array_equal(rows[:n, y], vector.rows[:n, y].astype(np.float32)):
+        problems.append("the logged y is not the sensor table (does the device read SENSOR_TABLE?)")
+    law = lawcheck.check(
+        case.point, info, rows, outcome, fs=case.fs, duration=case.duration, seed=case.seed,
+        rig_safety=vectors.rig_safety(case), measured=vector.rows[:, y],
+    )  # fmt: skip
+    if not law.ok:
+        problems.append(f"law {law.flag}: {law.detail}")
+    want = (vector.outcome.status, vector.outcome.monitor or "", len(vector.rows))
+    got = (verdict.status, verdict.monitor, verdict.n_samples)
+    if got != want:
+        problems.append(f"verdict {got}, the vector's {want}")
+    detail = "; ".join(problems) or f"{n} ticks, {verdict.status}, law within {law.worst_ratio:.2f} of its tolerance"
+    return Check(f"vector {name}", not problems, detail)
+
+
+def _with_crc(body: bytes) -> bytes:
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def _broken(data: bytes) -> list[tuple[str, bytes]]:
+    """Descriptions a device must refuse, each made from the good ``data``."""
+    body = bytearray(data[:-4])
+    out = [("bad CRC", data[:-1] + bytes([data[-1] ^ 0x5A]))]
+    other = bytearray(body)
+    struct.pack_into("<H", other, 4, description.VERSION + 1)
+    out.append(("another version", _with_crc(bytes(other))))
+    out.append(("bad magic", _with_crc(b"LRDX" + bytes(body[4:]))))
+    longer = bytearray(body)
+    struct.pack_into("<I", longer, 8, struct.unpack_from("<I", body, 8)[0] + 4)
+    out.append(("wrong length", _with_crc(bytes(longer))))
+    extra = bytearray(body) + description.RECORD.pack(99, 0, 4) + b"\0\0\0\0"
+    struct.pack_into("<I", extra, 8, len(extra) - description.HEADER.size)
+    struct.pack_into("<H", extra, 14, struct.unpack_from("<H", body, 14)[0] + 1)
+    out.append(("unknown record", _with_crc(bytes(extra))))
+    kind_at = description.HEADER.size + description.RECORD.size + description.RUN.size  # KIND follows RUN
+    _, _, size = description.RECORD.unpack_from(body, kind_at)
+    start = kind_at + description.RECORD.size
+    unknown = bytearray(body)
+    unknown[start : start + size] = b"?" * size
+    out.append(("unknown controller kind", _with_crc(bytes(unknown))))
+    counts = bytearray(body)
+    at = description.HEADER.size + description.RECORD.size + 33  # RUN's u8 outputs
+    counts[at] += 1
+    out.append(("wrong channel counts", _with_crc(bytes(counts))))
+    return out
+
+
+def _reject(rig, what: str, data: bytes, good: bytes) -> Check:
+    try:
+        verdict, _ = _run(rig, data, like=good)
+    except RigError as exc:
+        refused = "refused the run" in str(exc)
+        return Check(f"reject {what}", refused, str(exc).split(": ", 1)[-1] if refused else str(exc))
+    return Check(f"reject {what}", False, f"the device ran it ({verdict.status}, {verdict.n_samples} ticks)")
+
+
+def _hello_version(rig) -> Check:
+    rig._drain()
+    rig.link.send(m.pack(m.Hello(PROTOCOL_VERSION + 1)))
+    deadline, seen = time.monotonic() + float(rig.parameters["handshake_timeout_s"]), []
+    while time.monotonic() < deadline:
+        frame = rig.link.recv(0.05)
+        if frame is not None and frame.kind == Kind.ERROR:
+            seen.append(m.unpack(frame).code)
+            if seen[-1] == m.ErrorCode.VERSION:
+                break
+    ok = m.ErrorCode.VERSION in seen
+    return Check("hello version", ok, "ERROR VERSION" if ok else f"no ERROR VERSION (errors seen: {seen})")
+
+
+def _long_run(case: vectors.Case) -> tuple[bytes, str]:
+    """A description the host interrupts: the case's sensor table held for LONG_TICKS ticks, no run-time limit."""
+    rig = load_rig(case.rig)
+    safety = {k: v for k, v in vectors.rig_safety(case).items() if k != "max_duration"}
+    vector = vectors.build(case)
+    table = vector.rows[:, [vector.columns.index(s.name) for s in rig.info.outputs]]
+    data = description.build(
+        case.point, rig.info, fs=case.fs, duration=LONG_TICKS / case.fs, seed=case.seed, rig_safety=safety,
+        watchdog_s=WATCHDOG_S, sensor_table=table,
+    )  # fmt: skip
+    return data, case.rig
+
+
+def _interrupted(rig, long_run: tuple[bytes, str], how: str) -> Check:
+    """STOP or SAFE mid-run, or the host silent for 2.5 watchdog periods: the run must end failed."""
+    data, _ = long_run
+    clock: dict[str, float] = {}
+
+    def recv_hook(recv: session.Recv) -> session.Recv:
+        def wrapped(timeout: float):
+            now = time.monotonic()
+            start = clock.get("start")
+            if how != "watchdog" and start is not None and "sent" not in clock and now - start >= STOP_AFTER_S:
+                rig.link.send(m.pack(m.Stop(0) if how == "STOP" else m.Safe(0)))
+                clock["sent"] = now
+            msg = recv(timeout)
+            if msg is not None and msg[0] == session.TO_HOST:
+                clock.setdefault("start", time.monotonic())  # the device's first answer: the run starts
+            return msg
+
+        return wrapped
+
+    def send_hook(send: session.Send) -> session.Send:
+        def wrapped(kind: str, payload: bytes) -> None:
+            start = clock.get("start")
+            silent = start is not None and STOP_AFTER_S <= time.monotonic() - start < STOP_AFTER_S + 2.5 * WATCHDOG_S
+            if how == "watchdog" and silent:
+                clock.setdefault("sent", time.monotonic())
+                return
+            send(kind, payload)
+
+        return wrapped
+
+    name = f"{how} mid-run" if how != "watchdog" else "watchdog"
+    t0 = time.monotonic()
+    try:
+        verdict, _ = _run(rig, data, send_hook=send_hook, recv_hook=recv_hook)
+    except RigError as exc:
+        return Check(name, False, str(exc))
+    word = "watchdog" if how == "watchdog" else "stop"
+    ended = verdict.status == "failed" and word in verdict.message.lower() and verdict.n_samples < LONG_TICKS
+    state = _state(rig)
+    problems = []
+    if not ended:
+        problems.append(
+            f"the run ended {verdict.status} after {verdict.n_samples} of {LONG_TICKS} ticks ({verdict.message!r})"
+        )
+    if state == m.DeviceState.RUNNING:
+        problems.append("the device still reports RUNNING")
+    took = time.monotonic() - t0
+    detail = "; ".join(problems) or f"failed after {verdict.n_samples} ticks: {verdict.message!r} ({took:.1f} s)"
+    return Check(name, not problems, detail)
+
+
+def _state(rig) -> int | None:
+    """The device's state from its STATUS answer to a HEARTBEAT (None: no answer)."""
+    rig._drain()
+    rig.link.send(m.pack(m.Heartbeat(1)))
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        frame = rig.link.recv(0.05)
+        if frame is not None and frame.kind == Kind.STATUS:
+            return m.unpack(frame).state
+    return None
+
+
+def table(checks: Sequence[Check]) -> str:
+    """The pass/fail table ``labrunner conform`` prints."""
+    width = max(len(c.name) for c in checks)
+    lines = [f"{'PASS' if c.passed else 'FAIL'}  {c.name:<{width}}  {c.detail}" for c in checks]
+    failed = sum(not c.passed for c in checks)
+    lines.append(f"{len(checks) - failed} of {len(checks)} checks passed" + (f"; {failed} FAILED" if failed else ""))
+    return "\n".join(lines)

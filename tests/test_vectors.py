@@ -1,0 +1,80 @@
+"""Conformance vectors (docs/control-laws.md): ``labrunner vectors`` regenerates the shipped set
+byte for byte, and an implementation written from the document alone (tests/law_reference.py,
+plain per-sample Python, none of labrunner's control code) reproduces every vector."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from labrunner.rigs.device import description
+from labrunner.rigs.device.vectors import CASES
+from tests import law_reference
+
+ROOT = Path(__file__).resolve().parent.parent
+SHIPPED = ROOT / "docs" / "vectors"
+
+
+def test_the_shipped_vectors_are_what_labrunner_vectors_writes(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "labrunner", "vectors", "--out", str(tmp_path)], capture_output=True, text=True, cwd=ROOT
+    )
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(CASES) == sorted(p.name for p in SHIPPED.iterdir())
+    for case in CASES:
+        for name in ("description.bin", "description.txt", "vector.csv", "verdict.txt"):
+            assert (tmp_path / case / name).read_bytes() == (SHIPPED / case / name).read_bytes(), f"{case}/{name}"
+
+
+def test_every_kind_the_device_loop_accepts_has_a_vector():
+    kinds = {description.decode((SHIPPED / c / "description.bin").read_bytes()).kind for c in CASES}
+    assert kinds == set(description.DEVICE_KINDS)
+
+
+def _verdict(path: Path) -> dict[str, str]:
+    return dict(line.split(" = ", 1) for line in path.read_text().splitlines())
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_an_implementation_from_the_document_reproduces_the_vector(case):
+    folder = SHIPPED / case
+    d = description.decode((folder / "description.bin").read_bytes())
+    header = (folder / "vector.csv").read_text().splitlines()[0].split(",")[1:]
+    expected = np.loadtxt(folder / "vector.csv", delimiter=",", skiprows=1, ndmin=2)[:, 1:]
+    inputs, outputs = header[: d.n_inputs], header[d.n_inputs : d.n_inputs + d.n_outputs]
+    np.testing.assert_array_equal(expected[:, d.n_inputs : d.n_inputs + d.n_outputs], d.sensor_table[: len(expected)])
+    rows, verdict = law_reference.run(d, inputs, outputs)
+    assert rows.shape == expected.shape
+    scale = np.nanmax(np.abs(expected), axis=0) + 1e-300
+    for j, name in enumerate(header):
+        np.testing.assert_allclose(rows[:, j], expected[:, j], rtol=1e-9, atol=1e-9 * scale[j], err_msg=name)
+    want = _verdict(folder / "verdict.txt")
+    assert verdict["status"] == want["status"] and int(want["samples"]) == len(rows)
+    if want["status"] == "aborted":
+        assert verdict["monitor"] == want["monitor"]
+        for key in ("time", "value", "threshold"):
+            assert verdict[key] == pytest.approx(float(want[key]), rel=1e-9), key
+    else:
+        assert want["monitor"] == "nan" and math.isnan(float(want["time"]))
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--case", "pid-motor"], "--case: must be one of mfc1-motor-velocity, "),
+        (["--out", "FILE"], "exists and is not a directory"),
+    ],
+)
+def test_bad_arguments_give_one_line_and_write_nothing(tmp_path, args, message):
+    (tmp_path / "FILE").write_text("x")
+    argv = ["--out", str(tmp_path / "new")] + [str(tmp_path / a) if a == "FILE" else a for a in args]
+    done = subprocess.run(
+        [sys.executable, "-m", "labrunner", "vectors", *argv], capture_output=True, text=True, cwd=ROOT
+    )
+    assert done.returncode == 2 and message in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "new").exists() and (tmp_path / "FILE").read_text() == "x"
