@@ -25,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="reduced grids and shortened references (about 4 min of CPU: 2-4 min on 2 free cores; the longest plate runs left out)",
+        help="reduced grids and shortened references (about 5 min of CPU: 2.5-5 min on 2 free cores; the longest plate runs left out)",
     )
     p.add_argument("--only", nargs="+", metavar="FIG", help="run only these figures/tables (ids as listed above)")
     p.add_argument(
