@@ -9,7 +9,7 @@ Outcomes: ``completed``; ``aborted`` (a safety monitor tripped: monitor, time, v
 threshold); ``no-motion`` (completed, but the load never moved beyond the sensor resolution, or
 the flow never rose above its threshold); ``failed`` (an exception: its message; a
 :class:`~labrunner.errors.RigError` is re-raised after the runs are built, with them in
-``exc.results``, so the worker keeps their logs up to the failure and stops the campaign). The same code
+``exc.results``, so the worker keeps their logs up to the failure, then checks the rig). The same code
 drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``. A
 ``progress`` hook hears the ticks done at most :data:`PROGRESS_CALLS` times a batch (the
 campaign's live progress, :mod:`labrunner.campaign.live`); it costs one integer comparison a tick.
@@ -56,7 +56,8 @@ class Outcome:
 class RunResult:
     """One run: outcome, signals (name → (K,) float64; sample k at k/fs), channel roles, metrics,
     and ``diagnostics`` a rig reports about the run (a device loop's timing and transfer), logged
-    as the MCAP's ``diagnostics`` metadata."""
+    as the MCAP's ``diagnostics`` metadata; a real device's own timestamps (``device_clock``) are
+    logged as the signal ``t_device``."""
 
     outcome: Outcome
     signals: dict[str, np.ndarray]
@@ -64,6 +65,7 @@ class RunResult:
     channels: dict[str, object]  # role group → names, and "units" (see channel_names)
     metrics: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, object] = field(default_factory=dict)
+    device_clock: np.ndarray | None = None  # a real device's time of each sample [s since tick 0]; None: a twin
 
     @property
     def n_samples(self) -> int:
@@ -238,7 +240,7 @@ def run_batch(
             outcome = Outcome("completed")
         metrics = run_metrics(signals, roles, fs=float(fs), windows=parse_windows(points[i].get("metrics")))
         results.append(RunResult(outcome, signals, float(fs), channels, metrics))
-    if rig_error is not None:  # the worker publishes these logs of the failed runs, then stops the campaign
+    if rig_error is not None:  # the worker publishes these logs of the failed runs, then checks the rig
         rig_error.results = results
         raise rig_error
     return results

@@ -30,7 +30,8 @@ class InvalidParameter(LabrunnerError, ValueError):
 
 
 class RigError(LabrunnerError):
-    """The rig or its transport is unhealthy (device gone, bus off, watchdog): stop the campaign."""
+    """The rig or its transport is unhealthy (device gone, bus off, watchdog): the run fails; the
+    campaign stops unless the rig shows it is back in its safe state (``RemoteRig.recover``)."""
 
 
 class CampaignError(LabrunnerError):

@@ -244,15 +244,19 @@ def test_a_refused_description_raises_on_the_host():
         send, recv = channel.end("host", "device")
         data = description.build(point, load_rig(rig_name).info, fs=fs, duration=duration, seed=0, rig_safety=safety)
         with pytest.raises(RigError, match="refused the run: description for 1 inputs"):
-            session.run_on_device(send, recv, 8, data, 10, 6)
+            session.run_on_device(send, recv, 8, data, 10, 6, fs)
     finally:
         stop.set()
         device.join()
 
 
-def test_a_silent_device_raises():
-    with pytest.raises(RigError, match="no new block"):
-        session.run_on_device(lambda k, p: None, lambda t: None, 8, b"x" * 20, 10, 6, silence_s=0.05)
+def test_a_silent_device_raises_within_dead_s_and_says_the_rig_may_not_be_safe():
+    t0 = time.monotonic()
+    with pytest.raises(
+        session.RunFailed, match="no frame from the device for 0.3 s.*may not be in its safe state"
+    ) as exc:
+        session.run_on_device(lambda k, p: None, lambda t: None, 8, b"x" * 20, 10, 6, 200.0, dead_s=0.3)
+    assert 0.3 <= time.monotonic() - t0 < 1.0 and len(exc.value.rows) == 0
 
 
 def test_verdict_round_trip():

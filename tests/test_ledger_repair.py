@@ -104,8 +104,7 @@ def test_a_log_damaged_in_the_middle_is_damaged_not_torn(finished, capsys):
     shutil.copy(log, copy)
     with open(copy, "rb") as fh:
         summary = make_reader(fh).get_summary()
-    blocks = {cid for cid, ch in summary.channels.items() if ch.topic == "/run/blocks"}
-    chunk = next(c for c in summary.chunk_indexes if blocks & c.message_index_offsets.keys())
+    chunk = summary.chunk_indexes[0]  # the signals: /run/samples, each sample once
     with open(copy, "r+b") as fh:  # 64 bytes in the middle of the signal chunk's compressed records
         fh.seek(chunk.chunk_start_offset + chunk.chunk_length // 2)
         fh.write(b"\xa5" * 64)
@@ -133,3 +132,33 @@ def test_an_unexpected_error_is_one_line_naming_the_traceback_file(monkeypatch, 
     text = open(path, encoding="utf-8").read()
     assert "Traceback (most recent call last)" in text and "an invariant" in text and "status anything" in text
     os.unlink(path)
+
+
+def test_status_checks_the_structure_and_resume_every_row(finished, capsys, monkeypatch):
+    """``status`` (sub-second at 10^6 points) counts from covering indexes and, above
+    FULL_CHECK_POINTS points, checks structure, count and grid order only; the checks that read
+    every row (ids' checksum) stay resume's."""
+    from labrunner.campaign import status
+
+    monkeypatch.setattr(status, "FULL_CHECK_POINTS", 5)  # this campaign's 12 points count as many
+    copy = finished.parent / "ids-changed"
+    shutil.copytree(finished, copy)
+    db = sqlite3.connect(copy / "ledger.sqlite")
+    db.execute("UPDATE points SET id = 'ffffffffffffffff' WHERE seq = 3")
+    db.commit()
+    plans = [
+        db.execute(f"EXPLAIN QUERY PLAN {q}").fetchall()[0][3]
+        for q in (
+            "SELECT COALESCE(outcome, state), COUNT(*) FROM points GROUP BY COALESCE(outcome, state)",
+            "SELECT COUNT(*) FROM points WHERE finished_at IS NOT NULL",
+        )
+    ]
+    db.close()
+    assert all("COVERING INDEX" in plan for plan in plans), plans
+    capsys.readouterr()
+    assert main(["status", str(copy)]) == 0
+    assert main(["resume", str(copy)]) == 2
+    assert "their ids changed" in capsys.readouterr().err
+    monkeypatch.setattr(status, "FULL_CHECK_POINTS", 20_000)
+    assert main(["status", str(copy)]) == 2  # a small campaign: every check
+    assert "their ids changed" in capsys.readouterr().err

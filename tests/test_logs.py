@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -86,7 +87,7 @@ def test_round_trip_is_exact(motor_log):
         **metadata()["run"],
         "fs": 200.0,
         "labrunner_version": log.metadata["run"]["labrunner_version"],
-        "log_format": "labrunner-2",
+        "log_format": "labrunner-3",
         "samples": "every sample (200 Hz)",
     }
     assert log.metadata["config"] == metadata()["config"]
@@ -94,49 +95,44 @@ def test_round_trip_is_exact(motor_log):
     assert log.attachments == attachments
 
 
-def samples_of(path) -> tuple[list, list[int], dict[str, str], list]:
+def samples_of(path) -> tuple[list, list[int], dict[str, str], list, list[int]]:
     """The per-sample channel through the official reader and classes built from the file's own
-    schema records alone: (messages, log times, channel metadata, blocks)."""
+    schema records alone: (messages, log times, channel metadata, blocks, sequences)."""
     classes = classes_from_file(path)
     with open(path, "rb") as f:
         reader = make_reader(f)
         channel = next(c for c in reader.get_summary().channels.values() if c.topic == SAMPLES_TOPIC)
-        samples, times, blocks = [], [], []
+        samples, times, blocks, sequences = [], [], [], []
         for schema, ch, message in reader.iter_messages(log_time_order=True):
             decoded = classes[schema.name].FromString(message.data)
             if ch.topic == SAMPLES_TOPIC:
                 samples.append(decoded)
                 times.append(message.log_time)
+                sequences.append(message.sequence)
             else:
                 blocks.append((message.log_time, decoded))
-    return samples, times, channel.metadata, blocks
+    return samples, times, channel.metadata, blocks, sequences
 
 
 def test_file_decodes_with_mcap_reader_and_generated_protobuf_classes(motor_log):
+    """Each sample is stored once, as a per-sample message: the official reader and classes built
+    from the file's own schema give back every signal bit for bit; sequence = sample index."""
     path, signals, attachments = motor_log
     classes = classes_from_file(path)
-    assert set(classes) == {log_schema.BLOCK_SCHEMA_NAME, log_schema.SAMPLES_SCHEMA_NAME}
-    columns = {name: [] for name in signals}
-    samples, times, channel_meta, blocks = samples_of(path)
+    assert set(classes) == {log_schema.SAMPLES_SCHEMA_NAME}  # no /run/blocks copy at the full rate
+    samples, times, channel_meta, blocks, sequences = samples_of(path)
     start_ns = round(START * 1e9)
-    for log_time, decoded in blocks:
-        assert decoded.fs == 200.0 and decoded.t0 == decoded.first_index / 200.0
-        assert log_time == start_ns + round(decoded.first_index * 1e9 / 200.0)  # wall clock of its first sample
-        for sig in decoded.signals:
-            columns[sig.name].append((decoded.first_index, np.array(sig.values)))
+    assert blocks == [] and sequences == list(range(1000))
     with open(path, "rb") as f:
         names = [m.name for m in make_reader(f).iter_metadata()]
         f.seek(0)
         attached = {a.name: (a.media_type, a.data) for a in make_reader(f).iter_attachments()}
     assert names == ["channels", "run", "config", "outcome"]  # the batch's shared part first, the outcome last
     assert attached == {"campaign.toml": ("application/toml", attachments["campaign.toml"])}
-    for name, pieces in columns.items():
-        joined = np.concatenate([v for _, v in sorted(pieces, key=lambda p: p[0])])
-        assert np.array_equal(bits(joined), bits(signals[name]))
     # every sample is a message whose fields name their units; the channel's metadata repeats them
     assert len(samples) == 1000
-    assert [f.name for f in samples[0].DESCRIPTOR.fields] == [
-        "t__s",
+    fields = [f.name for f in samples[0].DESCRIPTOR.fields]
+    assert fields == [
         "theta__rad",
         "omega__rad_per_s",
         "ref_omega__rad_per_s",
@@ -145,8 +141,8 @@ def test_file_decodes_with_mcap_reader_and_generated_protobuf_classes(motor_log)
         "f_hat_omega__rad_per_s2",
     ]
     assert channel_meta["unit.omega__rad_per_s"] == "rad/s" and channel_meta["decimation"] == "1"
-    assert all(math.isclose(m.t__s, k / 200.0) for k, m in enumerate(samples))
-    assert np.array_equal(bits([m.omega__rad_per_s for m in samples]), bits(signals["omega"]))
+    for name, field in zip(signals, fields, strict=True):
+        assert np.array_equal(bits([getattr(m, field) for m in samples]), bits(signals[name])), name
     assert times == [start_ns + round(k * 1e9 / 200.0) for k in range(1000)]
 
 
@@ -171,7 +167,7 @@ def test_full_rate_samples_match_the_blocks_and_log_time_is_wall_clock(tmp_path)
     path = tmp_path / "plate.mcap"
     before = time.time()
     write_run(path, metadata={"run": {"point_id": "p"}}, fs=fs, signals=signals, outcome=COMPLETED, channels=channels)
-    samples, times, channel_meta, _ = samples_of(path)
+    samples, times, channel_meta, _, _ = samples_of(path)
     frame = read_run(path).frame
     assert len(samples) == n == len(frame)
     for name, field in (("h1", "h1__m"), ("i1", "i1__A"), ("x", "x")):
@@ -193,12 +189,12 @@ def test_long_run_blocks_and_samples_thinned_when_asked(tmp_path):
     log = read_run(path)
     for name, values in signals.items():
         assert np.array_equal(bits(log.frame[name].to_numpy()), bits(values))
-    samples, _, channel_meta, blocks = samples_of(path)
+    samples, _, channel_meta, blocks, sequences = samples_of(path)
     assert [(b.first_index, len(b.signals[0].values)) for _, b in blocks] == [(0, 1000), (1000, 1000), (2000, 345)]
     # thinned to 500 Hz as asked: every 64th sample, and the channel and the run record say so
     assert channel_meta["decimation"] == "64" and channel_meta["rate_hz"] == "500.0"
     assert "every 64th sample" in log.metadata["run"]["samples"]
-    assert [round(m.t__s * fs) for m in samples] == list(range(0, n, 64))
+    assert sequences == list(range(0, n, 64))
     assert np.array_equal(bits([m.x1 for m in samples]), bits(signals["x1"][::64]))
 
 
@@ -304,6 +300,21 @@ def test_logs_of_the_earlier_format_still_read(tmp_path):
     assert log.metadata["run"] == {"point_id": "0042", "fs": 10.0, "none": None}
     assert log.outcome == {"status": "completed", "monitor": None, "n_samples": 4}
     assert log.channels == {"y": {"role": "signal", "unit": "m"}} and log.frame["y"].tolist() == [1.0] * 4
+
+
+def test_logs_of_format_labrunner_2_still_read_from_their_blocks():
+    """tests/data/log-format-labrunner-2.mcap was written by labrunner before each sample was
+    stored once (every sample in /run/blocks and again, with a ``t__s`` field, in /run/samples):
+    it reads back bit for bit from its blocks, metadata as plain text."""
+    log = read_run(Path(__file__).parent / "data" / "log-format-labrunner-2.mcap")
+    k = np.arange(1200, dtype=np.float64)
+    expected = {"y": k / 8.0, "u": -k, "ref_y": k * 0.25}
+    expected["y"][[3, 7]] = [np.nan, -0.0]
+    assert log.metadata["run"]["log_format"] == "labrunner-2" and log.fs == 400.0 and not log.torn
+    assert log.signals == list(expected) and log.outcome == {"status": "completed", "n_samples": 1200}
+    for name, values in expected.items():
+        assert np.array_equal(bits(log.signal(name)), bits(values)), name
+    assert log.metadata["config"] == {"controller": {"k_p": 2.0}}
 
 
 def test_identical_inputs_give_identical_files(tmp_path):

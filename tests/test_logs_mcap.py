@@ -128,12 +128,15 @@ def test_bulk_writer_reads_back_like_mcap_writer():
 
 def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
     """Every chunk carries the CRC of its records, every message index entry points at a message
-    of its channel with its log time, every message is indexed once, chunk indexes point at their
-    chunks; the footer's CRC covers the
-    summary and the footer's start (MCAP spec: Footer.summary_crc)."""
+    of its channel with its log time, every block message is indexed once, the per-sample
+    channel (thinned here, so that both topics are written) not at all; chunk indexes point at
+    their chunks; the footer's CRC covers the summary and the footer's start (MCAP spec:
+    Footer.summary_crc)."""
     path = tmp_path / "run.mcap"
     signals = motor_run(fs=1000.0, duration=3.0)
-    write_run(path, metadata={"run": {"point_id": "p"}}, fs=1000.0, signals=signals, outcome=COMPLETED)
+    write_run(
+        path, metadata={"run": {"point_id": "p"}}, fs=1000.0, signals=signals, outcome=COMPLETED, samples_hz=100.0
+    )
     data = path.read_bytes()
     summary = make_reader(io.BytesIO(data)).get_summary()
     indexed = 0
@@ -147,12 +150,15 @@ def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
         stream, size = get_chunk_data_stream(chunk, validate_crc=True)
         records = stream.read(size)
         assert size == index.uncompressed_size and len(chunk.data) == index.compressed_size
-        topics = {summary.channels[c].topic for c in index.message_index_offsets}
-        assert len(topics) == 1  # one channel per chunk
-        if topics == {log_schema.BLOCK_TOPIC}:
-            assert chunk.uncompressed_crc == zlib.crc32(records) != 0  # 0 would mean "not computed"
-        else:  # the per-sample copy of the blocks: no CRC, which MCAP readers then do not check
-            assert chunk.uncompressed_crc == 0
+        op, _, first_channel, _, _ = struct.unpack_from("<BQHIQ", records, 0)
+        assert op == Opcode.MESSAGE
+        if summary.channels[first_channel].topic == log_schema.SAMPLES_TOPIC:
+            # no message index (optional in MCAP: 16 bytes a sample); the official reader scans
+            # the chunk (test_logs: every sample through iter_messages)
+            assert index.message_index_offsets == {} and index.message_index_length == 0
+        else:
+            assert {summary.channels[c].topic for c in index.message_index_offsets} == {log_schema.BLOCK_TOPIC}
+        assert chunk.uncompressed_crc == zlib.crc32(records) != 0  # 0 would mean "not computed"
         for channel_id, offset in index.message_index_offsets.items():
             f.seek(offset)
             opcode, _ = struct.unpack("<BQ", f.read(9))
@@ -165,7 +171,7 @@ def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
                 op, _, channel, _, t = struct.unpack_from("<BQHIQ", records, at)
                 assert (op, channel, t) == (Opcode.MESSAGE, channel_id, log_time)
             indexed += len(entries.records)
-    assert indexed == summary.statistics.message_count == 3 + 3000  # blocks + samples
+    assert indexed == 3 and summary.statistics.message_count == 3 + 300  # blocks + thinned samples
     footer_at = len(data) - 8 - 29
     assert data[footer_at] == Opcode.FOOTER
     footer = Footer.read(ReadDataStream(io.BytesIO(data[footer_at + 9 :])))
@@ -234,17 +240,23 @@ def test_sample_encoding_agrees_with_protobuf(n_signals, n, data):
     names = [f"sig{j}" for j in range(n_signals)]
     values = st.floats(allow_nan=True, allow_infinity=True, width=64)
     columns = [np.array(data.draw(st.lists(values, min_size=n, max_size=n)), dtype=np.float64) for _ in names]
-    t = np.array(data.draw(st.lists(st.floats(0, 1e6), min_size=n, max_size=n)), dtype=np.float64)
     fdp = log_schema.descriptor_pb2.FileDescriptorSet.FromString(log_schema.samples_schema(names)).file[0]
     cls = log_schema.message_class(fdp, log_schema.SAMPLES_SCHEMA_NAME)
-    rows = log_schema.encode_samples(t, columns)
-    assert rows.shape == (n, 9 * (1 + n_signals) + max(0, n_signals - 14)) and rows.dtype == np.uint8
+    rows = log_schema.encode_samples(columns)
+    assert rows.shape == (n, 9 * n_signals + max(0, n_signals - 15)) and rows.dtype == np.uint8
     for k, row in enumerate(rows):
         msg = cls.FromString(row.tobytes())
-        assert bits(msg.t__s) == bits(t[k])
         assert all(bits(getattr(msg, name)) == bits(c[k]) for name, c in zip(names, columns))
-        if all(bits(c[k]) != 0 for c in columns) and bits(t[k]) != 0:  # proto3 leaves +0.0 out
+        if all(bits(c[k]) != 0 for c in columns):  # proto3 leaves +0.0 out
             assert msg.SerializeToString() == row.tobytes()
+    # the reader's decoder: the writer's layout and the protobuf library's own encoding alike
+    decoded = log_schema.decode_samples([row.tobytes() for row in rows], n_signals)
+    assert np.array_equal(bits(decoded), bits(np.array(columns).reshape(n_signals, n)))
+    generic = [cls(**{name: c[k] for name, c in zip(names, columns)}).SerializeToString() for k in range(n)]
+    expected = np.array([[c[k] if bits(c[k]) != 0 else np.nan for k in range(n)] for c in columns])
+    assert np.array_equal(
+        bits(log_schema.decode_samples(generic, n_signals).reshape(n_signals, n)), bits(expected.reshape(n_signals, n))
+    )
 
 
 def _mcap_bytes(record) -> bytes:

@@ -1,4 +1,4 @@
-"""Torn run logs: a writer killed mid-run leaves a file whose complete blocks are salvaged."""
+"""Torn run logs: a writer killed mid-run leaves a file whose complete chunks are salvaged."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 from mcap.reader import make_reader
 from test_logs_support import COMPLETED, metadata
 
-from labrunner.logs import BLOCK_TOPIC, RunLogWriter, read_metadata, read_outcome, read_run
+from labrunner.logs import SAMPLES_TOPIC, RunLogWriter, read_metadata, read_outcome, read_run
 
 BLOCK = 250
 
@@ -26,8 +26,8 @@ def ramp(k0: int, n: int) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def streamed(tmp_path_factory):
-    """A finished file written in blocks of 250 with a flush after each (one chunk of blocks and
-    one of per-sample messages per block)."""
+    """A finished file written in blocks of 250 with a flush after each (one chunk of per-sample
+    messages per block)."""
     path = tmp_path_factory.mktemp("torn") / "full.mcap"
     with RunLogWriter(
         path,
@@ -42,12 +42,10 @@ def streamed(tmp_path_factory):
         w.finish(COMPLETED)
     with open(path, "rb") as f:
         summary = make_reader(f).get_summary()
-    blocks = {i for i, c in summary.channels.items() if c.topic == BLOCK_TOPIC}
-    chunk_ends = sorted(
-        c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes if blocks & c.message_index_offsets.keys()
-    )
+    assert {c.topic for c in summary.channels.values()} == {SAMPLES_TOPIC}
+    chunk_ends = sorted(c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes)
     outcome = next(m for m in summary.metadata_indexes if m.name == "outcome")
-    assert len(chunk_ends) == 8 and len(summary.chunk_indexes) == 16
+    assert len(chunk_ends) == 8 and len(summary.chunk_indexes) == 8
     assert outcome.offset > max(c.chunk_start_offset for c in summary.chunk_indexes)  # the outcome follows the data
     return path, path.read_bytes(), chunk_ends, outcome.offset + outcome.length
 

@@ -20,7 +20,7 @@ from test_campaign_support import MOTOR_RIG, campaign_text, write
 from test_logs import classes_from_file
 
 from labrunner.cli import main
-from labrunner.logs import BLOCK_TOPIC, SAMPLES_TOPIC, read_run
+from labrunner.logs import SAMPLES_TOPIC, read_run
 
 GRID = '"controller.gamma" = { log10 = [0.0, 4.0], num = 4 }\n"controller.k_p" = { log10 = [-1.0, 3.0], num = 4 }'
 COUNTS = re.compile(r"\d+ completed, \d+ no-motion, \d+ aborted, \d+ failed")
@@ -133,8 +133,8 @@ def test_report_table_lists_every_run_and_sorts_offline(campaign):
 
 def test_campaign_logs_decode_with_their_own_schemas(campaign):
     """A log as a worker publishes it: per-sample messages at the full rate whose fields name their
-    units, equal sample for sample to the packed blocks, with absolute, increasing log times; the
-    rig record and the campaign file as a viewer shows them."""
+    units, equal sample for sample to what read_run gives, sequence = sample index, with absolute,
+    increasing log times; the rig record and the campaign file as a viewer shows them."""
     directory, _, started = campaign
     table = pd.read_csv(directory / "report" / "metrics.csv")
     path = directory / "runs" / f"{table.loc[table['outcome'] == 'completed', 'id'].iloc[0]}.mcap"
@@ -143,16 +143,17 @@ def test_campaign_logs_decode_with_their_own_schemas(campaign):
     with open(path, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        samples, times = [], []
-        for schema, channel, message in reader.iter_messages(topics=[SAMPLES_TOPIC, BLOCK_TOPIC], log_time_order=True):
-            if channel.topic == SAMPLES_TOPIC:
-                samples.append(classes[schema.name].FromString(message.data))
-                times.append(message.log_time)
+        samples, times, sequences = [], [], []
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            assert channel.topic == SAMPLES_TOPIC  # each sample stored once: no /run/blocks copy
+            samples.append(classes[schema.name].FromString(message.data))
+            times.append(message.log_time)
+            sequences.append(message.sequence)
         f.seek(0)
         raw = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert len(samples) == log.n_samples == 600  # 3 s at 200 Hz: every sample
     fields = [f.name for f in samples[0].DESCRIPTOR.fields]
-    assert "omega__rad_per_s" in fields and "u__V" in fields and fields[0] == "t__s"
+    assert "omega__rad_per_s" in fields and "u__V" in fields and sequences == list(range(600))
     for name in log.channels:
         field = next(f for f in fields if f == name or f.startswith(name + "__"))
         assert np.array_equal(
@@ -179,7 +180,7 @@ def test_logging_section_thins_the_samples_and_says_so(tmp_path):
         channel = next(c for c in make_reader(f).get_summary().channels.values() if c.topic == SAMPLES_TOPIC)
     assert channel.metadata["decimation"] == "4" and channel.metadata["rate_hz"] == "50.0"
     assert "every 4th sample" in read_run(log).metadata["run"]["samples"]
-    assert read_run(log).n_samples == 200  # the blocks keep every sample
+    assert read_run(log).n_samples == 200  # thinned: the blocks keep every sample
     bad = write(tmp_path / "bad.toml", campaign_text("bad", grid=grid, extra="\n[logging]\nsamples_hz = -1\n"))
     assert main(["run", str(bad), "--out", str(tmp_path / "e")]) == 2
     assert not (tmp_path / "e").exists()

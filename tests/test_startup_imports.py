@@ -32,6 +32,16 @@ def test_the_parser_imports_no_heavy_package(code):
     assert _loaded(code) == []
 
 
+def test_import_labrunner_is_light_and_its_results_api_is_lazy():
+    """``import labrunner`` loads nothing heavy; the results API's names load pandas when first
+    asked for (module ``__getattr__``), and an unknown name is an AttributeError."""
+    assert _loaded("import labrunner\nassert labrunner.__version__") == []
+    assert _loaded("import labrunner\nlabrunner.open_campaign", ("pandas",)) == ["pandas"]
+    code = "import labrunner\ntry:\n    labrunner.nope\nexcept AttributeError as e:\n    print(e)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "module 'labrunner' has no attribute 'nope'"
+
+
 def test_a_worker_writes_logs_without_pandas_or_matplotlib():
     """The pool worker's modules: the engine, the batch executor and the log writer (through
     ``labrunner.logs``, whose reader builds a pandas frame only when asked)."""

@@ -97,29 +97,24 @@ def _analyse(
 
     step("reading the ledger")
     with Ledger.open_readonly(directory) as ledger:
-        rows = [dict(r) for r in ledger.rows()]
         meta = ledger.meta()
         quarantine = [dict(r) for r in ledger.quarantined()]
-    campaign, note = selection.load_campaign(meta, directory)
-    rig_units = (
-        {s.name: s.unit for s in (*campaign.rig_info.inputs, *campaign.rig_info.outputs)}
-        if campaign is not None
-        else {}
-    )
-    rig_limits = {s.name: (s.lo, s.hi) for s in campaign.rig_info.inputs} if campaign is not None else {}
-    advance()
-    step("metrics table")
-    built = table_mod.build_table(
-        rows,
-        directory,
-        cache=table_mod.read_cache(out),
-        workers=workers,
-        units=rig_units,
-        limits=rig_limits,
-        recompute=recompute,
-        tick=advance,
-        announce=lambda n: step(f"metrics table, reading {n} logs", n),
-    )
+        campaign, note = selection.load_campaign(meta, directory)
+        rig_units, rig_limits = selection.rig_signals(campaign)
+        advance()
+        step("metrics table")
+        built = table_mod.build_table(
+            ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
+            directory,
+            cache=table_mod.read_cache(out),
+            workers=workers,
+            units=rig_units,
+            limits=rig_limits,
+            recompute=recompute,
+            tick=advance,
+            announce=lambda n: step(f"metrics table, reading {n} logs", n),
+        )
+        guided_rows = [dict(r) for r in ledger.rows()] if campaign is not None and campaign.guided is not None else []
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     if error == "e_hat":
@@ -129,7 +124,8 @@ def _analyse(
     chosen = selection.chosen_runs(frame)
     extra = selection.plot_selection(frame, plot)
     ids = list(dict.fromkeys([*(row["id"] for row in chosen.values()), *extra]))
-    plots_of = run_plots.items(dict(zip(frame["id"], frame["log_path"])), ids, directory, out)
+    chosen_logs = frame.loc[frame["id"].isin(ids), ["id", "log_path"]]  # not a dict of every run's
+    plots_of = run_plots.items(dict(zip(chosen_logs["id"], chosen_logs["log_path"])), ids, directory, out)
     from labrunner.analysis import agreement as agreement_mod, figures
     from labrunner.analysis.context import Context, Theories
 
@@ -161,7 +157,7 @@ def _analyse(
     if campaign is not None and campaign.guided is not None:  # the walk and its step counts
         from labrunner.campaign import guided_report
 
-        sections, guided = guided_report.sections(campaign, rows, out)
+        sections, guided = guided_report.sections(campaign, guided_rows, out)
     if plotter is None:  # one process: the maps, then the run plots with progress
         maps, _ = drawing.draw([], jobs, split=False)
     elif not many:

@@ -25,6 +25,7 @@ from labrunner.analysis.overlays import EQUATIONS
 from labrunner.analysis.report import Image, Section, write_report
 from labrunner.analysis.table import FOREIGN, UNTIL_ABORT
 from labrunner.campaign.progress import format_counts
+from labrunner.campaign.rig_timing import timing_line
 from labrunner.rigs.device import lawflag
 
 #: Metric columns of the table of all runs (the ones ranked by, then those of aborted runs).
@@ -115,6 +116,8 @@ def _outcome_section(summary: Mapping[str, Any]) -> Section:
     facts: dict[str, object] = dict(summary["outcomes"])
     if summary.get("oscillating"):
         facts["of the completed: oscillating (detector)"] = summary["oscillating"]
+    if "timing" in summary:
+        paragraphs.append(timing_line(summary["timing"]).capitalize() + " — per run in metrics.csv.")
     return Section("Outcomes", paragraphs=paragraphs, facts=facts)
 
 
@@ -212,6 +215,21 @@ def _link_cells(out: Path, directory: Path, logs: Sequence[Any], states: Sequenc
     return cells
 
 
+#: Rows of the report's runs table at most: a campaign of 10^5 or 10^6 points would make a page
+#: of hundreds of MB that no browser sorts; the tables in metrics.csv / .parquet hold every point.
+TABLE_ROWS = 10_000
+
+
+def _table_rows(frame: pd.DataFrame) -> pd.DataFrame:
+    """:data:`TABLE_ROWS` rows of a larger table: the best half by rms_error, then aborted and failed
+    runs and the other points in grid order."""
+    best = frame.nsmallest(TABLE_ROWS // 2, "rms_error") if "rms_error" in frame.columns else frame.iloc[:0]
+    rest = frame.drop(index=best.index)
+    trouble = rest[rest["outcome"].isin(["aborted", "failed"])].head(TABLE_ROWS // 4)
+    others = rest.drop(index=trouble.index).head(TABLE_ROWS - len(best) - len(trouble))
+    return pd.concat([best, trouble, others])
+
+
 def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[str, Path]) -> str:
     """Every point in one sortable table: outcome, parameters, metrics, abort, log and plot links."""
     metrics = [c for c in METRICS if c in frame.columns and frame[c].notna().any()]
@@ -222,7 +240,7 @@ def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[s
     abort += [c for c in ("law_check",) if c in frame.columns and frame[c].fillna("").astype(bool).any()]
     columns = ["seq", "id", "outcome", *params, *metrics, *until, *abort, "n_samples"]
     columns = [c for c in columns if c in frame.columns]
-    head = "".join(f"<th>{html.escape(c.split('.')[-1] if '.' in c else c)}</th>" for c in columns)
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)  # the names of metrics.csv and the API
     cells = [_column_cells(frame[c]) for c in columns]
     states = frame["log_state"].tolist() if "log_state" in frame.columns else [None] * len(frame)
     cells.append(_link_cells(ctx.out, ctx.directory, frame["log_path"].tolist(), states))
@@ -286,16 +304,24 @@ def campaign_report(
             )
     if images:
         sections.append(Section("Selected runs", images=images, html="<p>" + "; ".join(links) + ".</p>"))
+    shown = frame if len(frame) <= TABLE_ROWS else _table_rows(frame)
+    which = (
+        f"All {len(frame)} points"
+        if shown is frame
+        else f"{len(shown)} of the {len(frame)} points (the best {TABLE_ROWS // 2} by rms_error, then the first "
+        "aborted and failed ones and the rest in grid order; every point is in metrics.csv / metrics.parquet, "
+        "below)"
+    )
     sections.append(
         Section(
-            "All runs",
+            "All runs" if shown is frame else "Runs",
             paragraphs=[
-                f"All {len(frame)} points; click a column's name to sort by it. rms_error, input_energy, … describe whole runs; "
+                f"{which}; click a column's name to sort by it. rms_error, input_energy, … describe whole runs; "
                 f"an aborted run's metrics cover the run up to its abort and are in the columns ending in {UNTIL_ABORT}. "
                 f"Plot any run with `labrunner analyse {ctx.directory} --plot ID` (or --plot aborted, --plot all), which "
                 f"adds it here, or with `labrunner plot {ctx.directory}/runs/ID.mcap`."
             ],
-            html=runs_table(frame, ctx, params, plots),
+            html=runs_table(shown, ctx, params, plots),
         )
     )
     problems = summary.get("problems") or []

@@ -32,6 +32,15 @@ def load_campaign(meta: Mapping[str, str], directory: Path) -> tuple[Campaign | 
         return None, f"the campaign file could not be loaded again: {exc}"
 
 
+def rig_signals(campaign: Campaign | None) -> tuple[dict[str, str], dict[str, tuple[float, float]]]:
+    """What the metrics table needs of the rig: its signals' units (for logs that record none) and
+    its inputs' limits (the oscillation detector); empty without a campaign."""
+    if campaign is None:
+        return {}, {}
+    info = campaign.rig_info
+    return {s.name: s.unit for s in (*info.inputs, *info.outputs)}, {s.name: (s.lo, s.hi) for s in info.inputs}
+
+
 def varying_axes(frame: pd.DataFrame, campaign: Campaign | None) -> list[str]:
     """Numeric grid axes with more than one value (the first axis of each zipped group)."""
     if campaign is not None:
@@ -90,15 +99,26 @@ def table_units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None)
 
 def counts(frame: pd.DataFrame) -> dict[str, Any]:
     """Points, finished runs, points per outcome word (:data:`~labrunner.campaign.progress.OUTCOMES`),
-    and ``oscillating``: completed runs the oscillation detector flags (observed unstable)."""
+    and ``oscillating``: completed runs the oscillation detector flags (observed unstable); on a
+    real rig ``timing``: its late ticks and overruns (:mod:`labrunner.campaign.rig_timing`)."""
     found = frame["outcome"].value_counts()
     outcomes = {w: int(found.get(w, 0)) for w in OUTCOMES}
-    return {
+    out = {
         "points": int(len(frame)),
         "runs": sum(outcomes[w] for w in FINISHED),
         "outcomes": outcomes,
         "oscillating": int((agreement_mod.observed_outcome(frame) == "oscillating").sum()),
     }
+    if "overruns" in frame.columns:  # a real rig's runs: their late ticks and overruns
+        late, over = (pd.to_numeric(frame[c]) for c in ("late_ticks", "overruns"))
+        out["timing"] = {
+            "runs": int(over.notna().sum()),
+            "late_ticks": int(late.sum()),
+            "overruns": int(over.sum()),
+            "runs_with_late_ticks": int((late > 0).sum()),
+            "runs_with_overruns": int((over > 0).sum()),
+        }
+    return out
 
 
 def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:

@@ -21,9 +21,10 @@ missing one falls back to the ledger's metrics and is listed in ``problems``, an
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner import run_identity
+from labrunner.campaign.rig_timing import timing_counts
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 from labrunner.rigs.device.lawflag import flag_of
@@ -55,8 +57,10 @@ ID_COLUMNS = (
 UNTIL_ABORT = "_until_abort"
 #: Columns that tell whether a cached row still matches its log file.
 CACHE_COLUMNS = ("log_size", "log_mtime_ns")
+#: A real rig's timing counts per run (:mod:`labrunner.campaign.rig_timing`; absent for a twin).
+TIMING_COLUMNS = ("late_ticks", "overruns")
 #: Integer columns (nullable where a point has no run).
-INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS)
+INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS, *TIMING_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
 METRICS_VERSION = (
     5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
@@ -184,14 +188,37 @@ def _float(value: Any) -> float:
 def _ledger_metrics(r: Mapping[str, Any]) -> dict[str, Any] | None:
     """The run's metrics as committed (None: this ledger row holds only the three summary columns)."""
     text = r.get("metrics_json")
-    if text:
-        return dict(json.loads(text))
+    if text:  # an undefined metric is stored as null (strict JSON; older ledgers: NaN)
+        return {k: np.nan if v is None else v for k, v in json.loads(text).items()}
     return None
 
 
-def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
+#: Ledger rows turned into table rows at a time: the Python objects of one chunk are freed before
+#: the next is read, so that building the table of 10^6 points holds one chunk's, not all.
+CHUNK_ROWS = 20_000
+
+
+def ledger_frame(rows: Iterable[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
     """One row per ledger point: ids, outcome and its details, parameters (dotted keys), metrics;
-    and the positions of finished rows whose ledger holds no full metrics (their logs must be read)."""
+    and the positions of finished rows whose ledger holds no full metrics (their logs must be
+    read). ``rows`` may be an iterator (a ledger cursor): it is consumed :data:`CHUNK_ROWS` at a
+    time."""
+    frames: list[pd.DataFrame] = []
+    missing: list[int] = []
+    iterator = iter(rows)
+    start = 0
+    while chunk := list(itertools.islice(iterator, CHUNK_ROWS)):
+        frame, absent = _chunk_frame(chunk)
+        frames.append(frame.set_axis(range(start, start + len(frame))))
+        missing += [start + i for i in absent]
+        start += len(chunk)
+    if not frames:
+        return pd.DataFrame(columns=list(ID_COLUMNS)), missing
+    return (frames[0] if len(frames) == 1 else pd.concat(frames)), missing
+
+
+def _chunk_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
+    """:func:`ledger_frame` of one chunk of rows (positions relative to it)."""
     records = []
     missing: list[int] = []
     for i, r in enumerate(rows):
@@ -217,10 +244,10 @@ def ledger_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[
                 "law_check": flag_of(outcome),  # a device-loop run's reference-law check, "" for others
                 **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
                 **metrics,
+                **timing_counts(outcome.get("diagnostics")),
             }
         )
-    frame = pd.DataFrame.from_records(records) if records else pd.DataFrame(columns=list(ID_COLUMNS))
-    return frame, missing
+    return pd.DataFrame.from_records(records), missing
 
 
 def metric_columns(frame: pd.DataFrame) -> list[str]:
@@ -280,7 +307,7 @@ def _unsplit(row: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
 
 
 def build_table(
-    rows: Sequence[Mapping[str, Any]],
+    rows: Iterable[Mapping[str, Any]],
     directory: Path,
     *,
     cache: pd.DataFrame | None = None,
@@ -301,7 +328,7 @@ def build_table(
     problems: list[dict[str, str]] = []
     paths = frame["log_path"].tolist()
     todo = set(i for i, p in enumerate(paths) if isinstance(p, str)) if recompute else set(missing)
-    stats: dict[int, tuple[int, int]] = {}
+    stats: dict[int, tuple[int, int]] = {}  # (size, mtime) of the logs to read or to check against the cache
     for i, rel in enumerate(paths):  # every log the table names must exist, whole
         if not isinstance(rel, str):
             continue
@@ -311,9 +338,10 @@ def build_table(
                 {"path": rel, "kind": "missing", "detail": f"point {frame.at[i, 'id']}: log file not found"}
             )
             continue
-        stats[i] = st[:2]
         if not st[2]:
             todo.add(i)  # damaged: read it (salvage) to flag it, its metrics stay the ledger's
+        if i in todo:
+            stats[i] = st[:2]
     todo = sorted(i for i in todo if i in stats)
     cached = {} if recompute else _cached(cache)
     metrics: dict[int, dict[str, Any]] = {}

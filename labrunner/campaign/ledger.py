@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from labrunner import jsontext
 from labrunner.campaign import integrity
 from labrunner.errors import CampaignError, InvalidParameter
 
@@ -153,6 +154,8 @@ class Ledger:
         db = _connect(tmp)
         try:
             db.executescript(_SCHEMA)
+            for index in INDEXES:
+                db.execute(index)
             db.execute("BEGIN")
             db.executemany(
                 "INSERT INTO meta (key, value) VALUES (?, ?)",
@@ -203,14 +206,15 @@ class Ledger:
         return cls(directory, db)
 
     @classmethod
-    def open_readonly(cls, directory: Path, *, verify: bool = True) -> Ledger:
-        """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written."""
+    def open_readonly(cls, directory: Path, *, verify: bool = True, thorough: bool = True) -> Ledger:
+        """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written;
+        ``thorough=False`` leaves out the checks that read every row (:mod:`.integrity`)."""
         path = ledger_path(directory)
         db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None, timeout=30.0)
         db.row_factory = sqlite3.Row
         try:
             if verify:
-                integrity.verify(db, path)
+                integrity.verify(db, path, thorough=thorough)
         except BaseException:
             db.close()
             raise
@@ -252,6 +256,15 @@ class Ledger:
             return self.db.execute("SELECT * FROM points ORDER BY seq").fetchall()
         marks = ",".join("?" * len(states))
         return self.db.execute(f"SELECT * FROM points WHERE state IN ({marks}) ORDER BY seq", tuple(states)).fetchall()
+
+    def iter_rows(self) -> Iterator[dict[str, Any]]:
+        """Every row in grid order as a dict, read as it is consumed (a campaign of 10^6 points
+        is never all in memory as Python objects); consume it while the ledger is open."""
+        return (dict(r) for r in self.db.execute("SELECT * FROM points ORDER BY seq"))
+
+    def ids(self) -> list[str]:
+        """The points' ids in grid order (what a plan check needs, without the rest of the rows)."""
+        return [r[0] for r in self.db.execute("SELECT id FROM points ORDER BY seq")]
 
     def quarantined(self) -> list[sqlite3.Row]:
         return self.db.execute("SELECT * FROM quarantine ORDER BY n").fetchall()
@@ -327,11 +340,11 @@ class Ledger:
                     (
                         STATE_OF_OUTCOME[record.outcome],
                         record.outcome,
-                        json.dumps(dict(record.outcome_record), sort_keys=True),
+                        jsontext.dumps(dict(record.outcome_record), sort_keys=True),
                         m.get("rms_error"),
                         m.get("input_energy"),
                         m.get("max_abs_input"),
-                        json.dumps({k: _plain(v) for k, v in m.items()}) if m else None,
+                        jsontext.dumps(dict(m)) if m else None,
                         record.log_path,
                         record.host,
                         record.pid,
@@ -404,16 +417,22 @@ class _Transaction:
         return LedgerWriteError(f"{self.path}: cannot write the ledger: {exc}{hint}")
 
 
-def _plain(value: Any) -> Any:
-    """A metric as JSON can hold it (numpy scalars as Python numbers)."""
-    return value.item() if hasattr(value, "item") else value
+#: Indexes that let ``status`` count outcomes and finished runs from small index b-trees instead of
+#: scanning every row (0.6 s at 10^5 points without them): created with a ledger, and added to an
+#: older one when it is opened for writing.
+INDEXES = (
+    "CREATE INDEX IF NOT EXISTS points_outcome ON points (outcome, state)",
+    "CREATE INDEX IF NOT EXISTS points_finished ON points (finished_at)",
+)
 
 
 def _migrate(db: sqlite3.Connection) -> None:
-    """Add the columns later versions of this schema (still version 1: only additions) have."""
+    """Add the columns and indexes later versions of this schema (still version 1: only additions) have."""
     columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
     if "metrics_json" not in columns:
         db.execute("ALTER TABLE points ADD COLUMN metrics_json TEXT")
+    for index in INDEXES:
+        db.execute(index)
 
 
 def fsync_dir(directory: Path) -> None:

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from labrunner import __version__
 from labrunner.campaign import dry_run, guided_run, integrity, recovery, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
@@ -29,6 +28,7 @@ from labrunner.campaign.scheduler import Outcome, Scheduler, StopSignals
 from labrunner.campaign.status import status  # noqa: F401 - ``status`` is one of the three operations
 from labrunner.campaign.worker import RUNS_DIR
 from labrunner.errors import CampaignError, InvalidParameter, LabrunnerError
+from labrunner.version import __version__
 
 CAMPAIGN_COPY = "campaign.toml"
 
@@ -160,7 +160,7 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
     points, checksum = spec.plan(campaign)
     if campaign.guided is None:  # a guided campaign's rows are its rounds, not the plan's points
-        integrity.check_plan(ledger.directory / LEDGER_NAME, [r["id"] for r in ledger.rows()], [p.id for p in points])
+        integrity.check_plan(ledger.directory / LEDGER_NAME, ledger.ids(), [p.id for p in points])
     del points
     if checksum != meta["plan_checksum"]:
         raise CampaignError(
@@ -199,7 +199,11 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
         campaign = _check_unchanged(ledger)
-        with _early_pool(campaign, opts, lock.fd) as pool:  # its workers load while a crash is settled
+        counts = ledger.counts()
+        idle = not (counts.get("planned", 0) or counts.get("claimed", 0) or (retry_failed and counts.get("failed", 0)))
+        # a finished campaign needs no workers: forking a pool only to wait for its shutdown cost ~1 s
+        early = contextlib.nullcontext() if idle and campaign.guided is None else _early_pool(campaign, opts, lock.fd)
+        with early as pool:  # its workers load while a crash is settled
             _write_copy(ledger.directory, ledger.meta()["campaign_file"])
             report = recovery.recover(ledger)
             print(f"resume {directory}: {report.describe()}", file=stream)
@@ -233,6 +237,11 @@ def _execute(
     real = not campaign.rig_info.simulated
     out = Outcome()
     reason = "error"
+    if campaign.guided is None and not (c.get("planned", 0) or c.get("claimed", 0)):
+        progress.close()  # nothing left to run: no executor to open
+        ledger.end_session("finished")
+        out.counts = ledger.by_outcome()
+        return out
     try:
         with (
             StopSignals() as signals,

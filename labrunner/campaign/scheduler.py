@@ -169,6 +169,7 @@ class Scheduler:
         self.deadline: float | None = None  # once stopping: when running batches are abandoned
         self.bound_s = 0.0
         self._next_probe = 0.0
+        self.failed_in_row = 0  # a real rig's points failed in a row (BatchResult.failure_limit)
 
     def _task(self, key: str, rows: list[Any]) -> BatchTask:
         _, fs, duration, *_ = json.loads(key)
@@ -264,10 +265,32 @@ class Scheduler:
                     self.progress.update(record.outcome)
             if result.stop:
                 out.stop_reason = out.stop_reason or result.stop
+            elif result.failure_limit:
+                self._count_failures(result, out)
         finally:
             if self.progress:  # runs that will not be counted in this session (unclaimed, left claimed)
                 self.progress.returned(len(batch.ids) - counted)
                 self.live()
+
+    def _count_failures(self, result: BatchResult, out: Outcome) -> None:
+        """A real rig's points failed in a row: say each, stop at the rig's ``max_consecutive_failures``."""
+        for record in result.records:
+            self.failed_in_row = self.failed_in_row + 1 if record.outcome == "failed" else 0
+        if not self.failed_in_row:
+            return
+        last = result.records[-1]
+        why = (last.outcome_record or {}).get("message", "")
+        limit = result.failure_limit
+        if self.failed_in_row >= limit:
+            out.stop_reason = out.stop_reason or (
+                f"{self.failed_in_row} points in a row failed on the rig (the rig file's "
+                f"max_consecutive_failures = {limit}); the last, {last.point_id}: {why}"
+            )
+        else:
+            self._say(
+                f"point {last.point_id} failed on the rig ({why}); going on: {limit} failures in a row "
+                f"stop the campaign, {self.failed_in_row} so far"
+            )
 
     def _abandon(self, out: Outcome) -> None:
         """Give up on every running batch now: their points stay claimed for ``resume``."""

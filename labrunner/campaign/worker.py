@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
 from labrunner.errors import CampaignError, RigError, os_reason
@@ -68,6 +70,7 @@ class BatchResult:
 
     records: list[RunRecord] = field(default_factory=list)
     stop: str = ""  # non-empty: the reason to stop the campaign
+    failure_limit: int = 0  # the rig's max_consecutive_failures: points in a row failed that stop it (0: none)
 
 
 def final_path(point_id: str) -> str:
@@ -135,9 +138,11 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     ``run_batch`` defaults to :func:`labrunner.engine.run_batch`, or to the rig's
     ``run_on_device`` when its loop runs on the device (tests inject fakes). A rig that
     cannot be opened asks the parent to stop and leaves the points claimed (nothing ran; ``resume``
-    reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed and
-    asks the parent to stop (architecture: "stop-campaign"), publishing the logs up to the failure
-    when the engine attached them (``exc.results``); any other exception marks the batch's
+    reruns them). A :class:`~labrunner.errors.RigError` during the runs marks the batch failed,
+    publishing the logs up to the failure when the engine attached them (``exc.results``); the
+    campaign goes on when the rig's ``recover()`` finds the device answering a fresh handshake in
+    its safe state, else the parent stops (architecture: "stop-campaign"). ``failure_limit`` tells
+    the parent the rig's ``max_consecutive_failures``. Any other exception marks the batch's
     points failed with the message (they have no log) and the campaign goes on. The ticks done go
     to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass.
     """
@@ -152,34 +157,58 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     except Exception as exc:  # no rig, no campaign: stop; nothing ran, so the points stay claimed for resume
         out.stop = f"rig {task.rig!r} cannot be opened: {type(exc).__name__}: {exc}"
         return out
+    parameters = getattr(rig, "parameters", None)  # a remote rig file's: max_consecutive_failures
+    out.failure_limit = int(parameters.get("max_consecutive_failures", 0)) if isinstance(parameters, Mapping) else 0
     try:
         with rig:
-            results = list(
-                (run_batch or _batch_runner(rig, report))(
-                    [r.config for r in task.runs],
-                    rig,
-                    fs=task.fs,
-                    duration=task.duration,
-                    seeds=[r.seed for r in task.runs],
-                    rig_safety=task.rig_safety,
+            try:
+                results = list(
+                    (run_batch or _batch_runner(rig, report))(
+                        [r.config for r in task.runs],
+                        rig,
+                        fs=task.fs,
+                        duration=task.duration,
+                        seeds=[r.seed for r in task.runs],
+                        rig_safety=task.rig_safety,
+                    )
                 )
-            )
+            except RigError as exc:
+                exc.after = _recover(rig)
+                raise
     except RigError as exc:  # the engine hands over the failed runs' logs up to the failure when it has them
-        out.stop = f"rig {task.rig!r}: {exc}"
+        after = getattr(exc, "after", "")  # None: the device is back in its safe state, the campaign goes on
+        if after is not None:
+            out.stop = f"rig {task.rig!r}: {exc}" + (f"; {after}" if after else "")
         partial = getattr(exc, "results", None)
         if not partial:
-            return _failed(task, out, out.stop, host, pid)
+            return _failed(task, out, f"rig {task.rig!r}: {exc}", host, pid)
         results = list(partial)
     except Exception as exc:  # bad configuration or a crash: the batch's points fail, the campaign goes on
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
         return _failed(task, out, detail, host, pid)
     diagnostics = rig.diagnostics() if hasattr(rig, "diagnostics") else None  # a real rig's link record (B = 1)
+    if hasattr(rig, "device_clock") and len(results) == 1 and results[0].device_clock is None:  # a host loop
+        results[0].device_clock = rig.device_clock()
     engine_s = (time.perf_counter() - t0) / max(len(task.runs), 1)
     try:
         _publish_all(task, results, out, engine_s, host, pid, rig_record, start_time, diagnostics)
     except Exception as exc:  # re-raised as a plain, picklable error: the parent stops the campaign
         raise CampaignError(_publish_error(exc)) from None
     return out
+
+
+def _recover(rig: Any) -> str | None:
+    """After a RigError: None when the device answered a fresh handshake in its safe state (the
+    point fails, the campaign goes on); else why the campaign stops ("" for a rig that has no way
+    to check itself: the failure alone says it)."""
+    recover = getattr(rig, "recover", None)
+    if recover is None:
+        return ""
+    try:
+        recover()
+    except RigError as exc:
+        return str(exc)
+    return None
 
 
 def _publish_error(exc: Exception) -> str:
@@ -236,13 +265,14 @@ def _publish_all(
             record = getattr(result, "diagnostics", None) or diagnostics  # a device loop's record is per run
             if record is not None:
                 metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
+            signals, channels = with_device_clock(result)
             with naming(tmp):
                 write_run(
                     tmp,
                     metadata=metadata,
-                    signals=result.signals,
+                    signals=signals,
                     outcome=outcome,
-                    prefix=prefixes.get(list(result.signals), result.channels),
+                    prefix=prefixes.get(list(signals), channels),
                     start_time=start_time,
                 )
             written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1))
@@ -274,6 +304,22 @@ def _publish_all(
                 publish_s=publish_s,
             )
         )
+
+
+def with_device_clock(result: Any) -> tuple[dict[str, Any], Mapping[str, Any]]:
+    """A run's signals and channels to log: a real device's timestamps (``device_clock``) added as
+    the signal ``t_device`` [s] (role *signal*; NaN where a sample has none), the log time staying
+    the tick grid start + k/f_s."""
+    clock = getattr(result, "device_clock", None)
+    if clock is None:
+        return result.signals, result.channels
+    n = result.n_samples
+    t = np.full(n, np.nan)
+    t[: min(n, len(clock))] = np.asarray(clock, float)[:n]
+    channels = dict(result.channels)
+    channels["signals"] = [*channels.get("signals", []), "t_device"]
+    channels["units"] = {**channels.get("units", {}), "t_device": "s"}
+    return {**result.signals, "t_device": t}, channels
 
 
 def _failed(task: BatchTask, out: BatchResult, message: str, host: str, pid: int) -> BatchResult:

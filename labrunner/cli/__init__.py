@@ -29,8 +29,8 @@ import tempfile
 import traceback
 from collections.abc import Sequence
 
-from labrunner import __version__
 from labrunner.errors import InvalidParameter, LabrunnerError, os_reason
+from labrunner.version import __version__
 
 # Sub-command modules, in the order ``--help`` lists them.
 COMMANDS = (

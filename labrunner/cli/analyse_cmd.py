@@ -123,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
         from labrunner.rigs.device.lawflag import line
 
         print(line(summary["law_check"]))
+    if "timing" in summary:
+        from labrunner.campaign.rig_timing import timing_line
+
+        print(timing_line(summary["timing"]))
     for problem in summary["problems"]:
         print(f"{problem['kind']}: {problem['path']}: {problem['detail']}")
     print(f"report: {summary['report']}")

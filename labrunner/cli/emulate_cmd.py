@@ -56,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=_non_negative,
         default=math.inf,
         metavar="S",
-        help="fall silent for good S seconds into the first run",
+        help="fall silent for good S seconds after the first run began (host loop: SETUP; device loop: ACCEPT)",
     )
     p.add_argument(
         "--fault-law",

@@ -30,7 +30,7 @@ def _short(value: Any, width: int = 100) -> str:
 def format_summary(summary: dict[str, Any], path: str) -> str:
     """The human-readable form of :meth:`labrunner.logs.RunLog.summary`."""
     if summary["torn"]:
-        lines = [path + "  [TORN: writer did not finish; complete blocks salvaged]"]
+        lines = [path + "  [TORN: writer did not finish; complete chunks salvaged]"]
     elif summary.get("damaged"):
         lines = [path + f"  [DAMAGED: {summary['damaged']}; outcome and metadata read from the intact summary]"]
     else:

@@ -31,6 +31,7 @@ def _clock(seconds: float | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from labrunner.campaign.progress import format_counts
+    from labrunner.campaign.rig_timing import timing_line
     from labrunner.campaign.status import status
 
     st = status(args.directory)
@@ -48,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
         from labrunner.rigs.device.lawflag import line
 
         print(f"  {line(st['law_check'])}")
+    if "timing" in st:
+        print("  " + timing_line(st["timing"]))
     if "guided" in st:  # what the procedure decided so far
         from labrunner.campaign.guided_run import status_lines
 

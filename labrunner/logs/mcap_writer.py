@@ -7,13 +7,15 @@ structured array (MCAP message header + payload per row) and its message index o
 cost per message is a few bytes copied.
 
 The file has the layout ``mcap``'s writer produces (MCAP spec v0): header; data section with
-metadata, attachments and chunks, each chunk followed by the message index of every channel in
-it, chunks with the CRC of their uncompressed records; data end; summary with the schemas and
-channels repeated, statistics, chunk, attachment and metadata indexes, summary offsets; footer
-with the summary CRC. Two differences: schemas and channels go in the data section when they are
-added rather than inside the next chunk, so a file torn before its first chunk still declares its
-topics; and each channel's messages go into chunks of their own, so that reading one topic (the
-lossless blocks) decompresses nothing of another (the per-sample channel). The records a file
+metadata, attachments and chunks, each chunk followed by the message index of every indexed
+channel in it, chunks with the CRC of their uncompressed records; data end; summary with the
+schemas and channels repeated, statistics, chunk, attachment and metadata indexes, summary
+offsets; footer with the summary CRC. Three differences: schemas and channels go in the data
+section when they are added rather than inside the next chunk, so a file torn before its first
+chunk still declares its topics; each channel's messages go into chunks of their own, so that
+reading one topic decompresses nothing of another; and a channel may be written without message
+indexes (``indexed=False``; optional in MCAP, readers scan such chunks), which for one small
+message per sample saves 16 uncompressed bytes a sample. The records a file
 writes once (header, schemas, channels, attachments) are written by ``mcap.records``' own
 classes, those every file writes (metadata, indexes, statistics, footer) by
 :mod:`labrunner.logs.mcap_records` in one ``struct`` call each. The start of a file that many files
@@ -125,15 +127,15 @@ class Prefix:
     channels: tuple[Channel, ...]
     attachment_indexes: tuple[bytes, ...]  # encoded records
     metadata_indexes: tuple[bytes, ...]  # encoded records
-    options: tuple[tuple[int, tuple[int, bool]], ...]  # channel id → (zstd level, CRC) where not the default
+    unindexed: frozenset[int]  # channels whose chunks get no message index records
     summary_records: tuple[bytes, bytes]  # the schemas and the channels as the summary repeats them
 
 
 class _Chunk:
     """An open chunk: its records as pieces (joined only by the compressor), per-channel indexes."""
 
-    def __init__(self, level: int, crc: bool) -> None:
-        self.level, self.crc = level, crc
+    def __init__(self, indexed: bool) -> None:
+        self.indexed = indexed
         self.pieces: list[bytes | np.ndarray] = []
         self.size = 0
         self.index: dict[int, list[np.ndarray]] = {}
@@ -155,7 +157,7 @@ class BulkWriter:
         self._stream = stream
         self._chunk_size = chunk_size
         self._level = level
-        self._options: dict[int, tuple[int, bool]] = {}  # channel id → (zstd level, CRC) if not (level, True)
+        self._unindexed: set[int] = set()  # channels whose chunks get no message index records
         self._offset = 0  # bytes written to the stream
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
@@ -194,7 +196,7 @@ class BulkWriter:
             tuple(self._channels),  # type: ignore[attr-defined]
             tuple(self._attachment_indexes),
             tuple(self._metadata_indexes),
-            tuple(self._options.items()),
+            frozenset(self._unindexed),
             (_encoded(self._schemas), _encoded(self._channels)),
         )
 
@@ -204,7 +206,7 @@ class BulkWriter:
         self._schemas, self._channels = list(prefix.schemas), list(prefix.channels)
         self._attachment_indexes = list(prefix.attachment_indexes)
         self._metadata_indexes = list(prefix.metadata_indexes)
-        self._options = dict(prefix.options)
+        self._unindexed = set(prefix.unindexed)
         self._summary_records = prefix.summary_records
 
     def add_schema(self, name: str, encoding: str, data: bytes) -> int:
@@ -222,11 +224,12 @@ class BulkWriter:
         schema_id: int,
         metadata: Mapping[str, str] | None = None,
         *,
-        level: int | None = None,
-        crc: bool = True,
+        indexed: bool = True,
     ) -> int:
-        """Register a channel (ids from 1); return its id. ``level`` (zstd) and ``crc`` (whether its
-        chunks carry the CRC of their records; 0 means "not checked" in MCAP) apply to its chunks."""
+        """Register a channel (ids from 1); return its id. ``indexed=False``: its chunks get no
+        message index records (optional in MCAP: the chunk index then lists no channel, and readers
+        scan the chunk), which for one small message per sample would be 16 bytes a message,
+        uncompressed — a third of a compact motor log."""
         channel = Channel(
             id=len(self._channels) + 1,
             topic=topic,
@@ -237,8 +240,8 @@ class BulkWriter:
         self._channels.append(channel)
         self._summary_records = None
         self._write_record(channel)
-        if (level is not None and level != self._level) or not crc:
-            self._options[channel.id] = (self._level if level is None else level, crc)
+        if not indexed:
+            self._unindexed.add(channel.id)
         return channel.id
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
@@ -305,7 +308,7 @@ class BulkWriter:
     def _chunk(self, channel_id: int) -> _Chunk:
         chunk = self._open.get(channel_id)
         if chunk is None:
-            chunk = self._open[channel_id] = _Chunk(*self._options.get(channel_id, (self._level, True)))
+            chunk = self._open[channel_id] = _Chunk(channel_id not in self._unindexed)
         return chunk
 
     def _append(self, chunk: _Chunk, channel_id: int, log_times: np.ndarray, offsets: np.ndarray, pieces: list) -> None:
@@ -335,8 +338,8 @@ class BulkWriter:
         # joined and compressed in one call: ~30 µs a chunk less than zstd's streaming chunker (whose
         # buffers are fresh memory each time); the frame still records the content size
         records = b"".join(chunk.pieces)
-        crc = zlib.crc32(records) if chunk.crc else 0
-        compressed = _compressor(chunk.level, threading.get_ident()).compress(records)
+        crc = zlib.crc32(records)
+        compressed = _compressor(self._level, threading.get_ident()).compress(records)
         compressed_size = len(compressed)
         start_time, end_time = chunk.times
         length = _CHUNK_HEADER.size - 9 + len(_CHUNK_TAIL) + 8 + compressed_size
@@ -349,7 +352,7 @@ class BulkWriter:
         self._write(compressed)
         chunk_length = self._offset - chunk_start
         offsets = {}
-        for channel_id, parts in chunk.index.items():
+        for channel_id, parts in chunk.index.items() if chunk.indexed else ():
             entries = np.concatenate(parts) if len(parts) > 1 else parts[0]
             offsets[channel_id] = self._offset
             self._write(

@@ -1,8 +1,10 @@
 """Reading run logs: the signals as a DataFrame, the metadata, the outcome; salvage of torn files.
 
-A finished file is read through its summary (``mcap``'s seeking reader): only chunks that hold
-``/run/blocks`` messages are decompressed (the writer keeps ``/run/samples`` in chunks of their
-own), and their records are scanned for block messages. A *torn* file (no footer or summary: its writer was
+A finished file is read through its summary (``mcap``'s seeking reader). The signals come from
+``/run/samples`` (format ``labrunner-3``: each sample once, its ``sequence`` the sample index; a
+chunk of the writer's fixed-size messages is read as one numpy view), or from ``/run/blocks``
+where the file has them (thinned samples, and the logs of format ``labrunner-2``, which held both
+topics): only the chunks of the topic read are decompressed. A *torn* file (no footer or summary: its writer was
 killed) is read front to back with ``mcap``'s stream reader, in file order, keeping every record
 up to the first incomplete one — all complete chunks survive.
 """
@@ -33,7 +35,8 @@ from mcap.writer import MCAP0_MAGIC
 
 from labrunner.errors import InvalidParameter
 from labrunner.logs import schema
-from labrunner.logs.writer import LOG_FORMAT, decode_record
+from labrunner.logs.mcap_writer import message_row
+from labrunner.logs.writer import PLAIN_FORMATS, decode_record
 
 if TYPE_CHECKING:  # pandas only where a frame is built: a worker writing logs imports labrunner.logs without it
     import pandas as pd
@@ -42,7 +45,7 @@ if TYPE_CHECKING:  # pandas only where a frame is built: a worker writing logs i
 _TRUNCATED = (McapError, struct.error, zstandard.ZstdError, ValueError, EOFError)
 _RECORD = struct.Struct("<BQ")
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, start and end time, size, CRC, compression length
-_CHANNEL_ID = struct.Struct("<H")
+_CHANNEL_SEQUENCE = struct.Struct("<HI")
 _MESSAGE_HEADER = 22  # channel id, sequence, log time, publish time
 
 
@@ -129,7 +132,7 @@ def _decode_records(raw: dict[str, dict[str, str]]) -> dict[str, dict[str, Any]]
     """Metadata records of one file to Python values: plain text (this format, marked by
     ``run.log_format``), or every value JSON text (logs of labrunner before it, which always
     wrote a ``run`` record without that mark)."""
-    plain = "run" not in raw or raw["run"].get("log_format") == LOG_FORMAT
+    plain = "run" not in raw or raw["run"].get("log_format") in PLAIN_FORMATS
     decode = decode_record if plain else _decode_json_record
     return {name: decode(record) for name, record in raw.items()}
 
@@ -166,15 +169,40 @@ def _finished(f: BinaryIO) -> SeekingReader | None:
         f.seek(0)
 
 
-def _block_payloads(data: bytes | memoryview, channel_ids: set[int]) -> Iterator[memoryview]:
-    """Payloads of the messages of ``channel_ids`` in decompressed chunk records (others skipped)."""
+def _messages(data: bytes | memoryview, channel_ids: set[int]) -> Iterator[tuple[int, memoryview]]:
+    """``(sequence, payload)`` of the messages of ``channel_ids`` in decompressed chunk records
+    (others skipped)."""
     view, pos, end = memoryview(data), 0, len(data)
     while pos + _RECORD.size <= end:
         opcode, length = _RECORD.unpack_from(data, pos)
         body = pos + _RECORD.size
-        if opcode == Opcode.MESSAGE and _CHANNEL_ID.unpack_from(data, body)[0] in channel_ids:
-            yield view[body + _MESSAGE_HEADER : body + length]
+        if opcode == Opcode.MESSAGE:
+            channel, sequence = _CHANNEL_SEQUENCE.unpack_from(data, body)
+            if channel in channel_ids:
+                yield sequence, view[body + _MESSAGE_HEADER : body + length]
         pos = body + length
+
+
+def _sample_rows(records: memoryview, channel_ids: set[int], n_signals: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(k, values)`` of the ``/run/samples`` messages in one chunk's records: sample indexes and
+    (n_signals, n) float64. A chunk of the writer's equal-sized messages of one channel is read as
+    one numpy view; any other valid chunk message by message."""
+    (channel,) = channel_ids if len(channel_ids) == 1 else (0,)
+    row = message_row(channel, schema.sample_dtype(n_signals), schema.sample_tags(n_signals))
+    size = row.dtype.itemsize
+    if channel and len(records) % size == 0 and len(records):
+        rows = np.frombuffer(records, dtype=row.dtype)
+        head = np.frombuffer(records, np.uint8).reshape(-1, size)
+        template = row.view(np.uint8)
+        data = rows["data"]
+        tags_ok = all((data[f"k_s{j}"] == row["data"][f"k_s{j}"][0]).all() for j in range(n_signals))
+        if tags_ok and (head[:, :11] == template[:11]).all():
+            return rows["sequence"].astype(np.int64), np.stack([data[f"s{j}"] for j in range(n_signals)])
+    sequences, payloads = [], []
+    for sequence, payload in _messages(records, channel_ids):
+        sequences.append(sequence)
+        payloads.append(payload)
+    return np.array(sequences, dtype=np.int64), schema.decode_samples(payloads, n_signals)
 
 
 class _Frame:
@@ -202,6 +230,19 @@ class _Frame:
             self.data = grown
         for name, values in signals.items():
             self.data[self.rows[name], first : first + len(values)] = values
+        self.n = max(self.n, stop)
+
+    def put(self, k: np.ndarray, values: np.ndarray) -> None:
+        """Copy samples at indexes ``k`` in (``values``: one row per signal, in the names' order)."""
+        if not len(k):
+            return
+        stop = int(k.max()) + 1
+        rows, cols = self.data.shape
+        if stop > cols:
+            grown = np.full((rows, max(stop, 2 * cols)), np.nan)
+            grown[:, :cols] = self.data
+            self.data = grown
+        self.data[: values.shape[0], k] = values
         self.n = max(self.n, stop)
 
     def samples(self) -> np.ndarray:
@@ -252,23 +293,33 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
     assert summary is not None
     records = _decode_records({m.name: m.metadata for m in reader.iter_metadata()})
     attachments = {a.name: a.data for a in reader.iter_attachments()}
-    ids = {cid for cid, ch in summary.channels.items() if ch.topic == schema.BLOCK_TOPIC}
+    names = list(records.get("channels", {}))
+    counts = summary.statistics.channel_message_counts if summary.statistics else {}
+    blocks = {cid for cid, ch in summary.channels.items() if ch.topic == schema.BLOCK_TOPIC}
+    if not blocks or not any(counts.get(cid, 1) for cid in blocks):  # no blocks: the samples hold the signals
+        blocks = set()
+    ids = blocks or {cid for cid, ch in summary.channels.items() if ch.topic == schema.SAMPLES_TOPIC}
     chunks = sorted(
         (c for c in summary.chunk_indexes if not c.message_index_offsets or ids & c.message_index_offsets.keys()),
         key=lambda c: c.chunk_start_offset,
     )
-    names = list(records.get("channels", {}))
     # the outcome's sample count sizes the frame (which grows if it is wrong), bounded by what the
     # chunks can hold so that a damaged record cannot ask for more memory than the file implies
     hint = records.get("outcome", {}).get("n_samples", 0)
     bound = sum(c.uncompressed_size for c in chunks) // (8 * max(1, len(names)))
     frame = _Frame(names, min(hint, bound) if isinstance(hint, int) and hint > 0 else 0)
+    if not blocks:
+        frame.fs = float(records.get("run", {}).get("fs", math.nan))
     chunk_reader = _ChunkReader(f, chunks)
     bad = []
     for index in chunks:  # a damaged chunk is skipped: its samples stay NaN, the others are read
         try:
-            for payload in _block_payloads(chunk_reader.records(index), ids):
-                frame.add(schema.decode_block(payload))
+            chunk = chunk_reader.records(index)
+            if blocks:
+                for _, payload in _messages(chunk, ids):
+                    frame.add(schema.decode_block(payload))
+            else:
+                frame.put(*_sample_rows(chunk, ids, len(names)))
         except _TRUNCATED as exc:
             bad.append(f"offset {index.chunk_start_offset}: {exc}")
     damaged = f"{len(bad)} of {len(chunks)} data chunks unreadable ({bad[0]})" if bad else ""
@@ -278,23 +329,32 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
 def _read_torn(f: BinaryIO) -> tuple[dict, dict, _Frame]:
     raw: dict[str, dict[str, str]] = {}
     attachments: dict[str, bytes] = {}
-    ids: set[int] = set()
-    frame: _Frame | None = None
+    topics: dict[int, str] = {}
+    blocks: list[bytes] = []
+    samples: list[tuple[int, bytes]] = []
     try:
         for record in StreamReader(f).records:
             if isinstance(record, Metadata):
                 raw[record.name] = record.metadata
             elif isinstance(record, Attachment):
                 attachments[record.name] = record.data
-            elif isinstance(record, Channel) and record.topic == schema.BLOCK_TOPIC:
-                ids.add(record.id)
-            elif isinstance(record, Message) and record.channel_id in ids:
-                if frame is None:
-                    frame = _Frame(_channel_names(raw))
-                frame.add(schema.decode_block(record.data))
+            elif isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message) and topics.get(record.channel_id) == schema.BLOCK_TOPIC:
+                blocks.append(record.data)
+            elif isinstance(record, Message) and topics.get(record.channel_id) == schema.SAMPLES_TOPIC:
+                samples.append((record.sequence, record.data))
     except _TRUNCATED:
         pass  # the rest of the file is incomplete
-    return _decode_records(raw), attachments, frame if frame is not None else _Frame(_channel_names(raw))
+    frame = _Frame(_channel_names(raw))
+    if blocks:
+        for payload in blocks:
+            frame.add(schema.decode_block(payload))
+    elif samples:
+        frame.fs = float(decode_record(raw.get("run", {})).get("fs", math.nan))
+        k = np.array([seq for seq, _ in samples], dtype=np.int64)
+        frame.put(k, schema.decode_samples([payload for _, payload in samples], len(frame.rows)))
+    return _decode_records(raw), attachments, frame
 
 
 def _channel_names(raw: dict[str, dict[str, str]]) -> list[str]:

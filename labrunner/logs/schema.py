@@ -1,36 +1,37 @@
 """Protobuf schemas of a run log and their wire encoding.
 
-Two topics carry a run's signals:
+A run's signals are stored once, as ``/run/samples`` — message ``labrunner.logs.Sample``, one
+message per sample at the full rate, so that Foxglove (or any protobuf-aware MCAP tool) plots
+``/run/samples.<field>`` as a time series at every rate, the plate's 942 rad/s mode included. Its
+type is built per run from the signal names and units, field j + 1 holding signal j of the
+``channels`` record::
 
-``/run/blocks`` — message ``labrunner.logs.SignalBlock``, the lossless record, one message per
-≈ 1000 samples (:data:`BLOCK_SAMPLES`); ``t`` is implicit, sample k is at k / f_s::
-
-    message Signal      { string name = 1; repeated double values = 2 [packed = true]; }
-    message SignalBlock { uint64 first_index = 1; double t0 = 2; double fs = 3;
-                          repeated Signal signals = 4; }
-
-``/run/samples`` — message ``labrunner.logs.Sample``, one message per sample at the full rate
-(unless the campaign's ``[logging] samples_hz`` thins it, which the channel's metadata and the
-``run`` record then say), so that Foxglove plots ``/run/samples.<field>`` as a time series at every
-rate, the plate's 942 rad/s mode included. Its type is built per run from the signal names and
-units::
-
-    message Sample { double t__s = 1; double <field_1> = 2; double <field_2> = 3; ... }
+    message Sample { double <field_1> = 1; double <field_2> = 2; ... }
 
 A field is named ``<signal>__<unit>`` (:func:`sample_field`): the signal's name, two underscores
 and its SI unit spelt as an identifier (``/`` → ``_per_``, ``²`` → ``2``, ``·`` → ``_``), e.g.
 ``omega__rad_per_s``, ``h1__m``, ``i1__A``; a signal without unit keeps its bare name. So a plot's
 legend names the unit, and the channel's metadata repeats it exactly (``unit.<field>`` = ``rad/s``).
-``t__s`` is the time since the run's first sample; the messages' ``log_time`` is the wall-clock time
-of the sample (ns since 1970).
+Time is implicit: a message's MCAP ``sequence`` is its sample index k and its ``log_time`` the
+wall-clock time of the sample (the run's start + k / f_s, ns since 1970).
+
+``/run/blocks`` — message ``labrunner.logs.SignalBlock`` of packed float64 per signal, one message
+per ≈ 1000 samples (:data:`BLOCK_SAMPLES`), sample k at k / f_s — is written only when the
+campaign's ``[logging] samples_hz`` thins ``/run/samples``: then it is the lossless record. (Logs of
+format ``labrunner-2`` hold both topics at the full rate, and their samples a ``t__s`` field; the
+reader uses their blocks.)::
+
+    message Signal      { string name = 1; repeated double values = 2 [packed = true]; }
+    message SignalBlock { uint64 first_index = 1; double t0 = 2; double fs = 3;
+                          repeated Signal signals = 4; }
 
 Both schemas are stored in the file as serialised ``FileDescriptorSet`` (MCAP schema encoding
 ``protobuf``), built here from ``FileDescriptorProto`` objects, so no ``protoc`` step exists and
-any protobuf-aware MCAP tool decodes the messages. The hot paths (writing and reading blocks,
-writing samples) encode the wire format directly with numpy — a packed double field is the
-little-endian float64 array itself, a sample a fixed-size row of tags and doubles — which is
-~50× faster than filling message objects; ``tests/test_logs.py`` and ``tests/test_logs_mcap.py``
-check the bytes against the generated message classes.
+any protobuf-aware MCAP tool decodes the messages. The hot paths (writing and reading samples and
+blocks) encode the wire format directly with numpy — a packed double field is the little-endian
+float64 array itself, a sample a fixed-size row of tags and doubles — which is ~50× faster than
+filling message objects; ``tests/test_logs.py`` and ``tests/test_logs_mcap.py`` check the bytes
+against the generated message classes.
 """
 
 from __future__ import annotations
@@ -50,7 +51,6 @@ SAMPLES_TOPIC = "/run/samples"
 BLOCK_SCHEMA_NAME = "labrunner.logs.SignalBlock"
 SAMPLES_SCHEMA_NAME = "labrunner.logs.Sample"
 BLOCK_SAMPLES = 1000  # samples per block message
-TIME_FIELD = "t__s"  # the per-sample message's time since the run's first sample [s]
 _UNIT_SPELLING = (
     ("/", "_per_"),
     ("²", "2"),
@@ -100,7 +100,7 @@ def _samples_file(fields: Sequence[str]) -> descriptor_pb2.FileDescriptorProto:
         name="labrunner/logs/sample.proto", package="labrunner.logs", syntax="proto3"
     )
     msg = fdp.message_type.add(name="Sample")
-    for number, name in enumerate((TIME_FIELD, *fields), start=1):
+    for number, name in enumerate(fields, start=1):
         msg.field.add(name=name, number=number, type=_F.TYPE_DOUBLE, label=_F.LABEL_OPTIONAL)
     return fdp
 
@@ -144,7 +144,7 @@ def sample_fields(names: Sequence[str], units: Sequence[str]) -> list[str]:
     """Fields of the per-sample message for signals ``names`` in ``units`` (all distinct)."""
     check_signal_names(names)
     fields = [sample_field(n, u) for n, u in zip(names, units, strict=True)]
-    if len(set(fields) | {TIME_FIELD}) != len(fields) + 1:
+    if len(set(fields)) != len(fields):
         raise InvalidParameter("signals", f"names and units give clashing per-sample fields: {fields}")
     return fields
 
@@ -281,11 +281,11 @@ def decode_block(buf: bytes | memoryview) -> tuple[int, float, dict[str, np.ndar
 def sample_dtype(n_signals: int) -> np.dtype:
     """Wire layout of one ``Sample`` of ``n_signals`` signals: every field its tag (a varint of
     1–2 bytes, held as a little-endian u1 or u2) and a little-endian double (zeros included), so
-    that all messages have one size; fields ``t``, ``s0``, ``s1``, ... with tags ``k_t``, ``k_s0``, ..."""
-    keys = ["t", *(f"s{j}" for j in range(n_signals))]
+    that all messages have one size; fields ``s0``, ``s1``, ... with tags ``k_s0``, ``k_s1``, ..."""
+    keys = [f"s{j}" for j in range(n_signals)]
     sizes = [len(varint((number << 3) | 1)) for number in range(1, len(keys) + 1)]  # wire type 1: 64-bit
-    if max(sizes) > 2:
-        raise InvalidParameter("signals", f"at most 2046 signals fit the per-sample message, got {n_signals}")
+    if max(sizes, default=1) > 2:
+        raise InvalidParameter("signals", f"at most 2047 signals fit the per-sample message, got {n_signals}")
     return np.dtype([item for key, size in zip(keys, sizes) for item in ((f"k_{key}", f"<u{size}"), (key, "<f8"))])
 
 
@@ -298,17 +298,38 @@ def sample_tags(n_signals: int) -> np.ndarray:
     return row
 
 
-def fill_samples(rows: np.ndarray, t: np.ndarray, columns: Sequence[np.ndarray]) -> None:
+def fill_samples(rows: np.ndarray, columns: Sequence[np.ndarray]) -> None:
     """Write the doubles of ``Sample`` messages into ``rows`` (of :func:`sample_dtype`, tags from
-    :func:`sample_tags`), row k from ``t[k]`` and ``columns[j][k]``."""
-    rows["t"] = t
+    :func:`sample_tags`), row k from ``columns[j][k]``."""
     for j, values in enumerate(columns):
         rows[f"s{j}"] = values
 
 
-def encode_samples(t: np.ndarray, columns: Sequence[np.ndarray]) -> np.ndarray:
-    """Wire bytes of one ``Sample`` per element of ``t``: a (len(t), message size) uint8 array,
-    row k the message of sample k (vectorised)."""
-    rows = np.repeat(sample_tags(len(columns)), len(t))
-    fill_samples(rows, t, columns)
-    return rows.view(np.uint8).reshape(len(t), rows.dtype.itemsize)
+def encode_samples(columns: Sequence[np.ndarray]) -> np.ndarray:
+    """Wire bytes of one ``Sample`` per sample of ``columns`` (equal-length arrays, one per signal):
+    a (n, message size) uint8 array, row k the message of sample k (vectorised)."""
+    n = len(columns[0])
+    rows = np.repeat(sample_tags(len(columns)), n)
+    fill_samples(rows, columns)
+    return rows.view(np.uint8).reshape(n, rows.dtype.itemsize)
+
+
+def decode_samples(payloads: Sequence[bytes | memoryview], n_signals: int) -> np.ndarray:
+    """(n_signals, len(payloads)) float64 of ``Sample`` messages: field j + 1 is row j; a field
+    a message leaves out is NaN (proto3 would read 0.0, but labrunner writes every field), unknown
+    fields are skipped. The layout :func:`encode_samples` writes is read in one numpy view."""
+    out = np.full((n_signals, len(payloads)), np.nan)
+    template = sample_tags(n_signals)
+    size = template.dtype.itemsize
+    if payloads and all(len(p) == size for p in payloads):
+        rows = np.frombuffer(b"".join(payloads), dtype=template.dtype)
+        tags = [f"k_s{j}" for j in range(n_signals)]
+        if all((rows[t] == template[t][0]).all() for t in tags):
+            for j in range(n_signals):
+                out[j] = rows[f"s{j}"]
+            return out
+    for i, payload in enumerate(payloads):  # any other valid encoding: field by field
+        for number, wire, start, _ in _fields(payload, 0, len(payload)):
+            if 1 <= number <= n_signals and wire == 1:
+                out[number - 1, i] = _DOUBLE.unpack_from(payload, start)[0]
+    return out

@@ -5,13 +5,14 @@ File layout, in order (zstd chunks, full MCAP indexes and summary; written by
 
 1. the part every run of a batch shares, a :class:`LogPrefix` encoded once and copied as bytes
    into each file: header; metadata ``channels`` (per signal: ``role``, ``unit``) and any shared
-   caller records (e.g. ``rig``); attachments (e.g. the campaign file); the two schemas and
+   caller records (e.g. ``rig``); attachments (e.g. the campaign file); the schemas and
    channels;
 2. the run's own metadata: ``run`` (caller's record plus ``fs`` [Hz], ``labrunner_version``,
    ``log_format`` and the per-sample channel's rate), then ``config`` and any further caller
    records (``parameters``, ``metrics``, a ``diagnostics`` record, ...); **flushed**, so even a
    file killed before its first sample names its run and its topics;
-3. chunks of ``/run/blocks`` and, in chunks of their own, ``/run/samples`` messages (see
+3. chunks of ``/run/samples`` messages, each sample stored once (and, only when ``[logging]
+   samples_hz`` thins them, ``/run/blocks`` in chunks of their own; see
    :mod:`labrunner.logs.schema`), flushed every ``flush_interval_s`` of wall time, so a killed
    writer leaves a file whose complete chunks :func:`labrunner.logs.read_run` salvages;
 4. metadata ``outcome`` (the caller's outcome plus ``n_samples``), after the last chunk: a file
@@ -20,7 +21,7 @@ File layout, in order (zstd chunks, full MCAP indexes and summary; written by
 
 Every message's ``log_time`` is the wall-clock time of its (first) sample: the run's start
 (``start_time``, s since 1970) plus k / f_s, so a viewer places runs on the calendar and the times
-only grow.
+only grow; a sample's ``sequence`` is its index k.
 
 Metadata values (MCAP maps strings to strings) are plain text, as a viewer shows them: a string as
 it is, a number in decimal (``nan``, ``inf`` included), ``true`` / ``false``; a key whose value is
@@ -48,17 +49,18 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
-from labrunner import __version__
+from labrunner import jsontext
 from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
 from labrunner.logs.mcap_writer import BulkWriter, Prefix, message_row, repeat_row
+from labrunner.version import __version__
 
 ROLES = ("input", "output", "controlled", "reference", "error", "estimate", "signal")
 STATUSES = ("completed", "aborted", "no-motion", "failed")  # engine.RunResult.outcome["status"]
 RESERVED_RECORDS = ("channels", "outcome")
-LOG_FORMAT = "labrunner-2"  # run.log_format: plain-text metadata, wall-clock log times, /run/samples
+LOG_FORMAT = "labrunner-3"  # run.log_format: each sample once in /run/samples (sequence = k)
+PLAIN_FORMATS = ("labrunner-2", LOG_FORMAT)  # formats with plain-text metadata (2: blocks and samples both)
 JSON_KEY = "json"  # the single key of a record stored as one JSON text
-SAMPLES_ZSTD_LEVEL = -1  # zstd level of /run/samples chunks: 1.5× faster than level 1, files ~5 % larger
 _ROLE_GROUPS = {f"{role}s" if role != "controlled" else role: role for role in ROLES}
 _MEDIA_TYPES = {".toml": "application/toml", ".json": "application/json", ".txt": "text/plain"}
 _NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|[-+]?(nan|inf|infinity)", re.IGNORECASE)
@@ -160,7 +162,7 @@ def encode_record(field: str, record: Mapping[str, Any]) -> dict[str, str]:
     try:
         if all(_scalar(v) for v in record.values()):
             return {str(k): _text(v) for k, v in record.items() if v is not None}
-        return {JSON_KEY: json.dumps(dict(record), default=_jsonable)}
+        return {JSON_KEY: jsontext.dumps(dict(record), default=_jsonable)}  # NaN → null: strict JSON
     except TypeError as exc:
         raise InvalidParameter(f"metadata.{field}", str(exc)) from None
 
@@ -203,7 +205,8 @@ class LogPrefix:
     records, attachments, schemas and channels (see the module's docstring).
 
     ``samples_hz`` thins the per-sample channel ``/run/samples`` to every ⌈f_s / samples_hz⌉-th
-    sample (None: every sample); the channel's metadata says so (``decimation``, ``rate_hz``).
+    sample (None: every sample); the channel's metadata says so (``decimation``, ``rate_hz``), and
+    only then is every sample also kept, in ``/run/blocks``.
     """
 
     def __init__(
@@ -241,26 +244,22 @@ class LogPrefix:
         for name, data in (attachments or {}).items():
             media = _MEDIA_TYPES.get(Path(name).suffix, "application/octet-stream")
             mcap.add_attachment(str(name), media, bytes(data), log_time=created_ns, create_time=created_ns)
-        block_schema = mcap.add_schema(schema.BLOCK_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.BLOCK_SCHEMA)
-        self.block_channel = mcap.add_channel(schema.BLOCK_TOPIC, MessageEncoding.Protobuf, block_schema)
+        self.block_channel: int | None = None  # /run/blocks: only when the samples are thinned
+        if self.decimation > 1:
+            block_schema = mcap.add_schema(schema.BLOCK_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.BLOCK_SCHEMA)
+            self.block_channel = mcap.add_channel(schema.BLOCK_TOPIC, MessageEncoding.Protobuf, block_schema)
         sample_schema = mcap.add_schema(
             schema.SAMPLES_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.samples_schema(self.fields)
         )
         channel_meta = {
             "rate_hz": repr(self.samples_hz),
             "decimation": str(self.decimation),
-            "time": "log_time: wall-clock time of the sample; t__s: seconds since the run's first sample",
+            "time": "log_time: wall-clock time of the sample; sequence: its index k (t = k / fs)",
             **{f"unit.{f}": u for f, u in zip(self.fields, units) if u},
         }
-        # the samples repeat the blocks for viewers: compressed fast and without a chunk CRC (≈ 15 ms
-        # of a 3 s, 32 kHz plate run's ≈ 70 ms), as the blocks, the record the reader uses, keep theirs
+        # no message index: 16 bytes a sample; a reader finds a sample by its sequence (= k) instead
         self.samples_channel = mcap.add_channel(
-            schema.SAMPLES_TOPIC,
-            MessageEncoding.Protobuf,
-            sample_schema,
-            channel_meta,
-            level=SAMPLES_ZSTD_LEVEL,
-            crc=False,
+            schema.SAMPLES_TOPIC, MessageEncoding.Protobuf, sample_schema, channel_meta, indexed=False
         )
         self.encoded: Prefix = mcap.prefix()
         self._sample_row = message_row(self.samples_channel, self._tags.dtype, self._tags)
@@ -285,7 +284,8 @@ class RunLogWriter:
     ``metadata`` maps record names to mappings (``run``, ``config``, ...); ``prefix`` is the batch's
     shared part (or give ``fs``, ``channels``, ``attachments``, ``samples_hz`` and one is made);
     ``start_time`` [s since 1970] is the wall-clock time of sample 0 (default: now). Each
-    :meth:`write_block` call writes ⌈n / 1000⌉ block messages and n per-sample messages, so pass
+    :meth:`write_block` call writes n per-sample messages (and ⌈n / 1000⌉ block messages where
+    the samples are thinned), so pass
     blocks of ~0.1 s rather than single samples. The file is flushed after the metadata and then at
     the first block after every ``flush_interval_s`` (0: after every block); what was flushed
     survives a SIGKILL. Leaving the ``with`` block without :meth:`finish` (an exception, Ctrl-C)
@@ -318,7 +318,6 @@ class RunLogWriter:
         self.start_ns = round(start * 1e9)
         records = self._records(metadata)
         self.n_samples = 0
-        self._sequence = 0
         self._finished = False
         self._file = open(path, "wb")  # noqa: SIM115 - closed in finish()
         self._mcap = BulkWriter(self._file)
@@ -363,13 +362,12 @@ class RunLogWriter:
                 "first_index", f"must be >= {self.n_samples} (samples already written), got {first_index}"
             )
         channel = self.prefix.block_channel
-        for start in range(0, n, schema.BLOCK_SAMPLES):
+        for start in range(0, n if channel is not None else 0, schema.BLOCK_SAMPLES):
             k = first_index + start
             parts = schema.block_parts(
                 k, self.fs, self.prefix.prefixes, [c[start : start + schema.BLOCK_SAMPLES] for c in columns]
             )
-            self._mcap.add_message(channel, self.start_ns + round(k * 1e9 / self.fs), self._sequence, parts)
-            self._sequence += 1
+            self._mcap.add_message(channel, self.start_ns + round(k * 1e9 / self.fs), k, parts)
         self._write_samples(first_index, n, columns)
         self.n_samples = max(self.n_samples, first_index + n)
         if time.monotonic() - self._last_flush >= self.flush_interval_s:
@@ -383,14 +381,12 @@ class RunLogWriter:
         count = len(range(offset, n, step))
         if not count:
             return
-        k = np.arange(first_index + offset, first_index + n, step, dtype=np.float64)
+        k = np.arange(first_index + offset, first_index + n, step, dtype=np.uint64)
         records = self.prefix.sample_records(count)
-        t = k / self.fs
         records["log_time"] = np.rint(k * (1e9 / self.fs)).astype(np.uint64) + np.uint64(self.start_ns)
-        records["sequence"] = np.arange(self._sequence, self._sequence + count, dtype=np.uint32)
-        schema.fill_samples(records["data"], t, [c[offset::step] for c in columns] if step > 1 else columns)
+        records["sequence"] = k  # the sample's index: its time is k / fs
+        schema.fill_samples(records["data"], [c[offset::step] for c in columns] if step > 1 else columns)
         self._mcap.add_records(self.prefix.samples_channel, records)
-        self._sequence += count
 
     def finish(self, outcome: Mapping[str, Any]) -> None:
         """Write the outcome as the final metadata record, the summary and the footer; close."""

@@ -94,7 +94,9 @@ def _run(rig, data: bytes, send_hook=None, recv_hook=None, like: bytes | None = 
         send = send_hook(send)
     if recv_hook is not None:
         recv = recv_hook(recv)
-    verdict, rows, _ = session.run_on_device(send, recv, rig.link.max_payload, data, d.ticks, d.n_columns)
+    verdict, rows, _clock, _transfer = session.run_on_device(
+        send, recv, rig.link.max_payload, data, d.ticks, d.n_columns, d.fs
+    )
     return verdict, rows
 
 

@@ -51,22 +51,25 @@ class DeviceLoop:
             return None
         if frame.kind in _IN:
             return _IN[frame.kind], frame.payload
+        self.emulator.seq = self.session.ticks_done  # STATUS's seq during a run: the ticks done
         self.emulator._dispatch(frame)  # HELLO, HEARTBEAT, SAFE, STOP: the core's answers
         stop = frame.kind in (Kind.SAFE, Kind.STOP) and "ignore-stop" not in self.protocol_faults
         return (session.STOP if stop else None), frame.payload
 
-    def _execute(self, data: bytes, hook, on_accept) -> executor.DeviceRun:
+    def _execute(self, data: bytes, hook, on_accept, tick) -> executor.DeviceRun:
         emulator = self.emulator
+        emulator.end_run()  # a host-loop run set up before ends here, its clock and watchdog with it
 
         def accepted(description) -> None:
             emulator.state, emulator.seq = m.DeviceState.RUNNING, 0
             if "no-watchdog" in self.protocol_faults:
                 description = dataclasses.replace(description, watchdog_s=float("inf"))
+            emulator.arm_death()
             on_accept(description)
 
         data = self._broken(data)
         try:
-            return executor.execute(data, emulator.rig, hook, accepted, self.law_fault)
+            return executor.execute(data, emulator.rig, hook, accepted, tick, self.law_fault)
         finally:
             emulator.state = m.DeviceState.IDLE
 

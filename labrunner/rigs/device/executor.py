@@ -44,6 +44,26 @@ from labrunner.safety import SafetyConfig
 
 #: ``hook(first_tick, columns)``: every 1024 ticks during the run, float32 rows of those ticks
 Hook = Callable[[int, np.ndarray], None]
+#: ``tick(k)``: every :data:`TICK_EVERY` ticks, the ticks done (the firmware's main-loop turn:
+#: PROGRESS, the link, STOP and the watchdog; however slowly the twin computes)
+Tick = Callable[[int], None]
+TICK_EVERY = 32
+
+
+class _Ticking:
+    """``rig`` whose :meth:`step` calls ``tick(k)`` every :data:`TICK_EVERY` ticks; all else is the rig's."""
+
+    def __init__(self, rig: Rig, tick: Tick) -> None:
+        self._rig, self._tick, self._k = rig, tick, 0
+
+    def __getattr__(self, name: str):
+        return getattr(self._rig, name)
+
+    def step(self, u: np.ndarray) -> np.ndarray:
+        self._k += 1
+        if self._k % TICK_EVERY == 0:
+            self._tick(self._k)
+        return self._rig.step(u)
 
 
 @dataclass
@@ -129,14 +149,17 @@ def execute(
     rig: Rig,
     hook: Hook | None = None,
     on_accept: Callable[[Description], None] | None = None,
+    tick: Tick | None = None,
     law_fault: Mapping[str, float] | None = None,
 ) -> DeviceRun:
     """Decode, check and run one description on ``rig`` (B = 1); raises DescriptionError for a
     description the device refuses (before the rig moves). ``on_accept(description)`` is called
-    once it is checked, before the first tick. A description with a sensor table runs on that
-    table instead of the rig (nothing moves). ``law_fault`` (controller key → factor) makes the
-    device run a deliberately wrong law — the emulator's ``--fault-law``: each key the point's
-    controller section sets is multiplied by its factor after the checks."""
+    once it is checked, before the first tick; ``hook`` gets the samples, ``tick`` the ticks done
+    (an exception from either ends the run ``failed`` with its message, the rig safe). A
+    description with a sensor table runs on that table instead of the rig (nothing moves).
+    ``law_fault`` (controller key → factor) makes the device run a deliberately wrong law — the
+    emulator's ``--fault-law``: each key the point's controller section sets is multiplied by its
+    factor after the checks."""
     description = decode(data)
     channels, reference = _check(description, rig)
     point = description.point()
@@ -156,7 +179,7 @@ def execute(
     t0 = time.perf_counter_ns()
     result = engine.run_batch(
         [point],
-        rig,
+        rig if tick is None else _Ticking(rig, tick),
         fs=description.fs,
         duration=description.duration,
         seeds=[description.seed],

@@ -104,10 +104,15 @@ def run(
     rig_safety: Mapping[str, object] | None = None,
     watchdog_s: float = 0.5,
     link: linkload.LinkSpec | None = None,
-    silence_s: float = 10.0,
+    dead_s: float = session.DEAD_S,
     reference_table: bool = False,
 ) -> list[engine.RunResult]:
-    """Run ``points`` on the device one after the other; one RunResult each (a RigError stops the batch)."""
+    """Run ``points`` on the device one after the other; one RunResult each.
+
+    A run the host gives up on (:class:`~labrunner.rigs.device.session.RunFailed`) stops the
+    batch: the RigError is re-raised with ``results``, the finished runs and the failed one as a
+    ``failed`` RunResult of the rows that had arrived (its partial log, the reason as its message),
+    as :func:`labrunner.engine.run_batch` hands over a host-loop run's."""
     descriptions = plan(
         points,
         rig_info,
@@ -122,21 +127,26 @@ def run(
     results = []
     for point, seed, data in zip(points, seeds, descriptions):
         d = description.decode(data)
-        verdict, rows, transfer = session.run_on_device(
-            send, recv, max_payload, data, d.ticks, d.n_columns, silence_s=silence_s
-        )
-        diagnostics = {
-            "loop": "device",
-            "description_bytes": len(data),
-            "columns": d.n_columns,
-            "streamed": d.stream,
-            "ticks": verdict.ticks,
-            "overruns": verdict.overruns,
-            "device_run_s": verdict.device_us / 1e6,
-            "device_compute_s": verdict.compute_ns / 1e9,
+        diagnostics = {"loop": "device", "description_bytes": len(data), "columns": d.n_columns, "streamed": d.stream}
+        try:
+            verdict, rows, clock, transfer = session.run_on_device(
+                send, recv, max_payload, data, d.ticks, d.n_columns, d.fs, dead_s=dead_s
+            )
+        except session.RunFailed as exc:
+            failed = blocks.Verdict("failed", len(exc.rows), len(exc.rows), 0, message=f"RigError: {exc}")
+            partial = to_result(point, rig_info, fs, failed, exc.rows, diagnostics)
+            partial.device_clock = exc.clock
+            exc.results = [*results, partial]
+            raise
+        diagnostics.update(
+            ticks=verdict.ticks,
+            overruns=verdict.overruns,
+            device_run_s=verdict.device_us / 1e6,
+            device_compute_s=verdict.compute_ns / 1e9,
             **transfer.as_dict(),
-        }
+        )
         result = to_result(point, rig_info, fs, verdict, rows, diagnostics)
+        result.device_clock = clock
         law = lawcheck.check(
             point, rig_info, rows, result.outcome, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety
         )

@@ -3,12 +3,15 @@
 :func:`run_on_device` is what :meth:`RemoteRig.run_on_device` does: handshake (the device must
 announce DEVICE_LOOP), then per point one description, its results and a RunResult whose
 ``diagnostics`` hold the link's counters of that run, the device's timing and the transfer's
-figures. ERROR frames and a device that delivers nothing new for 10 s raise :class:`~labrunner.errors.RigError` (the
-campaign stops; the device is safe: its run ended or its watchdog fired).
+figures. An ERROR frame, a device that sends no bulk frame for 1 s (dead or hung) or a transfer that gets no
+block through for 10 s raise :class:`~labrunner.errors.RigError` after a SAFE to the device, with ``results``:
+the runs before and the failed run's partial log (the campaign worker then checks the device with a
+fresh handshake, :meth:`~labrunner.rigs.transports.remote.RemoteRig.recover`).
 """
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
@@ -83,31 +86,41 @@ def run_on_device(
     send, recv = adapters(rig)
     spec = linkload.from_rig(rig.KIND, rig.parameters)
     wd = watchdog_s(rig.parameters, fs)
-    results = []
+    results: list[RunResult] = []
     for point, seed in zip(points, seeds):
         rig._drain()
         before = replace(link.counters)
-        [result] = host.run(
-            send,
-            recv,
-            link.max_payload,
-            [point],
-            rig.info,
-            fs=fs,
-            duration=duration,
-            seeds=[seed],
-            rig_safety=rig_safety,
-            watchdog_s=wd,
-            link=spec,
-            reference_table=bool(rig.parameters["reference_table"]),
-        )
-        now, then = link.counters.as_dict(), before.as_dict()
-        result.diagnostics = {
-            "loop": "device",
-            "link": {k: now[k] - then[k] for k in now},
-            "firmware_id": rig.identity.firmware_id,
-            "device_loop": result.diagnostics,
-            "law_check": result.diagnostics.get("law_check"),  # docs/control-laws.md § The host's check
-        }
-        results.append(result)
+
+        def wrapped(result: RunResult) -> RunResult:
+            now, then = link.counters.as_dict(), before.as_dict()
+            result.diagnostics = {
+                "loop": "device",
+                "link": {k: now[k] - then[k] for k in now},
+                "firmware_id": rig.identity.firmware_id,
+                "device_loop": result.diagnostics,
+                "law_check": result.diagnostics.get("law_check"),  # docs/control-laws.md § The host's check
+            }
+            return result
+
+        try:
+            [result] = host.run(
+                send,
+                recv,
+                link.max_payload,
+                [point],
+                rig.info,
+                fs=fs,
+                duration=duration,
+                seeds=[seed],
+                rig_safety=rig_safety,
+                watchdog_s=wd,
+                link=spec,
+                reference_table=bool(rig.parameters["reference_table"]),
+            )
+        except RigError as exc:  # the run failed on the host: SAFE ends it on the device (best effort)
+            with contextlib.suppress(RigError):
+                link.send(m.pack(m.Safe(0)))
+            exc.results = [*results, *(wrapped(r) for r in getattr(exc, "results", ()))]
+            raise
+        results.append(wrapped(result))
     return results

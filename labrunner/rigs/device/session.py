@@ -1,7 +1,7 @@
 """Both ends of one device-loop run over bulk messages (docs/device-loop.md, "A run").
 
-Host: DESCRIPTION blocks → device; device: ACCEPT (or REJECT), PROGRESS while it runs (checked
-every 1024 ticks, sent when :data:`PROGRESS_S` has passed since the last), SAMPLES (during the run when the description says ``stream``,
+Host: DESCRIPTION blocks → device; device: ACCEPT (or REJECT), PROGRESS every :data:`PROGRESS_S`
+while it runs (the loop looks every 32 ticks), SAMPLES (during the run when the description says ``stream``,
 else after it), VERDICT with FLAG_LAST. Each side ACKs the other's blocks and NACKs gaps;
 every block is resent until acknowledged. The ends talk through two callables, medium-agnostic:
 ``send(kind, payload)`` and ``recv(timeout) -> (kind, payload) | None`` with ``kind`` one of
@@ -12,6 +12,7 @@ adapter deals with itself and hands over as ``(None, payload)``.
 
 from __future__ import annotations
 
+import contextlib
 import secrets
 import time
 from collections import deque
@@ -28,9 +29,20 @@ from labrunner.rigs.transports import bulk
 TO_DEVICE, TO_HOST, ACK = "to_device", "to_host", "ack"
 STOP = "stop"  #: what a device's link adapter hands over for the host's SAFE / STOP message
 HEARTBEAT = "heartbeat"  #: the host's keep-alive while it has nothing else to send (payload ignored)
-PROGRESS_S = 0.25  #: shortest interval between PROGRESS blocks [s]
+PROGRESS_S = 0.25  #: a device sends PROGRESS this often while its loop runs [s]
+DEAD_S = 1.0  #: a device that sends no bulk frame for this long is dead or hung (4 PROGRESS periods) [s]
+STALL_S = 10.0  #: a transfer that completes no block either way for this long has failed (a lossy link) [s]
 Send = Callable[[str, bytes], None]
 Recv = Callable[[float], "tuple[str | None, bytes] | None"]
+
+
+class RunFailed(RigError):
+    """A device-loop run the host gave up on: the reason, the ``rows`` that had arrived (its
+    partial log) and their device ``clock``."""
+
+    def __init__(self, message: str, rows: np.ndarray, clock: np.ndarray) -> None:
+        super().__init__(message)
+        self.rows, self.clock = rows, clock
 
 
 class HostStop(Exception):
@@ -63,93 +75,134 @@ def run_on_device(
     description: bytes,
     n_ticks: int,
     n_columns: int,
+    fs: float,
     *,
-    silence_s: float = 10.0,
+    dead_s: float = DEAD_S,
+    stall_s: float = STALL_S,
     heartbeat_s: float = 0.25,
-) -> tuple[blocks.Verdict, np.ndarray, Transfer]:
+) -> tuple[blocks.Verdict, np.ndarray, np.ndarray, Transfer]:
     """Host side of one run: send ``description``, collect the samples and the verdict; a
     HEARTBEAT goes out whenever the host sent nothing for ``heartbeat_s`` (the device's watchdog).
 
-    Returns the verdict, the (n_samples, n_columns) float32 rows and the transfer's figures.
-    Raises RigError when the device refuses the description, delivers no new block (and
-    acknowledges none) for ``silence_s``, or sends samples that do not fit the run.
+    Returns the verdict, the (n_samples, n_columns) float32 rows, the device's time of each row
+    [s] (a SAMPLES block's first-tick time, then 1/f_s a tick) and the transfer's figures.
+    Raises :class:`RunFailed` (a RigError holding the rows that arrived) when the device refuses
+    the description, sends no bulk frame for ``dead_s`` (dead or hung), completes no block either
+    way for ``stall_s`` (a link too lossy), sends samples that do not fit the run, or the link fails.
     """
-    last_tx = [time.monotonic()]
-
-    def sent(kind: str, payload: bytes) -> None:
-        send(kind, payload)
-        last_tx[0] = time.monotonic()
-
-    transfer = secrets.randbelow(2**16)  # this run's; the device answers under it
-    tx = bulk.Sender(lambda p: sent(TO_DEVICE, p), max_payload, bulk.TO_DEVICE, transfer)
-    rx = bulk.Receiver(lambda p: sent(ACK, p), bulk.TO_HOST, transfer=transfer)
-    parts = _slices(description, tx.body_limit)
+    run = _HostRun(send, recv, max_payload, n_ticks, n_columns, fs, heartbeat_s)
+    parts = _slices(description, run.tx.body_limit)
     for i, part in enumerate(parts):
-        tx.queue(blocks.DESCRIPTION, part, bulk.FLAG_LAST if i == len(parts) - 1 else 0)
-    rows = np.full((n_ticks, n_columns), np.nan, np.float32)
-    covered = 0  # rows up to here arrived (SAMPLES blocks come in tick order)
-    out = Transfer()
-    t0 = last_rx = time.monotonic()
-    t_accept = None
-    verdict = None
-    while verdict is None:
-        now = time.monotonic()
-        tx.pump(now)
-        if now - last_tx[0] >= heartbeat_s:
-            sent(HEARTBEAT, b"")
-        msg = recv(0.01)
-        now = time.monotonic()
-        if now - last_rx > silence_s:  # nothing new arrived: a dead device or a link that delivers nothing
-            rx.cancel()
-            phase = "description" if t_accept is None else f"results ({covered} of {n_ticks} ticks in)"
-            raise RigError(
-                f"device-loop run: no new block from the device for {silence_s:g} s during the {phase}; "
-                f"host sent {tx.acked}/{tx.next_seq} description blocks acknowledged, received {rx.expected} "
-                f"blocks ({rx.counters.as_dict()})"
-            )
-        if msg is None:
-            rx.poll(now)
-            continue
-        kind, payload = msg
-        before = (tx.acked, rx.expected)
-        if kind == ACK:
-            tx.on_ack(payload)
-        elif kind == TO_HOST:
-            out.bytes_to_host += len(payload)
-            for block in rx.feed(payload, now):
-                if block.kind in (blocks.ACCEPT, blocks.REJECT):
-                    tx.finish()  # the description arrived: no more resends of it
-                if block.kind == blocks.REJECT:
-                    raise RigError(f"the device refused the run: {block.body.decode('ascii', 'replace')}")
-                if block.kind == blocks.ACCEPT:
-                    ticks, cols = blocks.ACCEPT_BODY.unpack(block.body)
-                    if (ticks, cols) != (n_ticks, n_columns):
-                        rx.cancel()
-                        raise RigError(
-                            f"the device accepted {ticks} ticks × {cols} columns, the host asked for {n_ticks} × {n_columns}"
-                        )
-                    t_accept = now
-                elif block.kind == blocks.SAMPLES:
-                    first, chunk, _ = blocks.decode_samples(block.body)
-                    if first != covered or first + len(chunk) > n_ticks or chunk.shape[1] != n_columns:
-                        rx.cancel()
-                        raise RigError(
-                            f"SAMPLES block for ticks {first}..{first + len(chunk) - 1} after {covered} ticks"
-                        )
-                    rows[first : first + len(chunk)] = chunk
-                    covered += len(chunk)
-                elif block.kind == blocks.VERDICT:
-                    verdict = blocks.Verdict.decode(block.body)
-        if (tx.acked, rx.expected) != before:
-            last_rx = now
-    if verdict.n_samples != covered:
-        raise RigError(f"the device logged {verdict.n_samples} ticks but sent {covered}")
+        run.tx.queue(blocks.DESCRIPTION, part, bulk.FLAG_LAST if i == len(parts) - 1 else 0)
+    t0 = time.monotonic()
+    try:
+        verdict = run.collect(dead_s, stall_s)
+        if verdict.n_samples != run.covered:
+            raise RigError(f"the device logged {verdict.n_samples} ticks but sent {run.covered}")
+    except RigError as exc:
+        with contextlib.suppress(RigError):
+            run.rx.cancel()  # the device stops resending this run's results
+        raise RunFailed(str(exc), run.rows[: run.covered], run.clock[: run.covered]) from None
     end = time.monotonic()
-    out.bytes_to_device, out.blocks_resent = tx.bytes_sent, tx.resent
-    out.received = rx.counters.as_dict()
-    out.accept_s = (t_accept or end) - t0
-    out.run_s = end - (t_accept or t0)
-    return verdict, rows[:covered], out
+    out = run.out
+    out.bytes_to_device, out.blocks_resent = run.tx.bytes_sent, run.tx.resent
+    out.received = run.rx.counters.as_dict()
+    out.accept_s = (run.accepted or end) - t0
+    out.run_s = end - (run.accepted or t0)
+    return verdict, run.rows[: run.covered], run.clock[: run.covered], out
+
+
+class _HostRun:
+    """The host's end of one run: its two bulk streams, the rows that arrived, the timers."""
+
+    def __init__(
+        self, send: Send, recv: Recv, max_payload: int, n_ticks: int, n_columns: int, fs: float, heartbeat_s: float
+    ):
+        self.send, self.recv, self.heartbeat_s = send, recv, heartbeat_s
+        self.last_tx = time.monotonic()
+        transfer = secrets.randbelow(2**16)  # this run's; the device answers under it
+        self.tx = bulk.Sender(lambda p: self._sent(TO_DEVICE, p), max_payload, bulk.TO_DEVICE, transfer)
+        self.rx = bulk.Receiver(lambda p: self._sent(ACK, p), bulk.TO_HOST, transfer=transfer)
+        self.rows = np.full((n_ticks, n_columns), np.nan, np.float32)
+        self.clock = np.full(n_ticks, np.nan)  # the device's time of each row [s]
+        self.fs = fs
+        self.covered = 0  # rows up to here arrived (SAMPLES blocks come in tick order)
+        self.accepted: float | None = None  # when ACCEPT arrived (monotonic)
+        self.out = Transfer()
+
+    def _sent(self, kind: str, payload: bytes) -> None:
+        self.send(kind, payload)
+        self.last_tx = time.monotonic()
+
+    def _phase(self) -> str:
+        if self.accepted is None:
+            return "description"
+        return f"run ({self.covered} of {len(self.rows)} ticks received)"
+
+    def collect(self, dead_s: float, stall_s: float) -> blocks.Verdict:
+        """Exchange blocks until the VERDICT arrives (RigError on a fault)."""
+        heard = progressed = time.monotonic()  # the device's last bulk frame; the last block either way
+        while True:
+            now = time.monotonic()
+            self.tx.pump(now)
+            if now - self.last_tx >= self.heartbeat_s:
+                self._sent(HEARTBEAT, b"")
+            msg = self.recv(0.01)
+            now = time.monotonic()
+            if now - heard > dead_s:  # PROGRESS comes every 0.25 s while it runs: its loop is dead or hung
+                raise RigError(
+                    f"no frame from the device for {dead_s:g} s during the {self._phase()}: the device is dead "
+                    "or hung, and the rig may not be in its safe state (only the device's own watchdog puts it there)"
+                )
+            if now - progressed > stall_s:  # frames come, blocks do not: the link loses too much
+                raise RigError(
+                    f"no block got through either way for {stall_s:g} s during the {self._phase()}: the link "
+                    f"loses too many frames; description blocks acknowledged {self.tx.acked}/{self.tx.next_seq}, "
+                    f"blocks received {self.rx.expected} ({self.rx.counters.as_dict()})"
+                )
+            if msg is None:
+                self.rx.poll(now)
+                continue
+            kind, payload = msg
+            if kind not in (ACK, TO_HOST):
+                continue
+            heard = now
+            before = (self.tx.acked, self.rx.expected)
+            if kind == ACK:
+                self.tx.on_ack(payload)
+            else:
+                self.out.bytes_to_host += len(payload)
+                for block in self.rx.feed(payload, now):
+                    verdict = self._take(block, now)
+                    if verdict is not None:
+                        return verdict
+            if (self.tx.acked, self.rx.expected) != before:
+                progressed = now
+
+    def _take(self, block: bulk.Block, now: float) -> blocks.Verdict | None:
+        """One in-order block from the device; the verdict once it arrives (RigError for a block that does not fit)."""
+        n_ticks, n_columns = self.rows.shape
+        if block.kind in (blocks.ACCEPT, blocks.REJECT):
+            self.tx.finish()  # the description arrived: no more resends of it
+        if block.kind == blocks.REJECT:
+            raise RigError(f"the device refused the run: {block.body.decode('ascii', 'replace')}")
+        if block.kind == blocks.ACCEPT:
+            ticks, cols = blocks.ACCEPT_BODY.unpack(block.body)
+            if (ticks, cols) != (n_ticks, n_columns):
+                raise RigError(
+                    f"the device accepted {ticks} ticks × {cols} columns, the host asked for {n_ticks} × {n_columns}"
+                )
+            self.accepted = now
+        elif block.kind == blocks.SAMPLES:
+            first, chunk, t_us = blocks.decode_samples(block.body)
+            if first != self.covered or first + len(chunk) > n_ticks or chunk.shape[1] != n_columns:
+                raise RigError(f"SAMPLES block for ticks {first}..{first + len(chunk) - 1} after {self.covered} ticks")
+            self.rows[first : first + len(chunk)] = chunk
+            self.clock[first : first + len(chunk)] = t_us * 1e-6 + np.arange(len(chunk)) / self.fs
+            self.covered += len(chunk)
+        elif block.kind == blocks.VERDICT:
+            return blocks.Verdict.decode(block.body)
+        return None
 
 
 class DeviceSession:
@@ -172,6 +225,7 @@ class DeviceSession:
         self.send, self.recv, self.max_payload, self.execute = send, recv, max_payload, execute
         self.upload_silence_s = upload_silence_s
         self.runs = 0
+        self.ticks_done = 0  # of the run in progress (STATUS's seq)
         self.stopped = False
         self.last_rx = time.monotonic()  # the host's last message (the watchdog's reference)
         self._done: deque[int] = deque(maxlen=16)  # transfers run lately: a late resend never runs again
@@ -242,23 +296,26 @@ class DeviceSession:
             self.tx.queue(blocks.ACCEPT, blocks.ACCEPT_BODY.pack(description.ticks, description.n_columns))
             self._service()
 
-        def hook(first: int, rows: np.ndarray) -> None:
-            if state["stream"] and first == state["streamed"]:
-                self._queue_samples(first, rows, state)
+        def tick(done: int) -> None:
             now = time.monotonic()
             if now - state["last"] >= PROGRESS_S:
                 state["last"] = now
-                done = first + len(rows)
                 self.tx.queue(blocks.PROGRESS, blocks.PROGRESS_BODY.pack(done, blocks.tick_us(done, state["fs"])))
+            self.ticks_done = done
             self._service()
             if self.tx.cancelled or self.stopped:
                 raise HostStop("stopped by the host")
             if now - self.last_rx > state["watchdog"]:
                 raise HostStop(f"watchdog: no message from the host for {now - self.last_rx:.3g} s")
 
+        def hook(first: int, rows: np.ndarray) -> None:  # also called once after the last tick: never raises
+            if state["stream"] and first == state["streamed"]:
+                self._queue_samples(first, rows, state)
+            self._service()
+
         self.stopped = False
         try:
-            run = self.execute(data, hook=hook, on_accept=on_accept)
+            run = self.execute(data, hook=hook, on_accept=on_accept, tick=tick)
         except DescriptionError as exc:
             self.tx.queue(blocks.REJECT, str(exc).encode("ascii", "replace")[: self.tx.body_limit], bulk.FLAG_LAST)
             self._upload()

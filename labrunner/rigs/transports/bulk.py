@@ -19,8 +19,8 @@ same on classic CAN, CAN FD and serial (docs/device-loop.md, "Bulk transfer"):
   ``transfer`` u16, ``seq`` u32.
 
 A receiver delivers blocks in order; a frame out of index order drops the block it belonged to
-(counted), a block failing its CRC is dropped (counted), and a later good block reveals the gap,
-which the receiver asks for by NACK. A sender resends what stays unacknowledged for ``retry_s``.
+(counted), a block failing its CRC is dropped (counted); the receiver asks by NACK for a block
+that broke once its header had arrived, and for a gap a later good block reveals. A sender resends what stays unacknowledged for ``retry_s``.
 """
 
 from __future__ import annotations
@@ -93,6 +93,7 @@ class Assembler:
 
     def __init__(self, counters: Counters) -> None:
         self.counters = counters
+        self.lost: list[tuple[int, int]] = []  # (transfer, seq) of broken blocks whose header had arrived
         self._buf = bytearray()
         self._next = -1  # the frame index expected next; −1: waiting for a block's first frame
         self._need = 0  # bytes of the block in progress (0 until its header has arrived)
@@ -104,11 +105,11 @@ class Assembler:
         index = payload[0]
         if index == 0:
             if self._next > 0:
-                self.counters.broken += 1  # the block in progress lost its tail
+                self._broken()  # the block in progress lost its tail
             self._buf, self._next, self._need = bytearray(), 0, 0
         elif index != self._next:
             if self._next > 0:
-                self.counters.broken += 1
+                self._broken()
             self._next = -1
             return None
         self._buf += payload[1:]
@@ -123,6 +124,14 @@ class Assembler:
             return None
         seq, transfer, kind, flags, n = BLOCK.unpack_from(raw)
         return Block(seq, transfer, kind, flags, raw[BLOCK.size : BLOCK.size + n])
+
+    def _broken(self) -> None:
+        """The block in progress lost a frame: counted, and named when its header had arrived (the
+        receiver asks for it at once; an unchecked header at worst asks for a block needlessly)."""
+        self.counters.broken += 1
+        if self._need:
+            seq, transfer = BLOCK.unpack_from(self._buf)[:2]
+            self.lost.append((transfer, seq))
 
 
 class Receiver:
@@ -154,6 +163,7 @@ class Receiver:
     def feed(self, payload: bytes, now: float) -> list[Block]:
         """Take one frame; return the blocks now deliverable in order."""
         block = self._assembler.feed(payload)
+        self._nack_broken(now)
         if block is None:
             return []
         self.counters.blocks += 1
@@ -189,10 +199,26 @@ class Receiver:
         if not self._held:
             return
         for seq in range(self.expected, max(self._held)):
-            if seq not in self._held and now - self._nacked.get(seq, -1e9) >= self.nack_s:
-                self._nacked[seq] = now
-                self.counters.nacks += 1
-                self._ack(NACK, seq)
+            if seq not in self._held:
+                self._nack(seq, now)
+
+    def _nack_broken(self, now: float) -> None:
+        """Ask at once for a block of this transfer that broke on the way, rather than wait for a
+        later block to reveal the gap (none may come: the sender's window can be one block)."""
+        lost, self._assembler.lost = self._assembler.lost, []
+        for transfer, seq in lost:
+            if (
+                transfer == self.transfer
+                and self.expected <= seq < self.expected + self.window
+                and seq not in self._held
+            ):
+                self._nack(seq, now)
+
+    def _nack(self, seq: int, now: float) -> None:
+        if now - self._nacked.get(seq, -1e9) >= self.nack_s:
+            self._nacked[seq] = now
+            self.counters.nacks += 1
+            self._ack(NACK, seq)
 
     def cancel(self) -> None:
         self._ack(CANCEL, self.expected)
@@ -217,8 +243,9 @@ class Sender:
     for ``retry_s``, the oldest unacknowledged block. ``send_frame(payload)`` sends one frame.
 
     The window is at most ``window`` blocks (by default :data:`WINDOW_BYTES` worth) and what the
-    receiver advertises; like TCP's congestion window it halves on a NACK, drops to one block on
-    a timeout and grows by one block per acknowledged block, so a link that loses frames because
+    receiver advertises; like TCP's congestion window it halves on a loss (once per window in
+    flight, however many of its blocks are NACKed), drops to one block on a timeout and grows by
+    one block per acknowledged block, so a link that loses frames because
     it is flooded (a receiver's socket buffer, a busy bus) is not flooded harder by the resends.
     """
 
@@ -238,6 +265,8 @@ class Sender:
     _advertised: int = 1 << 16
     _cwnd: float = 0.0
     _progress_at: float | None = None  # when the oldest pending block was last acknowledged or resent
+    _sent_upto: int = 0  # blocks below this one have been sent at least once
+    _recovered: int = 0  # NACKs of blocks below this one belong to a loss event already answered
 
     def __post_init__(self) -> None:
         if self.window <= 0:
@@ -282,7 +311,9 @@ class Sender:
             self._progress_at = None
         elif code == NACK and seq in self._pending and seq not in self._nacked:
             self._nacked.append(seq)
-            self._cwnd = max(1.0, self._cwnd / 2)
+            if seq >= self._recovered:  # one loss event per window in flight (TCP NewReno's recovery point)
+                self._cwnd = max(1.0, self._cwnd / 2)
+                self._recovered = self._sent_upto
 
     def finish(self) -> None:
         """Stop sending: the peer has shown it has every block (it answered the last one)."""
@@ -324,3 +355,4 @@ class Sender:
             self.send_frame(frame)
             self.bytes_sent += len(frame)
         p.sent_at = now
+        self._sent_upto = max(self._sent_upto, p.block.seq + 1)

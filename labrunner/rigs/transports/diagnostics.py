@@ -3,7 +3,8 @@
 ``RemoteRig.diagnostics()`` returns the record the worker stores as ``diagnostics`` in the run's
 MCAP metadata and outcome (``docs/protocol.md`` § Diagnostics): the link's
 :class:`~.link.LinkCounters` since the run's SETUP plus the host's :class:`HostCounters` and the
-device's last STATUS counters. No frame counted here was ever used as data.
+device's last STATUS counters. No frame counted here was ever used as data. Its timing counts
+(late ticks, overruns) are read back by :mod:`labrunner.campaign.rig_timing`.
 """
 
 from __future__ import annotations

@@ -91,13 +91,16 @@ class Emulator:
         self._t0 = time.monotonic()
         self._last_rx = self._last_status = self._t0
         self._held_s = 0.0  # time the loop itself was held up since the last host frame
-        self._die_at = float("inf")  # set by the first run's set-up
+        self._die_at = float("inf")  # set when the first run begins (arm_death)
         install(self)
         for target in EXTENSIONS if extensions is None else extensions:
             module, _, function = target.partition(":")
             getattr(importlib.import_module(module), function)(self)
 
     def start(self) -> Emulator:
+        # the firmware boots: its twin loads what a set-up needs (scipy.linalg: ~0.5 s on a loaded
+        # machine) now, so that no run's first tick waits for it past y_0's deadline or the host's DEAD_S
+        self.rig.reset(1, [0], float(self.rig.info.fs_default))
         self._started = threading.Event()
         self._thread.start()
         self._started.wait(2.0)
@@ -132,8 +135,14 @@ class Emulator:
         self._link_rejects_at_setup = self._link_rejects()
         self._last_rx = self._last_status = time.monotonic()
         self._held_s = 0.0
+        self.arm_death()
+
+    def arm_death(self) -> None:
+        """A run began: the first one starts the fault injection's ``die_after_s`` clock."""
         if self._die_at == float("inf"):
-            self._die_at = self._last_rx + self.faults.die_after_s
+            self._die_at = time.monotonic() + self.faults.die_after_s
+            if isinstance(self.link, FaultyLink):
+                self.link.silent_from = self._die_at
 
     def go_safe(self) -> None:
         if self.state == m.DeviceState.RUNNING:
@@ -250,11 +259,15 @@ class Emulator:
         self.send_status()
 
     def _stop_run(self, frame: Frame) -> None:
+        self.end_run()
+        self.send_status()
+
+    def end_run(self) -> None:
+        """STOP, or a device-loop run beginning: the safe input, the host loop's clock and watchdog stopped, idle."""
         if self.state != m.DeviceState.IDLE:
             self.rig.safe_state()
             self.state = m.DeviceState.IDLE
-        self.ticking = False
-        self.send_status()
+        self.ticking, self.watchdog_s = False, float("inf")
 
     def _watchdog(self, now: float) -> float | None:
         silent = now - self._last_rx - self._held_s  # the device's own hold-ups are nobody's silence

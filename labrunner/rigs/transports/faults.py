@@ -59,12 +59,19 @@ class FaultyLink:
         self._delayed: list[tuple[float, int, Frame]] = []
         self._order = itertools.count()
         self._history: list[Frame] = []
+        self.silent_from = float("inf")  #: monotonic time the device dies (die_after_s after its first run began)
 
     @property
     def max_payload(self) -> int:
         return self.inner.max_payload
 
+    @property
+    def dead(self) -> bool:
+        return time.monotonic() >= self.silent_from
+
     def send(self, frame: Frame) -> None:
+        if self.dead:
+            return
         f, rng = self.faults, self._rng
         self._history = (self._history + [frame])[-11:]
         if rng.random() < f.drop:
@@ -95,6 +102,9 @@ class FaultyLink:
         return self._delayed[0][0] if self._delayed else None
 
     def recv(self, timeout: float) -> Frame | None:
+        if self.dead:
+            time.sleep(timeout)
+            return None
         return self.inner.recv(timeout)
 
     def close(self) -> None:

@@ -67,6 +67,9 @@ COMMON = {
         "the setpoints, steps and sine trajectory types)",
     ),
     "handshake_timeout_s": Param(0.5, "s", "longest wait for the device's IDENTITY", lo=0.0, lo_open=True, hi=60.0),
+    "max_consecutive_failures": Param(
+        3, "", "points in a row that fail on the rig before the campaign stops", lo=1, hi=1_000_000
+    ),
 }
 
 
@@ -92,6 +95,8 @@ class RemoteRig(Rig):
         self._heartbeat_lock = threading.Lock()  # the loop's thread and the keepalive thread both send them
         self._keepalive = Keepalive(self._send_heartbeat, fifo=bool(parameters["realtime"]))
         self._realtime: contextlib.ExitStack | None = None  # SCHED_FIFO held from the first reset to close
+        self._device_fault = False  # the device reported ERROR DEVICE_FAULT (recover() refuses to go on)
+        self._clock: list[float] = []  # the device's timestamp of each tick of the run [s], u32 µs unwrapped
 
     # -- the Rig contract (no noise, no per-run parameters: the base class's defaults) ------------
     @classmethod
@@ -175,6 +180,10 @@ class RemoteRig(Rig):
             firmware_id=self.identity.firmware_id if self.identity else None,
         )
 
+    def device_clock(self) -> np.ndarray:
+        """The device's timestamp of each tick of the last host-loop run [s since its tick 0]."""
+        return np.array(self._clock)
+
     def ping(self, stale_errors: bool = False) -> float:
         """Round trip [s] of one HEARTBEAT to the device's STATUS answer (RigError after ``timeout_s``).
 
@@ -213,6 +222,33 @@ class RemoteRig(Rig):
         self.link.send(frame)
         self._keepalive.last_send = time.monotonic()
 
+    def recover(self) -> None:
+        """After a failed run: SAFE again, a fresh handshake and a STATUS that is not *running*.
+        Raises RigError (the campaign stops) when the device does not answer, still runs, or
+        failed by its own protection (ERROR DEVICE_FAULT)."""
+        if self._device_fault:
+            raise RigError(
+                f"rig {self.info.name!r}: the device reported DEVICE_FAULT (its own protection); check the rig"
+            )
+        try:
+            self.link.send(m.pack(m.Safe(self._seq)))
+            self.identity = None
+            self.handshake()
+            for attempt in range(3):  # as many tries as the handshake's HELLOs: a lossy link loses answers
+                try:
+                    self.ping(stale_errors=True)
+                    break
+                except RigError:
+                    if attempt == 2:
+                        raise
+        except RigError as exc:
+            raise RigError(
+                f"{exc}; after the failure the device does not answer a fresh handshake: it may be dead or "
+                "hung, and the rig may not be in its safe state"
+            ) from None
+        if self.device.state == m.DeviceState.RUNNING:
+            self._fail("after the failure and a SAFE the device still reports a running loop")
+
     def run_on_device(self, points, *, fs: float, duration: float, seeds, rig_safety=None) -> list:
         """Run ``points`` with the loop on the device (``loop = "device"``): one run description
         each, their results as RunResults (:mod:`labrunner.rigs.device.remote`)."""
@@ -238,7 +274,7 @@ class RemoteRig(Rig):
         self.host, self.device = HostCounters(), DeviceReport()
         self.ping(stale_errors=True)  # in step: what the device sent before this run is behind us
         self._link_at_setup = replace(self.link.counters)
-        self._seq, self._late_run = 0, 0
+        self._seq, self._late_run, self._clock = 0, 0, []
         self._keepalive.arm(self._watchdog_s(), int(self.parameters["max_late_ticks"]) / self.fs)
         for frame in m.setup_frames(self.fs, self._watchdog_s(), int(seeds[0])):
             self._send(frame)
@@ -353,7 +389,11 @@ class RemoteRig(Rig):
     def _tick_end(self, msg: m.TickEnd, tick: int) -> None:
         late, overrun = bool(msg.flags & m.FLAG_LATE), bool(msg.flags & m.FLAG_OVERRUN)
         self.host.note_tick(tick, late, overrun)
-        self.device.device_time_s = msg.timestamp_us * 1e-6
+        stamp = msg.timestamp_us * 1e-6
+        while self._clock and stamp < self._clock[-1]:  # timestamp_us wrapped (every 71.6 min)
+            stamp += 2**32 * 1e-6
+        self._clock.append(stamp)
+        self.device.device_time_s = stamp
         self._late_run = self._late_run + 1 if late else 0
         if self._late_run > int(self.parameters["max_late_ticks"]):
             self._fail(
@@ -368,6 +408,7 @@ class RemoteRig(Rig):
 
     def _device_error(self, msg: m.Error) -> None:
         self.host.device_errors += 1
+        self._device_fault |= msg.code == m.ErrorCode.DEVICE_FAULT
         code = m.ErrorCode(msg.code).name if msg.code in m.ErrorCode._value2member_map_ else msg.code
         self._fail(f"device error {code} at tick {msg.seq} (detail {msg.detail:g})")
 

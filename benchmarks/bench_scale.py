@@ -1,0 +1,117 @@
+"""Campaign scale (issue 26): run, status, resume, analyse, disk and memory of a motor γ–k_p
+campaign (the quickstart's 5 s runs at 200 Hz) at 10^3, 10^4, 10^5 (and, with --max 1000000,
+10^6) points, each in fresh processes as a user runs them: ``labrunner run --workers 2``,
+``labrunner status`` and a ``labrunner resume`` of the finished campaign (three of each, the
+median), ``labrunner analyse --workers 2``; the runner's peak RSS and its RSS at 10/50/90 % of the
+runs (sampled from /proc every 0.2 s), analyse's peak RSS, and the disk the campaign directory
+takes (``du``: logs, ledger, report). Each campaign is deleted before the next one starts.
+
+Run: ``nice -n 10 python benchmarks/bench_scale.py [--max 100000] [--work DIR]`` (DIR needs
+~33 kB of disk a point; default a temporary folder).
+
+Last measured 2026-12-03, the 2-core machine loaded 7–12 by other jobs (wall times 2–5× idle)::
+
+    points     run [s]  runner peak  runner at 10/50/90 %     status [s] resume [s] analyse [s] analyse peak  disk
+     1,000      5.8        46 MB  46 MB / 46 MB / not sampled       0.17       1.22        10.0       141 MB  34 MB
+    10,000     51.4        61 MB     60 MB / 61 MB / 61 MB       0.55       9.94        24.5       193 MB  326 MB
+    99,856    314.3       171 MB  133 MB / 133 MB / 133 MB       0.16      20.80        58.9       293 MB  3,196 MB
+
+10^6 was not run: the grid limit is 100 000 points (campaign.grid.MAX_POINTS) and planning costs
+~0.2–1 ms a point, which resume repeats to check the plan.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_campaign import _mb, campaign, timed  # noqa: E402
+
+
+def _grid(n: int) -> tuple[int, int]:
+    """γ × k_p counts whose product is ``n`` (10^3: 40 × 25, as bench_campaign's)."""
+    if n == 1000:
+        return 40, 25
+    side = math.isqrt(n)
+    return side, n // side
+
+
+def _quick(args: list[str], cwd: Path) -> float:
+    """Median wall time [s] of three runs of a short command (fresh processes)."""
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        subprocess.run(args, cwd=cwd, check=True, capture_output=True)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def _disk_mb(path: Path) -> float:
+    out = subprocess.run(["du", "-sk", str(path)], capture_output=True, text=True, check=True)
+    return int(out.stdout.split()[0]) / 1024
+
+
+def scale(work: Path, n: int) -> dict:
+    n_gamma, n_kp = _grid(n)
+    n = n_gamma * n_kp
+    name = f"scale{n}"
+    path = work / f"{name}.toml"
+    path.write_text(campaign(name, n_gamma, n_kp))
+    out = work / name
+    cli = [sys.executable, "-m", "labrunner"]
+    run = timed([*cli, "run", str(path), "--out", str(out), "--workers", "2"], work, out / "ledger.sqlite", n)
+    status_s = _quick([*cli, "status", str(out)], work)
+    resume_s = _quick([*cli, "resume", str(out)], work)
+    analysis = timed([*cli, "analyse", str(out), "--workers", "2"], work)
+    runs = sum(1 for _ in os.scandir(out / "runs"))
+    disk = _disk_mb(out)
+    shutil.rmtree(out)
+    return {
+        "n": n,
+        "run": run,
+        "status_s": status_s,
+        "resume_s": resume_s,
+        "analyse": analysis,
+        "disk_mb": disk,
+        "logs": runs,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--max", type=int, default=100_000, help="largest campaign (points; default 100000)")
+    parser.add_argument("--work", type=Path, default=None, help="folder for the campaigns (default: a temporary one)")
+    args = parser.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="bench_scale_", dir=args.work))
+    print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start")
+    print(
+        "points     run [s]  runner peak  runner at 10/50/90 %     status [s] resume [s] analyse [s] analyse peak  disk"
+    )
+    try:
+        n = 1000
+        while n <= args.max:
+            r = scale(work, n)
+            run, analysis = r["run"], r["analyse"]
+            at = " / ".join(_mb(run["parent_at"].get(p)) for p in (10, 50, 90))
+            print(
+                f"{r['n']:>9,}  {run['wall_s']:7.1f}  {_mb(run['peak_parent_kb']):>11}  {at:>24}  "
+                f"{r['status_s']:9.2f}  {r['resume_s']:9.2f}  {analysis['wall_s']:10.1f}  "
+                f"{_mb(analysis['peak_parent_kb']):>11}  {r['disk_mb']:,.0f} MB ({r['disk_mb'] * 1024 / r['n']:.1f} kB a point)",
+                flush=True,
+            )
+            n *= 10
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,211 @@
+"""A campaign directory's results in Python: the metrics table from the ledger, selection by
+parameters, each run's :class:`~labrunner.results.run.RunResults`, and the runs' signals as one
+point × time xarray Dataset.
+
+The table is the one ``labrunner analyse`` writes to ``report/metrics.csv`` — the same columns,
+names and outcome-aware metrics (an aborted run's in ``<metric>_until_abort``) — built from the
+ledger whether or not ``analyse`` ran (logs are read only for rows of old ledgers that hold no
+metrics, reusing ``report/metrics.parquet`` where it still matches). One difference: ``log_path``
+is absolute here, where metrics.csv gives it relative to ``report/``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from labrunner.campaign.ledger import Ledger
+from labrunner.errors import InvalidParameter
+from labrunner.results.run import RunResults, require_xarray
+
+if TYPE_CHECKING:
+    import xarray as xr
+
+#: Folder of ``analyse``'s outputs, whose metrics.parquet caches rows read from logs.
+REPORT_DIR = "report"
+
+
+class CampaignResults:
+    """The results of one campaign directory (``labrunner run`` output); reads only, safe while the
+    campaign runs (the table is the ledger's state when :meth:`table` is first called; :meth:`refresh`
+    reads it again)."""
+
+    def __init__(self, directory: str | Path) -> None:
+        self.directory = Path(directory)
+        with Ledger.open_readonly(self.directory) as ledger:  # refuses a folder without a ledger, in one line
+            self.meta = ledger.meta()
+        self.name = self.meta.get("campaign") or self.directory.name
+
+    def __repr__(self) -> str:
+        return f"CampaignResults({str(self.directory)!r})"
+
+    def refresh(self) -> None:
+        """Forget the table read so far (a running campaign has moved on)."""
+        self.__dict__.pop("_built", None)
+
+    @functools.cached_property
+    def _built(self) -> tuple[pd.DataFrame, list[dict[str, str]], list[str]]:
+        from labrunner.analysis import selection, table as table_mod
+
+        campaign, _ = selection.load_campaign(self.meta, self.directory)
+        units, limits = selection.rig_signals(campaign)
+        with Ledger.open_readonly(self.directory) as ledger:
+            first = ledger.db.execute("SELECT parameters FROM points ORDER BY seq LIMIT 1").fetchone()
+            built = table_mod.build_table(
+                ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
+                self.directory,
+                cache=table_mod.read_cache(self.directory / REPORT_DIR),
+                units=units,
+                limits=limits,
+            )
+        # every point has the grid's keys (dotted: section.key); the first row names them in order
+        named = [k for k in (json.loads(first[0]) if first else {}) if k in built.frame.columns]
+        parameters = [*named, *(c for c in built.frame.columns if "." in c and c not in named)]
+        frame = table_mod.ordered(built.frame)
+        root = str(self.directory.resolve())
+        frame = frame.assign(
+            log_path=frame["log_path"].map(lambda p: os.path.join(root, p) if isinstance(p, str) else None)
+        )
+        return frame.reset_index(drop=True), built.problems, parameters
+
+    def table(self) -> pd.DataFrame:
+        """One row per grid point: ids, outcome, parameters (dotted keys), metrics (a copy)."""
+        return self._built[0].copy()
+
+    @property
+    def parameters(self) -> list[str]:
+        """The parameter columns of the table (dotted keys: ``controller.k_p``)."""
+        return list(self._built[2])
+
+    @property
+    def problems(self) -> list[dict[str, str]]:
+        """Missing, unreadable and torn logs found while building the table."""
+        return list(self._built[1])
+
+    def select(self, where: Mapping[str, Any] | None = None, /, **by_name: Any) -> pd.DataFrame:
+        """The table's rows matching every condition. Keys are column names (``"controller.k_p"``,
+        ``"outcome"``) or, as keywords, a parameter's last part when unique (``k_p=10``). A value
+        is matched exactly, a float to within 1e-9 relative (grid values are computed); a list or
+        tuple matches any of its values, a ``slice(lo, hi)`` the closed range [lo, hi] (either end
+        None: open), a callable gets the column and returns a boolean mask."""
+        conditions = {**(where or {}), **{self._column(k): v for k, v in by_name.items()}}
+        frame = self._built[0]
+        mask = np.ones(len(frame), dtype=bool)
+        for column, wanted in conditions.items():
+            if column not in frame.columns:
+                raise InvalidParameter(column, f"is no column of the table; parameters: {self.parameters}")
+            mask &= _matches(frame[column], wanted)
+        return frame[mask].copy()
+
+    def _column(self, key: str) -> str:
+        if key in self._built[0].columns:
+            return key
+        found = [p for p in self.parameters if p.rsplit(".", 1)[-1] == key]
+        if len(found) != 1:
+            why = f"matches {found}: name one in full" if found else f"is no column; parameters: {self.parameters}"
+            raise InvalidParameter(key, why)
+        return found[0]
+
+    def run(self, point: str | int) -> RunResults:
+        """One run, by point id or by ``seq``; a point without a log (not run, or failed before
+        writing one) is refused, naming its outcome."""
+        frame = self._built[0]
+        hit = frame[frame["seq"] == point] if isinstance(point, (int, np.integer)) else frame[frame["id"] == point]
+        if hit.empty:
+            raise InvalidParameter("point", f"{point!r} is no point of campaign {self.name!r}")
+        row = hit.iloc[0]
+        if not isinstance(row["log_path"], str):
+            raise InvalidParameter("point", f"{row['id']} has no run log (outcome {row['outcome']})")
+        return RunResults(row["log_path"], row["id"])
+
+    def runs(self, rows: pd.DataFrame | None = None) -> list[RunResults]:
+        """The runs of ``rows`` (default: the whole table) that have a log, in table order."""
+        rows = self._built[0] if rows is None else rows
+        return [RunResults(p, i) for i, p in zip(rows["id"], rows["log_path"]) if isinstance(p, str)]
+
+    def signals(self, rows: pd.DataFrame | None = None, names: Iterable[str] | None = None) -> xr.Dataset:
+        """The signals of ``rows``' runs (default: every run with a log) as one xarray Dataset over
+        (``point``, ``time``): runs must share their rate and their signals; a run shorter than the
+        longest (aborted, torn) is padded with NaN, and ``n_samples`` (per point) and ``valid``
+        (point × time) say which samples were logged. ``names``: the signals to keep (default
+        all). The parameters and outcome are coordinates along ``point``. Loads every selected
+        run into memory: select first for large campaigns."""
+        xr = require_xarray()
+        rows = self._built[0] if rows is None else rows
+        runs = self.runs(rows)
+        if not runs:
+            raise InvalidParameter("rows", "select at least one point with a run log")
+        logs = [r.log for r in runs]
+        fs = {log.fs for log in logs}
+        if len(fs) != 1:
+            raise InvalidParameter("rows", f"runs of one sampling rate only, got {sorted(fs)} Hz")
+        wanted = list(names) if names is not None else list(logs[0].names)
+        for run, log in zip(runs, logs):
+            if not set(wanted) <= set(log.names):
+                missing = sorted(set(wanted) - set(log.names))
+                raise InvalidParameter("names", f"run {run.id} logs no {missing}; it logs {list(log.names)}")
+        length = max(log.n_samples for log in logs)
+        counts = np.array([log.n_samples for log in logs], dtype=np.int64)
+        time = np.arange(length) / fs.pop()
+        valid = np.arange(length)[None, :] < counts[:, None]
+        units = runs[0].units
+        data = {}
+        for name in wanted:
+            block = np.full((len(logs), length), np.nan)
+            for i, log in enumerate(logs):
+                block[i, : log.n_samples] = log.signal(name)
+            data[name] = (("point", "time"), block, {"units": units.get(name, "")})
+        data["n_samples"] = ("point", counts)
+        data["valid"] = (
+            ("point", "time"),
+            valid,
+            {"description": "sample logged (False: padding after the run ended)"},
+        )
+        by_id = rows.set_index("id")
+        ids = [r.id for r in runs]
+        coords: dict[str, Any] = {"point": ids, "time": ("time", time, {"units": "s"})}
+        for column in ["outcome", *self.parameters]:
+            if column in by_id.columns:
+                coords[column] = ("point", by_id.loc[ids, column].to_numpy())
+        return xr.Dataset(data, coords=coords, attrs={"campaign": self.name, "directory": str(self.directory)})
+
+
+def _matches(column: pd.Series, wanted: Any) -> np.ndarray:
+    """Boolean mask of ``column`` against one :meth:`CampaignResults.select` condition."""
+    if callable(wanted):
+        return np.asarray(wanted(column), dtype=bool)
+    if isinstance(wanted, slice):
+        values = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
+        lo = -math.inf if wanted.start is None else wanted.start
+        hi = math.inf if wanted.stop is None else wanted.stop
+        return (values >= lo) & (values <= hi)
+    options = list(wanted) if isinstance(wanted, (list, tuple, set, frozenset)) else [wanted]
+    mask = np.zeros(len(column), dtype=bool)
+    for option in options:
+        mask |= _equal(column, option)
+    return mask
+
+
+def _equal(column: pd.Series, value: Any) -> np.ndarray:
+    if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
+        numbers = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
+        return np.isclose(numbers, float(value), rtol=1e-9, atol=0.0)
+    return (column == value).fillna(False).to_numpy(dtype=bool)
+
+
+def open_campaign(directory: str | Path) -> CampaignResults:
+    """Open a campaign directory's results (see :class:`CampaignResults`)."""
+    return CampaignResults(directory)
+
+
+def open_run(path: str | Path) -> RunResults:
+    """Open one run log (``runs/<point id>.mcap``) as :class:`RunResults`."""
+    return RunResults(path)

@@ -1,0 +1,125 @@
+"""One run's results from its log: signals with units and time, configuration, outcome, diagnostics.
+
+The outcome has one shape for every run, twin or device (:data:`OUTCOME_KEYS`, None where a key
+does not apply); a device loop's or a real rig's timing and link figures are the run's
+``diagnostics`` (an empty dict for a twin run), never part of the outcome.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from labrunner.logs import RunLog, read_run
+
+if TYPE_CHECKING:
+    import pandas as pd
+    import xarray as xr
+
+#: The keys of every run's :attr:`RunResults.outcome`, in this order.
+OUTCOME_KEYS = ("status", "monitor", "time", "value", "threshold", "message", "n_samples")
+
+
+def require_xarray():
+    """The ``xarray`` module, or a one-line error saying how to install it (an optional dependency)."""
+    try:
+        import xarray
+    except ImportError:
+        raise ImportError(
+            "labrunner's point × time results need xarray, which is not installed: "
+            "pip install xarray (or pip install 'labrunner[results]')"
+        ) from None
+    return xarray
+
+
+class RunResults:
+    """One run log, read when first needed: ``signals`` (pandas, index ``t`` [s]), ``units``,
+    ``config``, ``parameters``, ``outcome``, ``diagnostics``, ``metrics``, ``metadata``."""
+
+    def __init__(self, path: str | os.PathLike[str], point_id: str | None = None) -> None:
+        self.path = Path(path)
+        self.id = point_id if point_id is not None else self.path.stem
+
+    def __repr__(self) -> str:
+        return f"RunResults({str(self.path)!r})"
+
+    @functools.cached_property
+    def log(self) -> RunLog:
+        """The run log as :func:`labrunner.logs.read_run` reads it (bit-exact samples)."""
+        return read_run(self.path)
+
+    @property
+    def fs(self) -> float:
+        """Sampling rate [Hz]; sample k is at t = k / fs."""
+        return self.log.fs
+
+    @property
+    def units(self) -> dict[str, str]:
+        """SI unit of each signal (empty where the signal has none)."""
+        return {name: str(info.get("unit") or "") for name, info in self.log.channels.items()}
+
+    @property
+    def roles(self) -> dict[str, str]:
+        """Role of each signal: input, output, controlled, reference, error, estimate, signal."""
+        return {name: str(info.get("role") or "") for name, info in self.log.channels.items()}
+
+    @property
+    def signals(self) -> pd.DataFrame:
+        """One column per signal, index ``t`` [s]; ``.attrs["units"]`` maps columns to units. A
+        copy: changing it leaves the run alone."""
+        frame = self.log.frame.copy()
+        frame.attrs["units"] = self.units
+        frame.attrs["fs"] = self.fs
+        return frame
+
+    @property
+    def metadata(self) -> dict[str, dict[str, Any]]:
+        """Every metadata record of the log but the outcome (``run``, ``config``, ``rig``, ...)."""
+        return self.log.metadata
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The run's resolved configuration (controller, differentiator, reference, safety, ...)."""
+        return dict(self.metadata.get("config") or {})
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """The grid point's parameters (dotted keys, as the table's columns name them)."""
+        return dict(self.metadata.get("parameters") or {})
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        """The metrics committed with the run (whole run and named windows)."""
+        return dict(self.metadata.get("metrics") or {})
+
+    @property
+    def diagnostics(self) -> dict[str, Any]:
+        """A real rig's or device loop's record of the run (timing, link counters); {} for a twin."""
+        return dict(self.metadata.get("diagnostics") or {})
+
+    @property
+    def outcome(self) -> dict[str, Any]:
+        """How the run ended, :data:`OUTCOME_KEYS` (None where a key does not apply; status None:
+        the log is torn, the run never finished)."""
+        record = dict(self.log.outcome or {})
+        record.pop("diagnostics", None)  # logs written before diagnostics were kept apart
+        out = {key: record.pop(key, None) for key in OUTCOME_KEYS}
+        if out["message"] is None:
+            out["message"] = ""
+        if out["n_samples"] is None:
+            out["n_samples"] = self.log.n_samples
+        return {**out, **record}
+
+    def to_xarray(self) -> xr.Dataset:
+        """The signals as an xarray Dataset over ``time`` [s], each variable's ``units`` attribute set."""
+        xr = require_xarray()
+        log = self.log
+        units = self.units
+        data = {
+            name: ("time", log.data[j], {"units": units.get(name, ""), "role": self.roles.get(name, "")})
+            for j, name in enumerate(log.names)
+        }
+        attrs = {"point_id": self.id, "fs": self.fs, "status": self.outcome["status"] or "torn"}
+        return xr.Dataset(data, coords={"time": ("time", log.t, {"units": "s"})}, attrs=attrs)
