@@ -338,10 +338,9 @@ def build_table(
                 {"path": rel, "kind": "missing", "detail": f"point {frame.at[i, 'id']}: log file not found"}
             )
             continue
+        stats[i] = st[:2]  # every log is checked against its row: by its metadata unless proved before
         if not st[2]:
             todo.add(i)  # damaged: read it (salvage) to flag it, its metrics stay the ledger's
-        if i in todo:
-            stats[i] = st[:2]
     todo = sorted(i for i in todo if i in stats)
     cached = {} if recompute else _cached(cache)
     metrics: dict[int, dict[str, Any]] = {}
