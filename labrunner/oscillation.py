@@ -9,11 +9,22 @@ rig-specific knowledge beyond the input's limits [lo, hi]:
 - **pinned**: an input sits within ``tolerance`` of the span at a limit for at least
   ``pinned_share`` of the run (the loop has lost authority);
 - **saturated oscillation**: an input enters a limit band at least ``min_hits`` (5) times and at
-  least ``hit_rate`` (2) times per second (a limit cycle, e.g. paper 1's runs above the stability region);
+  least ``hit_rate`` (2) times per second, its entries spread over at least (min_hits − 1)/hit_rate
+  seconds (a limit cycle, e.g. paper 1's runs above the stability region — not the plate's currents
+  chattering at 0 A for 80 ms as the lift starts);
 - **growing oscillation**: the RMS of the input's sample-to-sample change Δu rises quarter by
   quarter of the run (r₂ < r₃ < r₄) to ``growth`` × its value in the second quarter (the first is
   left out: runs start at rest). A growing oscillation adds energy at high frequency, where
-  Δu sees it and the smooth reference transitions barely register.
+  Δu sees it and the smooth reference transitions barely register;
+- **sustained oscillation**, whatever its amplitude relative to the limits (paper 1 Sec. 5.2: on
+  line (A) "the system starts oscillating, but the current is not reaching its maximum value"):
+  the run is cut into ``segments`` pieces; in one of them the input, less its straight-line trend,
+  repeats itself — its autocorrelation after the first zero crossing reaches ``periodicity`` at a
+  lag of at most a third of the piece (three periods or more) — with a peak-to-peak amplitude
+  (2√2 σ) of at least ``amplitude`` × the input's own range over the run (so that a periodic
+  pattern of quantisation or rounding far below what the input does is not an oscillation), not
+  dying out (σ of the piece's second half ≥ ``decay`` × the first half's).
+  ``periodicity`` is that largest autocorrelation (0 where no piece qualifies).
 
 Pure numpy; the metrics of :mod:`labrunner.metrics` call it once per run.
 """
@@ -25,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Columns :func:`detect` adds to a run's metrics.
-DETECTOR_METRICS = ("pinned_share", "limit_hits_per_s", "du_growth", "oscillating")
+DETECTOR_METRICS = ("pinned_share", "limit_hits_per_s", "du_growth", "periodicity", "oscillating")
 
 
 @dataclass(frozen=True)
@@ -38,6 +49,10 @@ class Detector:
     hit_rate: float = 2.0  # ... and at least this many per second [1/s]: the plate's currents touch 0 A
     # about once a second while it descends under gravity (paper 2's lift), a limit cycle 3-15 times
     growth: float = 2.0  # growing: RMS(Δu) of the last quarter ≥ growth × the second quarter's
+    segments: int = 5  # sustained: pieces of the run, each searched for ≥ 3 periods of one oscillation
+    periodicity: float = 0.7  # sustained: autocorrelation at the period (hand-labelled runs: see tests)
+    amplitude: float = 0.1  # sustained: peak-to-peak ≥ this share of the input's range over the run
+    decay: float = 0.7  # sustained: the piece's second half keeps at least this share of the first's σ
 
     def detect(self, u: np.ndarray, lo: np.ndarray, hi: np.ndarray, fs: float) -> dict[str, float]:
         """Detector metrics of one run: ``u`` (n_inputs, K) with limits ``lo``, ``hi`` (n_inputs,).
@@ -57,21 +72,57 @@ class Detector:
         at_lo = np.isfinite(lo) & (span > 0) & (u <= lo + band)
         at_limit = at_hi | at_lo
         pinned = float(at_limit.mean(axis=1).max())
-        entries = (np.diff(at_hi.astype(np.int8), axis=1) == 1).sum(axis=1) + (
-            np.diff(at_lo.astype(np.int8), axis=1) == 1
-        ).sum(axis=1)
-        hits = int(entries.max())
+        entering = (np.diff(at_hi.astype(np.int8), axis=1) == 1) | (np.diff(at_lo.astype(np.int8), axis=1) == 1)
+        entries = entering.sum(axis=1)
+        worst = int(entries.argmax())
+        hits = int(entries[worst])
         rate = hits * fs / k
+        where = np.flatnonzero(entering[worst])
+        spread = (where[-1] - where[0]) / fs if hits else 0.0
         growth = _growth(u)
+        periodic = max(self.sustained(row) for row in u)
         oscillating = (
-            pinned >= self.pinned_share or (hits >= self.min_hits and rate >= self.hit_rate) or growth >= self.growth
+            pinned >= self.pinned_share
+            or (hits >= self.min_hits and rate >= self.hit_rate and spread >= (self.min_hits - 1) / self.hit_rate)
+            or growth >= self.growth
+            or periodic >= self.periodicity
         )
         return {
             "pinned_share": pinned,
             "limit_hits_per_s": float(rate),
             "du_growth": growth,
+            "periodicity": periodic,
             "oscillating": float(oscillating),
         }
+
+    def sustained(self, x: np.ndarray) -> float:
+        """The largest autocorrelation at a period of ≥ 3 repeats in one piece of ``x`` (one input)
+        whose oscillation is at least ``amplitude`` × the range of ``x``; 0 where none qualifies."""
+        span = float(np.ptp(x)) if x.size else 0.0
+        n = x.size // self.segments
+        if span <= 0.0 or n < 16:
+            return 0.0
+        pieces = x[: n * self.segments].reshape(self.segments, n)
+        t = np.arange(n) - (n - 1) / 2.0
+        slope = pieces @ t / (t @ t)
+        y = pieces - pieces.mean(axis=1, keepdims=True) - slope[:, None] * t
+        big = 2.0 * np.sqrt(2.0) * y.std(axis=1) >= self.amplitude * span
+        if not big.any():
+            return 0.0
+        half = n // 2
+        kept = y[:, half:].std(axis=1) >= self.decay * y[:, :half].std(axis=1)  # not dying out
+        y = y[big & kept]
+        if not len(y):
+            return 0.0
+        f = np.fft.rfft(y, 2 * n, axis=1)
+        r = np.fft.irfft(f * np.conj(f), axis=1)[:, :n]
+        r = r / r[:, :1] * n / (n - np.arange(n))  # normalised, unbiased
+        best = 0.0
+        for row in r[:, : n // 3]:
+            below = np.flatnonzero(row < 0.0)
+            if below.size:
+                best = max(best, float(row[below[0] :].max()))
+        return best
 
 
 def _growth(u: np.ndarray) -> float:

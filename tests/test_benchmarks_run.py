@@ -26,6 +26,7 @@ SLOW = {
     "bench_deviceloop.py": (["--only", "motor-can"], "moved:"),
     "bench_stability.py": ([], ""),
     "bench_control.py": ([], ""),
+    "bench_scale.py": (["--max", "1000"], "points"),
 }
 
 

@@ -5,6 +5,8 @@ law wrong it fails them."""
 
 from __future__ import annotations
 
+import threading
+
 import pytest
 
 from labrunner.rigs.config import config_from_dict
@@ -19,14 +21,22 @@ def _document_device(emulator: Emulator, law=law_reference.run):
     """Replace the emulated device's executor by the document's law (sensor-table runs only)."""
     info = emulator.rig.info
 
-    def execute(data: bytes, hook, on_accept) -> executor.DeviceRun:
+    def execute(data: bytes, hook, on_accept, tick) -> executor.DeviceRun:
         d = description.decode(data)
         if d.kind not in description.DEVICE_KINDS:
             raise DescriptionError(f"controller kind {d.kind!r} is not in this firmware")
         if (d.n_inputs, d.n_outputs) != (len(info.inputs), len(info.outputs)) or d.sensor_table is None:
             raise DescriptionError("this document-built device runs sensor-table descriptions of its own channels")
         on_accept(d)
-        rows, v = law(d, [s.name for s in info.inputs], [s.name for s in info.outputs])
+        done: dict = {}
+        worker = threading.Thread(
+            target=lambda: done.update(out=law(d, [s.name for s in info.inputs], [s.name for s in info.outputs]))
+        )
+        worker.start()
+        while worker.is_alive():  # a firmware reports PROGRESS while it runs (the host gives up after 1 s of silence)
+            worker.join(0.05)
+            tick(0)
+        rows, v = done["out"]
         n = len(rows)
         verdict = blocks.Verdict(
             v["status"], n, n, 0, v.get("monitor", ""), v.get("time", float("nan")), v.get("value", float("nan")),

@@ -160,6 +160,21 @@ def test_polack_feed_forward_then_feedback():
     assert end.result.chosen.params[KP] == pytest.approx(10.0)
 
 
+def test_polack_thesis_back_off_passes_over_an_oscillating_best_gamma():
+    """Thesis Fig. 3.22: the smallest-RMS feed-forward γ oscillated, so the next best was taken."""
+
+    def plant(points):  # feed_forward_plant, with the runs at γ < 40 flagged oscillating (still completed)
+        out = feed_forward_plant(points)
+        return [{**o, "oscillating": float(p[KP] == 0.0 and 20.0 <= p[GAMMA] < 40.0)} for p, o in zip(points, out)]
+
+    # feed-forward: best completed γ = 10^1.5 = 31.6 is flagged; the best calm one is 10^1.75 = 56.2
+    end = drive(polack(back_off=None), "t", plant)
+    assert end.result.detail["gamma"] == pytest.approx(10**1.75)
+    # without the flag the rule keeps the best γ; back_off = 0 keeps it even when flagged
+    assert drive(polack(back_off=None), "t", feed_forward_plant).result.detail["gamma"] == pytest.approx(10**1.5)
+    assert drive(polack(back_off=0), "t", plant).result.detail["gamma"] == pytest.approx(10**1.5)
+
+
 def test_guideline3_start_is_the_top_of_the_ultralocal_set():
     from labrunner.stability import bounds
 
@@ -240,3 +255,36 @@ def test_guided_section_errors_name_the_key(tmp_path):
     with pytest.raises(InvalidParameter, match=r'derived\."controller\.k_p": is set by the polack procedure'):
         spec.load(path)
     assert isinstance(load(gamma_start=1000.0, gamma_stop=1.0).guided, guided.Procedure)
+
+
+def test_guidelines_stop_where_the_loop_starts_oscillating_and_guideline3_backs_off_to_a_calm_k_d():
+    """Guideline 2 Step 3 / Guideline 3 Step 4: "until either the controlled system starts oscillating or
+    the tracking error is appropriately small"; Guideline 3 Step 3: "reduce it such that no oscillations
+    occur". The detector's flag is the oscillation (runs still complete)."""
+    # Guideline 2 along k_p = 1000/γ, γ = 10^(3 − i/4): the runs at k_p/γ > 1 oscillate (from i = 3, γ = 177.8)
+    proc = Guideline2(1, "walk", 1000.0, 1.0, 1.0, 4, None)
+
+    def ratio(points):
+        return [
+            {"status": "completed", "rms_error": 1.0 / p[KP], "oscillating": float(p[KP] / p[GAMMA] > 0.02)}
+            for p in points
+        ]
+
+    end = drive(proc, "t", ratio)
+    assert end.result.reason == "oscillating" and end.runs == 4  # γ = 1000, 562, 316 calm; 178 oscillates
+    assert end.result.chosen.params[GAMMA] == pytest.approx(10**2.5)
+    # Guideline 3: k_d,i = 10·10^(i/4) trips for k_d > 40 (i = 3); k_d = 31.6 oscillates, 17.8 does not
+    g3 = Guideline3(5.0, 40.0 * math.pi, 10.0, 1e4, 1e5, 4, None, None)
+
+    def plant(points):
+        return [
+            {
+                "status": "aborted" if p[KD] > 40.0 or p[KP] > 800.0 else "completed",
+                "rms_error": 1.0 / (p[KP] * p[KD]),
+                "oscillating": float(25.0 < p[KD] <= 40.0),
+            }
+            for p in points
+        ]
+
+    end = drive(g3, "t", plant)
+    assert end.result.detail["k_d"] == pytest.approx(10**1.25)  # the largest calm k_d below the trip

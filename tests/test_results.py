@@ -64,11 +64,11 @@ def test_table_is_metrics_csv_with_or_without_analyse(project):
         resolved = [str((directory / "report" / p).resolve()) for p in csv["log_path"]]
         assert table["log_path"].tolist() == resolved  # absolute here, relative to report/ in the file
         for column in csv.columns.drop("log_path"):
-            if pd.api.types.is_numeric_dtype(csv[column]):
+            if pd.api.types.is_numeric_dtype(csv[column]) and pd.api.types.is_numeric_dtype(table[column]):
                 assert np.allclose(
                     table[column].to_numpy(float), csv[column].to_numpy(float), rtol=1e-12, equal_nan=True
                 ), column
-            else:
+            else:  # text; a column empty in every row (law_check of twin runs) reads back from CSV as NaN
                 assert table[column].fillna("").astype(str).tolist() == csv[column].fillna("").astype(str).tolist()
     assert set(after["outcome"]) >= {"completed", "aborted"}
     aborted = after[after["outcome"] == "aborted"]

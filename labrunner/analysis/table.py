@@ -63,7 +63,8 @@ TIMING_COLUMNS = ("late_ticks", "overruns")
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS, *TIMING_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
 METRICS_VERSION = (
-    4  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort columns
+    5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
+    # columns; 5: the detector's sustained-oscillation rule (periodicity)
 )
 #: Parallel reading pays off above this many logs.
 _PARALLEL_MIN = 64
@@ -337,10 +338,9 @@ def build_table(
                 {"path": rel, "kind": "missing", "detail": f"point {frame.at[i, 'id']}: log file not found"}
             )
             continue
+        stats[i] = st[:2]  # every log is checked against its row: by its metadata unless proved before
         if not st[2]:
             todo.add(i)  # damaged: read it (salvage) to flag it, its metrics stay the ledger's
-        if i in todo:
-            stats[i] = st[:2]
     todo = sorted(i for i in todo if i in stats)
     cached = {} if recompute else _cached(cache)
     metrics: dict[int, dict[str, Any]] = {}

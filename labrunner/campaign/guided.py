@@ -41,6 +41,7 @@ class Observation:
     status: str  # completed | aborted | no-motion | failed
     rms_error: float | None = None
     input_energy: float | None = None
+    oscillating: bool = False  # completed, but the oscillation detector flagged it (labrunner.oscillation)
 
     @property
     def tripped(self) -> bool:
@@ -265,5 +266,10 @@ def drive(
         for point, out in zip(step.next, oracle(list(step.next)), strict=True):
             pid = point_id(campaign, point)
             outcomes[pid] = Observation(
-                pid, dict(point), str(out["status"]), out.get("rms_error"), out.get("input_energy")
+                pid,
+                dict(point),
+                str(out["status"]),
+                out.get("rms_error"),
+                out.get("input_energy"),
+                out.get("oscillating") == 1.0,
             )

@@ -28,8 +28,15 @@ def observations(rows: Sequence[Mapping[str, Any]]) -> dict[str, Observation]:
     """Terminal ledger rows as the observations a plan is sent (point id → observation)."""
     import json
 
+    def flagged(row: Mapping[str, Any]) -> bool:  # the oscillation detector's verdict at run time
+        text = row["metrics_json"] if "metrics_json" in row.keys() else None
+        metrics = json.loads(text) if text else {}
+        return metrics.get("oscillating") == 1.0
+
     return {
-        r["id"]: Observation(r["id"], json.loads(r["parameters"]), r["outcome"], r["rms_error"], r["input_energy"])
+        r["id"]: Observation(
+            r["id"], json.loads(r["parameters"]), r["outcome"], r["rms_error"], r["input_energy"], flagged(r)
+        )
         for r in rows
         if r["state"] in TERMINAL
     }
@@ -210,6 +217,7 @@ def engine_oracle(campaign: Campaign, batch: int = 64) -> Oracle:
                                 "status": r.outcome.status,
                                 "rms_error": r.metrics.get("rms_error"),
                                 "input_energy": r.metrics.get("input_energy"),
+                                "oscillating": r.metrics.get("oscillating"),
                             },
                         )
                         for i, r in zip(idx, results)

@@ -6,16 +6,24 @@ decade as in thesis Sec. 3.5.3) and stop by the rules the thesis states:
 - **Guideline 2** (thesis Sec. 3.5.1, first-order MFC (3.6)), case 1: start at a large γ̃ and a small
   k̃_p, keep k_p(γ) = k̃_p γ̃ / γ (3.7) and decrease γ "until either the controlled system starts
   oscillating or the tracking error is appropriately small" — here: until the safety routine trips
-  (thesis Sec. 3.3) or RMS(e) ≤ ``rms_target``. Case 2 (ρ known): γ̃ = κρ, k̃_p = πκ/(2δ_t) (the
+  (thesis Sec. 3.3), a completed run oscillates (the oscillation detector's flag) or RMS(e) ≤
+  ``rms_target``. Case 2 (ρ known): γ̃ = κρ, k̃_p = πκ/(2δ_t) (the
   conservative bound of appendix A.1), γ ∈ [ρ, κρ]. ``method = "bisect"`` finds the same first
   stopping point in O(log n) runs (Sec. 3.5.3: "the bisection method can be used to speed up the
-  sampling"), assuming the stopping condition is monotone along the line.
+  sampling"), assuming the stopping condition is monotone along the line (it stops at trips and the
+  target only).
 - **Guideline 3** (Sec. 3.5.2, second-order MFC (3.10)): γ = ρ; start at the highest k̃_p of the
   ultra-local stability set (appendix A.4) and its k̃_d; increase k_d until the boundary (a trip),
-  back off; then increase k_p until a trip or the RMS target.
+  "reduce it such that no oscillations occur" (default: the largest k_d below the trip whose run the
+  detector does not flag; ``kd_back_off = n``: n rungs below the trip); then increase k_p until a
+  trip, an oscillation or the RMS target.
 - **Polack et al. (2019)** (Sec. 3.5.3): feed-forward stage, k_p = 0 (3.11), decrease γ from a large
-  value until the loop trips, keep the γ with the smallest error; feedback stage, increase k_p from
-  a small value until the error is small enough (or the loop trips).
+  value until the loop trips, keep the γ with the smallest error — with the thesis's back-off
+  (Fig. 3.22, the default ``back_off = "oscillation"``): the smallest-error γ whose run the
+  oscillation detector does not flag (the thesis passed over 64.93 for 74.98 because the former
+  oscillated as Ω_r returned to zero); ``back_off = n`` instead takes n rungs above the smallest-error
+  γ whatever its runs did. Feedback stage: increase k_p from a small value until the error is small
+  enough (or the loop trips).
 
 A safety trip that ends a walk is the "starts oscillating" of the guidelines: the chosen point is
 then the completed run with the smallest RMS error so far (Fig. 3.11: the best runs lie at the
@@ -45,9 +53,18 @@ class StageEnd:
     chosen: Observation | None
 
 
-def walk(stage: str, points: list[dict[str, Any]], *, target: float | None = None, patience: int | None = None):
+def walk(
+    stage: str,
+    points: list[dict[str, Any]],
+    *,
+    target: float | None = None,
+    patience: int | None = None,
+    oscillation: bool = False,
+):
     """Run ``points`` one by one until a trip, RMS(e) ≤ ``target``, ``patience`` rises of the RMS in a
-    row, a failed run, or the end of the ladder (a sub-plan; ``yield from`` it)."""
+    row, a failed run, the end of the ladder, or — with ``oscillation`` — a completed run the
+    oscillation detector flags (the guidelines' "until the controlled system starts oscillating"; the
+    choice is then the best run before it). A sub-plan; ``yield from`` it."""
     seen: list[Observation] = []
     rises = 0
     for point in points:
@@ -58,6 +75,8 @@ def walk(stage: str, points: list[dict[str, Any]], *, target: float | None = Non
             return StageEnd(stage, tuple(seen), "failed", None)
         if obs.tripped:
             return StageEnd(stage, tuple(seen), "tripped", best(seen))
+        if oscillation and obs.completed and obs.oscillating:
+            return StageEnd(stage, tuple(seen), "oscillating", best([o for o in seen if not o.oscillating]))
         if target is not None and obs.completed and obs.rms_error <= target:
             return StageEnd(stage, tuple(seen), "target", obs)
         if patience is not None and obs.completed and prev is not None:
@@ -176,8 +195,11 @@ class Guideline2(Procedure):
         return [{GAMMA: g, KP: c / g} for g in Ladder(self.gamma_start, self.gamma_stop, self.per_decade).values()]
 
     def plan(self) -> Plan:
-        sub = bisect if self.method == "bisect" else walk
-        end = yield from sub(f"k_p = {self.kp_start * self.gamma_start:.6g}/γ", self.line(), target=self.rms_target)
+        label = f"k_p = {self.kp_start * self.gamma_start:.6g}/γ"
+        if self.method == "bisect":
+            end = yield from bisect(label, self.line(), target=self.rms_target)
+        else:  # Step 3: "until either the controlled system starts oscillating or the tracking error is ... small"
+            end = yield from walk(label, self.line(), target=self.rms_target, oscillation=True)
         return Result(end.chosen, end.reason, _stages(end))
 
     def max_runs(self) -> int:
@@ -210,7 +232,7 @@ class Polack(Procedure):
     kp_start: float
     kp_stop: float
     per_decade: int
-    back_off: int  # ladder steps towards larger γ from the best feed-forward γ (Fig. 3.22: one)
+    back_off: int | None  # None: the thesis's rule (best γ not flagged oscillating); n: n rungs above the best γ
     rms_target: float | None
     patience: int | None
 
@@ -222,7 +244,7 @@ class Polack(Procedure):
         k0, k1 = t.number("kp_start", 0.1, lo=0.0), t.number("kp_stop", REQUIRED, lo=0.0)
         _ladder("gamma_stop", g0, g1, per_decade, True)
         _ladder("kp_stop", k0, k1, per_decade, False)
-        back_off = t.integer("back_off", 0, 0, 100)
+        back_off = None if t.raw("back_off") in (None, "oscillation") else t.integer("back_off", 0, 0, 100)
         target = t.number("rms_target", None, lo=0.0)
         patience = t.raw("patience")
         if patience is not None:
@@ -240,8 +262,11 @@ class Polack(Procedure):
         ff = yield from walk("feed-forward (k_p = 0)", [{GAMMA: g, KP: 0.0} for g in gammas])
         if ff.chosen is None:
             return Result(None, f"feed-forward stage: {ff.reason}, no completed run", _stages(ff))
-        i = max(0, gammas.index(ff.chosen.params[GAMMA]) - self.back_off)
-        gamma = gammas[i]
+        if self.back_off is None:  # thesis Fig. 3.22: pass over a best γ whose run oscillates
+            calm = [o for o in ff.seen if o.completed and not o.oscillating]
+            gamma = min(calm, key=lambda o: o.rms_error).params[GAMMA] if calm else ff.chosen.params[GAMMA]
+        else:
+            gamma = gammas[max(0, gammas.index(ff.chosen.params[GAMMA]) - self.back_off)]
         fb = yield from walk(
             f"feedback (γ = {gamma:.5g})",
             [{GAMMA: gamma, KP: k} for k in self.gains()],
@@ -276,7 +301,7 @@ class Guideline3(Procedure):
     kd_stop: float
     kp_stop: float
     per_decade: int
-    kd_back_off: int  # ladder steps below the first tripped k_d (Step 3: "reduce it")
+    kd_back_off: int | None  # Step 3's "reduce it": None, to the largest k_d whose run does not oscillate; n rungs
     rms_target: float | None
 
     @classmethod
@@ -292,7 +317,8 @@ class Guideline3(Procedure):
         kd1, kp1 = t.number("kd_stop", REQUIRED, lo=0.0), t.number("kp_stop", REQUIRED, lo=0.0)
         _ladder("kd_stop", kd0, kd1, per_decade, False)
         _ladder("kp_stop", kp0, kp1, per_decade, False)
-        back_off = t.integer("kd_back_off", 1, 1, 100)
+        raw = t.raw("kd_back_off")
+        back_off = None if raw in (None, "oscillation") else t.integer("kd_back_off", 1, 1, 100)
         return cls(rho, kp0, kd0, kd1, kp1, per_decade, back_off, t.number("rms_target", None, lo=0.0))
 
     def plan(self) -> Plan:
@@ -302,13 +328,19 @@ class Guideline3(Procedure):
         s3 = yield from walk("step 3: raise k_d", [{**base, KP: kps[0], KD: kd} for kd in kds])
         if s3.reason != "tripped":
             kd = s3.seen[-1].params[KD] if s3.reason == "end of range" else None
+        elif self.kd_back_off is None:  # Step 3: "reduce it such that no oscillations occur"
+            calm = [o.params[KD] for o in s3.seen if o.completed and not o.oscillating]
+            kd = max(calm) if calm else None
         else:
             i = kds.index(s3.seen[-1].params[KD]) - self.kd_back_off
             kd = kds[i] if i >= 0 else None
         if kd is None:
             return Result(s3.chosen, f"step 3: {s3.reason}", _stages(s3))
-        s4 = yield from walk(
-            f"step 4: raise k_p (k_d = {kd:.5g})", [{**base, KP: kp, KD: kd} for kp in kps], target=self.rms_target
+        s4 = yield from walk(  # Step 4: "until either the controlled system starts oscillating or ..."
+            f"step 4: raise k_p (k_d = {kd:.5g})",
+            [{**base, KP: kp, KD: kd} for kp in kps],
+            target=self.rms_target,
+            oscillation=True,
         )
         return Result(s4.chosen, s4.reason, {**_stages(s3, s4), "k_d": kd})
 
@@ -327,7 +359,9 @@ class Guideline3(Procedure):
     def describe(self) -> str:
         return (
             f"Guideline 3: γ = ρ = {self.rho:.6g}; k_d {self.kd_start:.4g} → {self.kd_stop:.4g} at k_p = "
-            f"{self.kp_start:.5g} until a trip, back {self.kd_back_off}; then k_p → {self.kp_stop:.5g}"
+            f"{self.kp_start:.5g} until a trip, back "
+            f"{'to the largest k_d not oscillating' if self.kd_back_off is None else self.kd_back_off}; "
+            f"then k_p → {self.kp_stop:.5g} until a trip or an oscillation"
         )
 
 

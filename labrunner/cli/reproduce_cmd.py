@@ -18,14 +18,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Run the campaigns under campaigns/thesis, campaigns/valve-paper and campaigns/plate-paper (and the "
             "top-level ones they build on), analyse each, and write OUT/index.html: every map and table beside the "
-            "source's claim and the measured check, saying plainly where the twin disagrees. A second call resumes "
+            "source's claim and the measured check, saying plainly where the twin disagrees and which claims it cannot test. A second call resumes "
             "and re-analyses what OUT already holds. Figures: " + ", ".join(i.id for i in ITEMS) + "."
         ),
     )
     p.add_argument(
         "--quick",
         action="store_true",
-        help="reduced grids and shortened references (about 4 min of CPU: 2-4 min on 2 free cores; the longest plate runs left out)",
+        help="reduced grids and shortened references (about 5 min of CPU: 2.5-5 min on 2 free cores; the longest plate runs left out)",
     )
     p.add_argument("--only", nargs="+", metavar="FIG", help="run only these figures/tables (ids as listed above)")
     p.add_argument(
@@ -54,7 +54,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary, ensure_ascii=False, default=str))
         return 0
     for item, v in summary["items"].items():
-        verdict = {True: "agrees", False: "DISAGREES", None: "—"}[v["agrees"]]
-        print(f"{item:>10}  {verdict:9}  {v['measured']}")
+        verdict = "DISAGREES" if v["verdict"] == "disagrees" else v["verdict"]
+        print(f"{item:>11}  {verdict:17}  {v['measured']}")
+    n = summary["counts"]
+    print(", ".join(f"{count} {kind}" for kind, count in n.items() if count))
     print(f"report: {summary['report']} ({summary['seconds']:.0f} s)")
     return 0

@@ -15,29 +15,56 @@ from typing import Any, TextIO
 import pandas as pd
 
 from labrunner.analysis.report import Image, Section, write_report
-from labrunner.reproduce import checks, checks_papers
-from labrunner.reproduce.checks import Verdict
+from labrunner.reproduce import checks, checks_papers, checks_twin_only, checks_walks
 from labrunner.reproduce.items import QUICK_SKIP, Item, select
 from labrunner.reproduce.run import CampaignResult, run_items
+from labrunner.reproduce.verdict import Verdict
 
-_VERDICT = {True: "agrees", False: "DISAGREES", None: "no yes/no answer"}
+#: How each kind of outcome reads in the report.
+_VERDICT = {True: "agrees", False: "DISAGREES", None: "not testable on the twin"}
 
 
 def _check(name: str) -> Callable[[dict[str, CampaignResult]], Verdict]:
-    return getattr(checks, name, None) or getattr(checks_papers, name)
+    for module in (checks, checks_twin_only, checks_walks, checks_papers):
+        if hasattr(module, name):
+            return getattr(module, name)
+    raise AttributeError(f"no check {name!r}")
+
+
+def verdict_kind(item: Item, verdicts: dict[str, Verdict]) -> str:
+    """agrees | disagrees | not testable | not reproduced | not run (--quick)."""
+    if not item.reproduced:
+        return "not testable" if item.reason.startswith("not testable") else "not reproduced"
+    if item.id not in verdicts:
+        return "not run (--quick)"
+    return verdicts[item.id].kind
+
+
+def counts(items: Sequence[Item], verdicts: dict[str, Verdict]) -> dict[str, int]:
+    """How many items of each kind (:func:`verdict_kind`)."""
+    out = dict.fromkeys(("agrees", "disagrees", "not testable", "not reproduced", "not run (--quick)"), 0)
+    for item in items:
+        out[verdict_kind(item, verdicts)] += 1
+    return out
 
 
 def _item_section(
     item: Item, results: dict[str, CampaignResult] | None, verdict: Verdict | None, quick: bool
 ) -> Section:
-    paragraphs = [f"Claim ({item.source}): {item.claim}"]
-    if results is None:
+    paragraphs = [f"Claim ({item.source}, {item.place}): {item.claim}"]
+    if not item.reproduced:
+        paragraphs.append(f"Verdict: {item.reason}")
+        return Section(f"{item.id}: {item.title}", paragraphs=paragraphs)
+    if item.tolerance:
+        paragraphs.append(f"Tolerance: {item.tolerance}.")
+    if item.calibration:
+        paragraphs.append(f"Built on the source (not counted as agreement): {item.calibration}")
+    if verdict is None:
         paragraphs.append(
             "Not run with --quick (its runs are the longest); run `labrunner reproduce --only "
             f"{item.id}` without --quick."
         )
         return Section(f"{item.id}: {item.title}", paragraphs=paragraphs)
-    assert verdict is not None
     paragraphs.append(f"Measured on the twin: {verdict.measured}.")
     paragraphs.append(
         f"Verdict: {_VERDICT[verdict.agrees]}"
@@ -46,6 +73,7 @@ def _item_section(
     skipped = [f for f in item.files if quick and f in QUICK_SKIP]
     if skipped:
         paragraphs.append("Left out in --quick: " + ", ".join(Path(f).name for f in skipped) + ".")
+    results = results or {}
     files = ", ".join(f"{Path(f).name}{' (quick grid)' if quick and f in item.quick_grids else ''}" for f in results)
     images = [
         Image(f"{Path(r.file).stem}: {Path(p).stem}", Path(p).read_bytes())
@@ -55,43 +83,11 @@ def _item_section(
     tables = [("Measured vs source", verdict.table)] if verdict.table is not None and len(verdict.table) else []
     return Section(
         f"{item.id}: {item.title}",
-        paragraphs=[*paragraphs, f"Campaigns: {files}."],
+        paragraphs=[*paragraphs, f"Campaigns: {files or 'none (a computation, no twin)'}."],
         tables=tables,
         images=images,
         warning=verdict.agrees is False,
     )
-
-
-def _guided_section(out: Path, workers: int | None, stream: TextIO | None) -> tuple[Section, dict[str, Any] | None]:
-    """Guideline 2 vs Polack et al. run as guided (adaptive) campaigns, when that module is present."""
-    try:
-        from labrunner.campaign.guided_report import compare_guideline2_polack
-    except ImportError:
-        return Section(
-            "Guideline 2 vs Polack et al., guided campaigns",
-            paragraphs=[
-                "Pending: the guided campaigns (labrunner.campaign.guided_report) are not in this build, so the "
-                "adaptive walks' step counts are not reported here; see item 3.21-3.23 for the walks replayed on grids."
-            ],
-        ), None
-    counts = compare_guideline2_polack(out / "guided", workers=workers, stream=stream)
-    g2, pol = counts["guideline2"], counts["polack"]
-    table = pd.DataFrame(
-        {
-            "thesis": [counts["thesis"].get("polack"), counts["thesis"].get("guideline2")],
-            "twin": [pol["runs"], g2["steps_to_polack_rms"]],
-        },
-        index=["Polack et al.", "Guideline 2"],
-    )
-    return Section(
-        "Guideline 2 vs Polack et al., guided campaigns",
-        paragraphs=[
-            f"Polack et al.: {pol['runs']} runs ({pol['feed_forward']} feed-forward + {pol['feedback']} feedback); "
-            f"Guideline 2 reaches Polack's RMS after {g2['steps_to_polack_rms']} steps: ratio {counts['ratio']:.2f} "
-            "(thesis 107 / 54 ≈ 2)."
-        ],
-        tables=[("Step counts", table)],
-    ), counts
 
 
 def reproduce(
@@ -106,7 +102,8 @@ def reproduce(
 ) -> dict[str, Any]:
     """Run the pack (or the items ``only`` names) into ``out`` and write ``out/index.html``.
 
-    Returns ``{"report", "items": {id: {"agrees", "measured"}}, "seconds"}``.
+    Returns ``{"report", "seconds", "counts": {kind: n}, "items": {id: {"verdict", "agrees", "measured"}}}``
+    (``verdict``: agrees, disagrees, not testable, not reproduced or not run (--quick)).
     """
     t0 = time.perf_counter()
     items = select(tuple(only) if only else None)
@@ -115,14 +112,13 @@ def reproduce(
     out.mkdir(parents=True, exist_ok=True)
     progress = stream or io.StringIO()
     results = run_items(items, root, out, quick=quick, workers=workers, stream=progress, say=say)
-    verdicts = {item.id: _check(item.check)(results[item.id]) for item in items if item.id in results}
+    verdicts = {
+        item.id: _check(item.check)(results.get(item.id, {}))
+        for item in items
+        if item.reproduced and (item.id in results or not item.files)
+    }
     sections = [_summary_section(items, verdicts, quick)]
     sections += [_item_section(item, results.get(item.id), verdicts.get(item.id), quick) for item in items]
-    guided = None
-    if not only or "3.21-3.23" in (only or ()):
-        say("guided: Guideline 2 vs Polack et al.")
-        section, guided = _guided_section(out, workers, progress)
-        sections.append(section)
     seconds = time.perf_counter() - t0
     mode = "--quick (reduced grids)" if quick else "full grids"
     report = write_report(
@@ -134,10 +130,14 @@ def reproduce(
     return {
         "report": str(report),
         "seconds": seconds,
-        "guided": guided,
+        "counts": counts(items, verdicts),
         "items": {
-            k: {"agrees": None if v.agrees is None else bool(v.agrees), "measured": v.measured}
-            for k, v in verdicts.items()
+            item.id: {
+                "verdict": verdict_kind(item, verdicts),
+                "agrees": verdicts[item.id].agrees if item.id in verdicts else None,
+                "measured": verdicts[item.id].measured if item.id in verdicts else item.reason,
+            }
+            for item in items
         },
     }
 
@@ -146,21 +146,23 @@ def _summary_section(items: Sequence[Item], verdicts: dict[str, Verdict], quick:
     rows = [
         {
             "item": item.id,
-            "source": item.source,
+            "source": f"{item.source}, {item.place}",
             "claim": item.claim,
-            "twin": verdicts[item.id].measured if item.id in verdicts else "not run (--quick)",
-            "verdict": _VERDICT[verdicts[item.id].agrees] if item.id in verdicts else "—",
+            "twin": verdicts[item.id].measured if item.id in verdicts else item.reason or "not run (--quick)",
+            "verdict": verdict_kind(item, verdicts),
         }
         for item in items
     ]
-    n_bad = sum(v.agrees is False for v in verdicts.values())
+    n = counts(items, verdicts)
     return Section(
         "Summary",
         paragraphs=[
-            f"{len(verdicts)} of {len(items)} items run{' with reduced grids' if quick else ''}; "
-            f"{sum(v.agrees is True for v in verdicts.values())} agree with their source, {n_bad} do not "
-            "(marked DISAGREES below, with what the twin does instead)."
+            f"{len(items)} items{' with reduced grids' if quick else ''}: {n['agrees']} agree with their source, "
+            f"{n['disagrees']} disagree (marked DISAGREES below, with what the twin does instead), "
+            f"{n['not testable']} are not testable on the twin, {n['not reproduced']} are not reproduced"
+            + (f", {n['not run (--quick)']} not run with --quick" if n["not run (--quick)"] else "")
+            + ". A claim the twin was calibrated on is not testable, never an agreement."
         ],
         tables=[("Claims and checks", pd.DataFrame(rows))],
-        warning=n_bad > 0,
+        warning=n["disagrees"] > 0,
     )

@@ -65,11 +65,28 @@ def run_file(path: Path, directory: Path, *, workers: int | None, stream: TextIO
         runner.resume(directory, opts)
     else:
         runner.start(path, directory, opts)
-    summary = analyse(directory, directory / "report", workers=workers)
+    summary = analyse(directory, directory / "report", workers=workers, recompute=stale_detector(directory))
     frame = pd.read_parquet(directory / "report" / "metrics.parquet").sort_values("seq").reset_index(drop=True)
     campaign = spec.load(directory / runner.CAMPAIGN_COPY, root=spec.project_root(path))
-    parameters = [params for params, _ in campaign.points()]
+    parameters = [] if campaign.guided is not None else [params for params, _ in campaign.points()]
     return CampaignResult(str(path), directory, frame, summary, parameters)
+
+
+def stale_detector(directory: Path) -> bool:
+    """Whether runs of ``directory`` were committed by an older oscillation detector (their metrics lack
+    one of its columns): their metrics are then recomputed from the logs, so that every run of the
+    pack is judged by the same detector."""
+    import json
+
+    from labrunner.campaign.ledger import Ledger
+    from labrunner.oscillation import DETECTOR_METRICS
+
+    with Ledger.open_readonly(directory) as ledger:
+        for row in ledger.rows(("done", "aborted")):
+            metrics = json.loads(row["metrics_json"]) if row["metrics_json"] else {}
+            if "oscillating" in metrics and not set(DETECTOR_METRICS) <= set(metrics):
+                return True
+    return False
 
 
 def run_items(
@@ -82,17 +99,21 @@ def run_items(
     stream: TextIO | None = None,
     say: Callable[[str], None] = lambda _: None,
 ) -> dict[str, dict[str, CampaignResult]]:
-    """Run every campaign of ``items``; ``{item id: {file: result}}`` (files ``--quick`` leaves out absent)."""
+    """Run every campaign of ``items``; ``{item id: {file: result}}`` (files ``--quick`` leaves out absent;
+    items that are not reproduced absent). A campaign several items share runs and is analysed once."""
     results: dict[str, dict[str, CampaignResult]] = {}
+    done: dict[Path, CampaignResult] = {}
     for item in items:
-        if quick and not item.quick:
+        if (quick and not item.quick) or not item.reproduced:
             continue
         results[item.id] = {}
         for file in item.files:
             if quick and file in QUICK_SKIP:
                 continue
             path = campaign_file(item, file, root, out, quick)
-            name = path.stem + ("-quick" if path != root / file else "")
-            say(f"{item.id}: {file}{' (quick grid)' if path != root / file else ''}")
-            results[item.id][file] = run_file(path, out / "runs" / name, workers=workers, stream=stream)
+            if path not in done:
+                name = path.stem + ("-quick" if path != root / file else "")
+                say(f"{item.id}: {file}{' (quick grid)' if path != root / file else ''}")
+                done[path] = run_file(path, out / "runs" / name, workers=workers, stream=stream)
+            results[item.id][file] = done[path]
     return results
