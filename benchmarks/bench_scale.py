@@ -18,8 +18,8 @@ Last measured 2026-12-03, the 2-core machine loaded 7–12 by other jobs (wall t
 
 (``resume`` then re-planned every point; it now re-plans only when the plan's inputs changed.)
 ``--synthetic 1000000`` adds ``status``/``resume`` on synthetic 10^6-row ledgers
-(:mod:`synthetic_ledger`); measured 2026-12-03, load 3–4: status 0.9–1.05 s, resume of the
-finished campaign 13.4 s / 431 MB. A real 10^6-point run was not measured (~33 GB of logs).
+(:mod:`synthetic_ledger`); measured 2026-12-03, load 3–4: status 0.58–0.87 s, resume of the
+finished campaign 8.9–9.7 s / 431 MB. A real 10^6-point run was not measured (~33 GB of logs).
 """
 
 from __future__ import annotations

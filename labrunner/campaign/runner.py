@@ -157,7 +157,7 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
 
     When the plan's inputs (file, rig file, code: :mod:`.plan_inputs`) are those stored at ``run``,
     the plan is the stored one and the ledger's ids were checked against their creation checksum
-    on opening; otherwise the campaign is re-planned (0.2–1 ms a point) and compared."""
+    on opening (a ledger that keeps none is re-planned); otherwise the campaign is re-planned (0.2–1 ms a point) and compared."""
     meta = ledger.meta()
     lacking = [k for k in ("campaign_file", "campaign_path", "plan_checksum") if k not in meta]
     if lacking:
@@ -165,7 +165,7 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     source_path = Path(meta["campaign_path"])
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
     stored = meta.get(plan_inputs.META_KEY)
-    if stored is None or plan_inputs.digest(campaign) != stored:
+    if stored is None or "ids_checksum" not in meta or plan_inputs.digest(campaign) != stored:
         _check_replanned(ledger, campaign, meta["plan_checksum"])
     if source_path.is_file():
         text = source_path.read_text(encoding="utf-8")
@@ -202,8 +202,9 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
     """``labrunner resume``: settle a crash, then run every point that is not terminal."""
     directory = Path(directory)
     check_executor_url(opts.executor, reach=False)
-    # a missing or foreign ledger: exit 2 before the lock file is made (every row is checked under the lock)
-    with Ledger.open_readonly(directory, thorough=False):
+    # a missing, foreign or damaged ledger: exit 2 before the lock file is made (every row is read
+    # here once; under the lock only the checks that read no row are repeated: ~6 s less at 10^6)
+    with Ledger.open_readonly(directory):
         pass
     runs = directory / RUNS_DIR
     if runs.exists() and not runs.is_dir():
@@ -212,7 +213,8 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         )
     check_executor_url(opts.executor)
     stream = opts.stream or sys.stderr
-    with DirectoryLock(directory, "resume") as lock, Ledger.open(directory) as ledger:
+    with DirectoryLock(directory, "resume") as lock, Ledger.open(directory, verify=False) as ledger:
+        integrity.verify(ledger.db, ledger.directory / LEDGER_NAME, thorough=False)
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
         campaign = _check_unchanged(ledger)
