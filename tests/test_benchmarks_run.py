@@ -26,7 +26,7 @@ SLOW = {
     "bench_deviceloop.py": (["--only", "motor-can"], "moved:"),
     "bench_stability.py": ([], ""),
     "bench_control.py": ([], ""),
-    "bench_scale.py": (["--max", "1000"], "points"),
+    "bench_scale.py": (["--max", "1000", "--synthetic", "400"], "synthetic ledger"),
 }
 
 
@@ -53,6 +53,7 @@ def test_a_longer_benchmark_runs(name, tmp_path):
 def test_every_benchmark_is_run_here_or_timed_by_bench_campaign():
     """A new benchmark gets a line above. Left to be run by hand: bench_rigs (~20 s) and
     bench_campaign (~1 min, the whole-campaign figure); naive_reference has its own test
-    (tests/test_naive_reference.py) and motor_campaign is a helper the others import."""
-    by_hand = {"bench_campaign.py", "bench_rigs.py", "naive_reference.py", "motor_campaign.py"}
+    (tests/test_naive_reference.py); motor_campaign and synthetic_ledger are helpers the others
+    import (bench_scale's run above builds a synthetic ledger)."""
+    by_hand = {"bench_campaign.py", "bench_rigs.py", "naive_reference.py", "motor_campaign.py", "synthetic_ledger.py"}
     assert {p.name for p in BENCHMARKS.glob("*.py")} == set(QUICK) | set(SLOW) | by_hand
