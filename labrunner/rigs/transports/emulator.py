@@ -203,6 +203,10 @@ class Emulator:
             except LabrunnerError as exc:
                 self.errors.append(exc)
                 return
+            except (OSError, ValueError):
+                if self._stop.is_set():
+                    return  # stop() closed the link under a loop that outlived its join (a long task)
+                raise
             if now >= self._die_at:
                 return  # the board lost power: silent from now on
             wake = now + 0.01
