@@ -5,6 +5,14 @@ copied on disk keep their names and change their content. Whoever reads a log fo
 therefore checks the point id the log's own ``run`` record names (written by the worker with the
 signals, read through :func:`~labrunner.logs.read_metadata` or :func:`~labrunner.logs.read_run`'s
 metadata, whatever the file's layout) against the row's id: :func:`mismatch` says how they differ.
+
+Reading every log's metadata costs ~0.8 ms a log (13 min at 10^6 points), so the ledger also records
+each published log's :func:`fingerprint` — size, mtime, ctime and inode, taken after the log was
+written (or, by ``repair`` and recovery, before it was read and proved): a file at the same path
+with the same fingerprint is that very file, unchanged since, and needs no reading. Any change
+gives another fingerprint: a swap with ``mv`` brings another inode (and the other file's size and
+mtime), a copy or an edit a new ctime — which no user tool can set back, unlike mtime. A
+fingerprint that differs proves nothing either way; the log is then read as before.
 """
 
 from __future__ import annotations
@@ -14,6 +22,17 @@ from collections.abc import Mapping
 from typing import Any
 
 from labrunner.errors import LabrunnerError
+
+#: The ledger's columns for a log's :func:`fingerprint`, in its order.
+FINGERPRINT_COLUMNS = ("log_size", "log_mtime_ns", "log_ctime_ns", "log_inode")
+
+Fingerprint = tuple[int, int, int, int]
+
+
+def fingerprint(path: str | os.PathLike[str]) -> Fingerprint:
+    """(size, mtime [ns], ctime [ns], inode) of the file at ``path`` (see the module); OSError if absent."""
+    st = os.stat(path)
+    return st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino
 
 
 class ForeignLog(LabrunnerError):

@@ -80,7 +80,7 @@ def _analyse(
 ) -> dict[str, Any]:
     import pandas as pd
 
-    from labrunner.analysis import selection, table as table_mod
+    from labrunner.analysis import selection, table as table_mod, table_files
     from labrunner.campaign.ledger import Ledger
     from labrunner.campaign.progress import Steps
 
@@ -106,7 +106,7 @@ def _analyse(
         built = table_mod.build_table(
             ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
             directory,
-            cache=table_mod.read_cache(out),
+            cache=out / table_files.METRICS_PARQUET,
             workers=workers,
             units=rig_units,
             limits=rig_limits,
@@ -149,7 +149,7 @@ def _analyse(
         plotter = many = None
     if plotter is not None:
         plotter.start(functools.partial(drawing.draw, [] if many else plots_of, jobs))
-    csv, parquet = table_mod.write_table(built.frame, out, directory)
+    csv, parquet = table_files.write_table(built.frame, out, directory)
     advance()
     step("maps")
     agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)

@@ -25,15 +25,16 @@ import itertools
 import json
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
+from pandas.api.types import union_categoricals
 
 from labrunner import run_identity
+from labrunner.analysis.log_checks import CACHE_COLUMNS, LogChecks, cached_rows, named_point, proved_by_cache, read_many
 from labrunner.campaign.rig_timing import timing_counts
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
@@ -55,8 +56,6 @@ ID_COLUMNS = (
 )
 #: Suffix of the columns that hold an aborted run's metrics (over the run up to its abort).
 UNTIL_ABORT = "_until_abort"
-#: Columns that tell whether a cached row still matches its log file.
-CACHE_COLUMNS = ("log_size", "log_mtime_ns")
 #: A real rig's timing counts per run (:mod:`labrunner.campaign.rig_timing`; absent for a twin).
 TIMING_COLUMNS = ("late_ticks", "overruns")
 #: Integer columns (nullable where a point has no run).
@@ -66,8 +65,6 @@ METRICS_VERSION = (
     5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
     # columns; 5: the detector's sustained-oscillation rule (periodicity)
 )
-#: Parallel reading pays off above this many logs.
-_PARALLEL_MIN = 64
 _LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)
 
 
@@ -131,56 +128,6 @@ def log_metrics(
     return out
 
 
-def _named_point(path: str) -> dict[str, Any]:
-    """``{"log_point": id}`` the log names (its metadata alone), or ``{"error": ...}``."""
-    try:
-        return {"log_point": run_identity.read_named_point(path)}
-    except (LabrunnerError, OSError, ValueError, KeyError) as exc:
-        return {"error": f"{type(exc).__name__}: {exc}"}
-
-
-def _read_many(
-    read: Callable[[str], dict[str, Any]],
-    paths: Sequence[str],
-    workers: int,
-    tick: Callable[[int], None] | None = None,
-) -> list[dict[str, Any]]:
-    """``read(path)`` of every path, in a process pool when there are many."""
-    out: list[dict[str, Any]] = []
-    if workers <= 1 or len(paths) < _PARALLEL_MIN:
-        for p in paths:
-            out.append(read(p))
-            if tick:
-                tick(1)
-        return out
-    chunk = max(1, min(64, len(paths) // (workers * 8)))
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for result in pool.map(read, paths, chunksize=chunk):
-            out.append(result)
-            if tick:
-                tick(1)
-    return out
-
-
-_MAGIC = b"\x89MCAP0\r\n"
-
-
-def _stat(path: Path) -> tuple[int, int, bool] | None:
-    """(size, mtime [ns], intact) of a log, None if it is missing; intact: it begins and ends with
-    the MCAP magic (a writer killed mid-file leaves no closing magic), ~10 µs instead of a read."""
-    try:
-        with open(path, "rb") as f:
-            st = os.fstat(f.fileno())
-            head = f.read(len(_MAGIC))
-            intact = st.st_size >= 2 * len(_MAGIC) and head == _MAGIC
-            if intact:
-                f.seek(-len(_MAGIC), os.SEEK_END)
-                intact = f.read(len(_MAGIC)) == _MAGIC
-    except OSError:
-        return None
-    return st.st_size, st.st_mtime_ns, intact
-
-
 def _float(value: Any) -> float:
     return float(value) if value is not None else float("nan")
 
@@ -196,25 +143,58 @@ def _ledger_metrics(r: Mapping[str, Any]) -> dict[str, Any] | None:
 #: Ledger rows turned into table rows at a time: the Python objects of one chunk are freed before
 #: the next is read, so that building the table of 10^6 points holds one chunk's, not all.
 CHUNK_ROWS = 20_000
+#: Text columns kept as such; every other text column (outcome, monitor, law_check, text
+#: parameters: a few words repeated) is categorical, 1 byte a row instead of ~16.
+FREE_TEXT = ("id", "log_path")
 
 
-def ledger_frame(rows: Iterable[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
+def ledger_frame(
+    rows: Iterable[Mapping[str, Any]],
+    on_chunk: Callable[[int, Sequence[Mapping[str, Any]], list[int]], None] | None = None,
+) -> tuple[pd.DataFrame, list[int]]:
     """One row per ledger point: ids, outcome and its details, parameters (dotted keys), metrics;
     and the positions of finished rows whose ledger holds no full metrics (their logs must be
     read). ``rows`` may be an iterator (a ledger cursor): it is consumed :data:`CHUNK_ROWS` at a
-    time."""
-    frames: list[pd.DataFrame] = []
+    time, each chunk handed to ``on_chunk(start, rows, positions without metrics)`` and turned
+    into columns, which are joined column by column (so the table is never held twice)."""
+    pieces: dict[str, list[pd.Series]] = {}
+    lengths: list[int] = []
     missing: list[int] = []
     iterator = iter(rows)
     start = 0
     while chunk := list(itertools.islice(iterator, CHUNK_ROWS)):
         frame, absent = _chunk_frame(chunk)
-        frames.append(frame.set_axis(range(start, start + len(frame))))
+        if on_chunk is not None:
+            on_chunk(start, chunk, absent)
+        for col in frame.columns:
+            pieces.setdefault(col, [None] * len(lengths)).append(frame[col].copy())
+        lengths.append(len(chunk))
+        for column in pieces.values():
+            column += [None] * (len(lengths) - len(column))  # a column this chunk lacks
         missing += [start + i for i in absent]
         start += len(chunk)
-    if not frames:
+        del frame, chunk
+    if not lengths:
         return pd.DataFrame(columns=list(ID_COLUMNS)), missing
-    return (frames[0] if len(frames) == 1 else pd.concat(frames)), missing
+    columns = {}
+    for col in list(pieces):
+        chunks = pieces.pop(col)
+        columns[col] = _joined([p if p is not None else pd.Series(np.full(n, np.nan)) for p, n in zip(chunks, lengths)])
+        del chunks
+    return pd.DataFrame(columns, copy=False), missing
+
+
+def _joined(pieces: list[pd.Series]) -> pd.Series:
+    """One column from its chunks' pieces: text as categories (see :data:`FREE_TEXT`) or
+    strings, the rest as ``pd.concat`` types it."""
+    name = next((p.name for p in pieces if p.name is not None), None)
+    text = all(pd.api.types.is_string_dtype(p.dtype) or p.isna().all() for p in pieces)
+    if text and not all(p.isna().all() for p in pieces):
+        if name in FREE_TEXT:
+            return pd.concat([p.astype("str") for p in pieces], ignore_index=True).rename(name)
+        categories = union_categoricals([pd.Categorical(p.astype("str")) for p in pieces], sort_categories=True)
+        return pd.Series(categories, name=name)
+    return pd.concat(pieces, ignore_index=True).rename(name)
 
 
 def _chunk_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
@@ -278,22 +258,6 @@ def split_aborted(frame: pd.DataFrame) -> pd.DataFrame:
     return frame.assign(**out)
 
 
-def _cached(cache: pd.DataFrame | None) -> dict[str, dict[str, Any]]:
-    if cache is None or cache.empty or not set(CACHE_COLUMNS) <= set(cache.columns):
-        return {}
-    if "metrics_version" not in cache.columns or not (cache["metrics_version"] == METRICS_VERSION).all():
-        return {}
-    return {r["id"]: r for r in cache.to_dict("records")}
-
-
-def _proved(hit: Mapping[str, Any] | None, stat: tuple[int, int]) -> bool:
-    """Whether a cached row says its log, this same file (size, mtime), was proved to be its own."""
-    if hit is None or hit.get("log_state") != LOG_OK:
-        return False
-    size, mtime = hit.get("log_size"), hit.get("log_mtime_ns")
-    return bool(pd.notna(size) and pd.notna(mtime)) and (int(size), int(mtime)) == stat
-
-
 def _unsplit(row: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
     """A cached table row's metrics as :func:`log_metrics` gave them (aborted runs' back from
     their ``_until_abort`` columns); columns the ledger fills (``known``) left out."""
@@ -310,7 +274,7 @@ def build_table(
     rows: Iterable[Mapping[str, Any]],
     directory: Path,
     *,
-    cache: pd.DataFrame | None = None,
+    cache: Path | None = None,
     workers: int | None = None,
     units: Mapping[str, str] | None = None,
     limits: Mapping[str, tuple[float, float]] | None = None,
@@ -318,75 +282,67 @@ def build_table(
     tick: Callable[[int], None] | None = None,
     announce: Callable[[int], None] | None = None,
 ) -> CampaignTable:
-    """The table of ledger ``rows``: metrics from the ledger; from the logs (reusing ``cache`` rows
-    that still match) where the ledger has none, or for every run with ``recompute``. ``units``
-    are the rig's signal units, for logs that record none; ``limits`` its input limits (the
-    oscillation detector's columns); ``announce(n)`` is told how many logs will be read (before
-    the first), ``tick(n)`` as they are read."""
-    frame, missing_list = ledger_frame(rows)
-    missing = set(missing_list)
-    problems: list[dict[str, str]] = []
-    paths = frame["log_path"].tolist()
-    todo = set(i for i, p in enumerate(paths) if isinstance(p, str)) if recompute else set(missing)
-    stats: dict[int, tuple[int, int]] = {}  # (size, mtime) of the logs to read or to check against the cache
-    for i, rel in enumerate(paths):  # every log the table names must exist, whole
-        if not isinstance(rel, str):
-            continue
-        st = _stat(directory / rel)
-        if st is None:
-            problems.append(
-                {"path": rel, "kind": "missing", "detail": f"point {frame.at[i, 'id']}: log file not found"}
-            )
-            continue
-        stats[i] = st[:2]  # every log is checked against its row: by its metadata unless proved before
-        if not st[2]:
-            todo.add(i)  # damaged: read it (salvage) to flag it, its metrics stay the ledger's
-    todo = sorted(i for i in todo if i in stats)
-    cached = {} if recompute else _cached(cache)
+    """The table of ledger ``rows``: metrics from the ledger; from the logs (reusing the rows of
+    the previous table at ``cache``, its ``metrics.parquet``, that still match) where the ledger
+    has none, or for every run with ``recompute``. Every log is checked (:mod:`.log_checks`).
+    ``units`` are the rig's signal units, for logs that record none; ``limits`` its input limits
+    (the oscillation detector's columns); ``announce(n)`` is told how many logs will be read
+    (before the first), ``tick(n)`` as they are read."""
+    checks = LogChecks(directory, recompute)
+    frame, _ = ledger_frame(rows, checks.add)
+    sizes, mtimes = checks.stats()
+    ids, paths = frame["id"], frame["log_path"]
+    wanted = [] if recompute else [*checks.todo, *checks.unproved]
+    cached = cached_rows(cache, set(ids.iloc[wanted]), METRICS_VERSION)
     metrics: dict[int, dict[str, Any]] = {}
     read: list[int] = []
-    for i in todo:
-        hit = cached.get(frame.at[i, "id"])
-        if hit is not None and (hit["log_size"], hit["log_mtime_ns"]) == stats[i]:
+    unproved = list(checks.unproved)
+    for i in checks.todo:
+        hit = cached.get(ids.iat[i])
+        if _same_file(hit, (sizes[i], mtimes[i])):
             metrics[i] = _unsplit(hit, frame.columns)
+            if i not in checks.fingerprinted:
+                unproved.append(i)
         else:
             read.append(i)
     if announce and read:
         announce(len(read))
     workers = workers or os.cpu_count() or 1
     metrics_of = functools.partial(log_metrics, units=dict(units or {}), limits=dict(limits or {}))
-    results = _read_many(metrics_of, [str(directory / paths[i]) for i in read], workers, tick)
-    # every log proves which point it is: those read now by their metadata; the others by their
-    # run record, unless the cache saw this very file (size, mtime) back its row before
-    unread = [i for i in sorted(set(stats) - set(read)) if not _proved(cached.get(frame.at[i, "id"]), stats[i])]
-    named = _read_many(_named_point, [str(directory / paths[i]) for i in unread], workers)
+    results = list(read_many(metrics_of, [str(directory / paths.iat[i]) for i in read], workers, tick))
+    # every log proves which point it is: those read now by their metadata; the others by the
+    # fingerprint the ledger recorded, else by the cache having seen this very file back its row
+    stat = {i: (int(sizes[i]), int(mtimes[i])) for i in unproved}
+    unread = sorted(i for i in unproved if not proved_by_cache(cached.get(ids.iat[i]), stat[i], LOG_OK))
+    named = read_many(named_point, [str(directory / paths.iat[i]) for i in unread], workers)
+    problems = checks.problems
     foreign: set[int] = set()
     for i, result in [*zip(read, results), *zip(unread, named)]:
         if "error" in result:
-            problems.append({"path": paths[i], "kind": "unreadable", "detail": result["error"]})
+            problems.append({"path": paths.iat[i], "kind": "unreadable", "detail": result["error"]})
             continue
-        problem = run_identity.describe(result.pop("log_point"), frame.at[i, "id"])
+        problem = run_identity.describe(result.pop("log_point"), ids.iat[i])
         if problem:
-            problems.append({"path": paths[i], "kind": FOREIGN, "detail": problem})
+            problems.append({"path": paths.iat[i], "kind": FOREIGN, "detail": problem})
             foreign.add(i)
     for i, result in zip(read, results):
         if "error" in result or i in foreign:  # a foreign log's metrics are another point's
             continue
-        if i not in missing and not recompute:  # a damaged log the ledger has whole metrics of: flag it only
+        if i not in checks.no_metrics and not recompute:  # a damaged log the ledger has whole metrics of: flag it only
             result = {"torn": result["torn"]}
         metrics[i] = result
-    for i in stats:  # which file backed each row: the next analysis trusts a file it proved
-        metrics.setdefault(i, {})["log_size"], metrics[i]["log_mtime_ns"] = stats[i]
     if metrics:
-        extra = pd.DataFrame.from_dict(metrics, orient="index").reindex(frame.index)
-        extra = extra.drop(columns=[c for c in ("metrics_version", *ID_COLUMNS) if c in extra.columns and c != "torn"])
-        for col in extra.columns:  # the log's value where it was read, else the ledger's
-            frame[col] = extra[col].combine_first(frame[col]) if col in frame.columns else extra[col]
+        extra = pd.DataFrame.from_dict(metrics, orient="index")
+        drop = ("metrics_version", *CACHE_COLUMNS, *(c for c in ID_COLUMNS if c != "torn"))
+        for col in extra.columns.drop([c for c in drop if c in extra.columns]):
+            frame[col] = _overlaid(frame[col] if col in frame.columns else None, extra[col], len(frame))
     frame["torn"] = frame["torn"].fillna(False).astype(bool)
     frame = split_aborted(frame)
     for col in [*INTEGER_COLUMNS, *(c for c in frame.columns if c.startswith("n_samples@"))]:
-        if col in frame.columns:
+        if col in frame.columns and col not in CACHE_COLUMNS:
             frame[col] = pd.to_numeric(frame[col]).round().astype("Int64")
+    for col, values in zip(CACHE_COLUMNS, (sizes, mtimes)):  # which file backed each row: the next analysis's cache
+        frame[col] = pd.arrays.IntegerArray(values, values < 0)
     frame["metrics_version"] = METRICS_VERSION
     for rec in frame.loc[frame["torn"], ["id", "log_path"]].to_dict("records"):
         problems.append({"path": rec["log_path"], "kind": "torn", "detail": f"point {rec['id']}: salvaged a torn log"})
@@ -394,19 +350,43 @@ def build_table(
     return CampaignTable(frame, problems, n_read=len(read))
 
 
+def _same_file(hit: Mapping[str, Any] | None, stat: tuple[int, int]) -> bool:
+    """Whether a cached row was built from a file of this (size, mtime)."""
+    if hit is None:
+        return False
+    size, mtime = hit.get("log_size"), hit.get("log_mtime_ns")
+    return bool(pd.notna(size) and pd.notna(mtime)) and (int(size), int(mtime)) == (int(stat[0]), int(stat[1]))
+
+
+def _overlaid(column: pd.Series | None, values: pd.Series, n: int) -> pd.Series:
+    """``column`` with ``values`` (a few rows' read from their logs; NA: keep the column's)."""
+    if column is None:
+        return values.reindex(range(n))
+    try:
+        out = column.copy()
+        out.iloc[values.index] = values.combine_first(column.iloc[values.index]).to_numpy()
+        return out
+    except (TypeError, ValueError):  # values of another type than the column's: let pandas type them
+        return values.reindex(range(n)).combine_first(column)
+
+
 #: ``log_state`` of a row whose log is fine; the others are the problems' kinds.
 LOG_OK = "ok"
 #: ``log_state`` of a row whose log names another point (swapped or copied on disk).
 FOREIGN = "foreign"
+LOG_STATES = (LOG_OK, "missing", "unreadable", "torn", FOREIGN)
 
 
 def log_states(log_paths: pd.Series, problems: Sequence[Mapping[str, str]]) -> pd.Series:
     """Per row: "ok", or what is wrong with its log ("missing", "unreadable", "torn", "foreign":
-    another point's run), or empty
-    where the point has none (a failed run, an unfinished point) — so that the table alone says
-    which metrics a log no longer backs."""
-    kinds = {p["path"]: p["kind"] for p in problems if p["kind"] in ("missing", "unreadable", "torn", FOREIGN)}
-    return log_paths.map(lambda rel: kinds.get(rel, LOG_OK) if isinstance(rel, str) else None)
+    another point's run), or empty where the point has none (a failed run, an unfinished point)
+    — so that the table alone says which metrics a log no longer backs."""
+    kinds = {p["path"]: p["kind"] for p in problems if p["kind"] in LOG_STATES}
+    states = np.where(log_paths.notna().to_numpy(), LOG_OK, None)
+    if kinds:
+        hit = log_paths.isin(list(kinds)).to_numpy()
+        states[hit] = [kinds[p] for p in log_paths[hit]]
+    return pd.Series(pd.Categorical(states, categories=LOG_STATES), index=log_paths.index)
 
 
 def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory: Path) -> list[dict[str, str]]:
@@ -431,35 +411,6 @@ def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory:
     return out
 
 
-def relative_paths(paths: pd.Series, directory: Path, out: Path) -> pd.Series:
-    """Campaign-relative paths as seen from the folder ``out`` (None stays None)."""
-    base = os.path.relpath(directory.resolve(), out.resolve())
-    return paths.map(lambda p: os.path.join(base, p) if isinstance(p, str) else p)
-
-
 def ordered(frame: pd.DataFrame) -> pd.DataFrame:
     """The table's columns in their order: ids, parameters, metrics, then the rest."""
     return frame[[*[c for c in ID_COLUMNS if c in frame.columns], *[c for c in frame.columns if c not in ID_COLUMNS]]]
-
-
-def write_table(frame: pd.DataFrame, out: Path, directory: Path) -> tuple[Path, Path]:
-    """Write ``metrics.csv`` and ``metrics.parquet`` into ``out`` (atomically, each), log paths
-    relative to ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    csv, parquet = out / "metrics.csv", out / "metrics.parquet"
-    table = ordered(frame.assign(log_path=relative_paths(frame["log_path"], directory, out)))
-    tmp = csv.with_name(".metrics.csv.tmp")
-    table.to_csv(tmp, index=False)
-    tmp.replace(csv)
-    tmp = parquet.with_name(".metrics.parquet.tmp")
-    table.astype({c: "string" for c in table.columns if table[c].dtype == object}).to_parquet(tmp, index=False)
-    tmp.replace(parquet)
-    return csv, parquet
-
-
-def read_cache(out: Path) -> pd.DataFrame | None:
-    """The previous ``metrics.parquet`` in ``out``, or None (absent or unreadable: recompute)."""
-    try:
-        return pd.read_parquet(out / "metrics.parquet")
-    except (OSError, ValueError, ImportError):
-        return None

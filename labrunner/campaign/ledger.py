@@ -9,7 +9,10 @@ The ``meta`` table keeps a copy of the campaign file and the checksum of the pla
 ``metrics_json`` holds every metric of the run (:data:`labrunner.metrics.BASE_METRICS` and the
 per-channel ones) as one JSON object, so that ``analyse`` tabulates without reading the logs; a
 ledger made before that column existed gains it when opened for writing (:func:`_migrate`), and
-readers treat a missing column as "no metrics here" (the analysis then reads the logs).
+readers treat a missing column as "no metrics here" (the analysis then reads the logs). Likewise
+``log_size``, ``log_mtime_ns``, ``log_ctime_ns`` and ``log_inode``: the published log's
+:func:`~labrunner.run_identity.fingerprint`, committed with its run, by which ``analyse`` knows a
+log unchanged since without reading it (none recorded: it reads the log, as before).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from typing import Any
 from labrunner import jsontext
 from labrunner.campaign import integrity
 from labrunner.errors import CampaignError, InvalidParameter
+from labrunner.run_identity import FINGERPRINT_COLUMNS, Fingerprint
 
 LEDGER_NAME = "ledger.sqlite"
 STATES = ("planned", "claimed", "done", "aborted", "failed")
@@ -58,7 +62,11 @@ CREATE TABLE points (
     finished_at REAL,
     engine_s REAL,
     write_s REAL,
-    publish_s REAL
+    publish_s REAL,
+    log_size INTEGER,
+    log_mtime_ns INTEGER,
+    log_ctime_ns INTEGER,
+    log_inode INTEGER
 );
 CREATE INDEX points_state ON points (state);
 CREATE TABLE quarantine (
@@ -98,6 +106,7 @@ class RunRecord:
     engine_s: float | None = None
     write_s: float | None = None
     publish_s: float | None = None
+    log_fingerprint: Fingerprint | None = None  # the published log's, when it was written or proved
 
 
 def ledger_path(directory: Path) -> Path:
@@ -324,8 +333,8 @@ class Ledger:
         with self._txn():
             self.db.executemany(
                 "UPDATE points SET state = 'planned', outcome = NULL, outcome_json = NULL, rms_error = NULL,"
-                " input_energy = NULL, max_abs_input = NULL, metrics_json = NULL, log_path = NULL, finished_at = NULL"
-                " WHERE id = ?",
+                " input_energy = NULL, max_abs_input = NULL, metrics_json = NULL, log_path = NULL, finished_at = NULL,"
+                f" {_FINGERPRINT_SET.replace('?', 'NULL')} WHERE id = ?",
                 ((i,) for i in ids),
             )
 
@@ -339,7 +348,7 @@ class Ledger:
                 cur = self.db.execute(
                     "UPDATE points SET state = ?, outcome = ?, outcome_json = ?, rms_error = ?, input_energy = ?,"
                     " max_abs_input = ?, metrics_json = ?, log_path = ?, host = ?, pid = ?, finished_at = ?,"
-                    f" engine_s = ?, write_s = ?, publish_s = ? WHERE id = ? AND state IN ({marks})",
+                    f" engine_s = ?, write_s = ?, publish_s = ?, {_FINGERPRINT_SET} WHERE id = ? AND state IN ({marks})",
                     (
                         STATE_OF_OUTCOME[record.outcome],
                         record.outcome,
@@ -355,6 +364,7 @@ class Ledger:
                         record.engine_s,
                         record.write_s,
                         record.publish_s,
+                        *(record.log_fingerprint or (None,) * len(FINGERPRINT_COLUMNS)),
                         record.point_id,
                         *from_states,
                     ),
@@ -429,11 +439,17 @@ INDEXES = (
 )
 
 
+_FINGERPRINT_SET = ", ".join(f"{c} = ?" for c in FINGERPRINT_COLUMNS)
+#: Columns added to the points table after its first version, with their types.
+_ADDED_COLUMNS = (("metrics_json", "TEXT"), *((c, "INTEGER") for c in FINGERPRINT_COLUMNS))
+
+
 def _migrate(db: sqlite3.Connection) -> None:
     """Add the columns and indexes later versions of this schema (still version 1: only additions) have."""
     columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
-    if "metrics_json" not in columns:
-        db.execute("ALTER TABLE points ADD COLUMN metrics_json TEXT")
+    for name, kind in _ADDED_COLUMNS:
+        if name not in columns:
+            db.execute(f"ALTER TABLE points ADD COLUMN {name} {kind}")
     for index in INDEXES:
         db.execute(index)
 

@@ -73,9 +73,10 @@ def _tmp_point(name: str) -> str | None:
 def verify_log(path: Path, point_id: str) -> tuple[dict | None, str]:
     """(log summary, "") if ``path`` is a complete log of ``point_id``, else (None, reason)."""
     from labrunner.logs import read_run
-    from labrunner.run_identity import mismatch, named_point
+    from labrunner.run_identity import fingerprint, mismatch, named_point
 
     try:
+        stat = fingerprint(path)  # before the read: a change after it gives another fingerprint
         log = read_run(path)
     except Exception as exc:  # any unreadable file is quarantined, whatever the library raises
         return None, f"unreadable: {type(exc).__name__}: {exc}"
@@ -88,7 +89,12 @@ def verify_log(path: Path, point_id: str) -> tuple[dict | None, str]:
         return None, "no outcome record"
     if mismatch(log.metadata, point_id):
         return None, f"names point {named_point(log.metadata)!r}"
-    return {"outcome": dict(log.outcome), "metrics": dict(log.metadata.get("metrics", {})), "run": run}, ""
+    return {
+        "outcome": dict(log.outcome),
+        "metrics": dict(log.metadata.get("metrics", {})),
+        "run": run,
+        "fingerprint": stat,
+    }, ""
 
 
 def outcome_record(logged: dict) -> dict:
@@ -131,6 +137,7 @@ def recover(ledger: Ledger) -> Recovery:
                         host=str(found["run"].get("host", "")),
                         pid=int(found["run"].get("pid", 0)),
                         finished_at=path.stat().st_mtime,
+                        log_fingerprint=found["fingerprint"],
                     ),
                     from_states=(state,),
                 )

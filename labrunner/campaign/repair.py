@@ -195,6 +195,7 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None, fo
                         host=str(run.get("host", "")),
                         pid=int(run.get("pid", 0)),
                         finished_at=log.stat().st_mtime,
+                        log_fingerprint=found["fingerprint"],
                     ),
                     int(run.get("attempt", 1)),
                 )

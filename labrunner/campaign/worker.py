@@ -29,6 +29,7 @@ import numpy as np
 from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
 from labrunner.errors import CampaignError, RigError, os_reason
+from labrunner.run_identity import fingerprint
 
 RUNS_DIR = "runs"
 TMP_PREFIX = ".tmp-"
@@ -286,9 +287,11 @@ def _publish_all(
         for run, tmp, *_ in written:
             os.replace(tmp, runs_dir / f"{run.point_id}.mcap")
     fsync_dir(runs_dir)  # every rename durable before any row is committed
+    # each log as published (after its rename, which sets its ctime): analyse needs not read it to know it
+    fingerprints = [fingerprint(runs_dir / f"{run.point_id}.mcap") for run, *_ in written]
     publish_s = (time.perf_counter() - t2) / max(len(written), 1)
     now = time.time()
-    for run, _, outcome, metrics, write_s in written:
+    for (run, _, outcome, metrics, write_s), stat in zip(written, fingerprints):
         out.records.append(
             RunRecord(
                 point_id=run.point_id,
@@ -302,6 +305,7 @@ def _publish_all(
                 engine_s=engine_s,
                 write_s=write_s,
                 publish_s=publish_s,
+                log_fingerprint=stat,
             )
         )
 

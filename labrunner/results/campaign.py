@@ -54,6 +54,7 @@ class CampaignResults:
     @functools.cached_property
     def _built(self) -> tuple[pd.DataFrame, list[dict[str, str]], list[str]]:
         from labrunner.analysis import selection, table as table_mod
+        from labrunner.analysis.table_files import METRICS_PARQUET
 
         campaign, _ = selection.load_campaign(self.meta, self.directory)
         units, limits = selection.rig_signals(campaign)
@@ -62,7 +63,7 @@ class CampaignResults:
             built = table_mod.build_table(
                 ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
                 self.directory,
-                cache=table_mod.read_cache(self.directory / REPORT_DIR),
+                cache=self.directory / REPORT_DIR / METRICS_PARQUET,
                 units=units,
                 limits=limits,
             )

@@ -1,0 +1,65 @@
+"""The metrics table's files: ``metrics.csv`` and ``metrics.parquet`` in the report folder.
+
+Both are written :data:`~labrunner.analysis.table.CHUNK_ROWS` rows at a time from the table in
+memory (a row group of the Parquet file each), so that writing 10^6 rows never holds a second
+copy of the table: log paths are made relative to the report folder and categorical columns
+written as plain text chunk by chunk. The files are the same as one ``to_csv`` / ``to_parquet``
+of the whole table (tests/test_analysis_table_files.py). Each is written under a temporary name
+and renamed into place.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pandas as pd
+
+from labrunner.analysis.table import CHUNK_ROWS, ordered
+
+METRICS_CSV = "metrics.csv"
+#: The table with its types; the next analysis reuses its rows (see :func:`~labrunner.analysis.table.build_table`).
+METRICS_PARQUET = "metrics.parquet"
+
+
+def relative_paths(paths: pd.Series, directory: Path, out: Path) -> pd.Series:
+    """Campaign-relative paths as seen from the folder ``out`` (None stays None)."""
+    base = os.path.relpath(directory.resolve(), out.resolve())
+    return paths.map(lambda p: os.path.join(base, p) if isinstance(p, str) else p)
+
+
+def as_written(frame: pd.DataFrame, directory: Path, out: Path) -> pd.DataFrame:
+    """Rows of the table as the files hold them: columns in order, log paths relative to ``out``,
+    categorical and other text columns as strings."""
+    table = ordered(frame.assign(log_path=relative_paths(frame["log_path"], directory, out)))
+    text = {c: "str" for c in table.columns if isinstance(table[c].dtype, pd.CategoricalDtype)}
+    return table.astype({**text, **{c: "string" for c in table.columns if table[c].dtype == object}})
+
+
+def write_table(frame: pd.DataFrame, out: Path, directory: Path) -> tuple[Path, Path]:
+    """Write ``metrics.csv`` and ``metrics.parquet`` into ``out`` (see the module)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    out.mkdir(parents=True, exist_ok=True)
+    csv, parquet = out / METRICS_CSV, out / METRICS_PARQUET
+    tmp_csv, tmp_parquet = csv.with_name(f".{METRICS_CSV}.tmp"), parquet.with_name(f".{METRICS_PARQUET}.tmp")
+    writer = None
+    try:
+        with open(tmp_csv, "w", newline="", encoding="utf-8") as fh:
+            for start in range(0, max(len(frame), 1), CHUNK_ROWS):
+                chunk = as_written(frame.iloc[start : start + CHUNK_ROWS], directory, out)
+                chunk.to_csv(fh, index=False, header=start == 0)
+                batch = pa.Table.from_pandas(chunk, preserve_index=False, schema=writer and writer.schema)
+                writer = writer or pq.ParquetWriter(tmp_parquet, batch.schema)
+                writer.write_table(batch)
+    except BaseException:
+        if writer is not None:
+            writer.close()
+        tmp_csv.unlink(missing_ok=True)
+        tmp_parquet.unlink(missing_ok=True)
+        raise
+    writer.close()
+    tmp_csv.replace(csv)
+    tmp_parquet.replace(parquet)
+    return csv, parquet
