@@ -91,8 +91,12 @@ def scale(work: Path, n: int) -> dict:
 def synthetic(work: Path, n: int) -> None:
     """``status`` and ``resume`` of a finished synthetic campaign of ``n`` points
     (:mod:`synthetic_ledger`: real ids, parameters and plan-inputs digest; a small real run's rows
-    repeated; empty log files), and ``status`` of one interrupted half-way. Three of each, fresh
-    processes; the median wall time and the largest peak RSS."""
+    and logs repeated, the logs hard-linked, their fingerprints in the ledger), and ``status`` of
+    one interrupted half-way: three of each, fresh processes, the median wall time and the largest
+    peak RSS. Then ``analyse --workers 2`` of the finished one, twice (the first proves every log
+    by the ledger's fingerprints; the second also has the first's report): wall time, the
+    analysing process's peak RSS (the kernel's high-water mark) and its tree's (with the drawing
+    child), sampled."""
     import synthetic_ledger
 
     n_gamma, n_kp = _grid(n)
@@ -110,6 +114,14 @@ def synthetic(work: Path, n: int) -> None:
                 f"peak {_mb(max(r['peak_parent_kb'] for r in runs))}",
                 flush=True,
             )
+        if finished == 1.0:
+            for which in ("first", "second"):
+                r = timed([*cli, "analyse", str(directory), "--workers", "2"], work)
+                print(
+                    f"{n_gamma * n_kp:>9,} points (synthetic ledger): {which} analyse {r['wall_s']:.1f} s, "
+                    f"peak {_mb(r['hwm_parent_kb'])} (with the drawing child: {_mb(r['peak_total_kb'])} sampled)",
+                    flush=True,
+                )
         shutil.rmtree(directory)
 
 
@@ -117,7 +129,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--max", type=int, default=100_000, help="largest campaign (points; default 100000)")
     parser.add_argument(
-        "--synthetic", type=int, default=0, help="also status/resume on a synthetic ledger of this many points"
+        "--synthetic", type=int, default=0, help="also status/resume/analyse on a synthetic ledger of this many points"
     )
     parser.add_argument("--work", type=Path, default=None, help="folder for the campaigns (default: a temporary one)")
     args = parser.parse_args()

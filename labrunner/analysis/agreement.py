@@ -13,7 +13,7 @@ sampled grid cannot tell a boundary error from the discretisation of the experim
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 
 import pandas as pd
 
@@ -30,6 +30,8 @@ def observed_outcome(table: pd.DataFrame) -> pd.Series:
     outcome = table["outcome"]
     if "oscillating" not in table.columns:
         return outcome
+    if isinstance(outcome.dtype, pd.CategoricalDtype) and "oscillating" not in outcome.cat.categories:
+        outcome = outcome.cat.add_categories(["oscillating"])
     flagged = (outcome == "completed") & (pd.to_numeric(table["oscillating"], errors="coerce") == 1.0)
     return outcome.where(~flagged, "oscillating")
 
@@ -59,11 +61,12 @@ def agreement(
     from completed into observed unstable.
     """
     outcome = observed_outcome(table)
+    compared_rows = outcome.isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)
     params = table[[c for c in table.columns if "." in c]]  # what theory_of and gains_of read, not the metrics
-    rows = params.assign(outcome=outcome)[outcome.isin(OBSERVED_STABLE + OBSERVED_UNSTABLE)].to_dict("records")
+    params = params.assign(outcome=outcome)[compared_rows]
     case = None
     match = excluded = false_stable = false_unstable = observed_unstable = 0
-    for row in rows:
+    for row in _records(params):
         theory = theory_of(row)
         if theory is None or not theory.cases():
             continue
@@ -94,5 +97,11 @@ def agreement(
         "false_stable": int(false_stable),
         "false_unstable": int(false_unstable),
         "observed_unstable": int(observed_unstable),
-        "oscillating": sum(row["outcome"] == "oscillating" for row in rows),
+        "oscillating": int((outcome[compared_rows] == "oscillating").sum()),
     }
+
+
+def _records(frame: pd.DataFrame, at_a_time: int = 10_000) -> Iterator[dict[str, object]]:
+    """The rows of ``frame`` as dicts, made ``at_a_time`` at a time (10^6 dicts are ~0.4 GB)."""
+    for start in range(0, len(frame), at_a_time):
+        yield from frame.iloc[start : start + at_a_time].to_dict("records")

@@ -81,9 +81,11 @@ def _analyse(
     import pandas as pd
 
     from labrunner.analysis import selection, table as table_mod, table_files
+    from labrunner.analysis import memory
     from labrunner.campaign.ledger import Ledger
     from labrunner.campaign.progress import Steps
 
+    memory.return_freed_memory()  # after the fork: this process's tables of 10^6 rows, not the drawing child's
     out = Path(out) if out is not None else directory / "report"
     steps = Steps(f"analyse {directory}", 4, stream=stream) if progress else None
 
@@ -115,6 +117,7 @@ def _analyse(
             announce=lambda n: step(f"metrics table, reading {n} logs", n),
         )
         guided_rows = [dict(r) for r in ledger.rows()] if campaign is not None and campaign.guided is not None else []
+    memory.trim()  # what building the table freed
     frame = built.frame
     problems = built.problems + table_mod.quarantine_problems(quarantine, directory)
     if error == "e_hat":
@@ -150,6 +153,7 @@ def _analyse(
     if plotter is not None:
         plotter.start(functools.partial(drawing.draw, [] if many else plots_of, jobs))
     csv, parquet = table_files.write_table(built.frame, out, directory)
+    memory.trim()
     advance()
     step("maps")
     agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)

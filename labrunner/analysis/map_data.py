@@ -45,7 +45,9 @@ class Points:
         keep = dict.fromkeys(c for c in columns if c in table.columns)
         return cls(
             {c: table[c].to_numpy(dtype=float) for c in keep},
-            observed_outcome(table).to_numpy(dtype=str),
+            # objects, each row a reference to one of a few words: 8 bytes a run (not 44 as <U11),
+            # and a pickle to the drawing process of a few bytes a run
+            observed_outcome(table).to_numpy(dtype=object),
         )
 
     def __getitem__(self, column: str) -> np.ndarray:

@@ -122,28 +122,30 @@ def counts(frame: pd.DataFrame) -> dict[str, Any]:
 
 
 def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
-    """Best and worst completed run (by RMS of e) and the first aborted run (in grid order)."""
-    done = frame[(frame["outcome"] == "completed") & np.isfinite(frame["rms_error"].to_numpy(dtype=float))]
+    """Best and worst completed run (by RMS of e) and the first aborted run (in grid order); found
+    from the columns they need, so that no subset of the table's rows is copied."""
+    outcome = frame["outcome"]
+    rms = frame["rms_error"].to_numpy(dtype=float)
+    done = np.flatnonzero((outcome == "completed").to_numpy(dtype=bool) & np.isfinite(rms))
     out: dict[str, pd.Series] = {}
-    if not done.empty:
-        out["best"] = done.loc[done["rms_error"].idxmin()]
-        out["worst completed"] = done.loc[done["rms_error"].idxmax()]
-    aborted = frame[frame["outcome"] == "aborted"]
-    if not aborted.empty:
-        out["first aborted"] = aborted.loc[aborted["seq"].idxmin()]
+    if done.size:
+        out["best"] = frame.iloc[done[np.argmin(rms[done])]]
+        out["worst completed"] = frame.iloc[done[np.argmax(rms[done])]]
+    aborted = np.flatnonzero((outcome == "aborted").to_numpy(dtype=bool))
+    if aborted.size:
+        out["first aborted"] = frame.iloc[aborted[np.argmin(frame["seq"].to_numpy(dtype=float)[aborted])]]
     return out
 
 
 def plot_selection(frame: pd.DataFrame, plot: Sequence[str]) -> list[str]:
     """Point ids the ``--plot`` words choose: ``all``, an outcome word (``aborted``, ...) or ids."""
     ids: list[str] = []
-    known = set(frame["id"])
     for word in plot:
         if word == "all":
             chosen = frame["id"]
         elif word in OUTCOMES:
             chosen = frame.loc[frame["outcome"] == word, "id"]
-        elif word in known:
+        elif (frame["id"] == word).any():
             chosen = [word]
         else:
             raise InvalidParameter(

@@ -140,9 +140,10 @@ def _ledger_metrics(r: Mapping[str, Any]) -> dict[str, Any] | None:
     return None
 
 
-#: Ledger rows turned into table rows at a time: the Python objects of one chunk are freed before
-#: the next is read, so that building the table of 10^6 points holds one chunk's, not all.
-CHUNK_ROWS = 20_000
+#: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
+#: while it is turned into columns) are freed before the next is read, so that building the table
+#: of 10^6 points holds one chunk's, not all.
+CHUNK_ROWS = 2_000
 #: Text columns kept as such; every other text column (outcome, monitor, law_check, text
 #: parameters: a few words repeated) is categorical, 1 byte a row instead of ~16.
 FREE_TEXT = ("id", "log_path")
@@ -161,7 +162,7 @@ def ledger_frame(
     lengths: list[int] = []
     missing: list[int] = []
     iterator = iter(rows)
-    start = 0
+    start = fresh = 0
     while chunk := list(itertools.islice(iterator, CHUNK_ROWS)):
         frame, absent = _chunk_frame(chunk)
         if on_chunk is not None:
@@ -171,6 +172,12 @@ def ledger_frame(
         lengths.append(len(chunk))
         for column in pieces.values():
             column += [None] * (len(lengths) - len(column))  # a column this chunk lacks
+        fresh += 1
+        if fresh == _MERGE:  # join the last chunks' small pieces (see _MERGE)
+            for column in pieces.values():
+                column[-fresh:] = [_joined(_filled(column[-fresh:], lengths[-fresh:]))]
+            lengths[-fresh:] = [sum(lengths[-fresh:])]
+            fresh = 0
         missing += [start + i for i in absent]
         start += len(chunk)
         del frame, chunk
@@ -178,22 +185,38 @@ def ledger_frame(
         return pd.DataFrame(columns=list(ID_COLUMNS)), missing
     columns = {}
     for col in list(pieces):
-        chunks = pieces.pop(col)
-        columns[col] = _joined([p if p is not None else pd.Series(np.full(n, np.nan)) for p, n in zip(chunks, lengths)])
-        del chunks
+        columns[col] = _joined(_filled(pieces.pop(col), lengths))
     return pd.DataFrame(columns, copy=False), missing
+
+
+#: Chunks whose pieces of a column are joined as soon as they are all there: a piece of one chunk
+#: (40 kB of floats) lies in the C heap, where the many freed ones would stay as the process's
+#: memory; pieces of 16 chunks are large enough to be mapped and unmapped on their own.
+_MERGE = 32
+
+
+def _filled(pieces: list[pd.Series | None], lengths: list[int]) -> list[pd.Series]:
+    """The pieces of a column, NaN for the chunks that lack it."""
+    return [p if p is not None else pd.Series(np.full(n, np.nan)) for p, n in zip(pieces, lengths)]
+
+
+def _is_text(piece: pd.Series) -> bool:
+    return (
+        pd.api.types.is_string_dtype(piece.dtype)
+        or isinstance(piece.dtype, pd.CategoricalDtype)
+        or bool(piece.isna().all())
+    )
 
 
 def _joined(pieces: list[pd.Series]) -> pd.Series:
     """One column from its chunks' pieces: text as categories (see :data:`FREE_TEXT`) or
     strings, the rest as ``pd.concat`` types it."""
     name = next((p.name for p in pieces if p.name is not None), None)
-    text = all(pd.api.types.is_string_dtype(p.dtype) or p.isna().all() for p in pieces)
-    if text and not all(p.isna().all() for p in pieces):
+    if all(_is_text(p) for p in pieces) and not all(p.isna().all() for p in pieces):
         if name in FREE_TEXT:
             return pd.concat([p.astype("str") for p in pieces], ignore_index=True).rename(name)
-        categories = union_categoricals([pd.Categorical(p.astype("str")) for p in pieces], sort_categories=True)
-        return pd.Series(categories, name=name)
+        parts = [p.array if isinstance(p.dtype, pd.CategoricalDtype) else pd.Categorical(p.astype("str")) for p in pieces]
+        return pd.Series(union_categoricals(parts, sort_categories=True), name=name)
     return pd.concat(pieces, ignore_index=True).rename(name)
 
 
@@ -247,15 +270,15 @@ def metric_columns(frame: pd.DataFrame) -> list[str]:
     ]
 
 
-def split_aborted(frame: pd.DataFrame) -> pd.DataFrame:
-    """Move the metrics of aborted runs to ``<metric>_until_abort`` columns (see the module)."""
-    aborted = (frame["outcome"] == "aborted").to_numpy()
-    out = {}
+def split_aborted(frame: pd.DataFrame) -> None:
+    """Move the metrics of aborted runs to ``<metric>_until_abort`` columns (see the module), in
+    place: a column at a time, never a second copy of the table's metrics."""
+    aborted = (frame["outcome"] == "aborted").to_numpy(dtype=bool)
     for col in metric_columns(frame):
         values = frame[col].to_numpy(dtype=float)
-        out[col] = np.where(aborted, np.nan, values)
-        out[col + UNTIL_ABORT] = np.where(aborted, values, np.nan)
-    return frame.assign(**out)
+        frame[col + UNTIL_ABORT] = np.where(aborted, values, np.nan)
+        frame[col] = np.where(aborted, np.nan, values)
+        del values
 
 
 def _unsplit(row: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
@@ -337,14 +360,14 @@ def build_table(
         for col in extra.columns.drop([c for c in drop if c in extra.columns]):
             frame[col] = _overlaid(frame[col] if col in frame.columns else None, extra[col], len(frame))
     frame["torn"] = frame["torn"].fillna(False).astype(bool)
-    frame = split_aborted(frame)
+    split_aborted(frame)
     for col in [*INTEGER_COLUMNS, *(c for c in frame.columns if c.startswith("n_samples@"))]:
         if col in frame.columns and col not in CACHE_COLUMNS:
             frame[col] = pd.to_numeric(frame[col]).round().astype("Int64")
     for col, values in zip(CACHE_COLUMNS, (sizes, mtimes)):  # which file backed each row: the next analysis's cache
         frame[col] = pd.arrays.IntegerArray(values, values < 0)
     frame["metrics_version"] = METRICS_VERSION
-    for rec in frame.loc[frame["torn"], ["id", "log_path"]].to_dict("records"):
+    for rec in frame[["id", "log_path"]][frame["torn"]].to_dict("records"):
         problems.append({"path": rec["log_path"], "kind": "torn", "detail": f"point {rec['id']}: salvaged a torn log"})
     frame["log_state"] = log_states(frame["log_path"], problems)
     return CampaignTable(frame, problems, n_read=len(read))
@@ -380,13 +403,14 @@ LOG_STATES = (LOG_OK, "missing", "unreadable", "torn", FOREIGN)
 def log_states(log_paths: pd.Series, problems: Sequence[Mapping[str, str]]) -> pd.Series:
     """Per row: "ok", or what is wrong with its log ("missing", "unreadable", "torn", "foreign":
     another point's run), or empty where the point has none (a failed run, an unfinished point)
-    — so that the table alone says which metrics a log no longer backs."""
+    — so that the table alone says which metrics a log no longer backs. Categorical, made from
+    its codes (no text a row)."""
     kinds = {p["path"]: p["kind"] for p in problems if p["kind"] in LOG_STATES}
-    states = np.where(log_paths.notna().to_numpy(), LOG_OK, None)
+    codes = np.where(log_paths.notna().to_numpy(), LOG_STATES.index(LOG_OK), -1).astype(np.int8)
     if kinds:
-        hit = log_paths.isin(list(kinds)).to_numpy()
-        states[hit] = [kinds[p] for p in log_paths[hit]]
-    return pd.Series(pd.Categorical(states, categories=LOG_STATES), index=log_paths.index)
+        hit = np.flatnonzero(log_paths.isin(list(kinds)).to_numpy())
+        codes[hit] = [LOG_STATES.index(kinds[p]) for p in log_paths.iloc[hit]]
+    return pd.Series(pd.Categorical.from_codes(codes, categories=LOG_STATES), index=log_paths.index)
 
 
 def quarantine_problems(quarantine_rows: Sequence[Mapping[str, Any]], directory: Path) -> list[dict[str, str]]:

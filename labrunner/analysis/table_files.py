@@ -1,7 +1,7 @@
 """The metrics table's files: ``metrics.csv`` and ``metrics.parquet`` in the report folder.
 
-Both are written :data:`~labrunner.analysis.table.CHUNK_ROWS` rows at a time from the table in
-memory (a row group of the Parquet file each), so that writing 10^6 rows never holds a second
+Both are written :data:`ROWS_AT_A_TIME` rows at a time from the table in memory (a row group of
+the Parquet file each), so that writing 10^6 rows never holds a second
 copy of the table: log paths are made relative to the report folder and categorical columns
 written as plain text chunk by chunk. The files are the same as one ``to_csv`` / ``to_parquet``
 of the whole table (tests/test_analysis_table_files.py). Each is written under a temporary name
@@ -15,9 +15,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from labrunner.analysis.table import CHUNK_ROWS, ordered
+from labrunner.analysis.table import ordered
 
 METRICS_CSV = "metrics.csv"
+#: Rows written at a time (~20 MB of them as text at 10^6 points' typical width).
+ROWS_AT_A_TIME = 50_000
 #: The table with its types; the next analysis reuses its rows (see :func:`~labrunner.analysis.table.build_table`).
 METRICS_PARQUET = "metrics.parquet"
 
@@ -47,8 +49,8 @@ def write_table(frame: pd.DataFrame, out: Path, directory: Path) -> tuple[Path, 
     writer = None
     try:
         with open(tmp_csv, "w", newline="", encoding="utf-8") as fh:
-            for start in range(0, max(len(frame), 1), CHUNK_ROWS):
-                chunk = as_written(frame.iloc[start : start + CHUNK_ROWS], directory, out)
+            for start in range(0, max(len(frame), 1), ROWS_AT_A_TIME):
+                chunk = as_written(frame.iloc[start : start + ROWS_AT_A_TIME], directory, out)
                 chunk.to_csv(fh, index=False, header=start == 0)
                 batch = pa.Table.from_pandas(chunk, preserve_index=False, schema=writer and writer.schema)
                 writer = writer or pq.ParquetWriter(tmp_parquet, batch.schema)
