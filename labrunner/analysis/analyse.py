@@ -80,8 +80,7 @@ def _analyse(
 ) -> dict[str, Any]:
     import pandas as pd
 
-    from labrunner.analysis import selection, table as table_mod, table_files
-    from labrunner.analysis import memory
+    from labrunner.analysis import memory, selection, table as table_mod, table_files
     from labrunner.campaign.ledger import Ledger
     from labrunner.campaign.progress import Steps
 
@@ -152,11 +151,13 @@ def _analyse(
         plotter = many = None
     if plotter is not None:
         plotter.start(functools.partial(drawing.draw, [] if many else plots_of, jobs))
+        memory.trim()  # the pickled maps
     csv, parquet = table_files.write_table(built.frame, out, directory)
     memory.trim()
     advance()
     step("maps")
     agree = agreement_mod.agreement(frame, theories, gains_of=theories.gains, margin=margin)
+    memory.trim()
     sections, guided = [], None
     if campaign is not None and campaign.guided is not None:  # the walk and its step counts
         from labrunner.campaign import guided_report

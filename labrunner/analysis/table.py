@@ -215,7 +215,9 @@ def _joined(pieces: list[pd.Series]) -> pd.Series:
     if all(_is_text(p) for p in pieces) and not all(p.isna().all() for p in pieces):
         if name in FREE_TEXT:
             return pd.concat([p.astype("str") for p in pieces], ignore_index=True).rename(name)
-        parts = [p.array if isinstance(p.dtype, pd.CategoricalDtype) else pd.Categorical(p.astype("str")) for p in pieces]
+        parts = [
+            p.array if isinstance(p.dtype, pd.CategoricalDtype) else pd.Categorical(p.astype("str")) for p in pieces
+        ]
         return pd.Series(union_categoricals(parts, sort_categories=True), name=name)
     return pd.concat(pieces, ignore_index=True).rename(name)
 
@@ -366,7 +368,6 @@ def build_table(
             frame[col] = pd.to_numeric(frame[col]).round().astype("Int64")
     for col, values in zip(CACHE_COLUMNS, (sizes, mtimes)):  # which file backed each row: the next analysis's cache
         frame[col] = pd.arrays.IntegerArray(values, values < 0)
-    frame["metrics_version"] = METRICS_VERSION
     for rec in frame[["id", "log_path"]][frame["torn"]].to_dict("records"):
         problems.append({"path": rec["log_path"], "kind": "torn", "detail": f"point {rec['id']}: salvaged a torn log"})
     frame["log_state"] = log_states(frame["log_path"], problems)

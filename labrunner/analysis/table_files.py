@@ -15,11 +15,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from labrunner.analysis.table import ordered
+from labrunner.analysis.table import METRICS_VERSION, ordered
 
 METRICS_CSV = "metrics.csv"
-#: Rows written at a time (~20 MB of them as text at 10^6 points' typical width).
-ROWS_AT_A_TIME = 50_000
+#: Rows written at a time (~8 MB of them as text at the motor campaign's width of ~40 columns).
+ROWS_AT_A_TIME = 20_000
 #: The table with its types; the next analysis reuses its rows (see :func:`~labrunner.analysis.table.build_table`).
 METRICS_PARQUET = "metrics.parquet"
 
@@ -32,8 +32,10 @@ def relative_paths(paths: pd.Series, directory: Path, out: Path) -> pd.Series:
 
 def as_written(frame: pd.DataFrame, directory: Path, out: Path) -> pd.DataFrame:
     """Rows of the table as the files hold them: columns in order, log paths relative to ``out``,
-    categorical and other text columns as strings."""
+    categorical and other text columns as strings, and last the ``metrics_version`` (the next
+    analysis reuses rows of this version only)."""
     table = ordered(frame.assign(log_path=relative_paths(frame["log_path"], directory, out)))
+    table = table.assign(metrics_version=METRICS_VERSION)
     text = {c: "str" for c in table.columns if isinstance(table[c].dtype, pd.CategoricalDtype)}
     return table.astype({**text, **{c: "string" for c in table.columns if table[c].dtype == object}})
 

@@ -70,7 +70,7 @@ class CampaignResults:
         # every point has the grid's keys (dotted: section.key); the first row names them in order
         named = [k for k in (json.loads(first[0]) if first else {}) if k in built.frame.columns]
         parameters = [*named, *(c for c in built.frame.columns if "." in c and c not in named)]
-        frame = table_mod.ordered(built.frame)
+        frame = table_mod.ordered(built.frame).assign(metrics_version=table_mod.METRICS_VERSION)  # as metrics.csv
         root = str(self.directory.resolve())
         frame = frame.assign(
             log_path=frame["log_path"].map(lambda p: os.path.join(root, p) if isinstance(p, str) else None)
