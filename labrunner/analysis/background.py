@@ -76,7 +76,8 @@ class Background(Generic[T]):
         self._fn = fn
         if self._send >= 0:
             with contextlib.suppress(BrokenPipeError), os.fdopen(self._send, "wb") as pipe:
-                pickle.dump(fn, pipe)  # a child that died already: result() runs fn here
+                # protocol 5 writes the maps' arrays from their memory, without a copy of each first
+                pickle.dump(fn, pipe, protocol=5)  # a child that died already: result() runs fn here
             self._send = -1
 
     def _fork(self, task: Callable[[], Callable[[], T]]) -> None:
