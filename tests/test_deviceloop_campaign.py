@@ -11,9 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from labrunner import engine
 from labrunner.logs import read_run
+from labrunner.logs.schema import SAMPLES_SCHEMA_NAME, float32_fields
 from labrunner.rigs.registry import load_rig
 from tests.test_deviceloop_link import ROOT, emulator_process, rig_file, rig_toml
 
@@ -82,6 +84,12 @@ def test_plate_campaign_runs_on_the_device(tmp_path: Path):
         assert device["loop"] == "device" and device["device_loop"]["ticks"] == twin.n_samples
         for name in ("i1", "y1", "ref_y1", "f_hat_y1"):
             np.testing.assert_array_equal(log.frame[name].to_numpy(), np.float32(twin.signals[name]).astype(float))
+        # the device's float32 samples are stored as float32 (exactly), its clock as float64
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+        (sample_schema,) = [s for s in summary.schemas.values() if s.name == SAMPLES_SCHEMA_NAME]
+        layout = dict(zip(log.names, float32_fields(sample_schema.data, len(log.names))))
+        assert layout.pop("t_device") is False and all(layout.values()) and len(layout) == len(log.names) - 1
 
 
 def test_plan_refuses_the_plate_host_loop_on_a_1_mbit_bus(tmp_path: Path):
