@@ -43,9 +43,7 @@ CAMPAIGNS = {
     "valve": "campaigns/valve-gamma-kp.toml",
     "plate": "campaigns/plate-alpha-omegac.toml",
 }
-_HEADER = np.dtype(
-    [("op", "u1"), ("len", "<u8"), ("ch", "<u2"), ("seq", "<u4"), ("log", "<u8"), ("pub", "<u8")]
-)
+_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("ch", "<u2"), ("seq", "<u4"), ("log", "<u8"), ("pub", "<u8")])
 
 
 def with_precision(text: str, precision: str) -> str:
@@ -119,9 +117,7 @@ def main() -> None:
                     motor_size = table_logs[-1].stat().st_size
                 shutil.rmtree(directory)
             (t64, n, c64), (t32, _, c32) = figures["float64"], figures["float32"]
-            med = (
-                f"{statistics.median(c64) / 1e3:.1f} kB / {statistics.median(c32) / 1e3:.1f} kB" if c64 else "none"
-            )
+            med = f"{statistics.median(c64) / 1e3:.1f} kB / {statistics.median(c32) / 1e3:.1f} kB" if c64 else "none"
             print(f"{name:<12}{n:>8}{t64 / 1e6:>10.1f}MB{t32 / 1e6:>10.1f}MB{med:>36}", flush=True)
         if "quickstart" in args.only:
             f = motor_floor
