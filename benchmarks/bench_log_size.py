@@ -15,9 +15,14 @@ than any per-sample layout can do, since per-sample messages interleave the colu
 
 Last measured 2026-12-03 (2-core machine, other jobs running; sizes do not depend on load)::
 
-    campaign                     points  float64 logs  float32 logs  completed run f64 / f32
-    quickstart (motor, 200 Hz)      100        2.9 MB        2.2 MB       52.7 kB / 34.5 kB
-    (filled in below by the run of this script)
+    campaign        logs    f64 logs    f32 logs    completed run f64 / f32 (median)
+    quickstart       100       2.8MB       2.0MB                   48.6 kB / 32.4 kB
+    valve             64     293.3MB     174.6MB               4757.9 kB / 2752.3 kB
+    plate             70    1538.2MB     922.5MB             23296.8 kB / 14058.0 kB
+
+    floors for the largest quickstart log (1000 samples, 52.4 kB): message headers 6.2 kB;
+    values float64 27.7 kB, float32 12.0 kB (each column alone, shuffled, zstd -19); so one
+    message per sample needs ≥ 33.9 kB exact, ≥ 18.2 kB in float32, before metadata (≈ 6 kB)
 
 A motor log of 1000 samples at ≤ 20 kB (the issue's target) is out of reach with one message per
 sample: see the floors this script prints.
