@@ -7,15 +7,17 @@ sample or a wrong verdict is caught at its first diverging tick — in-process h
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from test_campaign_support import cli
 
+from labrunner import OUTCOME_KEYS
+from labrunner.logs import read_metadata
 from labrunner.rigs.device import description, executor, lawcheck
 from labrunner.rigs.device.host import to_result
 from labrunner.rigs.registry import load_rig
@@ -140,10 +142,7 @@ hold = 0.2
 """
 
 
-def _labrunner(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "labrunner", *args], capture_output=True, text=True, cwd=ROOT, timeout=600
-    )
+_run = functools.partial(cli, cwd=ROOT, timeout=600)  # the real command, from the repository root
 
 
 @pytest.mark.slow
@@ -152,15 +151,15 @@ def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults,
     with emulator_process(rig_file("motor-mfc1", "can"), faults) as config:
         (tmp_path / "motor-can.toml").write_text(rig_toml(config))
         (tmp_path / "campaign.toml").write_text(CAMPAIGN)
-        done = _labrunner("run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out"))
+        done = _run("run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out"))
     assert done.returncode == 0, done.stderr
     said = done.stderr if flag == "diverged" else done.stdout  # labrunner run's own last line
     assert f"law check (device loop): {2 if flag == 'ok' else 0} ok, {2 if flag != 'ok' else 0} diverged" in said
-    status = json.loads(_labrunner("status", str(tmp_path / "out"), "--json").stdout)["law_check"]
+    status = json.loads(_run("status", str(tmp_path / "out"), "--json").stdout)["law_check"]
     assert status[flag] == 2 and sum(status[k] for k in ("ok", "diverged", "not-checked")) == 2
-    text = _labrunner("status", str(tmp_path / "out")).stdout
+    text = _run("status", str(tmp_path / "out")).stdout
     assert f"law check (device loop): {2 if flag == 'ok' else 0} ok, {2 if flag != 'ok' else 0} diverged" in text
-    analysed = _labrunner("analyse", str(tmp_path / "out"), "--json")
+    analysed = _run("analyse", str(tmp_path / "out"), "--json")
     assert analysed.returncode == 0, analysed.stderr
     summary = json.loads(analysed.stdout)
     assert summary["law_check"][flag] == 2
@@ -170,6 +169,13 @@ def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults,
         assert status["first_diverged"]["flag"].startswith("diverged@tick ")
         report = Path(summary["report"]).read_text()
         assert "the device did not run the law" in report and "diverged@tick" in report
+    # the log's outcome record has the twin's shape (the check is in its diagnostics record), and a
+    # ledger rebuilt from the logs alone still knows every run's check
+    for log in (tmp_path / "out" / "runs").glob("*.mcap"):
+        assert set(read_metadata(log)["outcome"]) <= {*OUTCOME_KEYS, "n_samples"}
+    (tmp_path / "out" / "ledger.sqlite").unlink()
+    assert _run("repair", str(tmp_path / "out"), "--campaign", str(tmp_path / "campaign.toml")).returncode == 0
+    assert json.loads(_run("status", str(tmp_path / "out"), "--json").stdout)["law_check"] == status
 
 
 SHIPPED = sorted((ROOT / "campaigns").rglob("*.toml"))
