@@ -120,6 +120,18 @@ def bench_commit_and_scheduling(work: Path) -> tuple[float, float]:
     return statistics.median(times), per_run
 
 
+def _status_kb(pid: int, key: str) -> int:
+    """A memory figure of /proc/PID/status in kB (``VmRSS``, ``VmHWM``); 0 once the process is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            for line in fh:
+                if line.startswith(f"{key}:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
 def rss_tree_kb(pid: int) -> tuple[int, int]:
     """(RSS of ``pid``, RSS of pid + all its descendants) in kB, from /proc."""
     children: dict[int, list[int]] = {}
@@ -131,36 +143,18 @@ def rss_tree_kb(pid: int) -> tuple[int, int]:
                 children.setdefault(ppid, []).append(int(entry))
             except (OSError, ValueError, IndexError):
                 continue
-
-    def rss(p: int) -> int:
-        try:
-            with open(f"/proc/{p}/status") as fh:
-                for line in fh:
-                    if line.startswith("VmRSS:"):
-                        return int(line.split()[1])
-        except OSError:
-            pass
-        return 0
-
     total, stack = 0, [pid]
     while stack:
         p = stack.pop()
-        total += rss(p)
+        total += _status_kb(p, "VmRSS")
         stack += children.get(p, [])
-    return rss(pid), total
+    return _status_kb(pid, "VmRSS"), total
 
 
 def hwm_kb(pid: int) -> int:
     """The kernel's high-water mark of ``pid``'s RSS (VmHWM) in kB: its true peak so far, which
     sampling RSS every 0.2 s can miss (0 once it is gone)."""
-    try:
-        with open(f"/proc/{pid}/status") as fh:
-            for line in fh:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
+    return _status_kb(pid, "VmHWM")
 
 
 def _children_cpu() -> float:

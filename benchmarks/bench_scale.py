@@ -17,9 +17,20 @@ Last measured 2026-12-03, the 2-core machine loaded 7–12 by other jobs (wall t
     99,856    314.3       171 MB  133 MB / 133 MB / 133 MB       0.16      20.80        58.9       293 MB  3,196 MB
 
 (``resume`` then re-planned every point; it now re-plans only when the plan's inputs changed.)
-``--synthetic 1000000`` adds ``status``/``resume`` on synthetic 10^6-row ledgers
+``--synthetic 1000000`` adds ``status``/``resume``/``analyse`` on synthetic 10^6-row ledgers
 (:mod:`synthetic_ledger`); measured 2026-12-03, load 3–4: status 0.58–0.87 s, resume of the
-finished campaign 8.9–9.7 s / 431 MB. A real 10^6-point run was not measured (~33 GB of logs).
+finished campaign 8.9–9.7 s / 431 MB (then empty logs). ``analyse --workers 2`` of the finished
+one (logs hard-linked, their fingerprints in the ledger), measured 2026-12-03 08:24 UTC, load 2–3
+with a test run sharing the cores (status 1.12 s and resume 16.6 s / 420 MB in the same run)::
+
+    first analyse   148.4 s, peak 559 MB (the analysing process, VmHWM; 1072 MB with the drawing child, sampled)
+    second analyse  110.3 s, peak 558 MB
+
+Before (the branch's start, same ledger size): the metrics table alone (``open_campaign(...).table()``)
+peaked at 1.03 GB (571 MB streaming the ledger, 302 MB the table), and a first ``analyse`` read
+every log's metadata to prove its point (~0.8 ms a log: ~13 min at 10^6, not run). The 500 MB
+target is not met: imports 100–110 MB, the table 280 MB, the rest transient. A real 10^6-point
+run was not measured (~33 GB of logs).
 """
 
 from __future__ import annotations
