@@ -5,7 +5,8 @@ The ledger is what ``labrunner run`` writes — the campaign copy, its meta (inc
 digest), one row per grid point with the point's real id and parameters, in grid order — except
 that the plan's static checks are not run (``plan_checksum`` says so) and the finished rows are
 the rows of a small real run (``labrunner run`` of a 4 × 4 quickstart) repeated, and their logs
-empty files (``resume`` checks that each finished run's log exists; ``analyse`` cannot read them).
+empty files (``resume`` checks that each finished run's log exists; ``analyse`` cannot read them),
+and the directory is sealed as a ``run`` that ended cleanly leaves it (:mod:`labrunner.campaign.seal`).
 ``finished`` is the fraction of points marked finished (grid order); the rest stay planned, as
 after an interrupted run.
 """
@@ -23,7 +24,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_campaign import campaign  # noqa: E402
 
-from labrunner.campaign import plan_inputs, spec  # noqa: E402
+from labrunner.campaign import plan_inputs, seal, spec  # noqa: E402
 from labrunner.campaign.grid import point_id  # noqa: E402
 from labrunner.campaign.ledger import Ledger  # noqa: E402
 from labrunner.campaign.runner import CAMPAIGN_COPY  # noqa: E402
@@ -59,7 +60,7 @@ def make(work: Path, name: str, n_gamma: int, n_kp: int, *, finished: float = 1.
         "campaign_file": c.source,
         "campaign_path": str(file.resolve()),
         "plan_checksum": "synthetic: not planned",
-        plan_inputs.META_KEY: plan_inputs.digest(c),
+        **plan_inputs.stamp(c),
         "points": str(n),
         "rig": c.rig,
         REAL_RIG: "0" if c.rig_info.simulated else "1",
@@ -81,6 +82,7 @@ def make(work: Path, name: str, n_gamma: int, n_kp: int, *, finished: float = 1.
         ledger.db.execute("COMMIT")
         for (pid,) in ledger.db.execute("SELECT id FROM points WHERE finished_at IS NOT NULL"):
             (directory / "runs" / f"{pid}.mcap").touch()
+        seal.seal(ledger)  # as a session of ``run`` that ended cleanly
     (directory / CAMPAIGN_COPY).write_text(c.source)
     return directory
 
@@ -90,4 +92,5 @@ def restamp(directory: Path) -> None:
     with Ledger.open(directory, verify=False) as ledger:
         meta = ledger.meta()
         c = spec.from_text(meta["campaign_file"], source_path=Path(meta["campaign_path"]))
-        ledger.db.execute("UPDATE meta SET value = ? WHERE key = ?", (plan_inputs.digest(c), plan_inputs.META_KEY))
+        for key, value in plan_inputs.stamp(c).items():
+            ledger.set_meta(key, value)

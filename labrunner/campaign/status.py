@@ -68,6 +68,14 @@ def status(directory: str | Path) -> dict[str, Any]:
     }
 
 
+def law_check(directory: str | Path) -> dict[str, Any] | None:
+    """Only the ``law_check`` entry of :func:`status` (None for a twin's campaign, which keeps none):
+    what ``run`` and ``resume`` print at their end (they checked the ledger), without counting the
+    campaign again."""
+    with Ledger.open_readonly(Path(directory), verify=False) as ledger:
+        return _law_check(ledger) if ledger.meta().get(REAL_RIG) != "0" else None
+
+
 def _timing(ledger: Ledger) -> dict[str, int] | None:
     """A real rig's late ticks and overruns summed over its runs, and the runs that had any
     (None: no run carries them, e.g. a simulated campaign). One SQL pass, no JSON parsed here."""
