@@ -4,7 +4,9 @@ an edit of the planning code makes ``resume`` re-plan."""
 
 from __future__ import annotations
 
+import ast
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -42,6 +44,56 @@ def test_the_closure_holds_every_module_that_planning_imports():
         assert outside not in files
     for outside in ("campaign/ledger.py", "campaign/runner.py", "campaign/scheduler.py", "campaign/worker.py"):
         assert outside not in files
+
+
+def _ast_imports(module: str, whole: bool) -> set[str]:
+    """A plain reference for the line scanner: the imports Python's own parser finds."""
+    tree = ast.parse(plan_inputs._file(module).read_text())
+    package = module if plan_inputs._file(module).name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+
+    def visit(nodes):
+        for node in nodes:
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                visit(node.orelse)
+                continue
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and not whole:
+                continue
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parts = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    base = ".".join([*parts, base] if base else parts)
+                found.update(f"{base}.{a.name}" if plan_inputs._file(f"{base}.{a.name}") else base for a in node.names)
+            for child in ast.iter_child_nodes(node):
+                if isinstance(child, ast.stmt | ast.excepthandler | ast.match_case):
+                    visit([child])
+
+    visit(tree.body)
+    if whole:
+        found.update(
+            n.value.split(":")[0]
+            for n in ast.walk(tree)
+            if isinstance(n, ast.Constant)
+            and isinstance(n.value, str)
+            and re.fullmatch(r"labrunner(\.\w+)+(:\w+)?", n.value)
+        )
+    return {name for name in found if name.split(".")[0] == "labrunner"}
+
+
+def test_the_line_scanner_finds_what_pythons_parser_finds():
+    """Over every module of the package, each way a module may be followed (whole, or a package's
+    ``__init__`` only): the scanner finds every import the parser finds (it may find more — a
+    ``"labrunner.x"`` in a docstring — which only widens the closure)."""
+    package = Path(labrunner.__file__).resolve().parent
+    for path in sorted(package.rglob("*.py")):
+        parts = path.relative_to(package).with_suffix("").parts
+        module = ".".join(["labrunner", *(parts[:-1] if parts[-1] == "__init__" else parts)])
+        for whole in (True, False):
+            text = path.read_text()
+            assert plan_inputs._imports(module, text, whole) >= _ast_imports(module, whole), (module, whole)
 
 
 @pytest.fixture
