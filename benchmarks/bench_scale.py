@@ -88,11 +88,36 @@ def scale(work: Path, n: int) -> dict:
     }
 
 
+#: ``resume`` of DIR that stops as its first batch is claimed (nothing is written): how long a
+#: resume of an unfinished campaign takes to start running.
+UNTIL_FIRST_BATCH = (
+    "import os, sys\n"
+    "from labrunner.campaign.ledger import Ledger\n"
+    "Ledger.claim = lambda self, ids: os._exit(0)\n"
+    "from labrunner.cli import main\n"
+    "main(['resume', sys.argv[1], '--workers', '2'])\n"
+)
+
+
+def _seal(directory: Path, sealed: bool) -> None:
+    """Seal the directory as a session that ended cleanly does, or clear the seal as a crash leaves it."""
+    from labrunner.campaign import seal
+    from labrunner.campaign.ledger import Ledger
+
+    with Ledger.open(directory, verify=False) as ledger:
+        if sealed:
+            assert seal.seal(ledger), f"{directory} is not consistent"
+        else:
+            seal.clear(ledger)
+
+
 def synthetic(work: Path, n: int) -> None:
     """``status`` and ``resume`` of a finished synthetic campaign of ``n`` points
     (:mod:`synthetic_ledger`: real ids, parameters and plan-inputs digest; a small real run's rows
-    repeated; empty log files), and ``status`` of one interrupted half-way. Three of each, fresh
-    processes; the median wall time and the largest peak RSS."""
+    repeated; empty log files), and of one interrupted half-way (``resume`` until its first batch
+    is claimed). ``resume`` as after a session that ended cleanly (sealed: :mod:`labrunner.campaign.seal`)
+    and as after a crash (not sealed). Three of each, fresh processes; the median wall time and
+    the largest peak RSS."""
     import synthetic_ledger
 
     n_gamma, n_kp = _grid(n)
@@ -101,13 +126,23 @@ def synthetic(work: Path, n: int) -> None:
         t0 = time.perf_counter()
         directory = synthetic_ledger.make(work, name, n_gamma, n_kp, finished=finished)
         built = time.perf_counter() - t0
-        commands = ("status", "resume") if finished == 1.0 else ("status",)
-        for command in commands:
-            runs = [timed([*cli, command, str(directory)], work) for _ in range(3)]
+        resume = (
+            [*cli, "resume", str(directory)]
+            if finished == 1.0
+            else [sys.executable, "-c", UNTIL_FIRST_BATCH, str(directory)]
+        )
+        cases = [("status", [*cli, "status", str(directory)], None)]
+        cases += [("resume, sealed", resume, True), ("resume after a crash", resume, False)]
+        for label, command, sealed in cases:
+            runs = []
+            for _ in range(3):
+                if sealed is not None:
+                    _seal(directory, sealed)
+                runs.append(timed(command, work))
             print(
                 f"{n_gamma * n_kp:>9,} points, {finished:.0%} finished (synthetic ledger, built in {built:.0f} s): "
-                f"{command} {statistics.median(r['wall_s'] for r in runs):.2f} s, "
-                f"peak {_mb(max(r['peak_parent_kb'] for r in runs))}",
+                f"{label}{'' if finished == 1.0 or sealed is None else ' (until the first batch)'} "
+                f"{statistics.median(r['wall_s'] for r in runs):.2f} s, peak {_mb(max(r['peak_parent_kb'] for r in runs))}",
                 flush=True,
             )
         shutil.rmtree(directory)

@@ -11,8 +11,9 @@
 The checks that read every row (``quick_check``, the ids' checksum, the parameters' JSON) take
 ~1 s per 10^5 points; ``status`` (reads only, and must answer in well under a second at 10^6
 points) runs them only up to 20 000 points and above runs the others — structure, meta, row count
-and grid order, all from the schema and the primary key — with ``thorough=False``; ``resume``,
-``analyse`` and ``repair`` run them all.
+and grid order, all from the schema and the primary key — with ``thorough=False``; ``analyse`` and
+``repair`` run them all, ``resume`` too unless the directory is sealed (:mod:`.seal`: they ran when
+its last session ended, and nothing changed since).
 
 Each problem names the file and ends with the way out: ``labrunner repair DIR`` rebuilds the
 ledger from the campaign copy and the published logs (:mod:`labrunner.campaign.repair`).

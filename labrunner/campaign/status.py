@@ -17,7 +17,7 @@ from labrunner.rigs.device import lawflag
 
 #: Up to this many points status runs every integrity check (:mod:`.integrity`, ≤ ~0.2 s); above,
 #: only those that do not read every row, so that it answers in well under a second at 10^6 points
-#: (resume and analyse still run them all).
+#: (analyse runs them all; resume too, unless the directory is sealed: :mod:`.seal`).
 FULL_CHECK_POINTS = 20_000
 
 #: The ledger ``meta`` key saying whether the campaign's rig is real ("1": its runs keep a
