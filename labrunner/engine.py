@@ -57,7 +57,8 @@ class RunResult:
     """One run: outcome, signals (name → (K,) float64; sample k at k/fs), channel roles, metrics,
     and ``diagnostics`` a rig reports about the run (a device loop's timing and transfer), logged
     as the MCAP's ``diagnostics`` metadata; a real device's own timestamps (``device_clock``) are
-    logged as the signal ``t_device``."""
+    logged as the signal ``t_device``; ``float32_signals`` are logged as float32 (a device's samples
+    are float32: stored exactly, in half the bytes)."""
 
     outcome: Outcome
     signals: dict[str, np.ndarray]
@@ -66,6 +67,7 @@ class RunResult:
     metrics: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, object] = field(default_factory=dict)
     device_clock: np.ndarray | None = None  # a real device's time of each sample [s since tick 0]; None: a twin
+    float32_signals: tuple[str, ...] = ()  # signals whose values are float32 (a device's): logged as float32, exactly
 
     @property
     def n_samples(self) -> int:

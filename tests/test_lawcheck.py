@@ -7,14 +7,14 @@ sample or a wrong verdict is caught at its first diverging tick — in-process h
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from test_campaign_support import cli
 
 from labrunner.rigs.device import description, executor, lawcheck
 from labrunner.rigs.device.host import to_result
@@ -140,10 +140,7 @@ hold = 0.2
 """
 
 
-def _labrunner(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "labrunner", *args], capture_output=True, text=True, cwd=ROOT, timeout=600
-    )
+_run = functools.partial(cli, cwd=ROOT, timeout=600)  # the real command, from the repository root
 
 
 @pytest.mark.slow
@@ -152,15 +149,15 @@ def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults,
     with emulator_process(rig_file("motor-mfc1", "can"), faults) as config:
         (tmp_path / "motor-can.toml").write_text(rig_toml(config))
         (tmp_path / "campaign.toml").write_text(CAMPAIGN)
-        done = _labrunner("run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out"))
+        done = _run("run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out"))
     assert done.returncode == 0, done.stderr
     said = done.stderr if flag == "diverged" else done.stdout  # labrunner run's own last line
     assert f"law check (device loop): {2 if flag == 'ok' else 0} ok, {2 if flag != 'ok' else 0} diverged" in said
-    status = json.loads(_labrunner("status", str(tmp_path / "out"), "--json").stdout)["law_check"]
+    status = json.loads(_run("status", str(tmp_path / "out"), "--json").stdout)["law_check"]
     assert status[flag] == 2 and sum(status[k] for k in ("ok", "diverged", "not-checked")) == 2
-    text = _labrunner("status", str(tmp_path / "out")).stdout
+    text = _run("status", str(tmp_path / "out")).stdout
     assert f"law check (device loop): {2 if flag == 'ok' else 0} ok, {2 if flag != 'ok' else 0} diverged" in text
-    analysed = _labrunner("analyse", str(tmp_path / "out"), "--json")
+    analysed = _run("analyse", str(tmp_path / "out"), "--json")
     assert analysed.returncode == 0, analysed.stderr
     summary = json.loads(analysed.stdout)
     assert summary["law_check"][flag] == 2

@@ -482,3 +482,44 @@ def test_outcome_status_is_checked(tmp_path):
             w.finish({"status": "done"})
         w.finish({"status": "no-motion"})
     assert read_outcome(tmp_path / "o.mcap") == {"status": "no-motion", "n_samples": 0}
+
+
+@pytest.mark.parametrize("samples_hz", [None, 500.0])
+def test_float32_signals_are_stored_as_floats_and_read_back_as_their_rounding(tmp_path, samples_hz):
+    """A signal named in ``float32`` is a protobuf ``float`` in the file's own schema (generic
+    tools decode it from that alone), holds the float32 rounding of what was given (beyond
+    float32's range: ±inf), and reads back as exactly that, whole or torn; the others stay
+    float64, bit for bit."""
+    fs, n = 4000.0, 2345
+    rng = np.random.default_rng(3)
+    signals = {f"x{j}": rng.standard_normal(n) * 10.0 ** (3 * j) for j in range(3)}
+    signals["x1"][[0, 7, 1500, 2000]] = [np.nan, -0.0, np.inf, 1e39]
+    with np.errstate(over="ignore"):
+        rounded = signals["x1"].astype(np.float32).astype(np.float64)
+    assert math.isinf(rounded[2000]) and not np.array_equal(rounded[1:7], signals["x1"][1:7])
+    path = tmp_path / "f32.mcap"
+    write_run(path, metadata={}, fs=fs, signals=signals, outcome=COMPLETED, samples_hz=samples_hz, float32=("x1",))
+    log = read_run(path)
+    expected = {**signals, "x1": rounded}
+    for name, values in expected.items():
+        assert np.array_equal(bits(log.frame[name].to_numpy()), bits(values)), name
+    assert "float32: x1" in log.metadata["run"]["samples"]
+    classes = classes_from_file(path)
+    kinds = {f.name: f.type for f in classes[log_schema.SAMPLES_SCHEMA_NAME].DESCRIPTOR.fields}
+    FieldType = descriptor_pb2.FieldDescriptorProto
+    assert kinds == {"x0": FieldType.TYPE_DOUBLE, "x1": FieldType.TYPE_FLOAT, "x2": FieldType.TYPE_DOUBLE}
+    samples, *_, sequences = samples_of(path)
+    assert np.array_equal(bits([m.x1 for m in samples]), bits(rounded[sequences]))
+    # a writer killed before its footer: the salvaged samples are the same rounding
+    torn = tmp_path / "torn.mcap"
+    with RunLogWriter(torn, metadata={}, fs=fs, channels=list(signals), float32=("x1",), flush_interval_s=0.0) as w:
+        for start in range(0, n, 1000):
+            w.write_block(start, {k: v[start : start + 1000] for k, v in signals.items()})
+        data = torn.read_bytes()
+        w.finish(COMPLETED)
+    torn.write_bytes(data)
+    salvaged = read_run(torn)
+    assert salvaged.torn and salvaged.n_samples == n
+    assert np.array_equal(bits(salvaged.frame["x1"].to_numpy()), bits(rounded))
+    with pytest.raises(InvalidParameter, match="float32"):
+        write_run(tmp_path / "bad.mcap", metadata={}, fs=fs, signals=signals, outcome=COMPLETED, float32=("y",))

@@ -237,25 +237,33 @@ def test_frame_ignores_a_wrong_size_hint(tmp_path, n_samples):
     data=st.data(),
 )
 def test_sample_encoding_agrees_with_protobuf(n_signals, n, data):
+    """Doubles and floats, in any mix: the writer's rows are what the protobuf library reads and
+    writes, and the reader's decoder gives back the values (a float field: the float32 rounding)."""
     names = [f"sig{j}" for j in range(n_signals)]
+    layout = tuple(data.draw(st.lists(st.booleans(), min_size=n_signals, max_size=n_signals)))
     values = st.floats(allow_nan=True, allow_infinity=True, width=64)
     columns = [np.array(data.draw(st.lists(values, min_size=n, max_size=n)), dtype=np.float64) for _ in names]
-    fdp = log_schema.descriptor_pb2.FileDescriptorSet.FromString(log_schema.samples_schema(names)).file[0]
+    with np.errstate(over="ignore"):  # beyond float32's range: ±inf, as the writer stores it
+        stored = [c.astype(np.float32).astype(np.float64) if single else c for c, single in zip(columns, layout)]
+    schema_data = log_schema.samples_schema(names, layout)
+    assert log_schema.float32_fields(schema_data, n_signals) == layout
+    fdp = log_schema.descriptor_pb2.FileDescriptorSet.FromString(schema_data).file[0]
     cls = log_schema.message_class(fdp, log_schema.SAMPLES_SCHEMA_NAME)
-    rows = log_schema.encode_samples(columns)
-    assert rows.shape == (n, 9 * n_signals + max(0, n_signals - 15)) and rows.dtype == np.uint8
+    rows = log_schema.encode_samples(columns, layout)
+    width = sum(5 if single else 9 for single in layout) + max(0, n_signals - 15)
+    assert rows.shape == (n, width) and rows.dtype == np.uint8
     for k, row in enumerate(rows):
         msg = cls.FromString(row.tobytes())
-        assert all(bits(getattr(msg, name)) == bits(c[k]) for name, c in zip(names, columns))
-        if all(bits(c[k]) != 0 for c in columns):  # proto3 leaves +0.0 out
+        assert all(bits(getattr(msg, name)) == bits(c[k]) for name, c in zip(names, stored))
+        if all(bits(c[k]) != 0 for c in stored):  # proto3 leaves +0.0 out
             assert msg.SerializeToString() == row.tobytes()
     # the reader's decoder: the writer's layout and the protobuf library's own encoding alike
-    decoded = log_schema.decode_samples([row.tobytes() for row in rows], n_signals)
-    assert np.array_equal(bits(decoded), bits(np.array(columns).reshape(n_signals, n)))
-    generic = [cls(**{name: c[k] for name, c in zip(names, columns)}).SerializeToString() for k in range(n)]
-    expected = np.array([[c[k] if bits(c[k]) != 0 else np.nan for k in range(n)] for c in columns])
+    decoded = log_schema.decode_samples([row.tobytes() for row in rows], layout)
+    assert np.array_equal(bits(decoded), bits(np.array(stored).reshape(n_signals, n)))
+    generic = [cls(**{name: c[k] for name, c in zip(names, stored)}).SerializeToString() for k in range(n)]
+    expected = np.array([[c[k] if bits(c[k]) != 0 else np.nan for k in range(n)] for c in stored])
     assert np.array_equal(
-        bits(log_schema.decode_samples(generic, n_signals).reshape(n_signals, n)), bits(expected.reshape(n_signals, n))
+        bits(log_schema.decode_samples(generic, layout).reshape(n_signals, n)), bits(expected.reshape(n_signals, n))
     )
 
 

@@ -184,3 +184,32 @@ def test_logging_section_thins_the_samples_and_says_so(tmp_path):
     bad = write(tmp_path / "bad.toml", campaign_text("bad", grid=grid, extra="\n[logging]\nsamples_hz = -1\n"))
     assert main(["run", str(bad), "--out", str(tmp_path / "e")]) == 2
     assert not (tmp_path / "e").exists()
+
+
+def test_logging_precision_float32_stores_the_rounding_of_the_same_runs(tmp_path, capsys):
+    """``[logging] precision = "float32"``: the same points (same ids), each signal the float32
+    rounding of what the default float64 logs hold, metrics untouched (computed before rounding),
+    and smaller files; another value is refused naming the key."""
+    (tmp_path / "pyproject.toml").write_text("[project]\nname = 'lab'\n")
+    write(tmp_path / "rigs" / "motor.toml", MOTOR_RIG)
+    grid = '"controller.k_p" = { values = [10.0, 30.0] }'
+    exact = write(tmp_path / "a.toml", campaign_text("prec", duration=2.0, grid=grid))
+    single = write(
+        tmp_path / "b.toml",
+        campaign_text("prec", duration=2.0, grid=grid, extra='\n[logging]\nprecision = "float32"\n'),
+    )
+    assert main(["run", str(exact), "--out", str(tmp_path / "a")]) == 0
+    assert main(["run", str(single), "--out", str(tmp_path / "b")]) == 0
+    logs = sorted(p.name for p in (tmp_path / "a" / "runs").glob("*.mcap"))
+    assert len(logs) == 2 and logs == sorted(p.name for p in (tmp_path / "b" / "runs").glob("*.mcap"))
+    for name in logs:
+        a, b = read_run(tmp_path / "a" / "runs" / name), read_run(tmp_path / "b" / "runs" / name)
+        assert pd.Series(a.metadata["metrics"]).equals(pd.Series(b.metadata["metrics"]))  # NaN == NaN here
+        expected = a.data.astype(np.float32).astype(np.float64)
+        assert not np.array_equal(a.data, expected, equal_nan=True)  # the rounding is real
+        assert np.array_equal(b.data, expected, equal_nan=True) and "float32: " in b.metadata["run"]["samples"]
+        assert (tmp_path / "b" / "runs" / name).stat().st_size < 0.8 * (tmp_path / "a" / "runs" / name).stat().st_size
+    capsys.readouterr()
+    bad = write(tmp_path / "c.toml", campaign_text("c", grid=grid, extra='\n[logging]\nprecision = "half"\n'))
+    assert main(["run", str(bad), "--out", str(tmp_path / "c")]) == 2
+    assert "logging.precision" in capsys.readouterr().err and not (tmp_path / "c").exists()

@@ -191,6 +191,7 @@ class Scheduler:
             duration=float(duration),
             runs=tuple(runs),
             samples_hz=c.logging.get("samples_hz"),
+            precision=c.logging.get("precision", "float64"),
         )
 
     def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:

@@ -35,7 +35,8 @@ CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
 OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
 TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived", "logging")
-LOGGING_KEYS = ("samples_hz",)  # [logging]: how the run logs are written
+LOGGING_KEYS = ("samples_hz", "precision")  # [logging]: how the run logs are written
+PRECISIONS = ("float64", "float32")  # [logging] precision: how the logs store each sample's values
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
 _PROJECT_MARKERS = ("pyproject.toml", "rigs", ".git")
 
@@ -71,7 +72,7 @@ class Campaign:
     rig_config: RigConfig = field(repr=False, compare=False)  # the validated rig file
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
     guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
-    logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz] or nothing
+    logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz], precision
 
     @property
     def rig_ref(self) -> str:
@@ -255,15 +256,21 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
 
 def _logging(table: Mapping[str, Any]) -> dict[str, Any]:
     """``[logging]``: ``samples_hz`` > 0 thins the logs' per-sample channel /run/samples to about
-    that rate (at or above f_s: every sample); the lossless /run/blocks always keep every sample."""
+    that rate (at or above f_s: every sample); the lossless /run/blocks always keep every sample.
+    ``precision`` = ``float32`` stores every signal rounded to float32 (default ``float64``: exact)."""
     bad = sorted(set(table) - set(LOGGING_KEYS))
     if bad:
         raise InvalidParameter(f"logging.{bad[0]}", f"unknown key; allowed: {', '.join(LOGGING_KEYS)}")
-    return (
-        {"samples_hz": check_positive("logging.samples_hz", table["samples_hz"], strict=True)}
-        if "samples_hz" in table
-        else {}
-    )
+    out: dict[str, Any] = {}
+    if "samples_hz" in table:
+        out["samples_hz"] = check_positive("logging.samples_hz", table["samples_hz"], strict=True)
+    if "precision" in table:
+        if table["precision"] not in PRECISIONS:
+            raise InvalidParameter(
+                "logging.precision", f"must be one of {', '.join(PRECISIONS)}, got {table['precision']!r}"
+            )
+        out["precision"] = table["precision"]
+    return out
 
 
 def _check_finite_leaves(path: str, node: Any) -> None:

@@ -61,6 +61,7 @@ class BatchTask:
     duration: float
     runs: tuple[RunTask, ...]
     samples_hz: float | None = None  # [logging] samples_hz: thin the logs' per-sample channel (None: full rate)
+    precision: str = "float64"  # [logging] precision: "float32" rounds every logged signal to float32
     live_at: live.Address | None = None  # where the worker reports the ticks done (labrunner.campaign.live)
 
 
@@ -266,13 +267,14 @@ def _publish_all(
             if record is not None:
                 metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
             signals, channels = with_device_clock(result)
+            float32 = signals if task.precision == "float32" else getattr(result, "float32_signals", ())
             with naming(tmp):
                 write_run(
                     tmp,
                     metadata=metadata,
                     signals=signals,
                     outcome=outcome,
-                    prefix=prefixes.get(list(signals), channels),
+                    prefix=prefixes.get(list(signals), channels, float32),
                     start_time=start_time,
                 )
             written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1))

@@ -29,7 +29,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import FOOTER_SIZE, SeekingReader
-from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Message, Metadata
+from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Message, Metadata, Schema
 from mcap.stream_reader import MAGIC_SIZE, StreamReader, get_chunk_data_stream
 from mcap.writer import MCAP0_MAGIC
 
@@ -183,12 +183,14 @@ def _messages(data: bytes | memoryview, channel_ids: set[int]) -> Iterator[tuple
         pos = body + length
 
 
-def _sample_rows(records: memoryview, channel_ids: set[int], n_signals: int) -> tuple[np.ndarray, np.ndarray]:
+def _sample_rows(records: memoryview, channel_ids: set[int], layout: schema.Layout) -> tuple[np.ndarray, np.ndarray]:
     """``(k, values)`` of the ``/run/samples`` messages in one chunk's records: sample indexes and
-    (n_signals, n) float64. A chunk of the writer's equal-sized messages of one channel is read as
-    one numpy view; any other valid chunk message by message."""
+    (signals, n) float64 (``layout``: the schema's float32 fields). A chunk of the writer's
+    equal-sized messages of one channel is read as one numpy view; any other valid chunk message
+    by message."""
+    n_signals = len(layout)
     (channel,) = channel_ids if len(channel_ids) == 1 else (0,)
-    row = message_row(channel, schema.sample_dtype(n_signals), schema.sample_tags(n_signals))
+    row = message_row(channel, schema.sample_dtype(layout), schema.sample_tags(layout))
     size = row.dtype.itemsize
     if channel and len(records) % size == 0 and len(records):
         rows = np.frombuffer(records, dtype=row.dtype)
@@ -202,7 +204,7 @@ def _sample_rows(records: memoryview, channel_ids: set[int], n_signals: int) -> 
     for sequence, payload in _messages(records, channel_ids):
         sequences.append(sequence)
         payloads.append(payload)
-    return np.array(sequences, dtype=np.int64), schema.decode_samples(payloads, n_signals)
+    return np.array(sequences, dtype=np.int64), schema.decode_samples(payloads, layout)
 
 
 class _Frame:
@@ -308,8 +310,10 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
     hint = records.get("outcome", {}).get("n_samples", 0)
     bound = sum(c.uncompressed_size for c in chunks) // (8 * max(1, len(names)))
     frame = _Frame(names, min(hint, bound) if isinstance(hint, int) and hint > 0 else 0)
+    layout: schema.Layout = ()
     if not blocks:
         frame.fs = float(records.get("run", {}).get("fs", math.nan))
+        layout = _layout([summary.schemas.get(summary.channels[cid].schema_id) for cid in ids], len(names))
     chunk_reader = _ChunkReader(f, chunks)
     bad = []
     for index in chunks:  # a damaged chunk is skipped: its samples stay NaN, the others are read
@@ -319,7 +323,7 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
                 for _, payload in _messages(chunk, ids):
                     frame.add(schema.decode_block(payload))
             else:
-                frame.put(*_sample_rows(chunk, ids, len(names)))
+                frame.put(*_sample_rows(chunk, ids, layout))
         except _TRUNCATED as exc:
             bad.append(f"offset {index.chunk_start_offset}: {exc}")
     damaged = f"{len(bad)} of {len(chunks)} data chunks unreadable ({bad[0]})" if bad else ""
@@ -330,6 +334,8 @@ def _read_torn(f: BinaryIO) -> tuple[dict, dict, _Frame]:
     raw: dict[str, dict[str, str]] = {}
     attachments: dict[str, bytes] = {}
     topics: dict[int, str] = {}
+    schemas: dict[int, Schema] = {}
+    sample_schema: Schema | None = None
     blocks: list[bytes] = []
     samples: list[tuple[int, bytes]] = []
     try:
@@ -338,8 +344,12 @@ def _read_torn(f: BinaryIO) -> tuple[dict, dict, _Frame]:
                 raw[record.name] = record.metadata
             elif isinstance(record, Attachment):
                 attachments[record.name] = record.data
+            elif isinstance(record, Schema):
+                schemas[record.id] = record
             elif isinstance(record, Channel):
                 topics[record.id] = record.topic
+                if record.topic == schema.SAMPLES_TOPIC:
+                    sample_schema = schemas.get(record.schema_id)
             elif isinstance(record, Message) and topics.get(record.channel_id) == schema.BLOCK_TOPIC:
                 blocks.append(record.data)
             elif isinstance(record, Message) and topics.get(record.channel_id) == schema.SAMPLES_TOPIC:
@@ -353,8 +363,16 @@ def _read_torn(f: BinaryIO) -> tuple[dict, dict, _Frame]:
     elif samples:
         frame.fs = float(decode_record(raw.get("run", {})).get("fs", math.nan))
         k = np.array([seq for seq, _ in samples], dtype=np.int64)
-        frame.put(k, schema.decode_samples([payload for _, payload in samples], len(frame.rows)))
+        layout = _layout([sample_schema], len(frame.rows))
+        frame.put(k, schema.decode_samples([payload for _, payload in samples], layout))
     return _decode_records(raw), attachments, frame
+
+
+def _layout(schemas: list[Schema | None], n_signals: int) -> schema.Layout:
+    """Which of the ``/run/samples`` fields are float32, from the channel's stored schema (one
+    schema expected; none, or several that differ: all float64, as labrunner-3 logs had)."""
+    found = {schema.float32_fields(s.data, n_signals) for s in schemas if s is not None}
+    return found.pop() if len(found) == 1 else (False,) * n_signals
 
 
 def _channel_names(raw: dict[str, dict[str, str]]) -> list[str]:

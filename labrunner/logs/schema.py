@@ -6,7 +6,12 @@ message per sample at the full rate, so that Foxglove (or any protobuf-aware MCA
 type is built per run from the signal names and units, field j + 1 holding signal j of the
 ``channels`` record::
 
-    message Sample { double <field_1> = 1; double <field_2> = 2; ... }
+    message Sample { double <field_1> = 1; float <field_2> = 2; ... }
+
+A field is a ``double`` (float64) unless its signal was given as float32 — a device's samples
+(which are float32 on the device, so stored exactly), or every signal of a campaign whose
+``[logging] precision`` is ``float32`` (rounded, by choice) — then it is a ``float``. Readers take
+each field's type from the file's schema (:func:`float32_fields`); values come back as float64.
 
 A field is named ``<signal>__<unit>`` (:func:`sample_field`): the signal's name, two underscores
 and its SI unit spelt as an identifier (``/`` → ``_per_``, ``²`` → ``2``, ``·`` → ``_``), e.g.
@@ -95,13 +100,17 @@ def _block_file() -> descriptor_pb2.FileDescriptorProto:
     return fdp
 
 
-def _samples_file(fields: Sequence[str]) -> descriptor_pb2.FileDescriptorProto:
+Layout = tuple[bool, ...]  # per field of a Sample, in order: True where it is a float32 ``float``
+
+
+def _samples_file(fields: Sequence[str], layout: Layout) -> descriptor_pb2.FileDescriptorProto:
     fdp = descriptor_pb2.FileDescriptorProto(
         name="labrunner/logs/sample.proto", package="labrunner.logs", syntax="proto3"
     )
     msg = fdp.message_type.add(name="Sample")
-    for number, name in enumerate(fields, start=1):
-        msg.field.add(name=name, number=number, type=_F.TYPE_DOUBLE, label=_F.LABEL_OPTIONAL)
+    for number, (name, single) in enumerate(zip(fields, layout, strict=True), start=1):
+        kind = _F.TYPE_FLOAT if single else _F.TYPE_DOUBLE
+        msg.field.add(name=name, number=number, type=kind, label=_F.LABEL_OPTIONAL)
     return fdp
 
 
@@ -149,10 +158,29 @@ def sample_fields(names: Sequence[str], units: Sequence[str]) -> list[str]:
     return fields
 
 
-def samples_schema(fields: Sequence[str]) -> bytes:
+def samples_schema(fields: Sequence[str], layout: Layout | None = None) -> bytes:
     """Serialised ``FileDescriptorSet`` of this run's ``Sample`` message (``fields`` from
-    :func:`sample_fields`)."""
-    return descriptor_pb2.FileDescriptorSet(file=[_samples_file(fields)]).SerializeToString()
+    :func:`sample_fields`; ``layout``: which are float32, default none)."""
+    layout = (False,) * len(fields) if layout is None else tuple(layout)
+    return descriptor_pb2.FileDescriptorSet(file=[_samples_file(fields, layout)]).SerializeToString()
+
+
+def float32_fields(schema_data: bytes, n_fields: int) -> Layout:
+    """The :data:`Layout` of the first ``n_fields`` fields of a stored ``Sample`` schema (field
+    number j + 1 → entry j): True where the field is a protobuf ``float``. A schema that does not
+    parse, or a field it lacks, counts as ``double`` (the layout labrunner-3 logs always had)."""
+    try:
+        files = descriptor_pb2.FileDescriptorSet.FromString(schema_data).file
+    except Exception:  # noqa: BLE001 - another tool's or a damaged schema: the default layout
+        return (False,) * n_fields
+    kinds = {
+        f.number: f.type
+        for fdp in files
+        for msg in fdp.message_type
+        if f"{fdp.package}.{msg.name}" == SAMPLES_SCHEMA_NAME
+        for f in msg.field
+    }
+    return tuple(kinds.get(j + 1) == _F.TYPE_FLOAT for j in range(n_fields))
 
 
 def varint(n: int) -> bytes:
@@ -278,48 +306,62 @@ def decode_block(buf: bytes | memoryview) -> tuple[int, float, dict[str, np.ndar
 
 
 @functools.lru_cache(maxsize=64)
-def sample_dtype(n_signals: int) -> np.dtype:
-    """Wire layout of one ``Sample`` of ``n_signals`` signals: every field its tag (a varint of
-    1–2 bytes, held as a little-endian u1 or u2) and a little-endian double (zeros included), so
-    that all messages have one size; fields ``s0``, ``s1``, ... with tags ``k_s0``, ``k_s1``, ..."""
-    keys = [f"s{j}" for j in range(n_signals)]
-    sizes = [len(varint((number << 3) | 1)) for number in range(1, len(keys) + 1)]  # wire type 1: 64-bit
-    if max(sizes, default=1) > 2:
-        raise InvalidParameter("signals", f"at most 2047 signals fit the per-sample message, got {n_signals}")
-    return np.dtype([item for key, size in zip(keys, sizes) for item in ((f"k_{key}", f"<u{size}"), (key, "<f8"))])
+def sample_dtype(layout: Layout) -> np.dtype:
+    """Wire layout of one ``Sample`` whose fields are float32 where ``layout`` says so, float64
+    elsewhere: every field its tag (a varint of 1–2 bytes, held as a little-endian u1 or u2) and
+    its little-endian value (zeros included), so that all messages have one size; fields ``s0``,
+    ``s1``, ... with tags ``k_s0``, ``k_s1``, ..."""
+    items = []
+    for number, single in enumerate(layout, start=1):
+        size = len(varint((number << 3) | 5))
+        if size > 2:
+            raise InvalidParameter("signals", f"at most 2047 signals fit the per-sample message, got {len(layout)}")
+        items += [(f"k_s{number - 1}", f"<u{size}"), (f"s{number - 1}", "<f4" if single else "<f8")]
+    return np.dtype(items)
 
 
-def sample_tags(n_signals: int) -> np.ndarray:
-    """One :func:`sample_dtype` row with the tags set and the doubles zero: the template that
-    :func:`labrunner.logs.mcap_writer.message_array` broadcasts."""
-    row = np.zeros(1, dtype=sample_dtype(n_signals))
-    for number, key in enumerate(row.dtype.names[::2], start=1):
-        row[key] = int.from_bytes(varint((number << 3) | 1), "little")
+@functools.lru_cache(maxsize=64)
+def sample_tags(layout: Layout) -> np.ndarray:
+    """One :func:`sample_dtype` row with the tags set (wire type 5, 32-bit, for a float32 field;
+    1, 64-bit, for a double) and the values zero: the template that
+    :func:`labrunner.logs.mcap_writer.message_array` broadcasts (read-only: it is shared)."""
+    row = np.zeros(1, dtype=sample_dtype(layout))
+    for number, single in enumerate(layout, start=1):
+        row[f"k_s{number - 1}"] = int.from_bytes(varint((number << 3) | (5 if single else 1)), "little")
+    row.flags.writeable = False
     return row
 
 
 def fill_samples(rows: np.ndarray, columns: Sequence[np.ndarray]) -> None:
-    """Write the doubles of ``Sample`` messages into ``rows`` (of :func:`sample_dtype`, tags from
-    :func:`sample_tags`), row k from ``columns[j][k]``."""
-    for j, values in enumerate(columns):
-        rows[f"s{j}"] = values
+    """Write the values of ``Sample`` messages into ``rows`` (of :func:`sample_dtype`, tags from
+    :func:`sample_tags`), row k from ``columns[j][k]`` (rounded to float32 in a float32 field,
+    ±inf beyond its range)."""
+    with np.errstate(over="ignore"):
+        for j, values in enumerate(columns):
+            rows[f"s{j}"] = values
 
 
-def encode_samples(columns: Sequence[np.ndarray]) -> np.ndarray:
-    """Wire bytes of one ``Sample`` per sample of ``columns`` (equal-length arrays, one per signal):
-    a (n, message size) uint8 array, row k the message of sample k (vectorised)."""
+def encode_samples(columns: Sequence[np.ndarray], layout: Layout | None = None) -> np.ndarray:
+    """Wire bytes of one ``Sample`` per sample of ``columns`` (equal-length arrays, one per signal;
+    ``layout`` default all float64): a (n, message size) uint8 array, row k the message of sample k
+    (vectorised)."""
     n = len(columns[0])
-    rows = np.repeat(sample_tags(len(columns)), n)
+    rows = np.repeat(sample_tags((False,) * len(columns) if layout is None else tuple(layout)), n)
     fill_samples(rows, columns)
     return rows.view(np.uint8).reshape(n, rows.dtype.itemsize)
 
 
-def decode_samples(payloads: Sequence[bytes | memoryview], n_signals: int) -> np.ndarray:
-    """(n_signals, len(payloads)) float64 of ``Sample`` messages: field j + 1 is row j; a field
+_FLOAT = struct.Struct("<f")
+
+
+def decode_samples(payloads: Sequence[bytes | memoryview], layout: Layout) -> np.ndarray:
+    """(len(layout), len(payloads)) float64 of ``Sample`` messages: field j + 1 is row j; a field
     a message leaves out is NaN (proto3 would read 0.0, but labrunner writes every field), unknown
-    fields are skipped. The layout :func:`encode_samples` writes is read in one numpy view."""
+    fields are skipped; a 64-bit field is read as a double, a 32-bit one as a float, whatever
+    ``layout`` says. The layout :func:`encode_samples` writes is read in one numpy view."""
+    n_signals = len(layout)
     out = np.full((n_signals, len(payloads)), np.nan)
-    template = sample_tags(n_signals)
+    template = sample_tags(layout)
     size = template.dtype.itemsize
     if payloads and all(len(p) == size for p in payloads):
         rows = np.frombuffer(b"".join(payloads), dtype=template.dtype)
@@ -330,6 +372,6 @@ def decode_samples(payloads: Sequence[bytes | memoryview], n_signals: int) -> np
             return out
     for i, payload in enumerate(payloads):  # any other valid encoding: field by field
         for number, wire, start, _ in _fields(payload, 0, len(payload)):
-            if 1 <= number <= n_signals and wire == 1:
-                out[number - 1, i] = _DOUBLE.unpack_from(payload, start)[0]
+            if 1 <= number <= n_signals and wire in (1, 5):
+                out[number - 1, i] = (_DOUBLE if wire == 1 else _FLOAT).unpack_from(payload, start)[0]
     return out

@@ -40,7 +40,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -206,7 +206,9 @@ class LogPrefix:
 
     ``samples_hz`` thins the per-sample channel ``/run/samples`` to every ⌈f_s / samples_hz⌉-th
     sample (None: every sample); the channel's metadata says so (``decimation``, ``rate_hz``), and
-    only then is every sample also kept, in ``/run/blocks``.
+    only then is every sample also kept, in ``/run/blocks``. ``float32`` names the signals stored
+    as float32 (their values are rounded to it on writing, in ``/run/blocks`` too; a device's
+    samples are float32 already, so nothing changes), the rest as float64.
     """
 
     def __init__(
@@ -218,6 +220,7 @@ class LogPrefix:
         attachments: Mapping[str, bytes] | None = None,
         samples_hz: float | None = None,
         created: float | None = None,
+        float32: Collection[str] = (),
     ) -> None:
         self.fs = _positive("fs", fs)
         if samples_hz is not None and not _positive("samples_hz", samples_hz) <= self.fs:
@@ -232,7 +235,12 @@ class LogPrefix:
         self.shared_names = tuple(shared)
         units = [str(info.get("unit") or "") for info in self.channels.values()]
         self.fields = schema.sample_fields(self.names, units)
-        self._tags = schema.sample_tags(len(self.names))
+        unknown = sorted(set(float32) - set(self.names))
+        if unknown:
+            raise InvalidParameter("float32", f"names signals that are not logged: {unknown}")
+        self.layout: schema.Layout = tuple(name in float32 for name in self.names)
+        self.float32 = frozenset(name for name, single in zip(self.names, self.layout) if single)
+        self._tags = schema.sample_tags(self.layout)
         self.prefixes = schema.signal_prefixes(self.names)
         created_ns = round((time.time() if created is None else created) * 1e9)
         buffer = io.BytesIO()
@@ -249,7 +257,7 @@ class LogPrefix:
             block_schema = mcap.add_schema(schema.BLOCK_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.BLOCK_SCHEMA)
             self.block_channel = mcap.add_channel(schema.BLOCK_TOPIC, MessageEncoding.Protobuf, block_schema)
         sample_schema = mcap.add_schema(
-            schema.SAMPLES_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.samples_schema(self.fields)
+            schema.SAMPLES_SCHEMA_NAME, SchemaEncoding.Protobuf, schema.samples_schema(self.fields, self.layout)
         )
         channel_meta = {
             "rate_hz": repr(self.samples_hz),
@@ -271,18 +279,24 @@ class LogPrefix:
     def describe_samples(self) -> str:
         """What ``/run/samples`` holds, for the ``run`` record."""
         if self.decimation == 1:
-            return f"every sample ({self.fs:g} Hz)"
-        return (
-            f"every {self.decimation}th sample ({self.samples_hz:g} Hz of {self.fs:g} Hz, thinned by "
-            "[logging] samples_hz); /run/blocks keeps every sample"
-        )
+            text = f"every sample ({self.fs:g} Hz)"
+        else:
+            text = (
+                f"every {self.decimation}th sample ({self.samples_hz:g} Hz of {self.fs:g} Hz, thinned by "
+                "[logging] samples_hz); /run/blocks keeps every sample"
+            )
+        singles = [name for name in self.names if name in self.float32]
+        if singles:
+            text += f"; float32: {', '.join(singles)}"
+        return text
 
 
 class RunLogWriter:
     """Stream one run into an MCAP file (real rigs), block by block; use as a context manager.
 
     ``metadata`` maps record names to mappings (``run``, ``config``, ...); ``prefix`` is the batch's
-    shared part (or give ``fs``, ``channels``, ``attachments``, ``samples_hz`` and one is made);
+    shared part (or give ``fs``, ``channels``, ``attachments``, ``samples_hz``, ``float32`` and one
+    is made);
     ``start_time`` [s since 1970] is the wall-clock time of sample 0 (default: now). Each
     :meth:`write_block` call writes n per-sample messages (and ⌈n / 1000⌉ block messages where
     the samples are thinned), so pass
@@ -304,11 +318,14 @@ class RunLogWriter:
         samples_hz: float | None = None,
         start_time: float | None = None,
         flush_interval_s: float = 0.25,
+        float32: Collection[str] = (),
     ) -> None:
         if prefix is None:
             if fs is None or channels is None:
                 raise InvalidParameter("prefix", "give a LogPrefix, or fs and channels")
-            prefix = LogPrefix(fs=fs, channels=channels, attachments=attachments, samples_hz=samples_hz)
+            prefix = LogPrefix(
+                fs=fs, channels=channels, attachments=attachments, samples_hz=samples_hz, float32=float32
+            )
         self.prefix = prefix
         self.fs, self.names, self.decimation = prefix.fs, prefix.names, prefix.decimation
         self.flush_interval_s = check_finite("flush_interval_s", flush_interval_s)
@@ -351,7 +368,11 @@ class RunLogWriter:
         if block.keys() != set(self.names):
             missing, extra = sorted(set(self.names) - set(block)), sorted(set(block) - set(self.names))
             raise InvalidParameter("block", f"signals must match the channels; missing {missing}, unknown {extra}")
-        columns = [np.asarray(block[name], dtype=np.float64) for name in self.names]
+        with np.errstate(over="ignore"):  # a float32 signal beyond ±3.4e38 is ±inf
+            columns = [
+                np.asarray(block[name], dtype=np.float32 if single else np.float64).astype(np.float64, copy=False)
+                for name, single in zip(self.names, self.prefix.layout)
+            ]
         n = columns[0].shape[0] if columns[0].ndim == 1 else -1
         if any(c.ndim != 1 or c.shape[0] != n for c in columns):
             shapes = {name: c.shape for name, c in zip(self.names, columns)}
@@ -431,15 +452,16 @@ def write_run(
     channels: Mapping[str, Any] | Sequence[str] | None = None,
     samples_hz: float | None = None,
     start_time: float | None = None,
+    float32: Collection[str] = (),
 ) -> None:
     """Write a finished run (all signals of one length K, sample k at k / fs) to ``path``; with a
-    batch's ``prefix`` (whose signals must be these), ``fs``, ``channels``, ``attachments`` and
-    ``samples_hz`` come from it."""
+    batch's ``prefix`` (whose signals must be these), ``fs``, ``channels``, ``attachments``,
+    ``samples_hz`` and ``float32`` come from it."""
     if prefix is None:
         if fs is None:
             raise InvalidParameter("fs", "is required without a LogPrefix")
         described = normalise_channels(channels, list(signals))
-        prefix = LogPrefix(fs=fs, channels=described, attachments=attachments, samples_hz=samples_hz)
+        prefix = LogPrefix(fs=fs, channels=described, attachments=attachments, samples_hz=samples_hz, float32=float32)
     elif list(signals) != prefix.names:
         raise InvalidParameter("signals", f"must be the prefix's {prefix.names}, got {list(signals)}")
     with RunLogWriter(path, metadata=metadata, prefix=prefix, start_time=start_time) as writer:
@@ -463,13 +485,20 @@ class BatchPrefixes:
         # one's gets its prefix by one comparison, not by describing its channels again (~15 µs a run)
         self._seen: list[tuple[tuple[str, ...], Any, LogPrefix]] = []
 
-    def get(self, signals: Sequence[str], channels: Mapping[str, Any] | Sequence[str] | None) -> LogPrefix:
-        names = tuple(signals)
+    def get(
+        self,
+        signals: Sequence[str],
+        channels: Mapping[str, Any] | Sequence[str] | None,
+        float32: Collection[str] = (),
+    ) -> LogPrefix:
+        """The prefix of runs logging ``signals`` described by ``channels``, ``float32`` of them as
+        float32 (:class:`LogPrefix`)."""
+        names, singles = tuple(signals), frozenset(float32)
         for seen_names, seen_channels, prefix in self._seen:
-            if names == seen_names and channels == seen_channels:
+            if names == seen_names and channels == seen_channels and singles == set(prefix.float32):
                 return prefix
         described = normalise_channels(channels, list(names))
-        key = json.dumps(described, sort_keys=False)
+        key = json.dumps([described, sorted(singles)], sort_keys=False)
         if key not in self._made:
             self._made[key] = LogPrefix(
                 fs=self.fs,
@@ -477,6 +506,7 @@ class BatchPrefixes:
                 shared=self.shared,
                 attachments=self.attachments,
                 samples_hz=self.samples_hz,
+                float32=singles,
             )
         self._seen.append((names, copy.deepcopy(channels), self._made[key]))
         return self._made[key]

@@ -88,7 +88,9 @@ def to_result(
     metrics = run_metrics(
         signals, engine.roles_of(channels, rig_info), fs=float(fs), windows=parse_windows(point.get("metrics"))
     )  # as the engine measures a twin run
-    return engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
+    result = engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
+    result.float32_signals = tuple(signals)  # every column came from the device's float32 rows
+    return result
 
 
 def run(
