@@ -133,6 +133,14 @@ def test_a_change_in_the_same_timestamp_tick_as_the_seal_is_still_seen(finished,
         assert ledger.meta().get(seal.META_KEY) is None
 
 
+def test_a_file_system_with_coarse_timestamps_is_never_sealed(finished):
+    runs = finished / "runs"
+    whole_ms = runs.stat().st_mtime_ns // 1_000_000 * 1_000_000
+    os.utime(runs, ns=(whole_ms, whole_ms))  # as FAT (2 s) or a millisecond file system keeps it
+    with Ledger.open(finished, verify=False) as ledger:
+        assert not seal.holds(ledger, ledger.counts()) and not seal.seal(ledger)
+
+
 def test_a_session_that_will_change_the_directory_clears_the_seal_first(finished, monkeypatch):
     """A crash mid-session leaves no seal: the next resume settles everything."""
     from labrunner.campaign import scheduler

@@ -36,14 +36,18 @@ from labrunner.campaign.worker import RUNS_DIR, TMP_PREFIX, final_path
 #: The ledger ``meta`` key holding the seal (JSON).
 META_KEY = "runs_seal"
 
-#: Longer than a file-system timestamp tick (1–10 ms on Linux) [s].
-TICK_S = 0.03
+#: Longer than a file-system timestamp tick (1–10 ms on Linux: the kernel's coarse clock) [s].
+TICK_S = 0.02
 
 
 def _runs_stat(ledger: Ledger) -> dict[str, int] | None:
+    """``runs/``'s device, inode and mtime; None if there is none, or if its file system keeps
+    whole milliseconds or coarser (FAT: 2 s), whose ticks :data:`TICK_S` does not outlast."""
     try:
         st = os.stat(ledger.directory / RUNS_DIR)
     except OSError:
+        return None
+    if st.st_mtime_ns % 1_000_000 == 0:
         return None
     return {"dev": st.st_dev, "ino": st.st_ino, "mtime_ns": st.st_mtime_ns}
 
