@@ -18,8 +18,23 @@ Last measured 2026-12-03, the 2-core machine loaded 7–12 by other jobs (wall t
 
 (``resume`` then re-planned every point; it now re-plans only when the plan's inputs changed.)
 ``--synthetic 1000000`` adds ``status``/``resume`` on synthetic 10^6-row ledgers
-(:mod:`synthetic_ledger`); measured 2026-12-03, load 3–4: status 0.58–0.87 s, resume of the
-finished campaign 8.9–9.7 s / 431 MB. A real 10^6-point run was not measured (~33 GB of logs).
+(:mod:`synthetic_ledger`). Before the seal (:mod:`labrunner.campaign.seal`), measured 2026-12-03,
+load 3–4: status 0.58–0.87 s, resume of the finished campaign 8.9–9.7 s / 431 MB. After it,
+measured 2026-12-03 08:00–08:13, load 3–9 (a test run sharing the cores for part of it)::
+
+    finished campaign:     status 0.57 s / 36 MB;  resume, sealed 1.26 s / 41 MB;
+                           resume after a crash (not sealed: every check, one listing) 11.8 s / 151 MB
+    half-way interrupted:  status 0.35 s / 36 MB;  resume until its first batch is claimed:
+                           sealed 2.76 s / 325 MB, after a crash 9.34 s / 329 MB
+
+and at 08:17, load ~2: the finished campaign's sealed resume 0.37–0.42 s / 43 MB (0.27 s with
+Python's bytecode cache, which this machine's environment turns off), status 0.34–0.40 s, resume
+after a crash 7.3–7.9 s / 155 MB. The sealed resume is one ``stat`` and the state counts (~0.1 s) after
+~0.45 s of imports; after a crash it still runs every check that reads the 1.1 GB ledger
+(quick_check, the ids' checksum, the parameters: ~3–5 s) and lists runs/. An interrupted
+campaign's resume then reads its 5×10^5 planned rows to cut them into batches (the scheduler's
+design: ~2 s and ~300 MB here), so it does not start within a second. A real 10^6-point run was
+not measured (~33 GB of logs).
 """
 
 from __future__ import annotations
