@@ -16,6 +16,8 @@ import pandas as pd
 import pytest
 from test_campaign_support import cli
 
+from labrunner import OUTCOME_KEYS
+from labrunner.logs import read_metadata
 from labrunner.rigs.device import description, executor, lawcheck
 from labrunner.rigs.device.host import to_result
 from labrunner.rigs.registry import load_rig
@@ -167,6 +169,13 @@ def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults,
         assert status["first_diverged"]["flag"].startswith("diverged@tick ")
         report = Path(summary["report"]).read_text()
         assert "the device did not run the law" in report and "diverged@tick" in report
+    # the log's outcome record has the twin's shape (the check is in its diagnostics record), and a
+    # ledger rebuilt from the logs alone still knows every run's check
+    for log in (tmp_path / "out" / "runs").glob("*.mcap"):
+        assert set(read_metadata(log)["outcome"]) <= {*OUTCOME_KEYS, "n_samples"}
+    (tmp_path / "out" / "ledger.sqlite").unlink()
+    assert _run("repair", str(tmp_path / "out"), "--campaign", str(tmp_path / "campaign.toml")).returncode == 0
+    assert json.loads(_run("status", str(tmp_path / "out"), "--json").stdout)["law_check"] == status
 
 
 SHIPPED = sorted((ROOT / "campaigns").rglob("*.toml"))

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from labrunner.campaign import seal
 from labrunner.campaign.ledger import TERMINAL, Ledger, RunRecord, fsync_dir
-from labrunner.campaign.worker import RUNS_DIR, TMP_PREFIX, final_path
+from labrunner.campaign.worker import RUNS_DIR, TMP_PREFIX, final_path, ledger_outcome
 from labrunner.engine import Outcome
 
 QUARANTINE_DIR = "quarantine"
@@ -92,15 +92,21 @@ def verify_log(path: Path, point_id: str) -> tuple[dict | None, str]:
         return None, "no outcome record"
     if mismatch(log.metadata, point_id):
         return None, f"names point {named_point(log.metadata)!r}"
-    return {"outcome": dict(log.outcome), "metrics": dict(log.metadata.get("metrics", {})), "run": run}, ""
+    found = {"outcome": dict(log.outcome), "metrics": dict(log.metadata.get("metrics", {})), "run": run}
+    return {**found, "diagnostics": log.metadata.get("diagnostics")}, ""
 
 
-def outcome_record(logged: dict) -> dict:
-    """A log's outcome as the worker commits it: the log keeps only the fields that are set (and
-    its sample count), the ledger every field of :class:`~labrunner.engine.Outcome` (recovery
-    and ``repair`` both commit runs from their logs)."""
+def outcome_record(found: dict) -> dict:
+    """A log's outcome (``found``: :func:`verify_log`'s summary) as the worker commits it: the log
+    keeps only the fields that are set (and its sample count), the ledger every field of
+    :class:`~labrunner.engine.Outcome`, plus a real rig's ``diagnostics`` record under
+    ``diagnostics`` (:func:`labrunner.campaign.worker.ledger_outcome`; logs written before the
+    outcome record had one shape nest it in the outcome). Recovery and ``repair`` both commit runs
+    from their logs."""
+    logged = found["outcome"]
     keys = [f.name for f in fields(Outcome)]
-    return Outcome(**{k: logged[k] for k in keys if k in logged}).as_dict()
+    outcome = Outcome(**{k: logged[k] for k in keys if k in logged}).as_dict()
+    return ledger_outcome(outcome, found.get("diagnostics") or logged.get("diagnostics"))
 
 
 def recover(ledger: Ledger) -> Recovery:
@@ -138,7 +144,7 @@ def recover(ledger: Ledger) -> Recovery:
             if state == "claimed":
                 report.replanned.append(pid)
             continue
-        outcome = {**outcome_record(found["outcome"]), "recovered": True}
+        outcome = {**outcome_record(found), "recovered": True}
         ledger.commit(
             RunRecord(
                 point_id=pid,

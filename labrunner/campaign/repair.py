@@ -182,7 +182,7 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None, fo
             if found is None:
                 report.rejected.append(f"{final_path(p.id)}: {reason}")
                 continue
-            outcome = outcome_record(found["outcome"])
+            outcome = outcome_record(found)
             run = found["run"]
             restored.append(
                 (

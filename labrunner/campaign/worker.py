@@ -246,7 +246,8 @@ def _publish_all(
     each), rename them into place, fsync the directory once. What the logs
     share (rig record, campaign file, schemas) is encoded once for the batch. A real rig's
     ``diagnostics`` record (docs/protocol.md § Diagnostics), or a device-loop run's own
-    (``RunResult.diagnostics``, docs/device-loop.md), goes into the metadata and the outcome."""
+    (``RunResult.diagnostics``, docs/device-loop.md), is the log's ``diagnostics`` metadata record,
+    apart from its outcome record (one shape for every run), and the ledger's (:func:`ledger_outcome`)."""
     from labrunner.logs import BatchPrefixes, write_run
 
     runs_dir = Path(task.directory) / RUNS_DIR
@@ -265,7 +266,7 @@ def _publish_all(
             outcome = result.outcome.as_dict()
             record = getattr(result, "diagnostics", None) or diagnostics  # a device loop's record is per run
             if record is not None:
-                metadata["diagnostics"] = outcome["diagnostics"] = dict(record)
+                metadata["diagnostics"] = dict(record)
             signals, channels = with_device_clock(result)
             float32 = signals if task.precision == "float32" else getattr(result, "float32_signals", ())
             with naming(tmp):
@@ -277,7 +278,7 @@ def _publish_all(
                     prefix=prefixes.get(list(signals), channels, float32),
                     start_time=start_time,
                 )
-            written.append((run, tmp, outcome, dict(result.metrics), time.perf_counter() - t1))
+            written.append((run, tmp, ledger_outcome(outcome, record), dict(result.metrics), time.perf_counter() - t1))
             group.append(tmp)
             if len(group) == _FSYNC_GROUP or i == len(task.runs) - 1:  # fsynced while the next ones are written
                 synced.append(syncer.submit(_fsync_all, group))
@@ -306,6 +307,14 @@ def _publish_all(
                 publish_s=publish_s,
             )
         )
+
+
+def ledger_outcome(outcome: Mapping[str, Any], diagnostics: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The outcome as the ledger stores it (``outcome_json``): a real rig's ``diagnostics`` record
+    under ``diagnostics``, where ``status`` finds a device loop's law check and the rig's timing in
+    SQL (:mod:`labrunner.campaign.rig_timing`). Internal: the log's outcome record and the results
+    API have one shape for every run, the diagnostics apart."""
+    return {**outcome, "diagnostics": dict(diagnostics)} if diagnostics else dict(outcome)
 
 
 def with_device_clock(result: Any) -> tuple[dict[str, Any], Mapping[str, Any]]:
