@@ -18,19 +18,35 @@ Last measured 2026-12-03, the 2-core machine loaded 7–12 by other jobs (wall t
 
 (``resume`` then re-planned every point; it now re-plans only when the plan's inputs changed.)
 ``--synthetic 1000000`` adds ``status``/``resume``/``analyse`` on synthetic 10^6-row ledgers
-(:mod:`synthetic_ledger`); measured 2026-12-03, load 3–4: status 0.58–0.87 s, resume of the
-finished campaign 8.9–9.7 s / 431 MB (then empty logs). ``analyse --workers 2`` of the finished
-one (logs hard-linked, their fingerprints in the ledger), measured 2026-12-03 08:24 UTC, load 2–3
-with a test run sharing the cores (status 1.12 s and resume 16.6 s / 420 MB in the same run)::
+(:mod:`synthetic_ledger`). Before the seal (:mod:`labrunner.campaign.seal`), measured 2026-12-03,
+load 3–4: status 0.58–0.87 s, resume of the finished campaign 8.9–9.7 s / 431 MB. After it,
+measured 2026-12-03 08:00–08:13, load 3–9 (a test run sharing the cores for part of it)::
+
+    finished campaign:     status 0.57 s / 36 MB;  resume, sealed 1.26 s / 41 MB;
+                           resume after a crash (not sealed: every check, one listing) 11.8 s / 151 MB
+    half-way interrupted:  status 0.35 s / 36 MB;  resume until its first batch is claimed:
+                           sealed 2.76 s / 325 MB, after a crash 9.34 s / 329 MB
+
+and at 08:17, load ~2: the finished campaign's sealed resume 0.37–0.42 s / 43 MB (0.27 s with
+Python's bytecode cache, which this machine's environment turns off), status 0.34–0.40 s, resume
+after a crash 7.3–7.9 s / 155 MB. The sealed resume is one ``stat`` and the state counts (~0.1 s) after
+~0.45 s of imports; after a crash it still runs every check that reads the 1.1 GB ledger
+(quick_check, the ids' checksum, the parameters: ~3–5 s) and lists runs/. An interrupted
+campaign's resume then reads its 5×10^5 planned rows to cut them into batches (the scheduler's
+design: ~2 s and ~300 MB here), so it does not start within a second.
+
+``analyse --workers 2`` of the finished synthetic campaign (its logs hard-linked, their
+fingerprints in the ledger), measured 2026-12-03 08:24 UTC before the seal was merged, load 2–3
+with a test run sharing the cores::
 
     first analyse   148.4 s, peak 559 MB (the analysing process, VmHWM; 1072 MB with the drawing child, sampled)
     second analyse  110.3 s, peak 558 MB
 
-Before (the branch's start, same ledger size): the metrics table alone (``open_campaign(...).table()``)
-peaked at 1.03 GB (571 MB streaming the ledger, 302 MB the table), and a first ``analyse`` read
-every log's metadata to prove its point (~0.8 ms a log: ~13 min at 10^6, not run). The 500 MB
-target is not met: imports 100–110 MB, the table 280 MB, the rest transient. A real 10^6-point
-run was not measured (~33 GB of logs).
+Before (same ledger size): the metrics table alone (``open_campaign(...).table()``) peaked at
+1.03 GB (571 MB streaming the ledger, 302 MB the table), and a first ``analyse`` read every log's
+metadata to prove its point (~0.8 ms a log: ~13 min at 10^6, not run). The 500 MB target is not
+met: imports 100–110 MB, the table 280 MB, the rest transient. A real 10^6-point run was not
+measured (~33 GB of logs).
 """
 
 from __future__ import annotations
@@ -99,15 +115,39 @@ def scale(work: Path, n: int) -> dict:
     }
 
 
+#: ``resume`` of DIR that stops as its first batch is claimed (nothing is written): how long a
+#: resume of an unfinished campaign takes to start running.
+UNTIL_FIRST_BATCH = (
+    "import os, sys\n"
+    "from labrunner.campaign.ledger import Ledger\n"
+    "Ledger.claim = lambda self, ids: os._exit(0)\n"
+    "from labrunner.cli import main\n"
+    "main(['resume', sys.argv[1], '--workers', '2'])\n"
+)
+
+
+def _seal(directory: Path, sealed: bool) -> None:
+    """Seal the directory as a session that ended cleanly does, or clear the seal as a crash leaves it."""
+    from labrunner.campaign import seal
+    from labrunner.campaign.ledger import Ledger
+
+    with Ledger.open(directory, verify=False) as ledger:
+        if sealed:
+            assert seal.seal(ledger), f"{directory} is not consistent"
+        else:
+            seal.clear(ledger)
+
+
 def synthetic(work: Path, n: int) -> None:
     """``status`` and ``resume`` of a finished synthetic campaign of ``n`` points
     (:mod:`synthetic_ledger`: real ids, parameters and plan-inputs digest; a small real run's rows
-    and logs repeated, the logs hard-linked, their fingerprints in the ledger), and ``status`` of
-    one interrupted half-way: three of each, fresh processes, the median wall time and the largest
-    peak RSS. Then ``analyse --workers 2`` of the finished one, twice (the first proves every log
-    by the ledger's fingerprints; the second also has the first's report): wall time, the
-    analysing process's peak RSS (the kernel's high-water mark) and its tree's (with the drawing
-    child), sampled."""
+    and logs repeated, the logs hard-linked, their fingerprints in the ledger), and of one
+    interrupted half-way (``resume`` until its first batch is claimed). ``resume`` as after a
+    session that ended cleanly (sealed: :mod:`labrunner.campaign.seal`) and as after a crash (not
+    sealed). Three of each, fresh processes; the median wall time and the largest peak RSS. Then
+    ``analyse --workers 2`` of the finished one, twice (the first proves every log by the ledger's
+    fingerprints; the second also has the first's report): wall time, the analysing process's peak
+    RSS (the kernel's high-water mark) and its tree's (with the drawing child), sampled."""
     import synthetic_ledger
 
     n_gamma, n_kp = _grid(n)
@@ -116,13 +156,23 @@ def synthetic(work: Path, n: int) -> None:
         t0 = time.perf_counter()
         directory = synthetic_ledger.make(work, name, n_gamma, n_kp, finished=finished)
         built = time.perf_counter() - t0
-        commands = ("status", "resume") if finished == 1.0 else ("status",)
-        for command in commands:
-            runs = [timed([*cli, command, str(directory)], work) for _ in range(3)]
+        resume = (
+            [*cli, "resume", str(directory)]
+            if finished == 1.0
+            else [sys.executable, "-c", UNTIL_FIRST_BATCH, str(directory)]
+        )
+        cases = [("status", [*cli, "status", str(directory)], None)]
+        cases += [("resume, sealed", resume, True), ("resume after a crash", resume, False)]
+        for label, command, sealed in cases:
+            runs = []
+            for _ in range(3):
+                if sealed is not None:
+                    _seal(directory, sealed)
+                runs.append(timed(command, work))
             print(
                 f"{n_gamma * n_kp:>9,} points, {finished:.0%} finished (synthetic ledger, built in {built:.0f} s): "
-                f"{command} {statistics.median(r['wall_s'] for r in runs):.2f} s, "
-                f"peak {_mb(max(r['peak_parent_kb'] for r in runs))}",
+                f"{label}{'' if finished == 1.0 or sealed is None else ' (until the first batch)'} "
+                f"{statistics.median(r['wall_s'] for r in runs):.2f} s, peak {_mb(max(r['peak_parent_kb'] for r in runs))}",
                 flush=True,
             )
         if finished == 1.0:

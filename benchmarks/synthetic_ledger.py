@@ -8,7 +8,8 @@ the rows of a small real run (``labrunner run`` of a 4 × 4 quickstart) repeated
 that run's 16 logs, hard-linked (no disk a point; ext4 allows 65 000 links a file, enough for
 10^6 points), each row recording its log's fingerprint as the worker does: ``analyse`` takes them
 as proved (their metadata names the small run's points, so an ``analyse`` that read them would
-call them foreign) and reads only the few it plots. ``finished`` is the fraction of points
+call them foreign) and reads only the few it plots. The directory is sealed as a ``run`` that
+ended cleanly leaves it (:mod:`labrunner.campaign.seal`). ``finished`` is the fraction of points
 marked finished (grid order); the rest stay planned, as after an interrupted run.
 """
 
@@ -27,7 +28,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_campaign import campaign  # noqa: E402
 
-from labrunner.campaign import plan_inputs, spec  # noqa: E402
+from labrunner.campaign import plan_inputs, seal, spec  # noqa: E402
 from labrunner.campaign.grid import point_id  # noqa: E402
 from labrunner.campaign.ledger import Ledger  # noqa: E402
 from labrunner.campaign.runner import CAMPAIGN_COPY  # noqa: E402
@@ -70,7 +71,7 @@ def make(work: Path, name: str, n_gamma: int, n_kp: int, *, finished: float = 1.
         "campaign_file": c.source,
         "campaign_path": str(file.resolve()),
         "plan_checksum": "synthetic: not planned",
-        plan_inputs.META_KEY: plan_inputs.digest(c),
+        **plan_inputs.stamp(c),
         "points": str(n),
         "rig": c.rig,
         REAL_RIG: "0" if c.rig_info.simulated else "1",
@@ -90,6 +91,7 @@ def make(work: Path, name: str, n_gamma: int, n_kp: int, *, finished: float = 1.
         )
         ledger.db.execute("COMMIT")
         _link_logs(ledger, runs, len(rows))
+        seal.seal(ledger)  # as a session of ``run`` that ended cleanly
     (directory / CAMPAIGN_COPY).write_text(c.source)
     return directory
 
@@ -121,4 +123,5 @@ def restamp(directory: Path) -> None:
     with Ledger.open(directory, verify=False) as ledger:
         meta = ledger.meta()
         c = spec.from_text(meta["campaign_file"], source_path=Path(meta["campaign_path"]))
-        ledger.db.execute("UPDATE meta SET value = ? WHERE key = ?", (plan_inputs.digest(c), plan_inputs.META_KEY))
+        for key, value in plan_inputs.stamp(c).items():
+            ledger.set_meta(key, value)

@@ -112,10 +112,12 @@ def test_resume_trusts_the_stored_plan_only_while_its_inputs_are_unchanged(proje
     assert main(["resume", "data/tiny"]) == 0 and planned == []  # a comment is not an input
     path.write_text(text)
     with monkeypatch.context() as m:
-        m.setattr(plan_inputs, "code_digest", lambda: "another labrunner")
+        m.setattr(plan_inputs, "code_digest", lambda files: "another labrunner")
         assert main(["resume", "data/tiny"]) == 0 and len(planned) == 1  # re-planned: the same checksum
+        assert main(["resume", "data/tiny"]) == 0 and len(planned) == 1  # ... and its inputs stored: once
+    assert main(["resume", "data/tiny"]) == 0 and len(planned) == 2  # the code changed back
     write(project / "rigs" / "bench.toml", MOTOR_RIG.replace("a = 39.44", "a = 40.0"))
-    assert main(["resume", "data/tiny"]) == 0 and len(planned) == 2  # the rig file is an input
+    assert main(["resume", "data/tiny"]) == 0 and len(planned) == 3  # the rig file is an input
     monkeypatch.setattr(spec, "plan", lambda c: (real_plan(c)[0], "another plan"))
     write(project / "rigs" / "bench.toml", MOTOR_RIG.replace("a = 39.44", "a = 41.0"))
     capsys.readouterr()

@@ -11,8 +11,9 @@
 The checks that read every row (``quick_check``, the ids' checksum, the parameters' JSON) take
 ~1 s per 10^5 points; ``status`` (reads only, and must answer in well under a second at 10^6
 points) runs them only up to 20 000 points and above runs the others — structure, meta, row count
-and grid order, all from the schema and the primary key — with ``thorough=False``; ``resume``,
-``analyse`` and ``repair`` run them all.
+and grid order, all from the schema and the primary key — with ``thorough=False``; ``analyse`` and
+``repair`` run them all, ``resume`` too unless the directory is sealed (:mod:`.seal`: they ran when
+its last session ended, and nothing changed since).
 
 Each problem names the file and ends with the way out: ``labrunner repair DIR`` rebuilds the
 ledger from the campaign copy and the published logs (:mod:`labrunner.campaign.repair`).
@@ -80,7 +81,11 @@ def _rows(db: sqlite3.Connection, meta: dict[str, str], thorough: bool) -> str:
         planned = int(meta["points"])
     except ValueError:
         return f"is damaged (meta points = {meta['points']!r} is not a count)"
-    n, lo, hi = db.execute("SELECT COUNT(*), MIN(seq), MAX(seq) FROM points").fetchone()
+    # three subqueries: SQLite then counts from the b-tree pages and finds the ends from the key
+    # (20 ms at 10^6 points; in one SELECT it steps through every row: 0.2 s)
+    n, lo, hi = db.execute(
+        "SELECT (SELECT COUNT(*) FROM points), (SELECT MIN(seq) FROM points), (SELECT MAX(seq) FROM points)"
+    ).fetchone()
     if n != planned:
         gone = f", {planned - n} deleted" if n < planned else f", {n - planned} added"
         return f"holds {n} point rows of the {planned} planned{gone}"
@@ -103,8 +108,9 @@ def _rows(db: sqlite3.Connection, meta: dict[str, str], thorough: bool) -> str:
 def ids_checksum(db: sqlite3.Connection) -> str:
     """SHA-256 of the point ids in grid order, one per line (as :meth:`Ledger.create` writes it)."""
     digest = hashlib.sha256()
-    for (pid,) in db.execute("SELECT id FROM points ORDER BY seq"):
-        digest.update(f"{pid}\n".encode())
+    cursor = db.execute("SELECT id FROM points ORDER BY seq")
+    while rows := cursor.fetchmany(65536):  # hashed a block at a time: the same bytes, 3× faster
+        digest.update("".join(f"{pid}\n" for (pid,) in rows).encode())
     return digest.hexdigest()
 
 

@@ -243,9 +243,7 @@ class Ledger:
         return {r["key"]: r["value"] for r in self.db.execute("SELECT key, value FROM meta")}
 
     def counts(self) -> dict[str, int]:
-        out = {s: 0 for s in STATES}
-        out.update({r[0]: r[1] for r in self.db.execute("SELECT state, COUNT(*) FROM points GROUP BY state")})
-        return out
+        return self.census()[0]
 
     def outcome_counts(self) -> dict[str, int]:
         rows = self.db.execute("SELECT outcome, COUNT(*) FROM points WHERE outcome IS NOT NULL GROUP BY outcome")
@@ -254,19 +252,31 @@ class Ledger:
     def by_outcome(self) -> dict[str, int]:
         """Points per outcome word (completed, no-motion, aborted, failed; claimed and planned for
         points without a finished run): what every command counts with."""
-        rows = self.db.execute(
-            "SELECT COALESCE(outcome, state), COUNT(*) FROM points GROUP BY COALESCE(outcome, state)"
-        )
-        return {r[0]: r[1] for r in rows}
+        return self.census()[1]
 
-    def rows(self, states: Sequence[str] | None = None, columns: str = "*") -> list[sqlite3.Row]:
+    def census(self) -> tuple[dict[str, int], dict[str, int]]:
+        """(:meth:`counts`, :meth:`by_outcome`) from one pass over the ``points_outcome`` index, in
+        its order: grouping by ``COALESCE(outcome, state)`` sorted every row first (~0.5 s rather
+        than ~0.1 s at 10^6 points)."""
+        states = {s: 0 for s in STATES}
+        words: dict[str, int] = {}
+        for outcome, state, n in self.db.execute("SELECT outcome, state, COUNT(*) FROM points GROUP BY outcome, state"):
+            states[state] = states.get(state, 0) + n
+            word = outcome if outcome is not None else state
+            words[word] = words.get(word, 0) + n
+        return states, words
+
+    def rows(self, states: Sequence[str] | None = None, columns: str = "*", *, scan: bool = False) -> list[sqlite3.Row]:
         """Rows in grid order, optionally only those in ``states``; ``columns`` (SQL) narrows what
-        is read (a million rows' outcome and metrics JSON are ~0.5 GB of Python strings)."""
+        is read (a million rows' outcome and metrics JSON are ~0.5 GB of Python strings). ``scan``:
+        read the table in order rather than look each row of ``states`` up from the state index,
+        faster when they are a large share of the rows (half of 10^6: ~40 % less time)."""
         if states is None:
             return self.db.execute(f"SELECT {columns} FROM points ORDER BY seq").fetchall()
         marks = ",".join("?" * len(states))
+        state = "+state" if scan else "state"  # a unary + keeps SQLite off the index
         return self.db.execute(
-            f"SELECT {columns} FROM points WHERE state IN ({marks}) ORDER BY seq", tuple(states)
+            f"SELECT {columns} FROM points WHERE {state} IN ({marks}) ORDER BY seq", tuple(states)
         ).fetchall()
 
     def iter_rows(self) -> Iterator[dict[str, Any]]:
@@ -287,6 +297,14 @@ class Ledger:
     # -- writes --------------------------------------------------------------------------------
     def _txn(self):
         return _Transaction(self.db, self.directory / LEDGER_NAME)
+
+    def set_meta(self, key: str, value: str | None) -> None:
+        """Write (or, with None, remove) one ``meta`` entry."""
+        with self._txn():
+            if value is None:
+                self.db.execute("DELETE FROM meta WHERE key = ?", (key,))
+            else:
+                self.db.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
 
     def start_session(self, command: str) -> int:
         now = time.time()

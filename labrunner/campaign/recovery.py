@@ -22,7 +22,8 @@ import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from labrunner.campaign.ledger import Ledger, RunRecord, fsync_dir
+from labrunner.campaign import seal
+from labrunner.campaign.ledger import TERMINAL, Ledger, RunRecord, fsync_dir
 from labrunner.campaign.worker import RUNS_DIR, TMP_PREFIX, final_path, ledger_outcome
 from labrunner.engine import Outcome
 
@@ -37,6 +38,9 @@ class Recovery:
     quarantined: list[str] = field(default_factory=list)
     replanned: list[str] = field(default_factory=list)
     lost: list[str] = field(default_factory=list)
+    #: ``runs/``'s stat before its listing when nothing was moved out of it: the directory is then
+    #: consistent as listed, and :func:`labrunner.campaign.seal.adopt` can seal it without a second listing.
+    listed: dict[str, int] | None = None
 
     def describe(self) -> str:
         parts = [
@@ -115,7 +119,7 @@ def recover(ledger: Ledger) -> Recovery:
     runs.mkdir(exist_ok=True)
     report = Recovery()
     # one listing of runs/ instead of a stat a point: ~1 s rather than ~10 s at 10^6 points
-    names = {entry.name for entry in os.scandir(runs)}
+    listed, names = seal.listing(ledger)
     for name in sorted(n for n in names if n.startswith(TMP_PREFIX)):
         report.quarantined.append(quarantine(ledger, runs / name, _tmp_point(name), "unpublished temporary log"))
 
@@ -123,34 +127,42 @@ def recover(ledger: Ledger) -> Recovery:
         folder, _, name = relative.rpartition("/")
         return name in names if folder == RUNS_DIR else (directory / relative).exists()
 
-    for row in ledger.rows(("planned", "claimed"), "id, state"):
-        pid, state = row["id"], row["state"]
-        if exists(final_path(pid)):
-            path = directory / final_path(pid)
-            found, reason = verify_log(path, pid)
-            if found is not None:
-                outcome = {**outcome_record(found), "recovered": True}
-                ledger.commit(
-                    RunRecord(
-                        point_id=pid,
-                        outcome=outcome["status"],
-                        outcome_record=outcome,
-                        metrics=found["metrics"],
-                        log_path=final_path(pid),
-                        host=str(found["run"].get("host", "")),
-                        pid=int(found["run"].get("pid", 0)),
-                        finished_at=path.stat().st_mtime,
-                        log_fingerprint=found["fingerprint"],
-                    ),
-                    from_states=(state,),
-                )
-                report.accepted.append(pid)
-                continue
-            report.quarantined.append(quarantine(ledger, path, pid, f"published log rejected: {reason}"))
-        if state == "claimed":
+    # one pass over the table in grid order, read before anything is written (the state index
+    # would look each of 10^6 rows up again: seconds): unfinished points whose log is published,
+    # claimed points, finished points whose log is gone
+    published: list[tuple[str, str]] = []
+    for pid, state, log_path in ledger.db.execute("SELECT id, state, log_path FROM points"):
+        if state in TERMINAL:
+            if log_path and not exists(log_path):
+                report.lost.append(pid)
+        elif f"{pid}.mcap" in names:
+            published.append((pid, state))
+        elif state == "claimed":
             report.replanned.append(pid)
-    for row in ledger.rows(("done", "aborted", "failed"), "id, log_path"):
-        if row["log_path"] and not exists(row["log_path"]):
-            report.lost.append(row["id"])
+    for pid, state in published:
+        path = directory / final_path(pid)
+        found, reason = verify_log(path, pid)
+        if found is None:
+            report.quarantined.append(quarantine(ledger, path, pid, f"published log rejected: {reason}"))
+            if state == "claimed":
+                report.replanned.append(pid)
+            continue
+        outcome = {**outcome_record(found), "recovered": True}
+        ledger.commit(
+            RunRecord(
+                point_id=pid,
+                outcome=outcome["status"],
+                outcome_record=outcome,
+                metrics=found["metrics"],
+                log_path=final_path(pid),
+                host=str(found["run"].get("host", "")),
+                pid=int(found["run"].get("pid", 0)),
+                finished_at=path.stat().st_mtime,
+                log_fingerprint=found["fingerprint"],
+            ),
+            from_states=(state,),
+        )
+        report.accepted.append(pid)
     ledger.replan(report.replanned + report.lost)
+    report.listed = None if report.quarantined else listed
     return report

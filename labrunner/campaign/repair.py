@@ -204,7 +204,7 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None, fo
             "campaign": campaign.name,
             "campaign_file": campaign.source,
             "plan_checksum": checksum,
-            plan_inputs.META_KEY: plan_inputs.digest(campaign),
+            **plan_inputs.stamp(campaign),
             "points": str(len(points)),
             "rig": campaign.rig,
             REAL_RIG: "1" if not campaign.rig_info.simulated else "0",

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from labrunner.campaign import dry_run, guided_run, integrity, plan_inputs, recovery, spec
+from labrunner.campaign import dry_run, guided_run, integrity, plan_inputs, recovery, seal, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
@@ -108,7 +108,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
                 "campaign_file": campaign.source,
                 "campaign_path": str(Path(file).resolve()),
                 "plan_checksum": checksum,
-                plan_inputs.META_KEY: plan_inputs.digest(campaign),
+                **plan_inputs.stamp(campaign),
                 "points": str(len(points)),
                 "rig": campaign.rig,
                 REAL_RIG: "1" if not campaign.rig_info.simulated else "0",
@@ -155,26 +155,27 @@ def _early_pool(
 def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     """The stored campaign; refuse if it, or its original file, plans differently.
 
-    When the plan's inputs (file, rig file, code: :mod:`.plan_inputs`) are those stored at ``run``,
+    When the plan's inputs (file, rig file, planning code: :mod:`.plan_inputs`) are those stored,
     the plan is the stored one and the ledger's ids were checked against their creation checksum
-    on opening (a ledger that keeps none is re-planned); otherwise the campaign is re-planned (0.2–1 ms a point) and compared."""
+    (a ledger that keeps none is re-planned); otherwise the campaign is re-planned (0.2–1 ms a
+    point) and compared, and the inputs that planned the same are stored for the next resume."""
     meta = ledger.meta()
     lacking = [k for k in ("campaign_file", "campaign_path", "plan_checksum") if k not in meta]
     if lacking:
         raise integrity.damaged(ledger.directory / LEDGER_NAME, f"keeps no {', '.join(lacking)} to resume from")
     source_path = Path(meta["campaign_path"])
     campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
-    stored = meta.get(plan_inputs.META_KEY)
-    if stored is None or "ids_checksum" not in meta or plan_inputs.digest(campaign) != stored:
+    if "ids_checksum" not in meta or not plan_inputs.unchanged(campaign, meta):
         _check_replanned(ledger, campaign, meta["plan_checksum"])
+        if "ids_checksum" in meta:
+            for key, value in plan_inputs.stamp(campaign).items():
+                ledger.set_meta(key, value)
     if source_path.is_file():
         text = source_path.read_text(encoding="utf-8")
         if text != meta["campaign_file"]:
             try:
                 edited = spec.from_text(text, source_path=source_path)
-                same = stored is not None and plan_inputs.digest(edited) == stored
-                if not same:
-                    same = spec.plan(edited)[1] == meta["plan_checksum"]
+                same = plan_inputs.unchanged(edited, ledger.meta()) or spec.plan(edited)[1] == meta["plan_checksum"]
             except Exception:  # an edit that no longer even validates is an edit
                 same = False
             if not same:
@@ -199,13 +200,19 @@ def _check_replanned(ledger: Ledger, campaign: spec.Campaign, checksum: str) -> 
 
 
 def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) -> tuple[Outcome, str]:
-    """``labrunner resume``: settle a crash, then run every point that is not terminal."""
+    """``labrunner resume``: settle a crash, then run every point that is not terminal.
+
+    A directory sealed when its last session ended (:mod:`.seal`: every check passed, nothing to
+    settle, ``runs/`` untouched since) is trusted as it is; any other is checked row by row and
+    settled (:mod:`.recovery`)."""
     directory = Path(directory)
     check_executor_url(opts.executor, reach=False)
-    # a missing, foreign or damaged ledger: exit 2 before the lock file is made (every row is read
-    # here once; under the lock only the checks that read no row are repeated: ~6 s less at 10^6)
-    with Ledger.open_readonly(directory):
-        pass
+    # a missing, foreign or damaged ledger: exit 2 before the lock file is made (the checks that
+    # read every row only when the seal will not vouch for them; under the lock they are not repeated)
+    with Ledger.open_readonly(directory, thorough=False) as ledger:
+        checked = not seal.runs_unchanged(ledger)
+        if checked:
+            integrity.verify(ledger.db, ledger.directory / LEDGER_NAME)
     runs = directory / RUNS_DIR
     if runs.exists() and not runs.is_dir():
         raise CampaignError(
@@ -214,23 +221,41 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
     check_executor_url(opts.executor)
     stream = opts.stream or sys.stderr
     with DirectoryLock(directory, "resume") as lock, Ledger.open(directory, verify=False) as ledger:
-        integrity.verify(ledger.db, ledger.directory / LEDGER_NAME, thorough=False)
+        sealed, (counts, words) = _trusted(ledger, checked)
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
         campaign = _check_unchanged(ledger)
-        counts = ledger.counts()
         idle = not (counts.get("planned", 0) or counts.get("claimed", 0) or (retry_failed and counts.get("failed", 0)))
         # a finished campaign needs no workers: forking a pool only to wait for its shutdown cost ~1 s
         early = contextlib.nullcontext() if idle and campaign.guided is None else _early_pool(campaign, opts, lock.fd)
         with early as pool:  # its workers load while a crash is settled
             _write_copy(ledger.directory, ledger.meta()["campaign_file"])
-            report = recovery.recover(ledger)
+            if sealed:
+                report = recovery.Recovery()  # nothing to settle: the seal says so
+            else:
+                seal.clear(ledger)
+                report = recovery.recover(ledger)
+                seal.adopt(ledger, report.listed)  # settled: sealed from recovery's listing, not a second one
             print(f"resume {directory}: {report.describe()}", file=stream)
             if retry_failed:
-                failed = [r["id"] for r in ledger.rows(("failed",))]
-                ledger.replan(failed)
+                failed = [r["id"] for r in ledger.rows(("failed",), "id")]
+                if failed:
+                    seal.clear(ledger)
+                    ledger.replan(failed)
                 print(f"retrying {len(failed)} failed point(s)", file=stream)
-            return _execute(campaign, ledger, lock, opts, "resume", pool), str(directory)
+            census = (counts, words) if sealed and not retry_failed else None  # else: recovery may have changed them
+            return _execute(campaign, ledger, lock, opts, "resume", pool, census), str(directory)
+
+
+def _trusted(ledger: Ledger, checked: bool) -> tuple[bool, tuple[dict[str, int], dict[str, int]]]:
+    """(whether the seal holds, :meth:`Ledger.census`) under the lock; an unsealed ledger is
+    checked (every row unless ``checked`` before the lock) before its census is trusted."""
+    with contextlib.suppress(sqlite3.DatabaseError):  # damaged: the checks below say how
+        census = ledger.census()
+        if seal.holds(ledger, census[0]):  # checked when its last session ended, untouched since
+            return True, census
+    integrity.verify(ledger.db, ledger.directory / LEDGER_NAME, thorough=not checked)
+    return False, ledger.census()
 
 
 def _execute(
@@ -240,27 +265,25 @@ def _execute(
     opts: Options,
     command: str,
     pool: ExecutorHandle | None,
+    census: tuple[dict[str, int], dict[str, int]] | None = None,
 ) -> Outcome:
     """Run what the ledger has left on ``pool`` (see :func:`_early_pool`) or on the executor
-    the options name; record the session and its end."""
+    the options name; record the session and its end; seal the directory when the session ended
+    cleanly (:mod:`.seal`). ``census``: :meth:`Ledger.census` if the caller read it since the last change."""
     ledger.start_session(command)
-    c = ledger.counts()
+    c, counts = census or ledger.census()
     total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
-    progress = Progress(
-        campaign.name,
-        total,
-        ledger.by_outcome(),
-        stream=opts.stream,
-        interval_s=opts.progress_interval_s,
-    )
+    progress = Progress(campaign.name, total, counts, stream=opts.stream, interval_s=opts.progress_interval_s)
     real = not campaign.rig_info.simulated
     out = Outcome()
     reason = "error"
     if campaign.guided is None and not (c.get("planned", 0) or c.get("claimed", 0)):
         progress.close()  # nothing left to run: no executor to open
         ledger.end_session("finished")
-        out.counts = ledger.by_outcome()
+        _seal(ledger, c)
+        out.counts = counts
         return out
+    seal.clear(ledger)
     try:
         with (
             StopSignals() as signals,
@@ -296,4 +319,12 @@ def _execute(
         with contextlib.suppress(LedgerWriteError):  # a full disk: the session's end is not recorded
             ledger.end_session(reason)
         fsync_dir(ledger.directory)
+    if reason != "abandoned":  # abandoned batches' workers may still write
+        _seal(ledger)
     return out
+
+
+def _seal(ledger: Ledger, counts: dict[str, int] | None = None) -> None:
+    """Seal the directory for the next ``resume`` (:mod:`.seal`); a full disk leaves it unsealed."""
+    with contextlib.suppress(LedgerWriteError):
+        seal.seal(ledger, counts)

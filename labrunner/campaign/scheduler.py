@@ -347,7 +347,9 @@ class Scheduler:
         out = Outcome()
         t0 = time.monotonic()
         self.deadline = None  # a guided campaign runs one session per round
-        rows = self.ledger.rows(("planned",))
+        counts = self.ledger.counts()
+        many = counts["planned"] > 0.05 * sum(counts.values())
+        rows = self.ledger.rows(("planned",), "id, parameters, batch_key, attempts", scan=many)  # what a batch needs
         pending = deque(make_batches(rows, self.slots, self.requested))
         del rows
         max_inflight = self.handle.max_inflight

@@ -17,7 +17,7 @@ from labrunner.rigs.device import lawflag
 
 #: Up to this many points status runs every integrity check (:mod:`.integrity`, ≤ ~0.2 s); above,
 #: only those that do not read every row, so that it answers in well under a second at 10^6 points
-#: (resume and analyse still run them all).
+#: (analyse runs them all; resume too, unless the directory is sealed: :mod:`.seal`).
 FULL_CHECK_POINTS = 20_000
 
 #: The ledger ``meta`` key saying whether the campaign's rig is real ("1": its runs keep a
@@ -66,6 +66,14 @@ def status(directory: str | Path) -> dict[str, Any]:
         **({"guided": guided} if guided is not None else {}),
         **({"law_check": law} if law is not None else {}),
     }
+
+
+def law_check(directory: str | Path) -> dict[str, Any] | None:
+    """Only the ``law_check`` entry of :func:`status` (None for a twin's campaign, which keeps none):
+    what ``run`` and ``resume`` print at their end (they checked the ledger), without counting the
+    campaign again."""
+    with Ledger.open_readonly(Path(directory), verify=False) as ledger:
+        return _law_check(ledger) if ledger.meta().get(REAL_RIG) != "0" else None
 
 
 def _timing(ledger: Ledger) -> dict[str, int] | None:

@@ -68,10 +68,10 @@ def report(outcome, directory: str, command: str) -> int:
 
 def _law_check_line(directory: str) -> None:
     """A device-loop campaign's law check (docs/control-laws.md), on stderr when a run diverged."""
-    from labrunner.campaign.status import status
+    from labrunner.campaign.status import law_check
     from labrunner.rigs.device.lawflag import DIVERGED, line
 
-    law = status(directory).get("law_check")
+    law = law_check(directory)
     if law:
         print(line(law), file=sys.stderr if law[DIVERGED] else sys.stdout)
 
