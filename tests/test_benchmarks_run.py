@@ -27,6 +27,7 @@ SLOW = {
     "bench_stability.py": ([], ""),
     "bench_control.py": ([], ""),
     "bench_scale.py": (["--max", "1000", "--synthetic", "400"], "synthetic ledger"),
+    "bench_log_size.py": (["--only", "quickstart"], "floors for"),
 }
 
 
