@@ -20,7 +20,12 @@
 Wall times on a shared machine are longer than CPU times; both are printed (CPU: the command's
 process and the workers it waited for).
 
-Last measured (2-core machine, idle but for this benchmark; the VM's speed drifts: the same
+Re-measured 2026-12-03 08:41 (load 0.8 at the start; the VM ~1.7× slower than for the figures
+below, both sides alike): run 1.85 s + analyse 1.62 s = 3.47 s (3.46-3.63 over three trials)
+against the naive numpy-style script's 55.6 s: 16.1x wall (15.4-16.2x), 18.7x CPU; per run in the
+workers engine 1.00 ms, log write 0.70 ms.
+
+Measured before (2-core machine, idle but for this benchmark; the VM's speed drifts: the same
 code's run + analyse took 2.0-2.4 s over an afternoon): six full runs of three trials each gave
 12.7x, 13.0x, 13.9x, 12.9x, 15.1x and 13.4x (every trial 12.6-15.3x; run 1.0-1.2 s, analyse
 1.0-1.2 s, naive numpy-style script 28.2-30.1 s; 15-17x in CPU time). 10 000 points 9.4 + 2.0 s
