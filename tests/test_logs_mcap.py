@@ -36,7 +36,7 @@ from test_logs_support import COMPLETED, motor_run
 
 from labrunner.logs import mcap_records, read_run, schema as log_schema, write_run
 from labrunner.logs.mcap_writer import BulkWriter
-from labrunner.logs.writer import encode_record
+from labrunner.logs.metadata_text import encode_record
 
 
 def bits(x) -> np.ndarray:

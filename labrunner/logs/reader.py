@@ -36,7 +36,8 @@ from mcap.writer import MCAP0_MAGIC
 from labrunner.errors import InvalidParameter
 from labrunner.logs import schema
 from labrunner.logs.mcap_writer import message_row
-from labrunner.logs.writer import PLAIN_FORMATS, decode_record
+from labrunner.logs.metadata_text import decode_record
+from labrunner.logs.writer import PLAIN_FORMATS
 
 if TYPE_CHECKING:  # pandas only where a frame is built: a worker writing logs imports labrunner.logs without it
     import pandas as pd

@@ -23,12 +23,7 @@ Every message's ``log_time`` is the wall-clock time of its (first) sample: the r
 (``start_time``, s since 1970) plus k / f_s, so a viewer places runs on the calendar and the times
 only grow; a sample's ``sequence`` is its index k.
 
-Metadata values (MCAP maps strings to strings) are plain text, as a viewer shows them: a string as
-it is, a number in decimal (``nan``, ``inf`` included), ``true`` / ``false``; a key whose value is
-None is left out; a string that would read as a number or a boolean, or that begins with ``"``,
-``{`` or ``[``, is written as a JSON string (``"0042"``). A record holding structured values
-(sections, lists: ``config``, ``rig``, ``channels``) is one JSON text under the single key ``json``.
-:func:`decode_record` reverses both.
+Metadata values are plain text (:mod:`labrunner.logs.metadata_text`).
 """
 
 from __future__ import annotations
@@ -38,7 +33,6 @@ import io
 import json
 import math
 import os
-import re
 import time
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
@@ -49,10 +43,10 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
-from labrunner import jsontext
 from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
 from labrunner.logs.mcap_writer import BulkWriter, Prefix, message_row, repeat_row
+from labrunner.logs.metadata_text import encode_record
 from labrunner.version import __version__
 
 ROLES = ("input", "output", "controlled", "reference", "error", "estimate", "signal")
@@ -60,11 +54,8 @@ STATUSES = ("completed", "aborted", "no-motion", "failed")  # engine.RunResult.o
 RESERVED_RECORDS = ("channels", "outcome")
 LOG_FORMAT = "labrunner-3"  # run.log_format: each sample once in /run/samples (sequence = k)
 PLAIN_FORMATS = ("labrunner-2", LOG_FORMAT)  # formats with plain-text metadata (2: blocks and samples both)
-JSON_KEY = "json"  # the single key of a record stored as one JSON text
 _ROLE_GROUPS = {f"{role}s" if role != "controlled" else role: role for role in ROLES}
 _MEDIA_TYPES = {".toml": "application/toml", ".json": "application/json", ".txt": "text/plain"}
-_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|[-+]?(nan|inf|infinity)", re.IGNORECASE)
-_INTEGER = re.compile(r"[-+]?\d+")
 
 
 def infer_role(name: str) -> str:
@@ -120,77 +111,6 @@ def normalise_channels(
     if extra:
         raise InvalidParameter("channels", f"describe signals that are not written: {extra}")
     return {name: given.get(name, {"role": infer_role(name), "unit": ""}) for name in names}
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"cannot store {type(value).__name__} in run metadata")
-
-
-def _text(value: Any) -> str:
-    """One scalar as plain metadata text (see the module's docstring)."""
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return repr(value)
-    if isinstance(value, Path):
-        value = str(value)
-    if isinstance(value, str):
-        if _NUMBER.fullmatch(value) or value in ("true", "false") or value[:1] in ('"', "{", "["):
-            return json.dumps(value)
-        return value
-    raise TypeError(f"cannot store {type(value).__name__} in run metadata")
-
-
-def _scalar(value: Any) -> bool:
-    return value is None or isinstance(value, (str, int, float, bool, np.generic, Path))
-
-
-def encode_record(field: str, record: Mapping[str, Any]) -> dict[str, str]:
-    """An MCAP metadata map: plain text per key, or one JSON text for structured values."""
-    if not isinstance(record, Mapping):
-        raise InvalidParameter(f"metadata.{field}", f"must be a mapping, got {type(record).__name__}")
-    try:
-        if all(_scalar(v) for v in record.values()):
-            return {str(k): _text(v) for k, v in record.items() if v is not None}
-        return {JSON_KEY: jsontext.dumps(dict(record), default=_jsonable)}  # NaN → null: strict JSON
-    except TypeError as exc:
-        raise InvalidParameter(f"metadata.{field}", str(exc)) from None
-
-
-def decode_value(text: str) -> Any:
-    """A metadata value back to its type (see the module's docstring)."""
-    if text in ("true", "false"):
-        return text == "true"
-    if _INTEGER.fullmatch(text):
-        return int(text)
-    if _NUMBER.fullmatch(text):
-        return float(text)
-    if text[:1] in ('"', "{", "["):
-        try:
-            return json.loads(text)
-        except ValueError:
-            return text
-    return text
-
-
-def decode_record(record: Mapping[str, str]) -> dict[str, Any]:
-    """A metadata map written by :func:`encode_record` back to Python values."""
-    if set(record) == {JSON_KEY} and record[JSON_KEY][:1] == "{":
-        try:
-            return dict(json.loads(record[JSON_KEY]))
-        except ValueError:
-            pass
-    return {k: decode_value(v) for k, v in record.items()}
 
 
 def _positive(name: str, value: float) -> float:
