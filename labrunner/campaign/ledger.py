@@ -8,7 +8,7 @@ temporary name and renamed into place, so a crash while planning leaves no half-
 The ``meta`` table keeps a copy of the campaign file and the checksum of the planned grid.
 ``metrics_json`` holds every metric of the run (:data:`labrunner.metrics.BASE_METRICS` and the
 per-channel ones) as one JSON object, so that ``analyse`` tabulates without reading the logs; a
-ledger made before that column existed gains it when opened for writing (:func:`_migrate`), and
+ledger made before that column existed gains it when opened for writing (:func:`~labrunner.campaign.ledger_schema.migrate`), and
 readers treat a missing column as "no metrics here" (the analysis then reads the logs). Likewise
 ``log_size``, ``log_mtime_ns``, ``log_ctime_ns`` and ``log_inode``: the published log's
 :func:`~labrunner.run_identity.fingerprint`, committed with its run, by which ``analyse`` knows a
@@ -31,6 +31,7 @@ from typing import Any
 
 from labrunner import jsontext
 from labrunner.campaign import integrity
+from labrunner.campaign.ledger_schema import INDEXES, SCHEMA, migrate
 from labrunner.errors import CampaignError, InvalidParameter
 from labrunner.run_identity import FINGERPRINT_COLUMNS, Fingerprint
 
@@ -38,57 +39,7 @@ LEDGER_NAME = "ledger.sqlite"
 STATES = ("planned", "claimed", "done", "aborted", "failed")
 TERMINAL = ("done", "aborted", "failed")
 STATE_OF_OUTCOME = {"completed": "done", "no-motion": "done", "aborted": "aborted", "failed": "failed"}
-
-_SCHEMA = """
-CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE points (
-    seq INTEGER PRIMARY KEY,
-    id TEXT NOT NULL UNIQUE,
-    parameters TEXT NOT NULL,
-    batch_key TEXT NOT NULL,
-    state TEXT NOT NULL DEFAULT 'planned'
-        CHECK (state IN ('planned', 'claimed', 'done', 'aborted', 'failed')),
-    outcome TEXT CHECK (outcome IN ('completed', 'aborted', 'no-motion', 'failed')),
-    outcome_json TEXT,
-    rms_error REAL,
-    input_energy REAL,
-    max_abs_input REAL,
-    metrics_json TEXT,
-    log_path TEXT,
-    attempts INTEGER NOT NULL DEFAULT 0,
-    host TEXT,
-    pid INTEGER,
-    claimed_at REAL,
-    finished_at REAL,
-    engine_s REAL,
-    write_s REAL,
-    publish_s REAL,
-    log_size INTEGER,
-    log_mtime_ns INTEGER,
-    log_ctime_ns INTEGER,
-    log_inode INTEGER
-);
-CREATE INDEX points_state ON points (state);
-CREATE TABLE quarantine (
-    n INTEGER PRIMARY KEY AUTOINCREMENT,
-    point_id TEXT,
-    original TEXT NOT NULL,
-    moved_to TEXT NOT NULL,
-    reason TEXT NOT NULL,
-    bytes INTEGER,
-    at REAL NOT NULL
-);
-CREATE TABLE sessions (
-    n INTEGER PRIMARY KEY AUTOINCREMENT,
-    command TEXT NOT NULL,
-    host TEXT NOT NULL,
-    pid INTEGER NOT NULL,
-    started_at REAL NOT NULL,
-    last_at REAL NOT NULL,
-    ended_at REAL,
-    end_reason TEXT
-);
-"""
+_FINGERPRINT_SET = ", ".join(f"{c} = ?" for c in FINGERPRINT_COLUMNS)
 
 
 @dataclass(frozen=True)
@@ -162,7 +113,7 @@ class Ledger:
         tmp = directory / f".{LEDGER_NAME}.{os.getpid()}.tmp"
         db = _connect(tmp)
         try:
-            db.executescript(_SCHEMA)
+            db.executescript(SCHEMA)
             for index in INDEXES:
                 db.execute(index)
             db.execute("BEGIN")
@@ -211,7 +162,7 @@ class Ledger:
         except BaseException:
             db.close()
             raise
-        _migrate(db)
+        migrate(db)
         return cls(directory, db)
 
     @classmethod
@@ -446,30 +397,6 @@ class _Transaction:
     def _error(self, exc: sqlite3.Error) -> LedgerWriteError:
         hint = " (disk full or file-size limit?)" if "disk" in str(exc) or "full" in str(exc) else ""
         return LedgerWriteError(f"{self.path}: cannot write the ledger: {exc}{hint}")
-
-
-#: Indexes that let ``status`` count outcomes and finished runs from small index b-trees instead of
-#: scanning every row (0.6 s at 10^5 points without them): created with a ledger, and added to an
-#: older one when it is opened for writing.
-INDEXES = (
-    "CREATE INDEX IF NOT EXISTS points_outcome ON points (outcome, state)",
-    "CREATE INDEX IF NOT EXISTS points_finished ON points (finished_at)",
-)
-
-
-_FINGERPRINT_SET = ", ".join(f"{c} = ?" for c in FINGERPRINT_COLUMNS)
-#: Columns added to the points table after its first version, with their types.
-_ADDED_COLUMNS = (("metrics_json", "TEXT"), *((c, "INTEGER") for c in FINGERPRINT_COLUMNS))
-
-
-def _migrate(db: sqlite3.Connection) -> None:
-    """Add the columns and indexes later versions of this schema (still version 1: only additions) have."""
-    columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
-    for name, kind in _ADDED_COLUMNS:
-        if name not in columns:
-            db.execute(f"ALTER TABLE points ADD COLUMN {name} {kind}")
-    for index in INDEXES:
-        db.execute(index)
 
 
 def fsync_dir(directory: Path) -> None:
