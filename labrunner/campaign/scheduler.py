@@ -58,6 +58,10 @@ RUN_TICK_S = 0.5e-6
 TICK_OVERHEAD_SHARE = 0.1
 
 
+#: Why a campaign stopped when a worker process died, whether a batch was running or about to be sent.
+_WORKER_DIED = "a worker process died (killed, or out of memory?); the running batches were abandoned"
+
+
 @dataclass
 class Outcome:
     """How a scheduling session ended."""
@@ -212,7 +216,8 @@ class Scheduler:
         except Exception as exc:  # the executor refused the batch (broken pool, lost cluster): nothing ran
             self._release(slot)
             self.ledger.unclaim(ids)
-            out.stop_reason = out.stop_reason or f"the executor refused a batch: {type(exc).__name__}: {exc}"
+            refused = f"the executor refused a batch: {type(exc).__name__}: {exc}"
+            out.stop_reason = out.stop_reason or (_WORKER_DIED if isinstance(exc, BrokenExecutor) else refused)
             return
         self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic(), slot)
         if self.progress:
@@ -249,9 +254,7 @@ class Scheduler:
             self.longest_s = max(self.longest_s, time.monotonic() - batch.submitted)
             exc = future.exception()
             if isinstance(exc, BrokenExecutor):  # a worker process died: every running batch is lost with it
-                out.stop_reason = out.stop_reason or (
-                    "a worker process died (killed, or out of memory?); the running batches were abandoned"
-                )
+                out.stop_reason = out.stop_reason or _WORKER_DIED
                 self._abandon(out)
                 return
             if exc is not None:  # the worker itself broke (could not write): stop, points stay claimed
