@@ -128,13 +128,18 @@ def cached_rows(path: Path | None, ids: Collection[str], version: int) -> dict[s
         return {}
 
 
+def same_file(hit: Mapping[str, Any] | None, stat: tuple[int, int]) -> bool:
+    """Whether a cached row was built from a file of this (size, mtime)."""
+    if hit is None:
+        return False
+    size, mtime = hit.get("log_size"), hit.get("log_mtime_ns")
+    return bool(pd.notna(size) and pd.notna(mtime)) and (int(size), int(mtime)) == (int(stat[0]), int(stat[1]))
+
+
 def proved_by_cache(hit: Mapping[str, Any] | None, stat: tuple[int, int], ok: str) -> bool:
     """Whether a cached row says its log, this same file (size, mtime), was proved to be its own
     (its ``log_state`` was ``ok``)."""
-    if hit is None or hit.get("log_state") != ok:
-        return False
-    size, mtime = hit.get("log_size"), hit.get("log_mtime_ns")
-    return bool(pd.notna(size) and pd.notna(mtime)) and (int(size), int(mtime)) == stat
+    return hit is not None and hit.get("log_state") == ok and same_file(hit, stat)
 
 
 def named_point(path: str) -> dict[str, Any]:

@@ -34,7 +34,15 @@ import pandas as pd
 from pandas.api.types import union_categoricals
 
 from labrunner import run_identity
-from labrunner.analysis.log_checks import CACHE_COLUMNS, LogChecks, cached_rows, named_point, proved_by_cache, read_many
+from labrunner.analysis.log_checks import (
+    CACHE_COLUMNS,
+    LogChecks,
+    cached_rows,
+    named_point,
+    proved_by_cache,
+    read_many,
+    same_file,
+)
 from labrunner.campaign.rig_timing import timing_counts
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
@@ -324,7 +332,7 @@ def build_table(
     unproved = list(checks.unproved)
     for i in checks.todo:
         hit = cached.get(ids.iat[i])
-        if _same_file(hit, (sizes[i], mtimes[i])):
+        if same_file(hit, (sizes[i], mtimes[i])):
             metrics[i] = _unsplit(hit, frame.columns)
             if i not in checks.fingerprinted:
                 unproved.append(i)
@@ -372,14 +380,6 @@ def build_table(
         problems.append({"path": rec["log_path"], "kind": "torn", "detail": f"point {rec['id']}: salvaged a torn log"})
     frame["log_state"] = log_states(frame["log_path"], problems)
     return CampaignTable(frame, problems, n_read=len(read))
-
-
-def _same_file(hit: Mapping[str, Any] | None, stat: tuple[int, int]) -> bool:
-    """Whether a cached row was built from a file of this (size, mtime)."""
-    if hit is None:
-        return False
-    size, mtime = hit.get("log_size"), hit.get("log_mtime_ns")
-    return bool(pd.notna(size) and pd.notna(mtime)) and (int(size), int(mtime)) == (int(stat[0]), int(stat[1]))
 
 
 def _overlaid(column: pd.Series | None, values: pd.Series, n: int) -> pd.Series:
