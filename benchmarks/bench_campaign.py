@@ -20,8 +20,8 @@
 Wall times on a shared machine are longer than CPU times; both are printed (CPU: the command's
 process and the workers it waited for).
 
-Re-measured 2026-12-03 08:41 (load 0.8 at the start; the VM ~1.7× slower than for the figures
-below, both sides alike): run 1.85 s + analyse 1.62 s = 3.47 s (3.46-3.63 over three trials)
+Re-measured 2026-12-03 08:41 (load 0.8 at the start; against the figures below the naive
+script ran ~1.9× slower and labrunner ~1.5× slower, so part of the higher ratio is the machine): run 1.85 s + analyse 1.62 s = 3.47 s (3.46-3.63 over three trials)
 against the naive numpy-style script's 55.6 s: 16.1x wall (15.4-16.2x), 18.7x CPU; per run in the
 workers engine 1.00 ms, log write 0.70 ms.
 
