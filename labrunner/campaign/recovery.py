@@ -13,6 +13,11 @@ What a killed runner can leave behind, and what happens to it:
   run on a real rig — an experiment that cost wear and time — instead of repeating it.
 - a *claimed* row without a log — the run was cut short: back to ``planned``.
 - a terminal row whose log has disappeared — back to ``planned`` (nothing may be missing).
+
+:func:`recover` finds them by one listing of ``runs/`` and one pass over the rows. After a crash
+that the session journal vouches for (:mod:`.journal`: only the claimed points can be unsettled),
+:func:`settle_running` settles the claimed points alone, a ``stat`` each, and leaves their
+temporary logs to the end of the session (:func:`sweep`, before the directory is sealed).
 """
 
 from __future__ import annotations
@@ -41,6 +46,8 @@ class Recovery:
     #: ``runs/``'s stat before its listing when nothing was moved out of it: the directory is then
     #: consistent as listed, and :func:`labrunner.campaign.seal.adopt` can seal it without a second listing.
     listed: dict[str, int] | None = None
+    #: Only the claimed points were settled (:func:`settle_running`): the rest is checked when the session ends.
+    running_only: bool = False
 
     def describe(self) -> str:
         parts = [
@@ -50,6 +57,8 @@ class Recovery:
         ]
         if self.lost:
             parts.append(f"{len(self.lost)} missing log(s) to rerun")
+        if self.running_only:
+            parts.append("the running points only (session journal; every check runs when this session ends)")
         return ", ".join(parts)
 
 
@@ -120,8 +129,7 @@ def recover(ledger: Ledger) -> Recovery:
     report = Recovery()
     # one listing of runs/ instead of a stat a point: ~1 s rather than ~10 s at 10^6 points
     listed, names = seal.listing(ledger)
-    for name in sorted(n for n in names if n.startswith(TMP_PREFIX)):
-        report.quarantined.append(quarantine(ledger, runs / name, _tmp_point(name), "unpublished temporary log"))
+    report.quarantined += _quarantine_temporary(ledger, names)
 
     def exists(relative: str) -> bool:
         folder, _, name = relative.rpartition("/")
@@ -139,6 +147,16 @@ def recover(ledger: Ledger) -> Recovery:
             published.append((pid, state))
         elif state == "claimed":
             report.replanned.append(pid)
+    _settle_published(ledger, published, report)
+    ledger.replan(report.replanned + report.lost)
+    report.listed = None if report.quarantined else listed
+    return report
+
+
+def _settle_published(ledger: Ledger, published: list[tuple[str, str]], report: Recovery) -> None:
+    """Accept each unfinished point's published log (``published``: id, state) that proves a
+    complete run of it, committing its row from the log; quarantine any other (its point reruns)."""
+    directory = ledger.directory
     for pid, state in published:
         path = directory / final_path(pid)
         found, reason = verify_log(path, pid)
@@ -163,6 +181,32 @@ def recover(ledger: Ledger) -> Recovery:
             from_states=(state,),
         )
         report.accepted.append(pid)
-    ledger.replan(report.replanned + report.lost)
-    report.listed = None if report.quarantined else listed
+
+
+def settle_running(ledger: Ledger) -> Recovery:
+    """Settle the claimed points only (:mod:`.journal` vouches that nothing else is unsettled): a
+    published log is accepted or quarantined as by :func:`recover`, no log → back to ``planned``;
+    their temporary logs wait for :func:`sweep`."""
+    report = Recovery(running_only=True)
+    published = []
+    for (pid,) in ledger.db.execute("SELECT id FROM points WHERE state = 'claimed' ORDER BY seq").fetchall():
+        if (ledger.directory / final_path(pid)).exists():
+            published.append((pid, "claimed"))
+        else:
+            report.replanned.append(pid)
+    _settle_published(ledger, published, report)
+    ledger.replan(report.replanned)
     return report
+
+
+def sweep(ledger: Ledger) -> int:
+    """Quarantine the temporary logs left in ``runs/`` (call only while no batch of this campaign
+    runs: at the end of a session); return how many."""
+    return len(_quarantine_temporary(ledger, seal.listing(ledger)[1]))
+
+
+def _quarantine_temporary(ledger: Ledger, names: set[str]) -> list[str]:
+    """Quarantine the temporary logs among ``runs/``'s ``names``; their new relative paths."""
+    runs = ledger.directory / RUNS_DIR
+    temporary = sorted(n for n in names if n.startswith(TMP_PREFIX))
+    return [quarantine(ledger, runs / n, _tmp_point(n), "unpublished temporary log") for n in temporary]

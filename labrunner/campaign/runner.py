@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from labrunner.campaign import dry_run, guided_run, integrity, plan_inputs, recovery, seal, spec
+from labrunner.campaign import dry_run, guided_run, integrity, journal, plan_inputs, recovery, seal, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
@@ -203,14 +203,15 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
     """``labrunner resume``: settle a crash, then run every point that is not terminal.
 
     A directory sealed when its last session ended (:mod:`.seal`: every check passed, nothing to
-    settle, ``runs/`` untouched since) is trusted as it is; any other is checked row by row and
-    settled (:mod:`.recovery`)."""
+    settle, ``runs/`` untouched since) is trusted as it is; after a crash that the session journal
+    vouches for (:mod:`.journal`) only the points that were running are settled, the rest checked
+    when this session ends; any other is checked row by row and settled (:mod:`.recovery`)."""
     directory = Path(directory)
     check_executor_url(opts.executor, reach=False)
     # a missing, foreign or damaged ledger: exit 2 before the lock file is made (the checks that
     # read every row only when the seal will not vouch for them; under the lock they are not repeated)
     with Ledger.open_readonly(directory, thorough=False) as ledger:
-        checked = not seal.runs_unchanged(ledger)
+        checked = not (seal.runs_unchanged(ledger) or journal.kept(ledger))
         if checked:
             integrity.verify(ledger.db, ledger.directory / LEDGER_NAME)
     runs = directory / RUNS_DIR
@@ -221,7 +222,7 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
     check_executor_url(opts.executor)
     stream = opts.stream or sys.stderr
     with DirectoryLock(directory, "resume") as lock, Ledger.open(directory, verify=False) as ledger:
-        sealed, (counts, words) = _trusted(ledger, checked)
+        trust, (counts, words) = _trusted(ledger, checked)
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
         campaign = _check_unchanged(ledger)
@@ -230,8 +231,10 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         early = contextlib.nullcontext() if idle and campaign.guided is None else _early_pool(campaign, opts, lock.fd)
         with early as pool:  # its workers load while a crash is settled
             _write_copy(ledger.directory, ledger.meta()["campaign_file"])
-            if sealed:
+            if trust == "sealed":
                 report = recovery.Recovery()  # nothing to settle: the seal says so
+            elif trust == "journal":
+                report = recovery.settle_running(ledger)  # only the running points can be unsettled
             else:
                 seal.clear(ledger)
                 report = recovery.recover(ledger)
@@ -243,19 +246,24 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
                     seal.clear(ledger)
                     ledger.replan(failed)
                 print(f"retrying {len(failed)} failed point(s)", file=stream)
-            census = (counts, words) if sealed and not retry_failed else None  # else: recovery may have changed them
+            census = (
+                (counts, words) if trust == "sealed" and not retry_failed else None
+            )  # else: recovery may have changed them
             return _execute(campaign, ledger, lock, opts, "resume", pool, census), str(directory)
 
 
-def _trusted(ledger: Ledger, checked: bool) -> tuple[bool, tuple[dict[str, int], dict[str, int]]]:
-    """(whether the seal holds, :meth:`Ledger.census`) under the lock; an unsealed ledger is
-    checked (every row unless ``checked`` before the lock) before its census is trusted."""
+def _trusted(ledger: Ledger, checked: bool) -> tuple[str, tuple[dict[str, int], dict[str, int]]]:
+    """(what vouches for the directory: "sealed", "journal" or "", :meth:`Ledger.census`) under
+    the lock; a ledger neither vouches for is checked (every row unless ``checked`` before the
+    lock) before its census is trusted."""
     with contextlib.suppress(sqlite3.DatabaseError):  # damaged: the checks below say how
         census = ledger.census()
         if seal.holds(ledger, census[0]):  # checked when its last session ended, untouched since
-            return True, census
+            return "sealed", census
+        if journal.holds(ledger, census[0]):  # checked when the crashed session began, only it changed it since
+            return "journal", census
     integrity.verify(ledger.db, ledger.directory / LEDGER_NAME, thorough=not checked)
-    return False, ledger.census()
+    return "", ledger.census()
 
 
 def _execute(
@@ -280,10 +288,11 @@ def _execute(
     if campaign.guided is None and not (c.get("planned", 0) or c.get("claimed", 0)):
         progress.close()  # nothing left to run: no executor to open
         ledger.end_session("finished")
-        _seal(ledger, c)
+        _seal(ledger, opts, c)
         out.counts = counts
         return out
     seal.clear(ledger)
+    journal.begin(ledger, c)  # settled and checked: from here on only this session changes it
     try:
         with (
             StopSignals() as signals,
@@ -319,12 +328,23 @@ def _execute(
         with contextlib.suppress(LedgerWriteError):  # a full disk: the session's end is not recorded
             ledger.end_session(reason)
         fsync_dir(ledger.directory)
-    if reason != "abandoned":  # abandoned batches' workers may still write
-        _seal(ledger)
+    if reason != "abandoned":  # abandoned batches' workers may still write (the journal stays)
+        _seal(ledger, opts)
     return out
 
 
-def _seal(ledger: Ledger, counts: dict[str, int] | None = None) -> None:
-    """Seal the directory for the next ``resume`` (:mod:`.seal`); a full disk leaves it unsealed."""
+def _seal(ledger: Ledger, opts: Options, counts: dict[str, int] | None = None) -> None:
+    """At a clean end: close the session journal, quarantine temporary logs a crash left (no batch
+    runs now), and seal the directory for the next ``resume`` if every check passes (:mod:`.seal`);
+    say so if one fails. A full disk leaves it unsealed."""
     with contextlib.suppress(LedgerWriteError):
-        seal.seal(ledger, counts)
+        kept = journal.end(ledger)
+        if seal.seal(ledger, counts) or (recovery.sweep(ledger) and seal.seal(ledger)):
+            return
+        if kept and not ledger.counts().get("claimed", 0):  # the resume after a crash left these checks to now
+            print(
+                f"{ledger.directory}: the end-of-session check did not pass (a log missing, a published log "
+                "its row does not record, or a ledger check): not sealed; the next `labrunner resume` "
+                "checks and settles everything",
+                file=opts.stream or sys.stderr,
+            )

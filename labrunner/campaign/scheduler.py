@@ -32,10 +32,10 @@ import math
 import signal
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
@@ -59,6 +59,8 @@ TICK_OVERHEAD_SHARE = 0.1
 
 
 #: Why a campaign stopped when a worker process died, whether a batch was running or about to be sent.
+_T = TypeVar("_T")
+
 _WORKER_DIED = "a worker process died (killed, or out of memory?); the running batches were abandoned"
 
 
@@ -106,16 +108,25 @@ def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> l
     groups: dict[str, list[Any]] = {}
     for row in rows:
         groups.setdefault(row["batch_key"], []).append(row)
-    out = []
-    for key, members in groups.items():
-        _, fs, duration, *_ = json.loads(key)
-        size = batch_size(len(members), slots, round(fs * duration), requested)
-        count = math.ceil(len(members) / size)
-        if requested is None:
-            out += [(key, members[j::count]) for j in range(count)]
-        else:
-            out += [(key, members[lo : lo + size]) for lo in range(0, len(members), size)]
-    return out
+    return [batch for key, members in groups.items() for batch in _cut(key, members, slots, requested)]
+
+
+def planned_batches(ledger: Ledger, slots: int, requested: int | None = None) -> list[tuple[str, Sequence[int]]]:
+    """:func:`make_batches` of the ledger's planned rows, as the rows' ``seq`` (grid positions):
+    the same batches in the same order, from the planned-points index alone
+    (:meth:`~labrunner.campaign.ledger.Ledger.planned_seqs`: 8 bytes a point); the scheduler reads
+    a batch's rows as it submits it."""
+    return [batch for key, seqs in ledger.planned_seqs() for batch in _cut(key, seqs, slots, requested)]
+
+
+def _cut(key: str, members: Sequence[_T], slots: int, requested: int | None) -> list[tuple[str, Sequence[_T]]]:
+    """One group's batches (:func:`make_batches`): strided, or in grid order with a requested size."""
+    _, fs, duration, *_ = json.loads(key)
+    size = batch_size(len(members), slots, round(fs * duration), requested)
+    count = math.ceil(len(members) / size)
+    if requested is None:
+        return [(key, members[j::count]) for j in range(count)]
+    return [(key, members[lo : lo + size]) for lo in range(0, len(members), size)]
 
 
 class StopSignals:
@@ -198,7 +209,8 @@ class Scheduler:
             precision=c.logging.get("precision", "float64"),
         )
 
-    def _submit(self, key: str, rows: list[Any], signals: StopSignals, out: Outcome) -> None:
+    def _submit(self, key: str, seqs: Sequence[int], signals: StopSignals, out: Outcome) -> None:
+        rows = self.ledger.rows_at(seqs, "id, parameters, batch_key, attempts")  # what a batch needs
         live = self.handle.live
         slot = live.reserve() if live is not None else None
         task = replace(self._task(key, rows), live_at=slot)
@@ -350,11 +362,7 @@ class Scheduler:
         out = Outcome()
         t0 = time.monotonic()
         self.deadline = None  # a guided campaign runs one session per round
-        counts = self.ledger.counts()
-        many = counts["planned"] > 0.05 * sum(counts.values())
-        rows = self.ledger.rows(("planned",), "id, parameters, batch_key, attempts", scan=many)  # what a batch needs
-        pending = deque(make_batches(rows, self.slots, self.requested))
-        del rows
+        pending = deque(planned_batches(self.ledger, self.slots, self.requested))
         max_inflight = self.handle.max_inflight
         own = self.signals is None
         signals = self.signals or StopSignals()
