@@ -126,16 +126,33 @@ UNTIL_FIRST_BATCH = (
 )
 
 
-def _seal(directory: Path, sealed: bool) -> None:
-    """Seal the directory as a session that ended cleanly does, or clear the seal as a crash leaves it."""
-    from labrunner.campaign import seal
+#: How ``resume`` finds the directory: "sealed" as a session that ended cleanly leaves it; "crash"
+#: as a session killed with :data:`IN_FLIGHT` points claimed (its batches running) leaves it, its
+#: session journal kept (:mod:`labrunner.campaign.journal`); "full" with neither seal nor journal
+#: (a crash on another boot, or left by a labrunner before the journal): every check, one listing.
+STATES = ("sealed", "crash", "full")
+IN_FLIGHT = 2000
+
+
+def prepare(directory: Path, state: str) -> None:
+    """Leave ``directory`` as ``state`` (:data:`STATES`) says, as the session before would have."""
+    from labrunner.campaign import journal, seal
     from labrunner.campaign.ledger import Ledger
 
     with Ledger.open(directory, verify=False) as ledger:
-        if sealed:
+        if state == "sealed":
+            journal.end(ledger)
             assert seal.seal(ledger), f"{directory} is not consistent"
-        else:
-            seal.clear(ledger)
+            return
+        seal.clear(ledger)
+        if state == "full":
+            journal.end(ledger)
+            return
+        journal.begin(ledger, ledger.counts())  # as the session did when it started
+        claimed = ledger.db.execute("SELECT id FROM points WHERE state = 'planned' ORDER BY seq LIMIT ?", (IN_FLIGHT,))
+        ids = [r[0] for r in claimed]
+        if ids:
+            ledger.claim(ids)  # its running batches, their logs not yet written
 
 
 def synthetic(work: Path, n: int) -> None:
@@ -162,16 +179,16 @@ def synthetic(work: Path, n: int) -> None:
             else [sys.executable, "-c", UNTIL_FIRST_BATCH, str(directory)]
         )
         cases = [("status", [*cli, "status", str(directory)], None)]
-        cases += [("resume, sealed", resume, True), ("resume after a crash", resume, False)]
-        for label, command, sealed in cases:
+        cases += [(f"resume ({state})", resume, state) for state in STATES]
+        for label, command, state in cases:
             runs = []
             for _ in range(3):
-                if sealed is not None:
-                    _seal(directory, sealed)
+                if state is not None:
+                    prepare(directory, state)
                 runs.append(timed(command, work))
             print(
                 f"{n_gamma * n_kp:>9,} points, {finished:.0%} finished (synthetic ledger, built in {built:.0f} s): "
-                f"{label}{'' if finished == 1.0 or sealed is None else ' (until the first batch)'} "
+                f"{label}{'' if finished == 1.0 or state is None else ' (until the first batch)'} "
                 f"{statistics.median(r['wall_s'] for r in runs):.2f} s, peak {_mb(max(r['peak_parent_kb'] for r in runs))}",
                 flush=True,
             )

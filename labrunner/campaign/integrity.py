@@ -13,7 +13,9 @@ The checks that read every row (``quick_check``, the ids' checksum, the paramete
 points) runs them only up to 20 000 points and above runs the others — structure, meta, row count
 and grid order, all from the schema and the primary key — with ``thorough=False``; ``analyse`` and
 ``repair`` run them all, ``resume`` too unless the directory is sealed (:mod:`.seal`: they ran when
-its last session ended, and nothing changed since).
+its last session ended, and nothing changed since) or, after a crash, its session journal holds
+(:mod:`.journal`: they ran before the crashed session began, and only it changed the ledger
+since); then they run when the resumed session ends, before it is sealed.
 
 Each problem names the file and ends with the way out: ``labrunner repair DIR`` rebuilds the
 ledger from the campaign copy and the published logs (:mod:`labrunner.campaign.repair`).

@@ -13,8 +13,9 @@ every ledger row (:mod:`labrunner.campaign.integrity`). A session that ends clea
 ``resume`` then checks the seal (:func:`holds`: one ``stat`` and the states' counts, which it
 reads anyway: ~0.1 s at 10^6 points) instead of settling: every finished point's log is there, no unfinished point has a
 published log, no torn file waits to be quarantined, no point is claimed. Anything that may change
-the ledger or ``runs/`` clears the seal first (:func:`clear`), so a crash leaves none and the next
-``resume`` settles and checks everything as before.
+the ledger or ``runs/`` clears the seal first (:func:`clear`), so a crash leaves none; the next
+``resume`` settles and checks everything as before, or, where the crashed session's journal
+holds (:mod:`.journal`), settles its running points and leaves the rest to this check at the end.
 
 Timestamps are coarse (a kernel tick): a deletion in the same tick as the seal's ``stat`` would
 keep the mtime. :func:`seal` therefore reads the mtime, waits :data:`TICK_S` and only then lists
