@@ -122,7 +122,7 @@ UNTIL_FIRST_BATCH = (
     "from labrunner.campaign.ledger import Ledger\n"
     "Ledger.claim = lambda self, ids: os._exit(0)\n"
     "from labrunner.cli import main\n"
-    "main(['resume', sys.argv[1], '--workers', '2'])\n"
+    "raise SystemExit(main(['resume', sys.argv[1], '--workers', '2']))  # a refusal fails the timing\n"
 )
 
 

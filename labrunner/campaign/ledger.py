@@ -42,6 +42,7 @@ STATES = ("planned", "claimed", "done", "aborted", "failed")
 TERMINAL = ("done", "aborted", "failed")
 STATE_OF_OUTCOME = {"completed": "done", "no-motion": "done", "aborted": "aborted", "failed": "failed"}
 _FINGERPRINT_SET = ", ".join(f"{c} = ?" for c in FINGERPRINT_COLUMNS)
+_SEQ_PAGE = 65536  # planned points' seq read at a time (:meth:`Ledger.planned_seqs`)
 
 
 @dataclass(frozen=True)
@@ -239,11 +240,25 @@ class Ledger:
         ~300 MB as Python objects). Rows are read a batch at a time (:meth:`rows_at`)."""
         cursor = self.db.cursor()
         cursor.row_factory = None  # plain tuples: a Row object per point costs twice the time
-        index = f"points INDEXED BY {PLANNED_INDEX}"
-        firsts = cursor.execute(f"SELECT batch_key, MIN(seq) FROM {index} WHERE state = 'planned' GROUP BY batch_key")
-        keys = [key for key, _ in sorted(firsts.fetchall(), key=lambda r: r[1])]
-        query = f"SELECT seq FROM {index} WHERE state = 'planned' AND batch_key = ? ORDER BY seq"
-        return [(key, array("q", (s for (s,) in cursor.execute(query, (key,))))) for key in keys]
+        where = f"FROM points INDEXED BY {PLANNED_INDEX} WHERE state = 'planned' AND batch_key"
+        firsts, key = [], ""
+        # each key and its first point by a seek in the index, not a pass over it (0.1 s at 5×10^5)
+        while found := cursor.execute(f"SELECT batch_key {where} > ? ORDER BY batch_key LIMIT 1", (key,)).fetchone():
+            key = found[0]
+            firsts.append((cursor.execute(f"SELECT MIN(seq) {where} = ?", (key,)).fetchone()[0], key))
+        return [(key, self._planned_seqs_of(cursor, where, key)) for _, key in sorted(firsts)]
+
+    @staticmethod
+    def _planned_seqs_of(cursor: sqlite3.Cursor, where: str, key: str) -> array:
+        """One batch key's planned ``seq``, in grid order, :data:`_SEQ_PAGE` at a time after the
+        last one read (keyset pagination over the index); each page one JSON array, which Python
+        parses ~3× faster than it steps through as many rows (0.14 s rather than 0.37 s at 5×10^5)."""
+        seqs, last = array("q"), -1
+        page = f"SELECT json_group_array(seq), MAX(seq) FROM (SELECT seq {where} = ? AND seq > ? ORDER BY seq LIMIT ?)"
+        while (found := cursor.execute(page, (key, last, _SEQ_PAGE)).fetchone())[1] is not None:
+            seqs.extend(sorted(json.loads(found[0])))  # sorted: an aggregate's order is SQLite's to choose
+            last = found[1]
+        return seqs
 
     def rows_at(self, seqs: Sequence[int], columns: str = "*") -> list[sqlite3.Row]:
         """The rows at ``seqs`` (grid positions), in grid order."""
