@@ -140,6 +140,8 @@ def prepare(directory: Path, state: str) -> None:
     from labrunner.campaign.ledger import Ledger
 
     with Ledger.open(directory, verify=False) as ledger:
+        claimed = [r[0] for r in ledger.db.execute("SELECT id FROM points WHERE state = 'claimed'")]
+        ledger.unclaim(claimed)  # a timed resume stopped at its first claim: that batch never ran
         if state == "sealed":
             journal.end(ledger)
             assert seal.seal(ledger), f"{directory} is not consistent"
