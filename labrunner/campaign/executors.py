@@ -194,6 +194,15 @@ def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
             pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _workers(client: Any) -> int:
+    """The workers the scheduler has now, asked of it. Not ``scheduler_info()``: it returns the
+    client's cache, which the client's own periodic refresh overwrites with an empty worker list
+    (it asks for none); when that refresh lands between the fetch and the return — likelier the
+    busier the scheduler — it said 0 workers, and a 10^6-point campaign stopped on "Dask worker(s)
+    lost (2 → 0)" while both were running."""
+    return len(client.nthreads())
+
+
 def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
     check_executor_url(url, reach=False)
     from distributed import Client
@@ -203,7 +212,7 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
     except (OSError, TimeoutError) as exc:
         raise CampaignError(f"cannot reach the Dask scheduler at {url}: {exc}") from None
     try:
-        started = len(client.scheduler_info().get("workers", {}))
+        started = _workers(client)
         slots = workers or max(1, sum(client.nthreads().values()))
         executor = client.get_executor(pure=False)
         ticks = live.LiveTicks(QUEUE_DEPTH * slots, topic=f"labrunner-live-{uuid.uuid4().hex}")
@@ -212,7 +221,7 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
         def probe() -> str:
             if client.status != "running":
                 return f"lost the connection to the Dask scheduler at {url} (client {client.status})"
-            now = len(client.scheduler_info().get("workers", {}))  # refreshed by the client every few seconds
+            now = _workers(client)
             return f"Dask worker(s) lost ({started} → {now})" if now < started else ""
 
         def abandon() -> None:
