@@ -246,9 +246,8 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
                     seal.clear(ledger)
                     ledger.replan(failed)
                 print(f"retrying {len(failed)} failed point(s)", file=stream)
-            census = (
-                (counts, words) if trust == "sealed" and not retry_failed else None
-            )  # else: recovery may have changed them
+            unchanged = trust == "sealed" and not retry_failed  # else: settling may have changed the states
+            census = (counts, words) if unchanged else None
             return _execute(campaign, ledger, lock, opts, "resume", pool, census), str(directory)
 
 
