@@ -139,7 +139,7 @@ def recover(ledger: Ledger) -> Recovery:
     # would look each of 10^6 rows up again: seconds): unfinished points whose log is published,
     # claimed points, finished points whose log is gone
     published: list[tuple[str, str]] = []
-    for pid, state, log_path in ledger.db.execute("SELECT id, state, log_path FROM points"):
+    for pid, state, log_path in seal.log_rows(ledger):
         if state in TERMINAL:
             if log_path and not exists(log_path):
                 report.lost.append(pid)

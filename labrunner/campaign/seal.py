@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import os
+import sqlite3
 import time
 
 from labrunner.campaign import integrity
@@ -92,16 +93,30 @@ def listing(ledger: Ledger) -> tuple[dict[str, int] | None, set[str]]:
         return None, set()
 
 
+def has_temporary(names: set[str]) -> bool:
+    """Whether ``names`` holds a temporary log's (``.tmp-…``): one search of the joined names, not a
+    test a name (half the time at 10^6 names)."""
+    return f"\n{TMP_PREFIX}" in "\n" + "\n".join(names)
+
+
+def log_rows(ledger: Ledger) -> sqlite3.Cursor:
+    """Every point's (id, state, log_path), in table order, as plain tuples (a Row object a point
+    costs ~30 % more of a pass over 10^6 rows)."""
+    cursor = ledger.db.cursor()
+    cursor.row_factory = None
+    return cursor.execute("SELECT id, state, log_path FROM points")
+
+
 def consistent(ledger: Ledger, names: set[str]) -> bool:
     """Whether ``runs/`` (its ``names``) holds every finished point's log, no published log of an
     unfinished point and no ``.tmp-`` file, nothing is claimed, and the ledger passes every check.
     One pass over the rows, streamed."""
     if ledger.counts().get("claimed", 0) or integrity.problem(ledger.db, thorough=True):
         return False
-    if any(name.startswith(TMP_PREFIX) for name in names):
+    if has_temporary(names):
         return False
     prefix = f"{RUNS_DIR}/"
-    for pid, state, log_path in ledger.db.execute("SELECT id, state, log_path FROM points"):
+    for pid, state, log_path in log_rows(ledger):
         if state in TERMINAL:
             if log_path and not (
                 log_path[len(prefix) :] in names
