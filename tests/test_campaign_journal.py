@@ -141,15 +141,22 @@ def test_a_log_deleted_after_the_crash_is_caught_when_the_resumed_session_ends(c
     assert _sealed(directory) and _reference(directory)
 
 
-def test_a_ledger_edited_after_the_crash_is_refused_once_the_resumed_session_ends(crashed, capsys):
+@pytest.mark.parametrize(
+    "edit, refusal",
+    [
+        ("UPDATE points SET id = 'foreign' WHERE id = ?", "their ids changed"),
+        ("UPDATE points SET parameters = '[1, 2]' WHERE id = ?", "parameters are not a JSON object"),
+    ],
+)
+def test_a_ledger_edited_after_the_crash_is_refused_once_the_resumed_session_ends(crashed, edit, refusal, capsys):
     directory, rows = crashed
     with sqlite3.connect(directory / "ledger.sqlite") as db:  # the states' counts unchanged
-        db.execute("UPDATE points SET id = 'foreign' WHERE id = ?", (rows[7]["id"],))
+        db.execute(edit, (rows[7]["id"],))
     capsys.readouterr()
     main(["resume", str(directory), "--workers", "1"])
     assert "end-of-session check did not pass" in capsys.readouterr().err and not _sealed(directory)
     assert main(["resume", str(directory), "--workers", "1"]) == 2
-    assert "their ids changed" in capsys.readouterr().err
+    assert refusal in capsys.readouterr().err
 
 
 def _record(pid: str, outcome: str) -> RunRecord:
