@@ -56,6 +56,17 @@ the planned points' seq row by row (~0.37 s); the JSON pages since take ~0.14 s 
 measured alone), not yet timed end to end on a quiet machine. The CPU time stays under a second, ~0.4 s of it imports; the wall time is
 under a second only on an idle machine, which this one was not while measured. The first open
 for writing of a ledger made before the index builds it once (5.2 s for this one, load ~8).
+The finished campaign, 11:32–11:36, load 7.5–10::
+
+    resume, sealed                                   0.76 s (0.74–0.78), CPU 0.41 s, 42 MB
+    resume after a crash, its journal (nothing to    22.6 s (17.7–23.6), CPU 9.3 s, 203 MB
+      settle; the end-of-session check the crash cut short: every row, one listing)
+    resume after a crash, no journal (full path)     22.6 s (18.5–24.7), CPU 8.3 s, 151 MB
+
+The end-of-session check ran its row-reading ledger checks on the writing connection until
+11:33 (CPU 12.2 s in the same case; 5.5 rather than 3.4 s of it for those checks, measured alone).
+A finished campaign's resume after a crash therefore stays at the full path's cost: the check
+the crash cut short is what would catch a log deleted or the ledger damaged during that session.
 
 ``analyse --workers 2`` of the finished synthetic campaign (its logs hard-linked, their
 fingerprints in the ledger), measured 2026-12-03 08:24 UTC before the seal was merged, load 2–3
