@@ -51,11 +51,17 @@ change), ``/usr/bin/time -v``, three runs each, median wall (range), CPU = user 
     points claimed by the dead session):  2.97 s / CPU 0.78 s at load 7; 3.86 s / CPU 0.92 s at load 15;
                                           6.27 s / CPU 1.04 s at load 10 with a test run
 
+With the final code (JSON pages, and the rest of this change), 11:37 and 11:38 UTC::
+
+    sealed:            0.85 s (0.73–0.93), CPU 0.59 s, 51 MB at load 6.4;  1.26 s (1.11–2.03), CPU 0.84 s at load 4.9
+    after a crash:     0.96 s (0.92–1.23), CPU 0.78 s, 50 MB at load 6.4;  1.35 s (1.13–1.37), CPU 1.12 s at load 4.9
+    status:            0.34 s (0.31–0.34), 36 MB
+
 (was 2.76 s / 325 MB sealed and 9.34 s / 329 MB after a crash, above). The 10:55–10:57 runs read
-the planned points' seq row by row (~0.37 s); the JSON pages since take ~0.14 s (the same index,
-measured alone), not yet timed end to end on a quiet machine. The CPU time stays under a second, ~0.4 s of it imports; the wall time is
-under a second only on an idle machine, which this one was not while measured. The first open
-for writing of a ledger made before the index builds it once (5.2 s for this one, load ~8).
+the planned points' seq row by row (~0.37 s); the JSON pages take ~0.14 s (the same index,
+measured alone). About 0.4 s of each is imports; on this shared machine the same command varied
+by 50 % from one minute to the next, so sub-second is reached on some runs, not on all. The first
+open for writing of a ledger made before the index builds it once (5.2 s for this one, load ~8).
 The finished campaign, 11:32–11:36, load 7.5–10::
 
     resume, sealed                                   0.76 s (0.74–0.78), CPU 0.41 s, 42 MB
