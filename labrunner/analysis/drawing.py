@@ -23,8 +23,8 @@ from labrunner.analysis.background import Background
 @dataclass(frozen=True)
 class FigureJob:
     """A map or sweep plot to draw: its PNG, its caption, and the :mod:`.maps` function (by name)
-    and arguments that make it (:class:`~.map_data.Points`, :class:`~.map_data.Axis`, overlay
-    lines, text)."""
+    and arguments that make it (a map's :class:`~.map_data.Grid`, a sweep's
+    :class:`~.map_data.Points` and :class:`~.map_data.Axis`, overlay lines, text)."""
 
     path: Path
     caption: str
