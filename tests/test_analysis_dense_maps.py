@@ -15,8 +15,8 @@ from matplotlib.collections import PathCollection, QuadMesh
 
 from labrunner.analysis.context import Context, Theories
 from labrunner.analysis.figures import map_jobs
-from labrunner.analysis.map_data import Axis, Grid
-from labrunner.analysis.maps import map_figure
+from labrunner.analysis.map_data import Axis, Grid, Points
+from labrunner.analysis.maps import map_figure, sweep_figure
 from labrunner.analysis.overlays import OverlayLine
 
 #: The outcome codes (map_data.OUTCOMES), written out here as the reference.
@@ -135,3 +135,27 @@ def test_a_map_goes_to_the_drawing_process_as_its_cells(tmp_path: Path):
     assert len(pickle.dumps(jobs)) <= cells * (1 + 8 * 2) + 20_000
     grid = jobs[0].args[0]
     assert grid.outcome.shape == (150, 200) and grid.outcome.dtype == np.int8
+
+
+def test_a_dense_sweep_draws_completed_runs_as_its_line():
+    """2000 runs over one axis: the line shows the completed runs (a marker each would hide it),
+    markers the aborted ones; 20 runs keep a marker each."""
+    for n, dense in ((2000, True), (20, False)):
+        g = np.logspace(1, 3, n)
+        aborted = g < 40
+        t = pd.DataFrame(
+            {
+                "controller.gamma": g,
+                "outcome": np.where(aborted, "aborted", "completed"),
+                "rms_error": np.where(aborted, np.nan, 1 / g),
+                "rms_error_until_abort": np.where(aborted, 2.0, np.nan),
+            }
+        )
+        x = Axis("controller.gamma", g, True, "γ")
+        fig = sweep_figure(Points.of(t, list(t.columns.drop("outcome"))), x, [("rms_error", "RMS")], title="s")
+        ax = fig.axes[0]
+        markers = {c.get_label(): len(c.get_offsets()) for c in ax.collections if isinstance(c, PathCollection)}
+        assert markers.get("aborted by the safety routine") == aborted.sum()
+        assert ("completed" in markers) is not dense
+        assert ([line.get_label() for line in ax.get_lines()] == ["completed"]) is dense
+        np.testing.assert_allclose(ax.get_lines()[0].get_ydata(), 1 / g[~aborted])

@@ -92,12 +92,14 @@ def draw_markers(ax: Axes, x: np.ndarray, y: np.ndarray, outcome: np.ndarray) ->
         ax.scatter(x[mine], y[mine], marker=marker, s=MARKER_AREA, linewidths=1.0, label=label, zorder=4, **style)
 
 
-def markers_fit(ax: Axes, grid: Grid) -> bool:
-    """Whether the map's cells, at the axes' size on its figure, are large enough for a marker
-    each (:data:`MARKER_CELL`); the same at any dpi, cells and markers scaling together."""
+def markers_fit(ax: Axes, n_x: int, n_y: int | None = None) -> bool:
+    """Whether ``n_x`` (× ``n_y``) cells, at the axes' size on its figure, are large enough for a
+    marker each (:data:`MARKER_CELL`); the same at any dpi, cells and markers scaling together."""
     box = ax.get_position()
     width, height = ax.figure.get_size_inches()
-    cell = 72.0 * min(box.width * width / len(grid.x.values), box.height * height / len(grid.y.values))  # [pt]
+    cell = 72.0 * box.width * width / n_x  # [pt]
+    if n_y is not None:
+        cell = min(cell, 72.0 * box.height * height / n_y)
     return cell >= MARKER_CELL * np.sqrt(MARKER_AREA)
 
 
@@ -155,7 +157,7 @@ def draw_heatmap(
     if y.log:
         ax.set_yscale("log")
     patches = []
-    if markers_fit(ax, grid):
+    if markers_fit(ax, len(x.values), len(y.values)):
         draw_markers(ax, *grid.runs())
     else:
         patches = draw_outcome_cells(ax, grid, x_edges, y_edges)
@@ -261,19 +263,25 @@ def sweep_figure(
     overlays: Sequence[OverlayLine] = (),
 ) -> Figure:
     """1-D sweep: one panel per (column, label) over the axis, run markers by outcome (an aborted
-    run's marker at its ``<column>_until_abort`` value, the metric of its run up to the abort)."""
+    run's marker at its ``<column>_until_abort`` value, the metric of its run up to the abort).
+    Where the runs lie too close for a marker each (:func:`markers_fit`), the line alone, labelled,
+    shows the completed runs, and markers the others."""
     fig = Figure(figsize=(7.5, 2.6 * len(columns) + 0.8))
     axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
     ordered = points.where(np.argsort(points[x.key], kind="quicksort"))  # as pandas' sort_values
     ok = ordered.where(ordered.coloured())
+    dense = not markers_fit(axes[0], max(len(np.unique(ordered[x.key])), 1))
+    completed = OUTCOMES.index("completed")
+    outcome = np.where(ordered.outcome == completed, NO_RUN, ordered.outcome) if dense else ordered.outcome
     for ax, (column, label) in zip(axes, columns):
-        ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2)
+        line = MARKERS["completed"][0] if dense else None
+        ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2, label=line)
         until = f"{column}_until_abort"
         value = ordered[column]
         if until in ordered:
             value = np.where(np.isnan(value), ordered[until], value)
         shown = np.isfinite(value)
-        draw_markers(ax, ordered[x.key][shown], value[shown], ordered.outcome[shown])
+        draw_markers(ax, ordered[x.key][shown], value[shown], outcome[shown])
         positive = ok[column]
         positive = positive[np.isfinite(positive) & (positive > 0)]
         if positive.size and positive.max() / positive.min() > 100:
