@@ -97,7 +97,7 @@ def test_dense_map_is_a_raster_of_outcome_cells_with_the_right_colours():
         return 0.55 * np.ones(3) + 0.45 * np.asarray(c[:3])
 
     expected = {
-        "aborted": lambda i, j: colors.to_rgb("red"),
+        "aborted": lambda i, j: colors.to_rgb("darkred"),
         "oscillating": lambda i, j: colors.to_rgb("orange"),
         "failed": lambda i, j: colors.to_rgb("dimgrey"),
         "planned": lambda i, j: colors.to_rgb("#d9d9d9"),

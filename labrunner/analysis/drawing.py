@@ -11,6 +11,7 @@ itself; the analysis itself never loads matplotlib. Without ``fork``, or with on
 
 from __future__ import annotations
 
+import gc
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,8 +49,16 @@ def prepare() -> None:
 
 
 def draw_maps(jobs: Sequence[FigureJob]) -> list[tuple[Path, str]]:
-    """Draw and save each job's figure: (PNG path, caption) each."""
-    return [(png.save(job.make(), job.path), job.caption) for job in jobs]
+    """Draw and save each job's figure: (PNG path, caption) each. Each figure is cleared and
+    collected once saved: a figure is a web of reference cycles, which would keep a 1000 × 1000
+    map's meshes (~120 MB) while the next map is drawn (two such maps: 362 MB, now 246 MB)."""
+    drawn = []
+    for job in jobs:
+        fig = job.make()
+        drawn.append((png.save(fig, job.path), job.caption))
+        fig.clear()
+        gc.collect()
+    return drawn
 
 
 def draw(

@@ -10,7 +10,7 @@ metric covers only part of the run, or a limit cycle, and would mislead the colo
 A map whose cells are too small for a marker each (:func:`markers_fit`: the 40 × 25 and 10 × 10
 maps keep them; a 1000 × 1000 map would be hatched over by them) shows the outcomes as a raster
 instead: completed and no-motion cells in their metric's colour (no-motion ones under a white
-veil), aborted, oscillating and failed cells flat in their marker's colour, with a legend of
+veil), aborted (dark red), oscillating (orange) and failed (dark grey) cells flat, with a legend of
 patches (:func:`draw_outcome_cells`). Markers and raster are drawn from the same cells
 (:class:`~.map_data.Grid`).
 """
@@ -49,7 +49,7 @@ MARKER_AREA = 28
 MARKER_CELL = 1.5
 #: Colour of a cell in the raster of a dense map, per outcome code (None: the metric's colour).
 CELL_COLOURS = {
-    "aborted": "red",
+    "aborted": "darkred",  # the triangles' edge: the red bounds stay visible on it
     "no-motion": (1.0, 1.0, 1.0, 0.55),  # a white veil over the metric's colour
     "completed": None,
     "failed": "dimgrey",
