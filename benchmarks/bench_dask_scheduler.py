@@ -99,6 +99,7 @@ def main() -> None:
             code = run.wait()
             stop.set()
             sampler.join()
+            samples.append((_runs_done(err), _rss_kb(scheduler.pid)))
         if code != 0:
             raise SystemExit(f"labrunner run failed ({code}): {err.read_text()[-500:]}")
         n = side * side
