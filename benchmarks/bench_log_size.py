@@ -24,8 +24,13 @@ Last measured 2026-12-03 (2-core machine, other jobs running; sizes do not depen
     values float64 27.7 kB, float32 12.0 kB (each column alone, shuffled, zstd -19); so one
     message per sample needs ≥ 33.9 kB exact, ≥ 18.2 kB in float32, before metadata (≈ 6 kB)
 
+and (2026-12-03 11:00, the same log's floors computed alone): metadata 6.5 kB; the whole run as
+one message of packed arrays 32.6 kB float64, 16.0 kB float32 (zstd -19).
+
 A motor log of 1000 samples at ≤ 20 kB (the issue's target) is out of reach with one message per
-sample: see the floors this script prints.
+sample, and exact (float64) in any layout a third-party MCAP reader can decompress: ≥ 33.9 kB
+per sample, ≥ 39 kB (32.6 + 6.5) as one message of arrays. Only float32 as one message of
+arrays (≈ 22.5 kB with today's metadata) comes near it, and gives up Foxglove's plot over time.
 """
 
 from __future__ import annotations
@@ -99,7 +104,23 @@ def floors(log: Path) -> dict[str, int]:
             shuffled = delta.view(np.uint8).reshape(n, -1).T.copy()
             total += len(zstd.compress(shuffled.tobytes()))
         out[key] = total
+        # the whole run as one message of packed arrays (column after column, as protobuf lays out
+        # repeated fields): no per-sample header, but only what zstd alone makes of the values,
+        # since a third-party reader can undo no shuffle
+        out[f"one_message_{key[-3:]}"] = len(zstd.compress(values.T.astype(dtype).tobytes()))
+    out["metadata"] = log.stat().st_size - _chunk_bytes(log)
     return out
+
+
+def _chunk_bytes(log: Path) -> int:
+    """Bytes of the log's chunk records (the compressed samples); the rest is metadata, schemas,
+    channels, the attachment and the summary."""
+    data, offset, total = log.read_bytes(), 8, 0
+    while offset < len(data) - 8:
+        length = 9 + int.from_bytes(data[offset + 1 : offset + 9], "little")
+        total += length if data[offset] == 0x06 else 0
+        offset += length
+    return total
 
 
 def main() -> None:
@@ -131,7 +152,10 @@ def main() -> None:
                 f"message headers {f['headers'] / 1e3:.1f} kB; values float64 {f['values_f64'] / 1e3:.1f} kB, "
                 f"float32 {f['values_f32'] / 1e3:.1f} kB (each column alone, shuffled, zstd -19); "
                 f"so one message per sample needs ≥ {(f['headers'] + f['values_f64']) / 1e3:.1f} kB exact, "
-                f"≥ {(f['headers'] + f['values_f32']) / 1e3:.1f} kB in float32, before metadata"
+                f"≥ {(f['headers'] + f['values_f32']) / 1e3:.1f} kB in float32, before metadata "
+                f"({f['metadata'] / 1e3:.1f} kB in this log); the whole run as one message of arrays "
+                f"(no per-sample plot over time) {f['one_message_f64'] / 1e3:.1f} kB float64, "
+                f"{f['one_message_f32'] / 1e3:.1f} kB float32 (zstd -19), before metadata"
             )
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -180,6 +180,29 @@ def _one_line(err: str) -> str:
     return lines[0]
 
 
+def test_the_dask_probe_asks_the_scheduler_not_the_clients_cache(monkeypatch):
+    """The client's periodic refresh of its scheduler cache asks for no worker details and leaves
+    an empty worker list; a probe that read that cache (``scheduler_info()``) said "lost (2 → 0)"
+    whenever the refresh landed between its fetch and its return. Made to land every time here."""
+    from distributed import Client, LocalCluster
+
+    from labrunner.campaign import executors
+
+    refresh = Client._update_scheduler_info
+    monkeypatch.setattr(Client, "_update_scheduler_info", lambda self, n_workers=0: refresh(self, n_workers=0))
+    cluster = LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, protocol="tcp://", dashboard_address=None
+    )
+    with cluster, contextlib.closing(executors._dask(cluster.scheduler_address, None)) as handles:
+        handle = next(handles)
+        assert handle.slots == 2 and handle.probe() == ""
+        cluster.scale(1)
+        deadline = time.monotonic() + 30
+        while handle.probe() == "" and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert handle.probe() == "Dask worker(s) lost (2 → 1)"  # a real loss is still seen
+
+
 @pytest.mark.parametrize("workers, batch, victim", [(4, None, "busy"), (2, 64, "idle")])
 def test_killing_a_worker_of_a_running_pool_ends_the_run_within_a_bound(project, workers, batch, victim):
     write(project / "k.toml", campaign_text(name="k", grid=GRID, duration=20.0))  # long enough to be killed mid-batch

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from test_campaign_support import campaign_text, write
 
-from labrunner.analysis import table
+from labrunner.analysis import log_checks, table
 from labrunner.analysis.analyse import analyse
 from labrunner.campaign.ledger import Ledger
 from labrunner.cli import main
@@ -69,6 +69,33 @@ def test_a_first_analyse_reads_no_log_whose_fingerprint_matches(campaign, metada
     summary = analyse(campaign, workers=1, progress=False)
     assert metadata_reads == [] and summary["logs_read"] == 0 and not summary["problems"]
     assert set(_states(campaign).values()) == {"ok"}
+
+
+@pytest.fixture
+def logs_opened(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The logs the checks open to look for the MCAP magic at both ends."""
+    seen: list[str] = []
+
+    def counted(path, *args, **kwargs):
+        seen.append(Path(path).name)
+        return open(path, *args, **kwargs)
+
+    monkeypatch.setattr(log_checks, "open", counted, raising=False)
+    return seen
+
+
+def test_a_log_whose_fingerprint_matches_is_not_even_opened(campaign, logs_opened):
+    analyse(campaign, workers=1, progress=False)  # one stat each: its two reads were a disk read each
+    assert logs_opened == [] and set(_states(campaign).values()) == {"ok"}
+
+
+def test_a_log_cut_short_after_its_commit_is_opened_and_found_torn(campaign, metadata_reads, logs_opened):
+    a = sorted((campaign / "runs").glob("*.mcap"))[0]
+    with open(a, "r+b") as f:
+        f.truncate(a.stat().st_size - 8)  # its closing magic gone: another size, another fingerprint
+    summary = analyse(campaign, workers=1, progress=False)
+    assert logs_opened == [a.name] and metadata_reads == []  # a torn log is read whole (salvaged), not only named
+    assert _states(campaign)[a.stem] == "torn" and {p["kind"] for p in summary["problems"]} == {"torn"}
 
 
 def test_logs_swapped_between_points_before_the_first_analyse_are_foreign(campaign, metadata_reads):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -250,3 +251,17 @@ def test_stored_json_is_strict(project):
             for record in make_reader(f).iter_metadata():
                 if set(record.metadata) == {"json"}:
                     _strict(record.metadata["json"])
+
+
+def test_a_ledger_whose_ids_were_changed_is_refused_when_the_table_is_built(project, tmp_path):
+    """Opening reads only the ledger's structure (cheap at 10^6 points); the checks that read every
+    row run once, for the table, and still refuse a tampered ledger in one line."""
+    from labrunner.campaign.integrity import LedgerDamaged
+
+    root, _ = project
+    copy = shutil.copytree(root / "data" / "small", tmp_path / "small")
+    with sqlite3.connect(copy / "ledger.sqlite") as db:
+        db.execute("UPDATE points SET id = 'ffffffffffffffff' WHERE seq = 0")
+    campaign = labrunner.open_campaign(copy)
+    with pytest.raises(LedgerDamaged, match="ids changed"):
+        campaign.table()
