@@ -43,11 +43,12 @@ with a test run sharing the cores::
     second analyse  110.3 s, peak 558 MB
 
 and after the maps became cells (a raster above ~45 × 45) and the table's text columns one Arrow
-chunk each, measured 2026-12-03 11:04–11:14 UTC, load 5–11 (other jobs; wall times ~2× those
-above for that)::
+chunk each, measured 2026-12-03 11:04–11:14 UTC, load 5–11, and again at 11:22–11:32 after
+main's merge (logs proved by one stat), load 8–13 (other jobs; wall times 2–3× those above)::
 
-    first analyse   270.8 s, peak 489 MB (the analysing process, VmHWM); drawing child 83 MB, its child 242 MB
-    second analyse  335.0 s, peak 478 MB; drawing child 83 MB, its child 242 MB
+    first analyse   270.8 / 376.5 s, peak 489 / 485 MB (the analysing process, VmHWM)
+    second analyse  335.0 / 229.6 s, peak 478 / 482 MB
+    every run: the drawing child 83 MB, its child (both 1000 × 1000 maps) 242 MB
 
 (each process's VmHWM, sampled every 0.2 s: ``analyse --workers 2`` of a ``synthetic_ledger.make``
 directory, the report deleted before the first).
