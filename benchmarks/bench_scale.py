@@ -81,11 +81,22 @@ with a test run sharing the cores::
     first analyse   148.4 s, peak 559 MB (the analysing process, VmHWM; 1072 MB with the drawing child, sampled)
     second analyse  110.3 s, peak 558 MB
 
+and after the maps became cells (a raster above ~45 × 45) and the table's text columns one Arrow
+chunk each, measured 2026-12-03 11:04–11:14 UTC, load 5–11, and again at 11:22–11:32 after
+main's merge (logs proved by one stat), load 8–13 (other jobs; wall times 2–3× those above)::
+
+    first analyse   270.8 / 376.5 s, peak 489 / 485 MB (the analysing process, VmHWM)
+    second analyse  335.0 / 229.6 s, peak 478 / 482 MB
+    every run: the drawing child 83 MB, its child (both 1000 × 1000 maps) 242 MB
+
+(each process's VmHWM, sampled every 0.2 s: ``analyse --workers 2`` of a ``synthetic_ledger.make``
+directory, the report deleted before the first).
+
 Before (same ledger size): the metrics table alone (``open_campaign(...).table()``) peaked at
 1.03 GB (571 MB streaming the ledger, 302 MB the table), and a first ``analyse`` read every log's
-metadata to prove its point (~0.8 ms a log: ~13 min at 10^6, not run). The 500 MB target is not
-met: imports 100–110 MB, the table 280 MB, the rest transient. A real 10^6-point run was not
-measured (~33 GB of logs).
+metadata to prove its point (~0.8 ms a log: ~13 min at 10^6, not run). The 500 MB target is now
+met, narrowly: imports ~115 MB, the table 292 MB, the rest transient. The real 10^6-point campaign
+(README) peaked at 573 MB before these changes and was not measured again.
 """
 
 from __future__ import annotations

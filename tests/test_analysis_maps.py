@@ -7,7 +7,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PathCollection, QuadMesh
 from matplotlib.lines import Line2D
 
-from labrunner.analysis.map_data import Axis, Points, cell_edges, grid_image, is_log_spaced
+from labrunner.analysis.map_data import Axis, Grid, Points, cell_edges, is_log_spaced
 from labrunner.analysis.maps import map_figure, sweep_figure
 from labrunner.analysis.overlays import OverlayLine
 
@@ -52,7 +52,7 @@ def test_log_spacing_detection():
 def test_grid_image_leaves_aborted_and_failed_cells_blank():
     g, kp, t = _table()
     x, y = Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p")
-    z = grid_image(_points(t), x, y, "rms_error")
+    z = Grid.of(t, x, y, ["rms_error"]).images["rms_error"]
     assert z.shape == (4, 5)
     assert np.isnan(z[-1, 0]) and np.isnan(z[-1, 1])
     assert z[0, -1] == pytest.approx(1e4 / 0.1)  # no-motion cells keep their colour
@@ -67,7 +67,9 @@ def test_map_has_markers_overlays_colorbar_and_saves(tmp_path):
         OverlayLine("(2.46) max k_p", dense, 2 * dense, "red", "-", "bound:mfc1-motor:k_p_max"),
         OverlayLine("nominal input gain ρ = 108.55", 108.55, None, "white", "-", "nominal-gain"),
     ]
-    fig = map_figure(_points(t), x, y, "rms_error", title="RMS", colour_label="RMS [rad/s]", overlays=lines)
+    fig = map_figure(
+        Grid.of(t, x, y, ["rms_error"]), "rms_error", title="RMS", colour_label="RMS [rad/s]", overlays=lines
+    )
     ax = fig.axes[0]
     assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
     assert any(isinstance(c, QuadMesh) for c in ax.collections)
@@ -165,7 +167,7 @@ def test_in_view_locators_draw_the_same_pixels(monkeypatch, x_log, y_log, span):
         if not in_view:
             monkeypatch.setattr(maps, "visible_ticks_only", lambda fig: None)
         figs = [
-            map_figure(_points(t), x, y, "e", title="map", colour_label="e", log_colour=True),
+            map_figure(Grid.of(t, x, y, ["e"]), "e", title="map", colour_label="e", log_colour=True),
             sweep_figure(_points(t[t["controller.k_p"] == kp[0]]), x, [("e", "e")], title="sweep"),
         ]
         monkeypatch.undo()

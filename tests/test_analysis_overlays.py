@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 from scipy.optimize import brentq
 
 from labrunner.analysis.agreement import agreement
-from labrunner.analysis.map_data import Axis, Points
+from labrunner.analysis.map_data import Axis, Grid
 from labrunner.analysis.maps import map_figure
 from labrunner.analysis.overlays import Theory, gamma_kp_lines, kp_kd_lines, sweep_lines
 
@@ -76,9 +76,7 @@ def test_overlays_drawn_on_the_map_axes():
         {"controller.gamma": G.ravel(), "controller.k_p": K.ravel(), "outcome": "completed", "rms_error": 1.0}
     )
     fig = map_figure(
-        Points.of(table, ["controller.gamma", "controller.k_p", "rms_error"]),
-        Axis("controller.gamma", g, True, "γ"),
-        Axis("controller.k_p", kp, True, "k_p"),
+        Grid.of(table, Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p"), ["rms_error"]),
         "rms_error",
         title="t",
         colour_label="c",
@@ -226,9 +224,7 @@ def test_kp_kd_map_of_the_shipped_campaign_carries_the_corrected_bounds():
         assert kp_max.x[i] == pytest.approx(numeric["numeric"]["k_p"][1], rel=1e-3)
     numeric = stability.bounds("mfc2-motor", gamma=B, delay=DELAY, a=A, b=B, k_d=10.0, numeric=True)["numeric"]
     assert by_gid["bound:mfc2-motor:k_d_max"].y == pytest.approx(numeric["k_d"][1], rel=1e-3)
-    fig = map_figure(
-        Points.of(table, [x.key, y.key, "rms_error"]), x, y, "rms_error", title="t", colour_label="c", overlays=lines
-    )
+    fig = map_figure(Grid.of(table, x, y, ["rms_error"]), "rms_error", title="t", colour_label="c", overlays=lines)
     ax = fig.axes[0]
     assert ax.get_xscale() == ax.get_yscale() == "log"
     drawn = {line.get_gid(): line for line in ax.get_lines()}

@@ -28,6 +28,7 @@ SLOW = {
     "bench_control.py": ([], ""),
     "bench_scale.py": (["--max", "1000", "--synthetic", "400"], "synthetic ledger"),
     "bench_log_size.py": (["--only", "quickstart"], "floors for"),
+    "bench_dask_scheduler.py": (["--points", "100"], "bytes a run"),
 }
 
 

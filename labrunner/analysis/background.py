@@ -110,10 +110,12 @@ class Background(Generic[T]):
         self._pid, self._read = pid, read
 
     def result(self) -> T:
-        """The child's result; if there is no child or it failed, ``fn()`` run here."""
-        assert self._fn is not None, "start() an ahead child before asking for its result"
+        """The child's result; if there is no child or it failed, ``fn()`` run here. Asked once:
+        the function, and what it holds (the maps' cells), is let go."""
+        fn, self._fn = self._fn, None
+        assert fn is not None, "start() an ahead child before asking for its result"
         if not self._pid:
-            return self._fn()
+            return fn()
         with os.fdopen(self._read, "rb") as pipe:
             data = pipe.read()
         _, status = os.waitpid(self._pid, 0)
@@ -121,7 +123,7 @@ class Background(Generic[T]):
         _unfreeze()
         if status == 0 and data:
             return pickle.loads(data)
-        return self._fn()
+        return fn()
 
     def close(self) -> None:
         """Wait for a child whose result is no longer wanted (the analysis failed before it); an

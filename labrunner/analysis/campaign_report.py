@@ -289,7 +289,8 @@ def campaign_report(
                 paragraphs=[
                     "Markers: red triangle = aborted by the safety routine, white circle = no-motion (input too small to "
                     "move the load), black cross = completed, grey square = failed, orange diamond = completed but oscillating or "
-                    "pinned at an input limit (detector). Grey cells: no metric for the whole run. "
+                    "pinned at an input limit (detector). A map too dense for a marker a cell shows the outcomes as flat "
+                    "cell colours instead, named in its legend. Grey cells: no metric for the whole run. "
                     "Lines: stability bounds of the theory for the loop delay: the differentiator's δ_t plus the rig's sensor delay, if any."
                 ],
                 images=[Image(title, path.read_bytes()) for path, title in maps],

@@ -11,6 +11,7 @@ itself; the analysis itself never loads matplotlib. Without ``fork``, or with on
 
 from __future__ import annotations
 
+import gc
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,8 +24,8 @@ from labrunner.analysis.background import Background
 @dataclass(frozen=True)
 class FigureJob:
     """A map or sweep plot to draw: its PNG, its caption, and the :mod:`.maps` function (by name)
-    and arguments that make it (:class:`~.map_data.Points`, :class:`~.map_data.Axis`, overlay
-    lines, text)."""
+    and arguments that make it (a map's :class:`~.map_data.Grid`, a sweep's
+    :class:`~.map_data.Points` and :class:`~.map_data.Axis`, overlay lines, text)."""
 
     path: Path
     caption: str
@@ -48,8 +49,16 @@ def prepare() -> None:
 
 
 def draw_maps(jobs: Sequence[FigureJob]) -> list[tuple[Path, str]]:
-    """Draw and save each job's figure: (PNG path, caption) each."""
-    return [(png.save(job.make(), job.path), job.caption) for job in jobs]
+    """Draw and save each job's figure: (PNG path, caption) each. Each figure is cleared and
+    collected once saved: a figure is a web of reference cycles, which would keep a 1000 × 1000
+    map's meshes (~120 MB) while the next map is drawn (two such maps: 362 MB, now 246 MB)."""
+    drawn = []
+    for job in jobs:
+        fig = job.make()
+        drawn.append((png.save(fig, job.path), job.caption))
+        fig.clear()
+        gc.collect()
+    return drawn
 
 
 def draw(

@@ -21,7 +21,7 @@ import pandas as pd
 
 from labrunner.analysis.context import Context, Theories, parameter_records
 from labrunner.analysis.drawing import FigureJob
-from labrunner.analysis.map_data import Axis, Points, axis_label, cell_edges, is_log_spaced
+from labrunner.analysis.map_data import Axis, Grid, Points, axis_label, cell_edges, is_log_spaced
 from labrunner.analysis.overlays import (
     OverlayLine,
     Theory,
@@ -211,7 +211,7 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Figu
         lines = mark_outside(lines, x, y)
         rows = with_db_columns(rows, units)
         metrics = map_metrics(ctx.error, rows)
-        points = Points.of(rows, [kx, ky, *(column for column, _, _ in metrics)])  # one copy for the facet's maps
+        grid = Grid.of(rows, x, y, [column for column, _, _ in metrics])  # one copy for the facet's maps
         for column, title, label in metrics:
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
@@ -222,7 +222,5 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Figu
             }
             tag = f"_{i + 1}" if extra else ""
             caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
-            jobs.append(
-                FigureJob(ctx.out / f"map_{column}{tag}.png", caption, "map_figure", (points, x, y, column), kwargs)
-            )
+            jobs.append(FigureJob(ctx.out / f"map_{column}{tag}.png", caption, "map_figure", (grid, column), kwargs))
     return jobs

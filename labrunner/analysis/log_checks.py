@@ -105,10 +105,15 @@ class LogChecks:
         self._mtimes.append(mtime)
 
     def stats(self) -> tuple[np.ndarray, np.ndarray]:
-        """Size and mtime [ns] of every row's log (−1: no log, or a missing one)."""
+        """Size and mtime [ns] of every row's log (−1: no log, or a missing one); once, the
+        chunks' pieces given up as they are joined (16 MB at 10^6 rows, not held twice)."""
         if not self._sizes:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return np.concatenate(self._sizes), np.concatenate(self._mtimes)
+        sizes = np.concatenate(self._sizes)
+        self._sizes.clear()
+        mtimes = np.concatenate(self._mtimes)
+        self._mtimes.clear()
+        return sizes, mtimes
 
 
 def cached_rows(path: Path | None, ids: Collection[str], version: int) -> dict[str, dict[str, Any]]:

@@ -1,9 +1,12 @@
-"""What a map or a sweep plot shows, as plain numpy data: the grid axes, their labels and cells,
-and each run's coordinates, observed outcome and metrics (:class:`Points`).
+"""What a map or a sweep plot shows, as plain numpy data: the grid axes, their labels and cells;
+a map's cells as images (:class:`Grid`: each cell's outcome code and metric values), a sweep's
+runs as points (:class:`Points`: each run's coordinate, outcome code and metrics).
 
 No pandas and no matplotlib: the parent of ``analyse`` builds these from its table and sends them
 to the child that draws (:mod:`labrunner.analysis.maps`), which then needs neither the table nor
-pandas (~0.3 s), and the parent never loads matplotlib (~0.2 s) when a child draws.
+pandas (~0.3 s), and the parent never loads matplotlib (~0.2 s) when a child draws. A map is sent
+as its cells, not its runs: what the child receives and draws is bounded by the grid (one byte and
+8 bytes a metric per cell), whatever the number of runs behind it.
 """
 
 from __future__ import annotations
@@ -14,8 +17,24 @@ from typing import Any
 
 import numpy as np
 
-#: Outcomes whose metric describes the whole run and may colour a cell.
-COLOURED = ("completed", "no-motion")
+#: Observed outcomes (:func:`labrunner.analysis.agreement.observed_outcome`) in code order: a
+#: run's or a cell's outcome is stored as its index here (int8), :data:`NO_RUN` where there is none.
+OUTCOMES = ("aborted", "no-motion", "completed", "failed", "oscillating")
+NO_RUN = -1
+#: Codes of the outcomes whose metric describes the whole run and may colour a cell.
+COLOURED = (OUTCOMES.index("completed"), OUTCOMES.index("no-motion"))
+
+
+def outcome_codes(table: Any) -> np.ndarray:
+    """Each row's observed outcome as its :data:`OUTCOMES` code (int8; :data:`NO_RUN` for planned
+    and claimed points): one byte a run."""
+    from labrunner.analysis.agreement import observed_outcome
+
+    observed = observed_outcome(table)
+    codes = np.full(len(observed), NO_RUN, dtype=np.int8)
+    for code, name in enumerate(OUTCOMES):
+        codes[(observed == name).to_numpy(dtype=bool)] = code
+    return codes
 
 
 @dataclass(frozen=True)
@@ -31,8 +50,7 @@ class Axis:
 @dataclass(frozen=True)
 class Points:
     """One entry per run: ``columns`` (grid keys and metrics → float arrays) and ``outcome`` (the
-    observed outcome, :func:`labrunner.analysis.agreement.observed_outcome`: "oscillating" for a
-    completed run the detector flags)."""
+    observed outcome's :data:`OUTCOMES` code: "oscillating" for a completed run the detector flags)."""
 
     columns: Mapping[str, np.ndarray]
     outcome: np.ndarray
@@ -40,15 +58,8 @@ class Points:
     @classmethod
     def of(cls, table: Any, columns: Iterable[str]) -> Points:
         """The ``columns`` of a metrics table (those it has) and its observed outcomes."""
-        from labrunner.analysis.agreement import observed_outcome
-
         keep = dict.fromkeys(c for c in columns if c in table.columns)
-        return cls(
-            {c: table[c].to_numpy(dtype=float) for c in keep},
-            # objects, each row a reference to one of a few words: 8 bytes a run (not 44 as <U11),
-            # and a pickle to the drawing process of a few bytes a run
-            observed_outcome(table).to_numpy(dtype=object),
-        )
+        return cls({c: table[c].to_numpy(dtype=float) for c in keep}, outcome_codes(table))
 
     def __getitem__(self, column: str) -> np.ndarray:
         return self.columns[column]
@@ -63,6 +74,50 @@ class Points:
     def coloured(self) -> np.ndarray:
         """Whether each run's metric may colour its cell (:data:`COLOURED`)."""
         return np.isin(self.outcome, COLOURED)
+
+
+#: Runs placed on a map's grid at a time (:meth:`Grid.of`).
+ROWS_AT_A_TIME = 100_000
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A map's cells: its axes, each cell's outcome code (``outcome``, (len(y), len(x)) int8,
+    :data:`NO_RUN` where no run lies) and, per metric column, its value in each cell (``images``,
+    float64, NaN where the cell must stay uncoloured: no run, or an outcome whose metric covers
+    only part of a run or a limit cycle). A cell holds the last run the table places in it."""
+
+    x: Axis
+    y: Axis
+    outcome: np.ndarray
+    images: Mapping[str, np.ndarray]
+
+    @classmethod
+    def of(cls, table: Any, x: Axis, y: Axis, columns: Iterable[str]) -> Grid:
+        """The cells of a metrics table's runs (each placed at its nearest axis values) and of its
+        ``columns`` (those it has), filled :data:`ROWS_AT_A_TIME` rows at a time: the
+        temporaries of placing 10^6 runs would be ~70 MB at once."""
+        columns = list(dict.fromkeys(c for c in columns if c in table.columns))
+        outcome = np.full((len(y.values), len(x.values)), NO_RUN, dtype=np.int8)
+        images = {column: np.full(outcome.shape, np.nan) for column in columns}
+        codes = outcome_codes(table)
+        for start in range(0, len(table), ROWS_AT_A_TIME):
+            rows = slice(start, start + ROWS_AT_A_TIME)
+            xs, ys = (table[axis.key].to_numpy(dtype=float)[rows] for axis in (x, y))
+            placed = np.isfinite(xs) & np.isfinite(ys)
+            iy, ix = grid_index(ys[placed], y.values), grid_index(xs[placed], x.values)
+            outcome[iy, ix] = codes[rows][placed]
+            coloured = np.isin(codes[rows][placed], COLOURED)
+            for column in columns:
+                value = table[column].to_numpy(dtype=float)[rows][placed]
+                ok = coloured & np.isfinite(value)
+                images[column][iy[ok], ix[ok]] = value[ok]
+        return cls(x, y, outcome, images)
+
+    def runs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, y, outcome code) of each cell that holds a run, the centres of the cells."""
+        iy, ix = np.nonzero(self.outcome != NO_RUN)
+        return self.x.values[ix], self.y.values[iy], self.outcome[iy, ix]
 
 
 def gain_units(order: int, output_unit: str, input_unit: str) -> dict[str, str]:
@@ -123,12 +178,3 @@ def grid_index(values: np.ndarray, axis_values: np.ndarray) -> np.ndarray:
         return np.zeros(len(values), dtype=int)
     left, right = ref[pos - 1], ref[pos]
     return np.where(np.abs(val - left) <= np.abs(val - right), pos - 1, pos)
-
-
-def grid_image(points: Points, x: Axis, y: Axis, column: str) -> np.ndarray:
-    """(len(y), len(x)) array of ``column`` on the grid; NaN where a cell must stay uncoloured."""
-    z = np.full((len(y.values), len(x.values)), np.nan)
-    value = points[column]
-    ok = points.coloured() & np.isfinite(value)
-    z[grid_index(points[y.key][ok], y.values), grid_index(points[x.key][ok], x.values)] = value[ok]
-    return z

@@ -6,6 +6,13 @@ thin white halo, so that it stays visible on the dark end of the colour map). Fa
 runs (an exception, not the plant) get a grey square, completed runs the oscillation detector
 flags an orange diamond. Cells of aborted, oscillating and failed runs are left uncoloured: their
 metric covers only part of the run, or a limit cycle, and would mislead the colour scale.
+
+A map whose cells are too small for a marker each (:func:`markers_fit`: the 40 × 25 and 10 × 10
+maps keep them; a 1000 × 1000 map would be hatched over by them) shows the outcomes as a raster
+instead: completed and no-motion cells in their metric's colour (no-motion ones under a white
+veil), aborted (dark red), oscillating (orange) and failed (dark grey) cells flat, with a legend of
+patches (:func:`draw_outcome_cells`). Markers and raster are drawn from the same cells
+(:class:`~.map_data.Grid`).
 """
 
 from __future__ import annotations
@@ -17,11 +24,13 @@ import numpy as np
 from matplotlib import colors, patheffects, ticker
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
-from labrunner.analysis.map_data import Axis, Points, cell_edges, grid_image
+from labrunner.analysis.map_data import COLOURED, NO_RUN, OUTCOMES, Axis, Grid, Points, cell_edges
 from labrunner.analysis.overlays import OverlayLine
 
-#: Marker style per run outcome: (label, marker, face colour, edge colour).
+#: Marker style per run outcome (in :data:`~.map_data.OUTCOMES` order): (label, marker, face
+#: colour, edge colour).
 MARKERS = {
     "aborted": ("aborted by the safety routine", "^", "red", "darkred"),
     "no-motion": ("no-motion (input too small)", "o", "white", "black"),
@@ -29,6 +38,24 @@ MARKERS = {
     "failed": ("failed (error)", "s", "grey", "black"),
     "oscillating": ("oscillating / at an input limit (detector)", "D", "orange", "darkorange"),
 }
+
+assert tuple(MARKERS) == OUTCOMES
+#: A marker's area [pt²] (matplotlib's ``s``): √28 ≈ 5.3 pt wide.
+MARKER_AREA = 28
+#: A map keeps its markers while its cells are at least this many marker widths wide and high:
+#: 9.4 × 12.4 pt cells of the 40 × 25 maps (1.8 widths), then a margin of colour shows around
+#: each; 7.3 pt cells of a 50-wide map (1.4) would be mostly marker, a 1000 × 1000 map's 0.37 pt
+#: cells hidden under them.
+MARKER_CELL = 1.5
+#: Colour of a cell in the raster of a dense map, per outcome code (None: the metric's colour).
+CELL_COLOURS = {
+    "aborted": "darkred",  # the triangles' edge: the red bounds stay visible on it
+    "no-motion": (1.0, 1.0, 1.0, 0.55),  # a white veil over the metric's colour
+    "completed": None,
+    "failed": "dimgrey",
+    "oscillating": "orange",
+}
+_UNCOLOURED = "#d9d9d9"  # cells without a colour of their metric (and in a raster: without a run)
 
 #: A thin white halo keeps the black crosses visible on the dark end of the colour map.
 _HALO = [patheffects.withStroke(linewidth=2.4, foreground="white")]
@@ -54,66 +81,93 @@ def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
     return colors.Normalize(vmin=0.0, vmax=1.0)
 
 
-def draw_markers(ax: Axes, points: Points, x_key: str, y_key: str) -> None:
-    """Scatter one marker per run at (``x_key``, ``y_key``), styled by its observed outcome; each
-    outcome one labelled collection."""
-    for outcome, (label, marker, face, edge) in MARKERS.items():
-        mine = points.outcome == outcome
+def draw_markers(ax: Axes, x: np.ndarray, y: np.ndarray, outcome: np.ndarray) -> None:
+    """Scatter one marker per run at (``x``, ``y``), styled by its outcome code; each outcome one
+    labelled collection."""
+    for code, (label, marker, face, edge) in enumerate(MARKERS.values()):
+        mine = outcome == code
         if not mine.any():
             continue
         style = {"c": face, "edgecolors": edge} if marker != "x" else {"c": face, "path_effects": _HALO}
-        ax.scatter(
-            points[x_key][mine],
-            points[y_key][mine],
-            marker=marker,
-            s=28,
-            linewidths=1.0,
-            label=label,
-            zorder=4,
-            **style,
-        )
+        ax.scatter(x[mine], y[mine], marker=marker, s=MARKER_AREA, linewidths=1.0, label=label, zorder=4, **style)
+
+
+def markers_fit(ax: Axes, n_x: int, n_y: int | None = None) -> bool:
+    """Whether ``n_x`` (× ``n_y``) cells, at the axes' size on its figure, are large enough for a
+    marker each (:data:`MARKER_CELL`); the same at any dpi, cells and markers scaling together."""
+    box = ax.get_position()
+    width, height = ax.figure.get_size_inches()
+    cell = 72.0 * box.width * width / n_x  # [pt]
+    if n_y is not None:
+        cell = min(cell, 72.0 * box.height * height / n_y)
+    return cell >= MARKER_CELL * np.sqrt(MARKER_AREA)
+
+
+def draw_outcome_cells(ax: Axes, grid: Grid, x_edges: np.ndarray, y_edges: np.ndarray) -> list[Patch]:
+    """The raster of a dense map: the cells of the outcomes in :data:`CELL_COLOURS` flat in their
+    colour (one mesh of outcome codes, gid "outcomes"). Returns a legend patch for each present
+    (and one for cells without a run, which keep the uncoloured grey, if there are any)."""
+    flat = [code for code, colour in enumerate(CELL_COLOURS.values()) if colour is not None]
+    shown = np.isin(grid.outcome, flat)
+    palette = colors.ListedColormap([colour or "none" for colour in CELL_COLOURS.values()])
+    ax.pcolormesh(
+        x_edges,
+        y_edges,
+        np.ma.masked_array(grid.outcome, mask=~shown),
+        cmap=palette,
+        norm=colors.BoundaryNorm(np.arange(len(OUTCOMES) + 1) - 0.5, len(OUTCOMES)),
+        shading="flat",
+        zorder=2,
+        gid="outcomes",
+    )
+    present = np.unique(grid.outcome)
+    patches = []
+    for code in flat:
+        if code in present:
+            label = MARKERS[OUTCOMES[code]][0]
+            veil = code in COLOURED
+            colour = "white" if veil else CELL_COLOURS[OUTCOMES[code]]
+            patches.append(Patch(facecolor=colour, edgecolor="grey", label=label + (": pale metric colour" * veil)))
+    if NO_RUN in present:
+        patches.append(Patch(facecolor=_UNCOLOURED, edgecolor="grey", label="not run"))
+    return patches
 
 
 def draw_heatmap(
     ax: Axes,
-    points: Points,
-    x: Axis,
-    y: Axis,
+    grid: Grid,
     column: str,
     *,
     colour_label: str,
     log_colour: bool | None = None,
     overlays: Sequence[OverlayLine] = (),
-):
-    """Draw ``column`` over the (x, y) grid with markers and overlay lines; return the mesh."""
-    z = grid_image(points, x, y, column)
-    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="#d9d9d9")
+) -> list[Patch]:
+    """Draw ``column`` over the grid's cells with their outcomes (markers, or a raster where the
+    cells are too small: :func:`markers_fit`) and the overlay lines; return the raster's legend
+    patches (none with markers: they are labelled artists of the axes)."""
+    x, y, z = grid.x, grid.y, grid.images[column]
+    x_edges, y_edges = cell_edges(x.values, x.log), cell_edges(y.values, y.log)
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad=_UNCOLOURED)
     norm = colour_norm(z, log_colour)
-    mesh = ax.pcolormesh(
-        cell_edges(x.values, x.log),
-        cell_edges(y.values, y.log),
-        np.ma.masked_invalid(z),
-        cmap=cmap,
-        norm=norm,
-        shading="flat",
-        zorder=1,
-    )
+    mesh = ax.pcolormesh(x_edges, y_edges, np.ma.masked_invalid(z), cmap=cmap, norm=norm, shading="flat", zorder=1)
     clipped = bool(np.isfinite(z).any() and np.nanmax(z) > norm.vmax)  # the robust scale cut outliers off
     ax.figure.colorbar(mesh, ax=ax, label=colour_label, extend="max" if clipped else "neither")
     if x.log:
         ax.set_xscale("log")
     if y.log:
         ax.set_yscale("log")
-    xlim = cell_edges(x.values, x.log)[[0, -1]]
-    ylim = cell_edges(y.values, y.log)[[0, -1]]
-    draw_markers(ax, points, x.key, y.key)
+    patches = []
+    if markers_fit(ax, len(x.values), len(y.values)):
+        draw_markers(ax, *grid.runs())
+    else:
+        patches = draw_outcome_cells(ax, grid, x_edges, y_edges)
     for line in overlays:
         line.draw(ax)
-    ax.set_xlim(*xlim)
-    ax.set_ylim(*ylim)
+    ax.set_xlim(*x_edges[[0, -1]])
+    ax.set_ylim(*y_edges[[0, -1]])
     ax.set_xlabel(x.label)
     ax.set_ylabel(y.label)
-    return mesh
+    return patches
 
 
 class InView(ticker.Locator):
@@ -161,9 +215,7 @@ def visible_ticks_only(fig: Figure) -> None:
 
 
 def map_figure(
-    points: Points,
-    x: Axis,
-    y: Axis,
+    grid: Grid,
     column: str,
     *,
     title: str,
@@ -171,12 +223,18 @@ def map_figure(
     overlays: Sequence[OverlayLine] = (),
     log_colour: bool | None = None,
 ) -> Figure:
-    """A figure with one heat map and a legend of markers and overlays below it."""
+    """A figure with one heat map and a legend of markers (or cell colours) and overlays below it.
+
+    Laid out first for a legend of an entry per outcome present and per overlay line, the most
+    it will have (the axes' size decides between markers and raster), then for the legend drawn.
+    """
     fig = Figure(figsize=(7.5, 6.4))
     ax = fig.add_subplot()
-    draw_heatmap(ax, points, x, y, column, colour_label=colour_label, log_colour=log_colour, overlays=overlays)
+    _frame(fig, title, len(set(np.unique(grid.outcome)) - {NO_RUN}) + len(overlays), 2)
+    patches = draw_heatmap(ax, grid, column, colour_label=colour_label, log_colour=log_colour, overlays=overlays)
     ax.set_title(title)
     handles, labels = ax.get_legend_handles_labels()
+    handles, labels = [*patches, *handles], [*(p.get_label() for p in patches), *labels]
     _frame(fig, title, len(handles), 2)
     if handles:
         fig.legend(handles, labels, loc="lower center", ncols=2, fontsize="small", framealpha=0.9)
@@ -205,20 +263,25 @@ def sweep_figure(
     overlays: Sequence[OverlayLine] = (),
 ) -> Figure:
     """1-D sweep: one panel per (column, label) over the axis, run markers by outcome (an aborted
-    run's marker at its ``<column>_until_abort`` value, the metric of its run up to the abort)."""
+    run's marker at its ``<column>_until_abort`` value, the metric of its run up to the abort).
+    Where the runs lie too close for a marker each (:func:`markers_fit`), the line alone, labelled,
+    shows the completed runs, and markers the others."""
     fig = Figure(figsize=(7.5, 2.6 * len(columns) + 0.8))
     axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
     ordered = points.where(np.argsort(points[x.key], kind="quicksort"))  # as pandas' sort_values
     ok = ordered.where(ordered.coloured())
+    dense = not markers_fit(axes[0], max(len(np.unique(ordered[x.key])), 1))
+    completed = OUTCOMES.index("completed")
+    outcome = np.where(ordered.outcome == completed, NO_RUN, ordered.outcome) if dense else ordered.outcome
     for ax, (column, label) in zip(axes, columns):
-        ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2)
+        line = MARKERS["completed"][0] if dense else None
+        ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2, label=line)
         until = f"{column}_until_abort"
         value = ordered[column]
         if until in ordered:
             value = np.where(np.isnan(value), ordered[until], value)
         shown = np.isfinite(value)
-        marked = Points({x.key: ordered[x.key][shown], column: value[shown]}, ordered.outcome[shown])
-        draw_markers(ax, marked, x.key, column)
+        draw_markers(ax, ordered[x.key][shown], value[shown], outcome[shown])
         positive = ok[column]
         positive = positive[np.isfinite(positive) & (positive > 0)]
         if positive.size and positive.max() / positive.min() > 100:
