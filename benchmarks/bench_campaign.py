@@ -23,7 +23,12 @@ process and the workers it waited for).
 Re-measured 2026-12-03 08:41 (load 0.8 at the start; against the figures below the naive
 script ran ~1.9× slower and labrunner ~1.5× slower, so part of the higher ratio is the machine): run 1.85 s + analyse 1.62 s = 3.47 s (3.46-3.63 over three trials)
 against the naive numpy-style script's 55.6 s: 16.1x wall (15.4-16.2x), 18.7x CPU; per run in the
-workers engine 1.00 ms, log write 0.70 ms.
+workers engine 1.00 ms, log write 0.70 ms. Again at 11:58 after the dense maps, the streamed
+batches and the journal (load 0.5, two trials): run 1.98 s + analyse 1.71 s = 3.69 s (3.69-3.81)
+against the naive script's 42.7 s: 11.7x wall (11.3-11.7x), 13.9x CPU; engine 1.14 ms, log write
+0.78 ms a run. The naive script ran 1.3x faster than at 08:41 and labrunner 6 % slower;
+interleaved right after (--skip-naive, three trials each, new / old / new / old): medians 2.95 /
+2.91 / 2.99 / 3.04 s against the code before those changes: no difference beyond the drift.
 
 Measured before (2-core machine, idle but for this benchmark; the VM's speed drifts: the same
 code's run + analyse took 2.0-2.4 s over an afternoon): six full runs of three trials each gave
