@@ -95,7 +95,7 @@ class Ledger:
         self.db = db
         self.session: int | None = None
         #: Told, inside each transaction that moves points between states, how many left or entered
-        #: each state (the session journal of :mod:`.seal` keeps its counts so).
+        #: each state (the session journal, :mod:`.journal`, keeps its counts so).
         self.on_moved: Callable[[Mapping[str, int]], None] | None = None
 
     # -- creation and opening ----------------------------------------------------------------
@@ -353,9 +353,10 @@ class Ledger:
         second commit of any, and then commits none of them."""
         marks = ",".join("?" * len(from_states))
         with self._txn():
-            if self.on_moved is not None:
-                self._moved(self._leaving([r.point_id for r in records]))
-                self._moved(Counter(STATE_OF_OUTCOME[r.outcome] for r in records))
+            if self.on_moved is not None:  # one journal update: the states left and those entered
+                moved = self._leaving([r.point_id for r in records])
+                moved.update(STATE_OF_OUTCOME[r.outcome] for r in records)
+                self._moved(moved)
             for record in records:
                 m = record.metrics
                 cur = self.db.execute(

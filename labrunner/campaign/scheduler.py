@@ -58,9 +58,9 @@ RUN_TICK_S = 0.5e-6
 TICK_OVERHEAD_SHARE = 0.1
 
 
-#: Why a campaign stopped when a worker process died, whether a batch was running or about to be sent.
 _T = TypeVar("_T")
 
+#: Why a campaign stopped when a worker process died, whether a batch was running or about to be sent.
 _WORKER_DIED = "a worker process died (killed, or out of memory?); the running batches were abandoned"
 
 
