@@ -8,8 +8,9 @@ after the first tenth of the runs and at the end, and the growth per run between
     nice -n 10 python benchmarks/bench_dask_scheduler.py [--points 40000] [--work DIR]
 
 Measured 2026-12-03 (2-core machine, niced, load 8–13 from other jobs): in a 10^6-point campaign
-of 5 s runs, the scheduler grew by 2.4 kB a run (0.9 GB by the 590 000th run, 1.5 GB by the
-837 000th) while every batch's points reached it as ~10^4 small Python objects it unpickled.
+of 5 s runs, the scheduler grew by ~2.5 kB a run (the first session's scheduler 0.59 GB after
+~210 000 runs; the resumed session's, a fresh scheduler, 0.9 GB after ~342 000 and 1.9 GB after
+its 751 028) while every batch's points reached it as ~10^4 small Python objects it unpickled.
 Packed as one blob a batch (``executors.PackedExecutor``)::
 
     points    before (objects)                 after (one blob a batch)
