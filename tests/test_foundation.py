@@ -44,10 +44,15 @@ def test_top_level_layout_and_ignored_outputs():
 def test_readme_has_exactly_two_commands_and_ci_runs_the_test_one_verbatim():
     main_job, tests = readme_commands()
     assert "labrunner run campaigns/" in main_job and main_job.startswith("python3 -m venv .venv && ")
-    install = 'python3 -m venv .venv && .venv/bin/pip install -q -e ".[test]"'
-    assert (
-        tests == f"{install} && .venv/bin/ruff check . && .venv/bin/ruff format --check . && .venv/bin/python -m pytest"
+    # tests/setup.sh makes the venv, installs the package with its test extra, the system tools the
+    # firmware and browser tests drive, and the npm packages; LABRUNNER_CI=1 turns a missing tool into a
+    # failure rather than a skip.
+    assert tests == (
+        "tests/setup.sh && .venv/bin/ruff check . && .venv/bin/ruff format --check . "
+        "&& LABRUNNER_CI=1 .venv/bin/python -m pytest"
     )
+    setup = (ROOT / "tests" / "setup.sh").read_text(encoding="utf-8")
+    assert "python3 -m venv .venv" in setup and '.venv/bin/pip install -q -e ".[test]"' in setup
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
     assert ci[0] == "#!/usr/bin/env bash" and "set -euo pipefail" in ci  # a failing test fails CI
     assert [line for line in ci if line and not line.startswith(("#", "set ", "cd "))] == [tests]
