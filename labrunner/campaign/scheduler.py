@@ -40,6 +40,7 @@ from typing import Any, TypeVar
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
 from labrunner.campaign.live import QUEUED
+from labrunner.campaign.live_view import LiveView
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
@@ -171,8 +172,10 @@ class Scheduler:
         progress: Progress | None = None,
         batch_fn: Callable[[BatchTask], BatchResult] = execute_batch,
         signals: StopSignals | None = None,
+        view: LiveView | None = None,
     ) -> None:
         self.campaign, self.ledger = campaign, ledger
+        self.view = view  # the live view (``--live``): told the progress and each committed batch
         self.handle = executor if isinstance(executor, ExecutorHandle) else ExecutorHandle(executor, slots)
         self.slots = self.handle.slots
         self.requested = batch_size
@@ -231,7 +234,10 @@ class Scheduler:
             refused = f"the executor refused a batch: {type(exc).__name__}: {exc}"
             out.stop_reason = out.stop_reason or (_WORKER_DIED if isinstance(exc, BrokenExecutor) else refused)
             return
-        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic(), slot)
+        params = [r.parameters for r in task.runs] if self.view else []
+        self.inflight[future] = _Batch(
+            ids, task.duration, round(task.fs * task.duration), time.monotonic(), slot, params
+        )
         if self.progress:
             self.progress.started_runs(len(ids))
 
@@ -274,6 +280,8 @@ class Scheduler:
                 return
             result: BatchResult = future.result()
             self.ledger.commit(*result.records)
+            if self.view:
+                self.view.finished(result.records, dict(zip(batch.ids, batch.parameters)), self.ledger.directory)
             for record in result.records:
                 out.committed += 1
                 counted += 1
@@ -385,6 +393,8 @@ class Scheduler:
                     self.live()
                     if self.progress:
                         self.progress.tick()
+                        if self.view:
+                            self.view.progress(self.progress)
             except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
                 out.interrupted = out.abandoned = True
                 self.inflight.clear()
@@ -403,14 +413,15 @@ class Scheduler:
 
 @dataclass
 class _Batch:
-    """A submitted batch: its point ids, run duration [s], ticks, submit time (monotonic) and its
-    slot in the live channel (None: none)."""
+    """A submitted batch: its point ids, run duration [s], ticks, submit time (monotonic), its
+    slot in the live channel (None: none) and, for the live view, its points' grid parameters."""
 
     ids: list[str]
     duration: float
     ticks: int
     submitted: float
     slot: int | None = None
+    parameters: list[Any] = field(default_factory=list)
 
     @property
     def expected_s(self) -> float:
