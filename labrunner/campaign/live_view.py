@@ -31,13 +31,14 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 
+from labrunner.campaign import live
 from labrunner.campaign.progress import FINISHED, Progress
 from labrunner.errors import CampaignError, InvalidParameter
 
@@ -45,7 +46,7 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765  # the Foxglove app's default for a WebSocket connection
 PROGRESS_HZ = 4.0  # /campaign/progress messages per second, at most
 LAST_RUNS = 20  # rows of /campaign/last_runs
-MAX_SAMPLES = 2000  # samples per signal in one /run/signals message; longer runs are decimated
+MAX_SAMPLES = live.SIGNAL_SAMPLES  # samples per signal in one /run/signals message; longer runs are decimated
 BACKLOG = 256  # messages buffered per client before its oldest are dropped
 
 _NUMBER = {"type": "number"}
@@ -173,19 +174,42 @@ def signals_message(path: Path, point_id: str, parameters: Mapping[str, Any]) ->
         "input": inputs[0] if inputs else "",
     }
     signals = {name: _finite(log.data[i, ::step]) for i, name in enumerate(log.names)}
-    return {
+    run = {
         "point_id": point_id,
         "outcome": (log.outcome or {}).get("status", "torn"),
         "parameters": dict(parameters),
         "metrics": {k: _number(v) for k, v in log.metadata.get("metrics", {}).items()},
-        "fs": log.fs,
-        "rate_hz": log.fs / step,
+    }
+    return _signals(run, log.fs, step, names, {n: units.get(n, "") for n in log.names}, signals)
+
+
+def running_message(point_id: str, parameters: Mapping[str, Any], run: live.RunSignals) -> dict[str, Any]:
+    """The ``/run/signals`` message of a run under way, from its slot of the live channel."""
+    signals = {run.names[role]: _finite(row) for role, row in zip(live.ROLES, run.values)}
+    about = {"point_id": point_id, "outcome": "running", "parameters": dict(parameters), "metrics": {}}
+    return _signals(about, run.fs, run.step, run.names, run.units, signals)
+
+
+def _signals(
+    run: dict[str, Any],
+    fs: float,
+    step: int,
+    names: Mapping[str, str],
+    units: Mapping[str, str],
+    signals: Mapping[str, list[float | None]],
+) -> dict[str, Any]:
+    """A ``/run/signals`` message: the run, its sampling, ``t`` and its signals, the four roles also by role."""
+    n = len(next(iter(signals.values()), []))
+    return {
+        **run,
+        "fs": fs,
+        "rate_hz": fs / step,
         "decimation": step,
-        "names": names,
-        "units": {n: units.get(n, "") for n in log.names},
-        "t": _finite(log.t[::step]),
+        "names": dict(names),
+        "units": dict(units),
+        "t": _finite(np.arange(0, n * step, step)[:n] / fs),
         **{role: signals.get(name, []) for role, name in names.items()},
-        "signals": signals,
+        "signals": dict(signals),
     }
 
 
@@ -214,6 +238,7 @@ class LiveView:
         self.url = f"ws://{_bracketed(address.host)}:{self.server.port}"
         self._last_runs: deque[dict[str, Any]] = deque(maxlen=LAST_RUNS)
         self._next_progress = 0.0
+        self._watched: tuple[str, int] | None = None  # the run under way last published, and its samples
         self._pending: tuple[Path, str, Mapping[str, Any]] | None = None
         self._wake = threading.Condition()
         self._closing = False
@@ -234,13 +259,26 @@ class LiveView:
         if channel.has_sinks():  # nobody subscribed: nothing to encode
             channel.log(message)
 
-    def progress(self, progress: Progress, *, force: bool = False) -> None:
-        """The progress now, at most :data:`PROGRESS_HZ` times a second (``force``: now, the
-        session's last)."""
+    def progress(
+        self, progress: Progress, watched: Callable[[], tuple[str, Any, live.RunSignals] | None] | None = None
+    ) -> None:
+        """The progress now, and the signals so far of the run ``watched()`` names (point id,
+        parameters, signals), at most :data:`PROGRESS_HZ` times a second."""
         now = time.monotonic()
-        if not force and now < self._next_progress:
+        if now < self._next_progress:
             return
         self._next_progress = now + 1.0 / PROGRESS_HZ
+        self._progress(progress, now, False)
+        run = watched() if watched is not None and self.channels["/run/signals"].has_sinks() else None
+        if run is not None and (run[0], run[2].values.shape[1]) != self._watched:
+            self._watched = (run[0], run[2].values.shape[1])
+            self._log("/run/signals", running_message(*run))
+
+    def ended(self, progress: Progress) -> None:
+        """The session's last progress."""
+        self._progress(progress, time.monotonic(), True)
+
+    def _progress(self, progress: Progress, now: float, ended: bool) -> None:
         rate = progress.rate()
         left = progress.total - progress.position
         started = min(progress.taken if progress.taken is not None else progress.running, progress.running)
@@ -256,7 +294,7 @@ class LiveView:
                 "runs_per_s": rate,
                 "elapsed_s": now - progress.started,
                 "eta_s": (0.0 if left <= 0 else left / rate) if rate > 0 or left <= 0 else None,
-                "session_ended": force,
+                "session_ended": ended,
             },
         )
 

@@ -291,7 +291,7 @@ def _execute(
     reason = "error"
     if campaign.guided is None and not (c.get("planned", 0) or c.get("claimed", 0)):
         if view:
-            view.progress(progress, force=True)
+            view.ended(progress)
         progress.close()  # nothing left to run: no executor to open
         ledger.end_session("finished")
         _seal(ledger, opts, c)
@@ -332,7 +332,7 @@ def _execute(
         )
     finally:
         if view:
-            view.progress(progress, force=True)
+            view.ended(progress)
         progress.close()
         with contextlib.suppress(LedgerWriteError):  # a full disk: the session's end is not recorded
             ledger.end_session(reason)

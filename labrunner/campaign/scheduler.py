@@ -39,7 +39,7 @@ from typing import Any, TypeVar
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
-from labrunner.campaign.live import QUEUED
+from labrunner.campaign.live import QUEUED, RunSignals
 from labrunner.campaign.live_view import LiveView
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
@@ -260,6 +260,16 @@ class Scheduler:
                 done += len(batch.ids) * min(1.0, ticks / batch.ticks) if batch.ticks else 0.0
         self.progress.live(done, started)
 
+    def _watched(self) -> tuple[str, Any, RunSignals] | None:
+        """The live view's run under way: the first run of the oldest batch that has signals in
+        the live channel (point id, grid parameters, signals so far); None: none."""
+        live = self.handle.live
+        for batch in self.inflight.values() if live is not None else ():  # in the order submitted
+            signals = live.signals(batch.slot)
+            if signals is not None:
+                return batch.ids[0], batch.parameters[0] if batch.parameters else {}, signals
+        return None
+
     def _collect(self, future: Future, out: Outcome) -> None:
         batch = self.inflight.pop(future)
         self._release(batch.slot)  # its worker has returned (or never started it): nothing writes the slot now
@@ -394,7 +404,7 @@ class Scheduler:
                     if self.progress:
                         self.progress.tick()
                         if self.view:
-                            self.view.progress(self.progress)
+                            self.view.progress(self.progress, self._watched)
             except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
                 out.interrupted = out.abandoned = True
                 self.inflight.clear()
