@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_campaign_support import campaign_text, ledger_rows, spawn, write
+from test_campaign_support import campaign_text, cli, ledger_rows, spawn, write
 from websockets.sync import client as websockets_sync
 
 from labrunner import engine
@@ -244,3 +244,36 @@ def test_the_shipped_layout_reads_only_topics_and_fields_the_view_publishes():
         topic = next(t for t in SCHEMAS if path == t or path.startswith(t + "."))
         field = path[len(topic) + 1 :].split("[")[0].split(".")[0]
         assert not field or field in SCHEMAS[topic]["properties"], path
+
+
+def test_a_port_in_use_is_one_line_before_anything_is_created(project):
+    import socket
+
+    write(project / "busy.toml", campaign_text(name="busy"))
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        ran = cli("run", "busy.toml", "--live", str(port), cwd=project)
+    assert ran.returncode == 1
+    assert ran.stderr.startswith(f"labrunner run: error: --live: cannot listen on 127.0.0.1:{port}: ")
+    assert len(ran.stderr.strip().splitlines()) == 1 and not (project / "data").exists()
+    bad = cli("run", "--live", "busy.toml", cwd=project)  # a bare --live before the file: named as such
+    assert bad.returncode == 2 and "a bare --live goes after the file or directory" in bad.stderr
+    exposed = cli("run", "busy.toml", "--live-expose", cwd=project)
+    assert exposed.returncode == 2 and "--live-expose: needs --live HOST:PORT" in exposed.stderr
+
+
+def test_an_exposed_view_says_what_it_exposes():
+    import io
+
+    from labrunner.campaign.live_view import serve
+
+    out = io.StringIO()
+    with serve(parse_address("0.0.0.0:0", expose=True), "camp", out) as view:
+        port = view.server.port
+    first, second = out.getvalue().splitlines()
+    assert first == f"live: ws://0.0.0.0:{port}" and port > 0
+    assert second.startswith("live: exposed on 0.0.0.0: any host that reaches port") and "no authentication" in second
+    with serve(None, "camp", out) as nothing:
+        assert nothing is None

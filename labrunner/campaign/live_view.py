@@ -1,25 +1,26 @@
-"""The live view: ``labrunner run --live`` serves the running campaign to the Foxglove app.
+"""The live view: ``labrunner run --live`` serves the running campaign to the Foxglove app (docs/live.md).
 
 The runner (the parent process) publishes through the Foxglove SDK's WebSocket server
-(``foxglove-sdk``; protocol ``foxglove.websocket.v1``), JSON-encoded channels with JSON schemas:
+(``foxglove-sdk``; subprotocol ``foxglove.sdk.v1``), JSON-encoded channels with JSON schemas:
 
 - ``/campaign/progress``: the counts by outcome, runs in flight and the share of their ticks
   done, rate and ETA (what the progress line says), at most :data:`PROGRESS_HZ` times a second;
 - ``/campaign/run``: each finished run (point id, grid parameters, outcome, metrics);
 - ``/campaign/last_runs``: the last :data:`LAST_RUNS` finished runs as one table (Table panel);
-- ``/run/signals``: the signals of one *representative run* per batch, the batch's first point,
-  read from its published log once its batch is committed: ``t`` and one array per signal, the
-  tracked output, its reference, the error and the first input also under the role names
-  ``output``, ``reference``, ``error``, ``input`` (so that one layout serves every rig). A run of
-  more than :data:`MAX_SAMPLES` samples is decimated (every n-th sample) and the message says so
-  (``rate_hz``, ``decimation``).
+- ``/run/signals``: the signals of one *representative run* per batch, the batch's first point:
+  ``t`` and one array per signal, the tracked output, its reference, the error and the first
+  input also under the role names ``output``, ``reference``, ``error``, ``input`` (so that one
+  layout serves every rig). A run of more than :data:`MAX_SAMPLES` samples is decimated (every
+  n-th sample) and the message says so (``rate_hz``, ``decimation``).
 
-Signals never leave the workers while a batch runs (:mod:`labrunner.campaign.worker`): a batch
-reports only its ticks done (:mod:`labrunner.campaign.live`), so the view shows a run's signals
-when its batch returns. Reading the log and encoding it happen in a thread of the view, which
-keeps only the newest run waiting: the scheduler's loop never waits on the view. A client that
-reads slowly loses its oldest messages (the SDK's per-client backlog, :data:`BACKLOG`); it never
-holds up the runner.
+A run's signals reach the runner two ways. While its batch runs in a pool worker, the first
+run's four role signals so far come through the live channel's shared memory
+(:mod:`labrunner.campaign.live`); the scheduler hands the oldest running batch's to
+:meth:`LiveView.progress` (``outcome: "running"``). Once its batch is committed, its whole log
+is read and published (every signal, outcome, metrics) by a thread of the view that keeps only
+the newest run waiting, so the scheduler's loop never reads a log (a Dask worker's or a real
+rig's run is shown only so). A client that reads slowly loses its oldest messages (the SDK's
+per-client backlog, :data:`BACKLOG`); it never holds up the runner.
 """
 
 from __future__ import annotations
