@@ -130,7 +130,7 @@ def test_a_foxglove_client_sees_progress_runs_and_signals_that_agree_with_the_le
     running = [m for m in signals if m["outcome"] == "running"]
     print(f"{len(signals)} /run/signals messages, {len(running)} of runs under way")
     assert running and len(signals) > len(running), "no signals of a run under way, or of a finished one"
-    for message in signals:  # a batch's first run, full rate (400 samples): as logged, or its beginning
+    for message in signals:  # a batch's middle run, full rate (400 samples): as logged, or its beginning
         log = read_run(project / "data" / "live" / "runs" / f"{message['point_id']}.mcap")
         assert message["decimation"] == 1 and message["rate_hz"] == 200.0
         assert message["names"] == {"output": "omega", "reference": "ref_omega", "error": "e_omega", "input": "u"}
@@ -179,26 +179,27 @@ def test_a_long_run_is_decimated_and_says_to_what_rate(tmp_path):
 
 
 def _watched_batch(address, configs, run, ticks: int, fs: float, rig_ref, rig_search):
-    """In a pool worker: a batch with the live channel's ``watch`` hook; its first run's signals."""
+    """In a pool worker: a batch with the live channel's ``watch`` hook on its representative run; that run's signals."""
     from labrunner.rigs.registry import load_rig
 
     rig = load_rig(rig_ref, search=rig_search)
     watch = live.watcher(address, ticks, fs)
     assert watch is not None
-    first = engine.run_batch(configs, rig, watch=watch, **run)[0]
-    return {name: np.asarray(v) for name, v in first.signals.items()}, first.outcome.status
+    i = live.representative(len(configs))
+    shown = engine.run_batch(configs, rig, watch=watch, watch_run=i, **run)[i]
+    return {name: np.asarray(v) for name, v in shown.signals.items()}, shown.outcome.status
 
 
 @pytest.mark.parametrize(("duration", "max_du_dt"), [(2.0, 120.0), (12.0, 120.0), (2.0, 1.0)])
 def test_pool_workers_hand_their_first_runs_signals_to_the_runner_as_the_engine_logged_them(
     project, duration, max_du_dt
 ):
-    """Full rate (400 samples), every 2nd of 2400, and a run 0 that aborts early while others go on:
-    the slot holds run 0's samples up to its own end, as the engine returns them."""
+    """Full rate (400 samples), every 2nd of 2400, and a watched run that aborts early while the
+    others go on: the slot holds its samples up to its own end, as the engine returns them."""
     campaign = load(write(project / "w.toml", campaign_text("w", duration=duration)))
     configs = [campaign.resolve(p.parameters) for p in plan(campaign)[0]][3:7]  # γ = 178: these complete
-    if max_du_dt == 1.0:  # only run 0 is held to a bound it breaks at once
-        configs[0] = {**configs[0], "safety": {"max_du_dt": 1.0}}
+    if max_du_dt == 1.0:  # only the watched run (index 2 of 4) is held to a bound it breaks at once
+        configs[2] = {**configs[2], "safety": {"max_du_dt": 1.0}}
     ticks = round(duration * campaign.fs)
     run = dict(fs=campaign.fs, duration=duration, seeds=[1] * 4, rig_safety=dict(campaign.rig_safety))
     context = multiprocessing.get_context("fork")

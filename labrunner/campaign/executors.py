@@ -14,7 +14,7 @@ Executors:
 - a local process pool (default; ``--workers N``, default all cores), workers forked as soon as
   the pool opens (they import what a batch needs while the runner validates the campaign), ignoring
   SIGINT/SIGTERM (the parent decides what Ctrl-C means) and killed if the parent dies
-  (``PR_SET_PDEATHSIG``), reporting their batches' ticks, and their first runs' signals for the
+  (``PR_SET_PDEATHSIG``), reporting their batches' ticks, and their representative runs' signals for the
   live view, through shared arrays (:mod:`labrunner.campaign.live`);
 - a Dask distributed cluster (``--executor tcp://HOST:PORT``: ``Client(address).get_executor()``);
   its workers must see the campaign directory (shared file system) and report their batches'

@@ -20,8 +20,10 @@ when the batch's result (or its abandonment) is in; a slot holds :data:`QUEUED` 
 takes the batch, then the ticks done. A real rig runs in the runner's own process, one run per
 batch, and is counted per run (no channel).
 
-For the live view (``--live``), a pool's slot also holds the signals of its batch's first run
-so far (:class:`RunSignals`): its tracked output, reference, error and first input, at most
+For the live view (``--live``), a pool's slot also holds the signals so far of its batch's
+*representative run* (:func:`representative`: its middle point; batches are strided over the
+grid, so that point lies mid-grid, where the first would always be the grid's first corner)
+(:class:`RunSignals`): its tracked output, reference, error and first input, at most
 :data:`SIGNAL_SAMPLES` samples each (a longer run every n-th sample), written by the engine's
 ``watch`` hook as the batch runs. A slot's samples count is written after its samples, and read
 before them, so that the runner never reads a sample not yet written (on a machine that keeps
@@ -132,6 +134,11 @@ class LiveTicks:
                 self.array[slot] = ticks
 
 
+def representative(runs: int) -> int:
+    """The index of a batch's representative run (module docstring): its middle one."""
+    return runs // 2
+
+
 def install(*shared: Any) -> None:
     """In a pool worker (its initializer): the runner's shared arrays (:attr:`LiveTicks.shared`)."""
     global _channel
@@ -165,7 +172,7 @@ def hook(address: Address | None) -> Callable[[int], None] | None:
 
 def watcher(address: Address | None, ticks: int, fs: float) -> Callable[[int, Mapping[str, Any], Mapping], None] | None:
     """The engine's ``watch`` hook for the batch at ``address`` (``ticks`` per run at ``fs``):
-    writes its first run's role signals into the slot (module docstring). None without a pool's
+    writes its representative run's role signals into the slot (module docstring). None without a pool's
     signal channel."""
     if address is None or address.topic is not None or _channel is None or len(_channel) < 4:
         return None

@@ -7,14 +7,15 @@ The runner (the parent process) publishes through the Foxglove SDK's WebSocket s
   done, rate and ETA (what the progress line says), at most :data:`PROGRESS_HZ` times a second;
 - ``/campaign/run``: each finished run (point id, grid parameters, outcome, metrics);
 - ``/campaign/last_runs``: the last :data:`LAST_RUNS` finished runs as one table (Table panel);
-- ``/run/signals``: the signals of one *representative run* per batch, the batch's first point:
+- ``/run/signals``: the signals of one *representative run* per batch, its middle point
+  (:func:`labrunner.campaign.live.representative`):
   ``t`` and one array per signal, the tracked output, its reference, the error and the first
   input also under the role names ``output``, ``reference``, ``error``, ``input`` (so that one
   layout serves every rig). A run of more than :data:`MAX_SAMPLES` samples is decimated (every
   n-th sample) and the message says so (``rate_hz``, ``decimation``).
 
-A run's signals reach the runner two ways. While its batch runs in a pool worker, the first
-run's four role signals so far come through the live channel's shared memory
+A run's signals reach the runner two ways. While its batch runs in a pool worker, the
+representative run's four role signals so far come through the live channel's shared memory
 (:mod:`labrunner.campaign.live`); the scheduler hands the oldest running batch's to
 :meth:`LiveView.progress` (``outcome: "running"``). Once its batch is committed, its whole log
 is read and published (every signal, outcome, metrics) by a thread of the view that keeps only
@@ -302,7 +303,7 @@ class LiveView:
     def finished(self, records: Sequence[Any], parameters: Mapping[str, Mapping[str, Any]], directory: Path) -> None:
         """A committed batch's records (:class:`~labrunner.campaign.ledger.RunRecord`), with
         their points' grid ``parameters`` by point id: each run's outcome and metrics; the signals
-        of its first run with a log (read in the view's thread)."""
+        of its representative run, or the nearest after it with a log (read in the view's thread)."""
         for record in records:
             run = {
                 "point_id": record.point_id,
@@ -314,7 +315,8 @@ class LiveView:
             self._log("/campaign/run", run)
         if records:
             self._log("/campaign/last_runs", {"runs": list(self._last_runs)})
-        first = next((r for r in records if r.log_path), None)
+        middle = live.representative(len(records))
+        first = next((r for r in [*records[middle:], *records[:middle]] if r.log_path), None)
         if first is not None and self.channels["/run/signals"].has_sinks():
             with self._wake:  # the newest replaces one not read yet
                 self._pending = (directory / first.log_path, first.point_id, parameters.get(first.point_id, {}))

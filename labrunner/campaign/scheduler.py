@@ -39,7 +39,7 @@ from typing import Any, TypeVar
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
-from labrunner.campaign.live import QUEUED, RunSignals
+from labrunner.campaign.live import QUEUED, RunSignals, representative
 from labrunner.campaign.live_view import LiveView
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
@@ -261,13 +261,14 @@ class Scheduler:
         self.progress.live(done, started)
 
     def _watched(self) -> tuple[str, Any, RunSignals] | None:
-        """The live view's run under way: the first run of the oldest batch that has signals in
-        the live channel (point id, grid parameters, signals so far); None: none."""
+        """The live view's run under way: the representative run of the oldest batch that has
+        signals in the live channel (point id, grid parameters, signals so far); None: none."""
         live = self.handle.live
         for batch in self.inflight.values() if live is not None else ():  # in the order submitted
             signals = live.signals(batch.slot)
             if signals is not None:
-                return batch.ids[0], batch.parameters[0] if batch.parameters else {}, signals
+                i = representative(len(batch.ids))
+                return batch.ids[i], batch.parameters[i] if batch.parameters else {}, signals
         return None
 
     def _collect(self, future: Future, out: Outcome) -> None:

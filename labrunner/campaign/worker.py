@@ -166,7 +166,10 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
         with rig:
             try:
                 results = list(
-                    (run_batch or _batch_runner(rig, report, live.watcher(task.live_at, ticks, task.fs)))(
+                    (
+                        run_batch
+                        or _batch_runner(rig, report, live.watcher(task.live_at, ticks, task.fs), len(task.runs))
+                    )(
                         [r.config for r in task.runs],
                         rig,
                         fs=task.fs,
@@ -222,16 +225,16 @@ def _publish_error(exc: Exception) -> str:
 
 
 def _batch_runner(
-    rig: Any, report: Callable[[int], None] | None, watch: Callable[..., None] | None = None
+    rig: Any, report: Callable[[int], None] | None, watch: Callable[..., None] | None = None, runs: int = 1
 ) -> Callable[..., Sequence[Any]]:
-    """How a batch runs on ``rig``: the engine's loop (telling ``report`` the ticks done and
-    ``watch`` its first run's samples), or the rig's own for a loop on the device (a real rig, in
-    the parent's process: no live channel)."""
+    """How a batch of ``runs`` runs on ``rig``: the engine's loop (telling ``report`` the ticks
+    done and ``watch`` its representative run's samples, :func:`live.representative`), or the rig's
+    own for a loop on the device (a real rig, in the parent's process: no live channel)."""
     from labrunner import engine
 
     if getattr(rig, "loop", "host") == "device":
         return lambda points, rig, **kw: rig.run_on_device(points, **kw)
-    return functools.partial(engine.run_batch, progress=report, watch=watch)
+    return functools.partial(engine.run_batch, progress=report, watch=watch, watch_run=live.representative(runs))
 
 
 def _publish_all(
