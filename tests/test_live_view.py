@@ -278,3 +278,30 @@ def test_an_exposed_view_says_what_it_exposes():
     assert second.startswith("live: exposed on 0.0.0.0: any host that reaches port") and "no authentication" in second
     with serve(None, "camp", out) as nothing:
         assert nothing is None
+
+
+def test_a_failure_of_the_view_stops_its_publishing_not_the_campaign(monkeypatch):
+    import io
+
+    from labrunner.campaign.live_view import LiveView, serve
+    from labrunner.campaign.progress import Progress
+
+    out = io.StringIO()
+    progress = Progress("camp", 10, stream=io.StringIO(), bar=False)
+    calls = []
+
+    def broken(self, *args):
+        calls.append(args)
+        raise ValueError("cannot encode")
+
+    monkeypatch.setattr(LiveView, "_progress", broken)
+    with serve(parse_address("0"), "camp", out) as view:
+        view.progress(progress)  # raises inside: caught, said once
+        view._next_progress = 0.0
+        view.progress(progress)
+        view.ended(progress)
+        view.finished([], {}, Path("."))
+    assert len(calls) == 1
+    assert (
+        out.getvalue().splitlines()[1] == "live: stopped publishing (ValueError: cannot encode); the campaign goes on"
+    )

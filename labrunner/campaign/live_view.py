@@ -244,6 +244,7 @@ class LiveView:
         self._pending: tuple[Path, str, Mapping[str, Any]] | None = None
         self._wake = threading.Condition()
         self._closing = False
+        self._failed = ""  # why the view stopped publishing ("": it has not)
         self._reader = threading.Thread(target=self._read_logs, name="labrunner-live", daemon=True)
         self._reader.start()
         print(f"live: {self.url}", file=self.stream, flush=True)
@@ -261,14 +262,28 @@ class LiveView:
         if channel.has_sinks():  # nobody subscribed: nothing to encode
             channel.log(message)
 
+    @contextlib.contextmanager
+    def _guarded(self) -> Iterator[None]:
+        """What the scheduler calls must never stop the campaign: a failure of the view ends its
+        publishing, with one line, and the campaign goes on."""
+        try:
+            yield
+        except Exception as exc:
+            self._failed = f"{type(exc).__name__}: {exc}"
+            print(f"live: stopped publishing ({self._failed}); the campaign goes on", file=self.stream, flush=True)
+
     def progress(
         self, progress: Progress, watched: Callable[[], tuple[str, Any, live.RunSignals] | None] | None = None
     ) -> None:
         """The progress now, and the signals so far of the run ``watched()`` names (point id,
         parameters, signals), at most :data:`PROGRESS_HZ` times a second."""
         now = time.monotonic()
-        if now < self._next_progress:
+        if now < self._next_progress or self._failed:
             return
+        with self._guarded():
+            self._publish(progress, now, watched)
+
+    def _publish(self, progress: Progress, now: float, watched: Callable[[], Any] | None) -> None:
         self._next_progress = now + 1.0 / PROGRESS_HZ
         self._progress(progress, now, False)
         run = watched() if watched is not None and self.channels["/run/signals"].has_sinks() else None
@@ -278,7 +293,9 @@ class LiveView:
 
     def ended(self, progress: Progress) -> None:
         """The session's last progress."""
-        self._progress(progress, time.monotonic(), True)
+        if not self._failed:
+            with self._guarded():
+                self._progress(progress, time.monotonic(), True)
 
     def _progress(self, progress: Progress, now: float, ended: bool) -> None:
         rate = progress.rate()
@@ -304,6 +321,11 @@ class LiveView:
         """A committed batch's records (:class:`~labrunner.campaign.ledger.RunRecord`), with
         their points' grid ``parameters`` by point id: each run's outcome and metrics; the signals
         of its representative run, or the nearest after it with a log (read in the view's thread)."""
+        if not self._failed:
+            with self._guarded():
+                self._finished(records, parameters, directory)
+
+    def _finished(self, records: Sequence[Any], parameters: Mapping[str, Mapping[str, Any]], directory: Path) -> None:
         for record in records:
             run = {
                 "point_id": record.point_id,
