@@ -31,6 +31,7 @@ FLAGS = (
     "--disable-background-networking",
     "--disable-component-update",
     "--disable-sync",
+    "--disable-dev-shm-usage",  # a container's small /dev/shm crashes the renderer otherwise
     "--remote-debugging-port=0",  # any free port; Chromium writes it to DevToolsActivePort
 )
 

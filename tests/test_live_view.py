@@ -305,3 +305,18 @@ def test_a_failure_of_the_view_stops_its_publishing_not_the_campaign(monkeypatch
     assert (
         out.getvalue().splitlines()[1] == "live: stopped publishing (ValueError: cannot encode); the campaign goes on"
     )
+
+
+def test_without_the_flag_the_sdk_is_not_even_imported(project):
+    """Nothing listens without --live: the run never loads the Foxglove SDK."""
+    import subprocess
+    import sys
+
+    write(project / "quiet.toml", campaign_text(name="quiet"))
+    script = (
+        "import sys; from labrunner.cli import main; code = main(['run', 'quiet.toml', '--workers', '1']); "
+        "print(code, 'foxglove' in sys.modules)"
+    )
+    ran = subprocess.run([sys.executable, "-c", script], cwd=project, capture_output=True, text=True, timeout=120)
+    assert ran.stdout.split()[-2:] == ["0", "False"], ran.stderr
+    assert "live:" not in ran.stderr
