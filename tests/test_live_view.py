@@ -8,6 +8,7 @@ from __future__ import annotations
 import functools
 import json
 import multiprocessing
+import re
 import struct
 import threading
 import time
@@ -320,3 +321,5 @@ def test_without_the_flag_the_sdk_is_not_even_imported(project):
     ran = subprocess.run([sys.executable, "-c", script], cwd=project, capture_output=True, text=True, timeout=120)
     assert ran.stdout.split()[-2:] == ["0", "False"], ran.stderr
     assert "live:" not in ran.stderr
+    resumed = cli("resume", "data/quiet", "--live", "0", cwd=project)  # resume takes it too
+    assert resumed.returncode == 0 and re.search(r"^live: ws://127\.0\.0\.1:[1-9]\d*$", resumed.stderr, re.M)
