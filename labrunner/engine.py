@@ -12,7 +12,8 @@ the flow never rose above its threshold); ``failed`` (an exception: its message;
 ``exc.results``, so the worker keeps their logs up to the failure, then checks the rig). The same code
 drives simulated twins and real rigs (B = 1); a real rig streams its samples to ``sink``. A
 ``progress`` hook hears the ticks done at most :data:`PROGRESS_CALLS` times a batch (the
-campaign's live progress, :mod:`labrunner.campaign.live`); it costs one integer comparison a tick.
+campaign's live progress, :mod:`labrunner.campaign.live`), and a ``watch`` hook one run's samples
+so far at the same times (the live view's signals); they cost one integer comparison a tick.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ _CHUNK = 1024  # reference samples evaluated at once, and samples per streamed b
 PROGRESS_CALLS = 100  # a batch's progress hook is called at most this often (the last call: all ticks done)
 Sink = Callable[[int, Mapping[str, np.ndarray]], None]
 Progress = Callable[[int], None]  # ticks done of the batch's round(duration · fs)
+Watch = Callable[[int, Mapping[str, np.ndarray], Mapping[str, object]], None]  # (first index, one run's rows, channels)
 
 
 @dataclass(frozen=True)
@@ -143,13 +145,18 @@ def run_batch(
     sink: Sink | None = None,
     progress: Progress | None = None,
     reference: Reference | None = None,
+    watch: Watch | None = None,
+    watch_run: int = 0,
 ) -> list[RunResult]:
     """Run B = len(points) resolved campaign points in lockstep on ``rig``; return one result each.
 
     ``rig_safety`` is the rig file's ``[safety]`` section; each point's ``safety`` section
     overrides it. ``sink(first_index, block)`` receives run 0's samples every 1024 ticks (real rigs
     log while they run). ``progress(ticks_done)`` is called every ⌈K / PROGRESS_CALLS⌉ ticks and
-    once when the loop ends (with K, also after an early end): at most PROGRESS_CALLS times. Bad
+    once when the loop ends (with K, also after an early end): at most PROGRESS_CALLS times;
+    ``watch(first_index, rows, channels)`` at the same times run ``watch_run``'s samples since its
+    last call, up to that run's end (``rows`` as ``sink``'s block, ``channels`` as
+    :func:`channel_names`). Bad
     configuration raises :class:`~labrunner.errors.InvalidParameter` before the rig moves; an
     exception during the run marks every unfinished run ``failed``. ``reference`` replaces the
     points' references (a device runs its description's sample tables).
@@ -170,7 +177,8 @@ def run_batch(
     rig_error: RigError | None = None
     k = logged = 0  # logged: ticks whose row is complete in every log
     every = -(-K // PROGRESS_CALLS) if K else 1
-    report_at = every if progress is not None else K  # K: never inside the loop
+    report_at = every if progress is not None or watch is not None else K  # K: never inside the loop
+    watched = 0  # run watch_run's samples handed to ``watch``
 
     try:
         y = rig.reset(B, seeds, fs, overrides)
@@ -180,7 +188,10 @@ def run_batch(
         finished = False  # every run has ended
         for k in range(K):
             if k == report_at:
-                progress(k)  # type: ignore[misc]
+                if progress is not None:
+                    progress(k)
+                if watch is not None:
+                    watched = _watch(watch, log, watch_run, watched, min(k, int(end[watch_run])))
                 report_at += every
             if k % _CHUNK == 0:
                 r_chunk = reference.evaluate(np.arange(k, min(k + _CHUNK, K)) / fs)
@@ -220,6 +231,8 @@ def run_batch(
         rig.safe_state()
     if progress is not None:
         progress(K)
+    if watch is not None:
+        _watch(watch, log, watch_run, watched, int(end[watch_run]))
     if sink is not None and int(end[0]) % _CHUNK:  # run 0's samples after its last full chunk
         last = int(end[0]) - int(end[0]) % _CHUNK
         sink(last, log.signals(log.rows(0, last, int(end[0]))))
@@ -246,6 +259,13 @@ def run_batch(
         rig_error.results = results
         raise rig_error
     return results
+
+
+def _watch(watch: Watch, log: _TickLog, run: int, lo: int, hi: int) -> int:
+    """Hand run ``run``'s samples lo..hi−1 to ``watch``; the samples handed so far."""
+    if hi > lo:
+        watch(lo, log.signals(log.rows(run, lo, hi)), log.channels)
+    return max(lo, hi)
 
 
 def roles_of(channels: Mapping[str, object], info: RigInfo | None = None) -> Roles:

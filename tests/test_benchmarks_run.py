@@ -29,6 +29,7 @@ SLOW = {
     "bench_scale.py": (["--max", "1000", "--synthetic", "400"], "synthetic ledger"),
     "bench_log_size.py": (["--only", "quickstart"], "floors for"),
     "bench_dask_scheduler.py": (["--points", "100"], "bytes a run"),
+    "bench_live.py": (["--trials", "1", "--grid", "5", "4"], "one reading, one never reading"),
 }
 
 

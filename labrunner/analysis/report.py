@@ -31,9 +31,11 @@ pre{background:#f7f7f7;border:1px solid #ddd;padding:.8em;overflow-x:auto;font-s
 .warn{background:#fff4e5;border-left:4px solid #f0a030;padding:.5em 1em}
 table.sortable th{cursor:pointer;user-select:none}table.sortable th:hover{background:#e4e4e4}
 .scroll{max-height:70vh;overflow:auto;border:1px solid #ddd}.scroll table{margin:0}
-.scroll th{position:sticky;top:0}
+.scroll th{position:sticky;top:0}input.filter{width:32em;max-width:100%;margin:.4em 0;padding:.2em .4em}
 """
-#: Sorts a ``table.sortable`` by the clicked column: numbers by their ``data-v``, the rest as text.
+#: Sorts a ``table.sortable`` by the clicked column: numbers by their ``data-v``, the rest as text;
+#: and filters its rows: a box above it keeps the rows where each word typed is part of some cell
+#: ("aborted 0.1" keeps the aborted runs with a cell containing 0.1), and says how many are shown.
 _SORT_JS = """
 document.querySelectorAll("table.sortable th").forEach((th, i) => th.addEventListener("click", () => {
   const body = th.closest("table").tBodies[0], up = th.dataset.up !== "1";
@@ -43,6 +45,21 @@ document.querySelectorAll("table.sortable th").forEach((th, i) => th.addEventLis
     if (typeof x !== typeof y) return typeof x === "number" ? -1 : 1;
     return (x < y ? -1 : x > y ? 1 : 0) * (up ? 1 : -1); }).forEach(r => body.appendChild(r));
 }));
+document.querySelectorAll("table.sortable").forEach(table => {
+  const box = document.createElement("input"), count = document.createElement("span");
+  const rows = [...table.tBodies[0].rows], cells = rows.map(r => [...r.cells].map(c => c.textContent.toLowerCase()));
+  box.type = "search"; box.className = "filter"; box.setAttribute("aria-label", "filter the rows");
+  box.placeholder = "filter rows: words each shown row has in some cell, e.g. aborted";
+  const show = () => {
+    const words = box.value.toLowerCase().split(/\\s+/).filter(Boolean);
+    let shown = 0;
+    rows.forEach((r, j) => { r.hidden = !words.every(w => cells[j].some(c => c.includes(w))); shown += !r.hidden; });
+    count.textContent = ` ${shown} of ${rows.length} rows`;
+  };
+  box.addEventListener("input", show);
+  show();
+  (table.closest(".scroll") || table).before(box, count);
+});
 """
 
 

@@ -14,8 +14,8 @@ Executors:
 - a local process pool (default; ``--workers N``, default all cores), workers forked as soon as
   the pool opens (they import what a batch needs while the runner validates the campaign), ignoring
   SIGINT/SIGTERM (the parent decides what Ctrl-C means) and killed if the parent dies
-  (``PR_SET_PDEATHSIG``), reporting their batches' ticks through a shared array
-  (:mod:`labrunner.campaign.live`);
+  (``PR_SET_PDEATHSIG``), reporting their batches' ticks, and their representative runs' signals for the
+  live view, through shared arrays (:mod:`labrunner.campaign.live`);
 - a Dask distributed cluster (``--executor tcp://HOST:PORT``: ``Client(address).get_executor()``);
   its workers must see the campaign directory (shared file system) and report their batches'
   ticks as Dask events on a topic the client subscribes to;
@@ -119,7 +119,7 @@ class ExecutorHandle:
         return isinstance(self.executor, InProcessExecutor)
 
 
-def _init_worker(lock_fd: int | None, ticks: Any = None) -> None:
+def _init_worker(lock_fd: int | None, shared: tuple[Any, ...] = ()) -> None:
     """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it lets running batches finish or
     kills the workers), die with the parent, drop the inherited lock descriptor, keep the live
     channel's shared array, and import what every batch needs (:data:`WORKER_MODULES`) while
@@ -134,7 +134,7 @@ def _init_worker(lock_fd: int | None, ticks: Any = None) -> None:
     if lock_fd is not None:
         with contextlib.suppress(OSError):
             os.close(lock_fd)
-    live.install(ticks)
+    live.install(*shared)
     for module in WORKER_MODULES:
         importlib.import_module(module)
 
@@ -201,9 +201,9 @@ def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
     raises KeyboardInterrupt, held until the workers are down."""
     n = workers or len(os.sched_getaffinity(0))
     context = multiprocessing.get_context("fork")
-    ticks = live.LiveTicks(QUEUE_DEPTH * n, context)
+    ticks = live.LiveTicks(QUEUE_DEPTH * n, context, signals=True)
     pool = ProcessPoolExecutor(
-        max_workers=n, mp_context=context, initializer=_init_worker, initargs=(lock_fd, ticks.array)
+        max_workers=n, mp_context=context, initializer=_init_worker, initargs=(lock_fd, ticks.shared)
     )
     abandoned = False
 

@@ -19,19 +19,35 @@ Slots are the runner's: the scheduler reserves one for a batch when it submits i
 when the batch's result (or its abandonment) is in; a slot holds :data:`QUEUED` until a worker
 takes the batch, then the ticks done. A real rig runs in the runner's own process, one run per
 batch, and is counted per run (no channel).
+
+For the live view (``--live``), a pool's slot also holds the signals so far of its batch's
+*representative run* (:func:`representative`: its middle point; batches are strided over the
+grid, so that point lies mid-grid, where the first would always be the grid's first corner)
+(:class:`RunSignals`): its tracked output, reference, error and first input, at most
+:data:`SIGNAL_SAMPLES` samples each (a longer run every n-th sample), written by the engine's
+``watch`` hook as the batch runs. A slot's samples count is written after its samples, and read
+before them, so that the runner never reads a sample not yet written (on a machine that keeps
+stores in order, as x86 does; elsewhere a frame may show a stale sample). Dask workers send no
+signals (the view shows each run's from its log once its batch is in).
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import multiprocessing
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 QUEUED = -1  # a slot's value while its batch waits for a worker
-_channel: Any = None  # in a pool worker: the shared array (install)
+ROLES = ("output", "reference", "error", "input")  # the signals of a slot's run, in this order
+SIGNAL_SAMPLES = 2000  # samples per signal a slot holds; a longer run is kept every n-th sample
+_NAMES_BYTES = 1024  # a slot's JSON of the signals' names, units and sampling rate
+_channel: Any = None  # in a pool worker: the shared arrays (install)
 
 
 @dataclass(frozen=True)
@@ -44,12 +60,33 @@ class Address:
     topic: str | None = None
 
 
+@dataclass(frozen=True)
+class RunSignals:
+    """A slot's run so far: its signals' names, units and rate, every ``step``-th sample of each role."""
+
+    names: dict[str, str]  # role (ROLES) → the run's signal name
+    units: dict[str, str]  # signal name → unit
+    fs: float  # the run's sampling rate [Hz]
+    step: int  # samples kept: every step-th
+    values: np.ndarray  # (len(ROLES), samples kept so far)
+
+
 class LiveTicks:
     """``slots`` counters of ticks done, one per batch in flight (module docstring); shared
-    memory when ``context`` (a multiprocessing context) starts the workers."""
+    memory when ``context`` (a multiprocessing context) starts the workers, with each slot's
+    run signals (``signals``: only for a pool, whose workers can share them)."""
 
-    def __init__(self, slots: int, context: Any = None, *, topic: str | None = None) -> None:
-        self.array = (context or multiprocessing).RawArray("q", slots)
+    def __init__(self, slots: int, context: Any = None, *, topic: str | None = None, signals: bool = False) -> None:
+        ctx = context or multiprocessing
+        self.array = ctx.RawArray("q", slots)
+        # per slot: serial of the batch writing, samples written, step; values; names (JSON)
+        self.shared: tuple[Any, ...] = (self.array,)
+        if signals:
+            self.shared += (
+                ctx.RawArray("q", 3 * slots),
+                ctx.RawArray("d", slots * len(ROLES) * SIGNAL_SAMPLES),
+                ctx.RawArray("c", slots * _NAMES_BYTES),
+            )
         self.topic = topic
         self._serials = [0] * slots
         self._free = list(range(slots - 1, -1, -1))
@@ -74,6 +111,21 @@ class LiveTicks:
         """Ticks done by the batch at ``address`` (QUEUED before a worker took it and without an address)."""
         return QUEUED if address is None else int(self.array[address.slot])
 
+    def signals(self, address: Address | None) -> RunSignals | None:
+        """The run signals of the batch at ``address`` so far (None: none yet, or no such channel)."""
+        if address is None or len(self.shared) == 1:
+            return None
+        header, values, names = self.shared[1:]
+        base = 3 * address.slot
+        if header[base] != address.serial:  # not taken yet: the slot's previous batch wrote it
+            return None
+        n = int(header[base + 1])  # before the samples: those it counts are written
+        if n <= 0:
+            return None
+        about = json.loads(names[_NAMES_BYTES * address.slot : _NAMES_BYTES * (address.slot + 1)].rstrip(b"\0"))
+        rows = np.frombuffer(values, dtype=np.float64).reshape(-1, len(ROLES), SIGNAL_SAMPLES)[address.slot]
+        return RunSignals(about["names"], about["units"], about["fs"], int(header[base + 2]), rows[:, :n].copy())
+
     def receive(self, event: tuple[float, Any]) -> None:
         """A Dask event ``(time, [slot, serial, ticks])`` from a worker's report (:func:`hook`)."""
         slot, serial, ticks = event[1]
@@ -82,10 +134,15 @@ class LiveTicks:
                 self.array[slot] = ticks
 
 
-def install(array: Any) -> None:
-    """In a pool worker (its initializer): the runner's shared array."""
+def representative(runs: int) -> int:
+    """The index of a batch's representative run (module docstring): its middle one."""
+    return runs // 2
+
+
+def install(*shared: Any) -> None:
+    """In a pool worker (its initializer): the runner's shared arrays (:attr:`LiveTicks.shared`)."""
     global _channel
-    _channel = array
+    _channel = shared or None
 
 
 def hook(address: Address | None) -> Callable[[int], None] | None:
@@ -103,11 +160,49 @@ def hook(address: Address | None) -> Callable[[int], None] | None:
                 worker.log_event(topic, [slot, serial, int(ticks)])
 
         return send
-    array = _channel
-    if array is None:
+    if _channel is None or _channel[0] is None:
         return None
+    array = _channel[0]
 
     def write(ticks: int) -> None:
         array[address.slot] = ticks
 
     return write
+
+
+def watcher(address: Address | None, ticks: int, fs: float) -> Callable[[int, Mapping[str, Any], Mapping], None] | None:
+    """The engine's ``watch`` hook for the batch at ``address`` (``ticks`` per run at ``fs``):
+    writes its representative run's role signals into the slot (module docstring). None without a pool's
+    signal channel."""
+    if address is None or address.topic is not None or _channel is None or len(_channel) < 4:
+        return None
+    header, values, names = _channel[1:]
+    slot, base = address.slot, 3 * address.slot
+    step = max(1, -(-ticks // SIGNAL_SAMPLES))
+    rows = np.frombuffer(values, dtype=np.float64).reshape(-1, len(ROLES), SIGNAL_SAMPLES)[slot]
+    header[base + 1], header[base + 2], header[base] = 0, step, address.serial
+    roles: list[str] = []
+
+    def watch(lo: int, block: Mapping[str, Any], channels: Mapping) -> None:
+        with contextlib.suppress(Exception):  # best effort: the view must never fail the runs
+            write(lo, block, channels)
+
+    def write(lo: int, block: Mapping[str, Any], channels: Mapping) -> None:
+        if not roles:  # the first call: which signals, named where the runner reads them
+            tracked = str(channels["references"][0])[len("ref_") :]  # type: ignore[index]
+            roles.extend([tracked, f"ref_{tracked}", f"e_{tracked}", str(channels["inputs"][0])])  # type: ignore[index]
+            units = {n: channels["units"].get(n, "") for n in roles}  # type: ignore[union-attr]
+            text = json.dumps({"names": dict(zip(ROLES, roles)), "units": units, "fs": fs}).encode()
+            names[_NAMES_BYTES * slot : _NAMES_BYTES * (slot + 1)] = text.ljust(
+                _NAMES_BYTES, b"\0"
+            )  # ValueError: too long
+        first = -(-lo // step) * step  # the first kept sample of this block
+        hi = lo + len(block[roles[0]])
+        if first >= hi:
+            return
+        for j, name in enumerate(roles):
+            kept = np.asarray(block[name])[first - lo :: step]
+            rows[j, first // step : first // step + len(kept)] = kept
+        header[base + 1] = -(-hi // step)  # after the samples it counts
+
+    return watch

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from labrunner.campaign import dry_run, guided_run, integrity, journal, plan_inputs, recovery, seal, spec
+from labrunner.campaign import dry_run, guided_run, integrity, journal, live_view, plan_inputs, recovery, seal, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
 from labrunner.campaign.lock import LOCK_NAME, DirectoryLock
@@ -35,13 +35,15 @@ CAMPAIGN_COPY = "campaign.toml"
 
 @dataclass(frozen=True)
 class Options:
-    """How to execute: process-pool size or Dask address, batch size, where progress goes."""
+    """How to execute: process-pool size or Dask address, batch size, where progress goes, and
+    where the live view listens (``--live``; None: nothing listens)."""
 
     workers: int | None = None
     executor: str | None = None
     batch_size: int | None = None
     stream: TextIO | None = None
     progress_interval_s: float = 5.0
+    live: live_view.Address | None = None
 
 
 def default_directory(campaign: spec.Campaign) -> Path:
@@ -96,7 +98,8 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     directory = Path(out) if out is not None else default_directory(campaign)
     if dry:
         return None, _dry_run(campaign, directory, opts)
-    with _early_pool(campaign, opts) as pool:
+    # the view's server threads start after the pool's workers are forked, and it listens before anything is created
+    with _early_pool(campaign, opts) as pool, live_view.serve(opts.live, campaign.name, opts.stream) as view:
         points, checksum = spec.plan(campaign)
         _check_new_directory(directory, campaign.name, checksum)
         check_executor_url(opts.executor)  # reached before the directory exists
@@ -122,7 +125,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             _write_copy(directory, campaign.source)  # the ledger exists first: it is what marks the campaign
             (directory / RUNS_DIR).mkdir(exist_ok=True)
             with ledger:
-                return _execute(campaign, ledger, lock, opts, "run", pool), str(directory)
+                return _execute(campaign, ledger, lock, opts, "run", pool, view=view), str(directory)
 
 
 def _dry_run(campaign: spec.Campaign, directory: Path, opts: Options) -> str:
@@ -229,7 +232,7 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         idle = not (counts.get("planned", 0) or counts.get("claimed", 0) or (retry_failed and counts.get("failed", 0)))
         # a finished campaign needs no workers: forking a pool only to wait for its shutdown cost ~1 s
         early = contextlib.nullcontext() if idle and campaign.guided is None else _early_pool(campaign, opts, lock.fd)
-        with early as pool:  # its workers load while a crash is settled
+        with early as pool, live_view.serve(opts.live, campaign.name, stream) as view:  # the workers load meanwhile
             _write_copy(ledger.directory, ledger.meta()["campaign_file"])
             if trust == "sealed":
                 report = recovery.Recovery()  # nothing to settle: the seal says so
@@ -248,7 +251,7 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
                 print(f"retrying {len(failed)} failed point(s)", file=stream)
             unchanged = trust == "sealed" and not retry_failed  # else: settling may have changed the states
             census = (counts, words) if unchanged else None
-            return _execute(campaign, ledger, lock, opts, "resume", pool, census), str(directory)
+            return _execute(campaign, ledger, lock, opts, "resume", pool, census, view), str(directory)
 
 
 def _trusted(ledger: Ledger, checked: bool) -> tuple[str, tuple[dict[str, int], dict[str, int]]]:
@@ -273,10 +276,12 @@ def _execute(
     command: str,
     pool: ExecutorHandle | None,
     census: tuple[dict[str, int], dict[str, int]] | None = None,
+    view: live_view.LiveView | None = None,
 ) -> Outcome:
     """Run what the ledger has left on ``pool`` (see :func:`_early_pool`) or on the executor
     the options name; record the session and its end; seal the directory when the session ended
-    cleanly (:mod:`.seal`). ``census``: :meth:`Ledger.census` if the caller read it since the last change."""
+    cleanly (:mod:`.seal`). ``census``: :meth:`Ledger.census` if the caller read it since the last change;
+    ``view``: the live view, told the progress and every committed run."""
     ledger.start_session(command)
     c, counts = census or ledger.census()
     total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
@@ -285,6 +290,8 @@ def _execute(
     out = Outcome()
     reason = "error"
     if campaign.guided is None and not (c.get("planned", 0) or c.get("claimed", 0)):
+        if view:
+            view.ended(progress)
         progress.close()  # nothing left to run: no executor to open
         ledger.end_session("finished")
         _seal(ledger, opts, c)
@@ -308,6 +315,7 @@ def _execute(
                 batch_size=1 if real else opts.batch_size,
                 progress=progress,
                 signals=signals,
+                view=view,
             )
             if campaign.guided is None:
                 out = scheduler.run()
@@ -323,6 +331,8 @@ def _execute(
             else "finished"
         )
     finally:
+        if view:
+            view.ended(progress)
         progress.close()
         with contextlib.suppress(LedgerWriteError):  # a full disk: the session's end is not recorded
             ledger.end_session(reason)

@@ -39,7 +39,8 @@ from typing import Any, TypeVar
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
-from labrunner.campaign.live import QUEUED
+from labrunner.campaign.live import QUEUED, RunSignals, representative
+from labrunner.campaign.live_view import LiveView
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
@@ -171,8 +172,10 @@ class Scheduler:
         progress: Progress | None = None,
         batch_fn: Callable[[BatchTask], BatchResult] = execute_batch,
         signals: StopSignals | None = None,
+        view: LiveView | None = None,
     ) -> None:
         self.campaign, self.ledger = campaign, ledger
+        self.view = view  # the live view (``--live``): told the progress and each committed batch
         self.handle = executor if isinstance(executor, ExecutorHandle) else ExecutorHandle(executor, slots)
         self.slots = self.handle.slots
         self.requested = batch_size
@@ -231,7 +234,10 @@ class Scheduler:
             refused = f"the executor refused a batch: {type(exc).__name__}: {exc}"
             out.stop_reason = out.stop_reason or (_WORKER_DIED if isinstance(exc, BrokenExecutor) else refused)
             return
-        self.inflight[future] = _Batch(ids, task.duration, round(task.fs * task.duration), time.monotonic(), slot)
+        params = [r.parameters for r in task.runs] if self.view else []
+        self.inflight[future] = _Batch(
+            ids, task.duration, round(task.fs * task.duration), time.monotonic(), slot, params
+        )
         if self.progress:
             self.progress.started_runs(len(ids))
 
@@ -254,6 +260,17 @@ class Scheduler:
                 done += len(batch.ids) * min(1.0, ticks / batch.ticks) if batch.ticks else 0.0
         self.progress.live(done, started)
 
+    def _watched(self) -> tuple[str, Any, RunSignals] | None:
+        """The live view's run under way: the representative run of the oldest batch that has
+        signals in the live channel (point id, grid parameters, signals so far); None: none."""
+        live = self.handle.live
+        for batch in self.inflight.values() if live is not None else ():  # in the order submitted
+            signals = live.signals(batch.slot)
+            if signals is not None:
+                i = representative(len(batch.ids))
+                return batch.ids[i], batch.parameters[i] if batch.parameters else {}, signals
+        return None
+
     def _collect(self, future: Future, out: Outcome) -> None:
         batch = self.inflight.pop(future)
         self._release(batch.slot)  # its worker has returned (or never started it): nothing writes the slot now
@@ -274,6 +291,8 @@ class Scheduler:
                 return
             result: BatchResult = future.result()
             self.ledger.commit(*result.records)
+            if self.view:
+                self.view.finished(result.records, dict(zip(batch.ids, batch.parameters)), self.ledger.directory)
             for record in result.records:
                 out.committed += 1
                 counted += 1
@@ -385,6 +404,8 @@ class Scheduler:
                     self.live()
                     if self.progress:
                         self.progress.tick()
+                        if self.view:
+                            self.view.progress(self.progress, self._watched)
             except KeyboardInterrupt:  # only from a real rig's run in this process (StopSignals.interruptible)
                 out.interrupted = out.abandoned = True
                 self.inflight.clear()
@@ -403,14 +424,15 @@ class Scheduler:
 
 @dataclass
 class _Batch:
-    """A submitted batch: its point ids, run duration [s], ticks, submit time (monotonic) and its
-    slot in the live channel (None: none)."""
+    """A submitted batch: its point ids, run duration [s], ticks, submit time (monotonic), its
+    slot in the live channel (None: none) and, for the live view, its points' grid parameters."""
 
     ids: list[str]
     duration: float
     ticks: int
     submitted: float
     slot: int | None = None
+    parameters: list[Any] = field(default_factory=list)
 
     @property
     def expected_s(self) -> float:

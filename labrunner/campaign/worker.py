@@ -151,6 +151,7 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
     report = live.hook(task.live_at)
+    ticks = round(task.fs * task.duration)
     if report is not None:
         report(0)  # taken: no longer queued
     t0, start_time = time.perf_counter(), time.time()
@@ -165,7 +166,10 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
         with rig:
             try:
                 results = list(
-                    (run_batch or _batch_runner(rig, report))(
+                    (
+                        run_batch
+                        or _batch_runner(rig, report, live.watcher(task.live_at, ticks, task.fs), len(task.runs))
+                    )(
                         [r.config for r in task.runs],
                         rig,
                         fs=task.fs,
@@ -220,14 +224,17 @@ def _publish_error(exc: Exception) -> str:
     return f"publishing the run logs failed: {type(exc).__name__}: {exc}"
 
 
-def _batch_runner(rig: Any, report: Callable[[int], None] | None) -> Callable[..., Sequence[Any]]:
-    """How a batch runs on ``rig``: the engine's loop (telling ``report`` the ticks done), or the
-    rig's own for a loop on the device (a real rig, in the parent's process: no live channel)."""
+def _batch_runner(
+    rig: Any, report: Callable[[int], None] | None, watch: Callable[..., None] | None = None, runs: int = 1
+) -> Callable[..., Sequence[Any]]:
+    """How a batch of ``runs`` runs on ``rig``: the engine's loop (telling ``report`` the ticks
+    done and ``watch`` its representative run's samples, :func:`live.representative`), or the rig's
+    own for a loop on the device (a real rig, in the parent's process: no live channel)."""
     from labrunner import engine
 
     if getattr(rig, "loop", "host") == "device":
         return lambda points, rig, **kw: rig.run_on_device(points, **kw)
-    return functools.partial(engine.run_batch, progress=report)
+    return functools.partial(engine.run_batch, progress=report, watch=watch, watch_run=live.representative(runs))
 
 
 def _publish_all(

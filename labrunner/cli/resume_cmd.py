@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from labrunner.cli.argtypes import path_text
-from labrunner.cli.run_cmd import add_execution_options, one_blas_thread, report
+from labrunner.cli.run_cmd import add_execution_options, execution_options, one_blas_thread, report
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,8 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     one_blas_thread()
-    from labrunner.campaign.runner import Options, resume
+    from labrunner.campaign.runner import resume
 
-    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)
-    outcome, directory = resume(args.directory, opts, retry_failed=args.retry_failed)
+    outcome, directory = resume(args.directory, execution_options(args), retry_failed=args.retry_failed)
     return report(outcome, directory, "resume")

@@ -7,7 +7,7 @@ import os
 import sys
 
 from labrunner.cli.argtypes import path_text, positive_int
-from labrunner.errors import CampaignError
+from labrunner.errors import CampaignError, InvalidParameter
 
 
 def add_execution_options(parser: argparse.ArgumentParser) -> None:
@@ -19,6 +19,43 @@ def add_execution_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--batch-size", type=positive_int, metavar="N", help="runs per lockstep batch (default: automatic)"
     )
+    parser.add_argument(
+        "--live",
+        nargs="?",
+        const="",
+        type=_live_text,
+        metavar="[HOST:]PORT",
+        help="serve the running campaign to the Foxglove app over WebSocket (default 127.0.0.1:8765; port 0: any "
+        "free port); docs/live.md",
+    )
+    parser.add_argument(
+        "--live-expose",
+        action="store_true",
+        help="allow --live on a non-loopback address (anyone who reaches it sees the campaign; no authentication)",
+    )
+
+
+def _live_text(text: str) -> str:
+    """argparse type of ``--live``: PORT or HOST:PORT; a campaign file or directory given right
+    after a bare ``--live`` is named as such (argparse would take it as the address)."""
+    port = text.rpartition(":")[2]
+    if not port.isdigit():
+        raise argparse.ArgumentTypeError(
+            f"must be a port 0-65535 or HOST:PORT, got {text!r} (a bare --live goes after the file or directory)"
+        )
+    return text
+
+
+def execution_options(args: argparse.Namespace):
+    """The runner's :class:`~labrunner.campaign.runner.Options` from the options of
+    :func:`add_execution_options`."""
+    from labrunner.campaign.live_view import parse_address
+    from labrunner.campaign.runner import Options
+
+    if args.live_expose and args.live is None:
+        raise InvalidParameter("--live-expose", "needs --live HOST:PORT")
+    live = parse_address(args.live, expose=args.live_expose) if args.live is not None else None
+    return Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size, live=live)
 
 
 def one_blas_thread() -> None:
@@ -78,10 +115,9 @@ def _law_check_line(directory: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     one_blas_thread()
-    from labrunner.campaign.runner import Options, start
+    from labrunner.campaign.runner import start
 
-    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)
-    outcome, text = start(args.file, args.out, opts, dry=args.dry_run)
+    outcome, text = start(args.file, args.out, execution_options(args), dry=args.dry_run)
     if outcome is None:
         print(text)
         return 0
