@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import shutil
 import subprocess
 import time
@@ -19,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import pytest
+from tooling import missing
 from websockets.sync.client import connect
 
 NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
@@ -42,10 +41,7 @@ def chromium() -> str:
         found = shutil.which(name)
         if found:
             return found
-    why = f"no Chromium ({', '.join(NAMES)}) on PATH: `apt-get install -y chromium`"
-    if os.environ.get("LABRUNNER_CI") == "1":
-        pytest.fail(why)
-    pytest.skip(why)
+    missing(f"no Chromium ({', '.join(NAMES)}) on PATH: `apt-get install -y chromium`")
 
 
 class Page:
