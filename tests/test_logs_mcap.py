@@ -128,8 +128,8 @@ def test_bulk_writer_reads_back_like_mcap_writer():
 
 def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
     """Every chunk carries the CRC of its records, every message index entry points at a message
-    of its channel with its log time, every block message is indexed once, the per-sample
-    channel (thinned here, so that both topics are written) not at all; chunk indexes point at
+    of its channel with its log time, every message of both topics (thinned here, so that both
+    are written) is indexed exactly once, in chunks of its topic alone; chunk indexes point at
     their chunks; the footer's CRC covers the summary and the footer's start (MCAP spec:
     Footer.summary_crc)."""
     path = tmp_path / "run.mcap"
@@ -152,12 +152,8 @@ def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
         assert size == index.uncompressed_size and len(chunk.data) == index.compressed_size
         op, _, first_channel, _, _ = struct.unpack_from("<BQHIQ", records, 0)
         assert op == Opcode.MESSAGE
-        if summary.channels[first_channel].topic == log_schema.SAMPLES_TOPIC:
-            # no message index (optional in MCAP: 16 bytes a sample); the official reader scans
-            # the chunk (test_logs: every sample through iter_messages)
-            assert index.message_index_offsets == {} and index.message_index_length == 0
-        else:
-            assert {summary.channels[c].topic for c in index.message_index_offsets} == {log_schema.BLOCK_TOPIC}
+        # @mcap/core's indexed reader (Foxglove's) refuses a chunk of messages without indexes
+        assert set(index.message_index_offsets) == {first_channel} and index.message_index_length > 0
         assert chunk.uncompressed_crc == zlib.crc32(records) != 0  # 0 would mean "not computed"
         for channel_id, offset in index.message_index_offsets.items():
             f.seek(offset)
@@ -171,7 +167,7 @@ def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
                 op, _, channel, _, t = struct.unpack_from("<BQHIQ", records, at)
                 assert (op, channel, t) == (Opcode.MESSAGE, channel_id, log_time)
             indexed += len(entries.records)
-    assert indexed == 3 and summary.statistics.message_count == 3 + 300  # blocks + thinned samples
+    assert indexed == summary.statistics.message_count == 3 + 300  # blocks + thinned samples
     footer_at = len(data) - 8 - 29
     assert data[footer_at] == Opcode.FOOTER
     footer = Footer.read(ReadDataStream(io.BytesIO(data[footer_at + 9 :])))
