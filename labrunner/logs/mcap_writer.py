@@ -14,8 +14,10 @@ offsets; footer with the summary CRC. Three differences: schemas and channels go
 section when they are added rather than inside the next chunk, so a file torn before its first
 chunk still declares its topics; each channel's messages go into chunks of their own, so that
 reading one topic decompresses nothing of another; and a channel may be written without message
-indexes (``indexed=False``; optional in MCAP, readers scan such chunks), which for one small
-message per sample saves 16 uncompressed bytes a sample. The records a file
+indexes (``indexed=False``; optional in MCAP, and 16 uncompressed bytes a message less, but
+@mcap/core's indexed reader — Foxglove's — refuses such chunks: only the old labrunner-3 layout,
+written for tests, uses it). :meth:`BulkWriter.copy_chunk` copies a chunk of another file as it
+is and indexes it (how :mod:`labrunner.logs.upgrade` rewrites those logs). The records a file
 writes once (header, schemas, channels, attachments) are written by ``mcap.records``' own
 classes, those every file writes (metadata, indexes, statistics, footer) by
 :mod:`labrunner.logs.mcap_records` in one ``struct`` call each. The start of a file that many files
@@ -37,8 +39,10 @@ from typing import BinaryIO
 import numpy as np
 import zstandard
 from mcap.data_stream import RecordBuilder
+from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Attachment, AttachmentIndex, Channel, Header, McapRecord, Schema
+from mcap.records import Attachment, AttachmentIndex, Channel, Chunk, Header, McapRecord, Schema
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import MCAP0_MAGIC
 
 from labrunner.logs import mcap_records
@@ -107,6 +111,23 @@ def message_records(channel_id: int, log_times: np.ndarray, sequences: np.ndarra
     records = message_array(payloads.shape[0], channel_id, payloads.shape[1])
     records["data"], records["log_time"], records["sequence"] = payloads, log_times, sequences
     return records
+
+
+def message_indexes(records: bytes | memoryview) -> dict[int, np.ndarray]:
+    """The message index of a chunk's uncompressed ``records``: channel id → :data:`_INDEX_ENTRY`
+    rows (log time, offset of the message's record), channels in order of first appearance.
+    McapError for a record that is not a message or runs past the end."""
+    found: dict[int, list[tuple[int, int]]] = {}
+    pos, end = 0, len(records)
+    while pos < end:
+        if pos + _MESSAGE_HEADER.size > end:
+            raise McapError(f"chunk records end inside a record at offset {pos}")
+        opcode, length, channel_id, _, log_time, _ = _MESSAGE_HEADER.unpack_from(records, pos)
+        if opcode != Opcode.MESSAGE or pos + 9 + length > end:
+            raise McapError(f"chunk holds a record of opcode {opcode:#x} at offset {pos}, not a whole message")
+        found.setdefault(channel_id, []).append((log_time, pos))
+        pos += 9 + length
+    return {channel_id: np.array(entries, dtype=_INDEX_ENTRY) for channel_id, entries in found.items()}
 
 
 def _encoded(records: Sequence[McapRecord]) -> bytes:
@@ -338,22 +359,53 @@ class BulkWriter:
         # joined and compressed in one call: ~30 µs a chunk less than zstd's streaming chunker (whose
         # buffers are fresh memory each time); the frame still records the content size
         records = b"".join(chunk.pieces)
-        crc = zlib.crc32(records)
         compressed = _compressor(self._level, threading.get_ident()).compress(records)
+        index = {}
+        for channel_id, parts in chunk.index.items() if chunk.indexed else ():
+            index[channel_id] = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        self._write_chunk(chunk.times, chunk.size, zlib.crc32(records), _CHUNK_TAIL, compressed, index)
+
+    def copy_chunk(self, chunk: Chunk) -> None:
+        """Write ``chunk`` (read from another file) as it is, compressed data and CRC included,
+        with a message index of every channel in it and its times taken from its messages, after
+        everything added so far (open chunks are closed first). McapError for a chunk that holds
+        anything but messages (e.g. schemas, as ``mcap``'s writer puts there: the summary would
+        lack them)."""
+        self._close_chunks()
+        stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+        index = message_indexes(stream.read(size))
+        if not index:
+            return
+        for channel_id, entries in index.items():
+            self._counts[channel_id] += len(entries)
+        times = [(int(e["log_time"].min()), int(e["log_time"].max())) for e in index.values()]
+        span = (min(t[0] for t in times), max(t[1] for t in times))
+        self._write_chunk(span, size, chunk.uncompressed_crc, mcap_records.string(chunk.compression), chunk.data, index)
+
+    def _write_chunk(
+        self,
+        times: tuple[int, int],
+        size: int,
+        crc: int,
+        compression: bytes,
+        compressed: bytes,
+        index: Mapping[int, np.ndarray],
+    ) -> None:
+        """Write a chunk record (``compression``: the encoded name), the message index of each
+        channel in ``index`` after it (channel id → :data:`_INDEX_ENTRY` rows), its chunk index."""
+        start_time, end_time = times
         compressed_size = len(compressed)
-        start_time, end_time = chunk.times
-        length = _CHUNK_HEADER.size - 9 + len(_CHUNK_TAIL) + 8 + compressed_size
+        length = _CHUNK_HEADER.size - 9 + len(compression) + 8 + compressed_size
         chunk_start = self._offset
         self._write(
-            _CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, chunk.size, crc)
-            + _CHUNK_TAIL
+            _CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, size, crc)
+            + compression
             + struct.pack("<Q", compressed_size)
         )
         self._write(compressed)
         chunk_length = self._offset - chunk_start
         offsets = {}
-        for channel_id, parts in chunk.index.items() if chunk.indexed else ():
-            entries = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        for channel_id, entries in index.items():
             offsets[channel_id] = self._offset
             self._write(
                 _MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes, channel_id, entries.nbytes)
@@ -367,9 +419,9 @@ class BulkWriter:
                 chunk_length,
                 offsets,
                 self._offset - chunk_start - chunk_length,
-                "zstd",
+                compression[4:].decode(),
                 compressed_size,
-                chunk.size,
+                size,
             )
         )
         self._first_time = start_time if self._first_time is None else min(self._first_time, start_time)

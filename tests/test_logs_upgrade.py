@@ -1,0 +1,167 @@
+"""Issue 34: ``labrunner upgrade-logs DIR`` rewrites a campaign's labrunner-3 logs (refused by
+Foxglove's indexed reader) in the current layout — the same samples bit for bit, the ledger's
+fingerprints following — safely: a SIGKILL anywhere loses nothing, and the next run finishes.
+
+The old logs are written by labrunner's own writer in its labrunner-3 layout
+(``LogPrefix(log_format="labrunner-3")``) through a real ``labrunner run``."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from foxglove_reader import check_log, read_with_mcap_core
+from test_campaign_support import campaign_text, write
+
+from labrunner.analysis.analyse import analyse
+from labrunner.campaign.ledger import Ledger
+from labrunner.campaign.lock import DirectoryLock
+from labrunner.campaign.upgrade import JOURNAL_KEY
+from labrunner.cli import main
+from labrunner.logs import read_run, writer
+from labrunner.logs.upgrade import unindexed_messages
+from labrunner.run_identity import FINGERPRINT_COLUMNS, fingerprint
+
+GRID = '"controller.k_p" = { values = [10.0, 50.0, 3000.0] }'
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class _OldPrefix(writer.LogPrefix):
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs, log_format="labrunner-3")
+
+
+@pytest.fixture
+def old_campaign(project: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Path, dict]:
+    """A motor campaign (two completed runs, one aborted) whose logs are labrunner-3, and each
+    log's reading before any upgrade."""
+    with monkeypatch.context() as patch:
+        patch.setattr(writer, "LogPrefix", _OldPrefix)  # BatchPrefixes makes the worker's prefixes
+        path = write(project / "old.toml", campaign_text("old", grid=GRID, duration=1.0))
+        assert main(["run", str(path), "--workers", "1"]) == 0
+    directory = project / "data" / "old"
+    logs = {p.stem: read_run(p) for p in (directory / "runs").glob("*.mcap")}
+    assert len(logs) == 3 and {log.outcome["status"] for log in logs.values()} == {"completed", "aborted"}
+    assert all(log.metadata["run"]["log_format"] == "labrunner-3" for log in logs.values())
+    return directory, logs
+
+
+def _ledger_rows(directory: Path) -> dict[str, dict]:
+    with Ledger.open_readonly(directory) as ledger:
+        return {r["id"]: dict(r) for r in ledger.rows()}
+
+
+def assert_upgraded(directory: Path, before: dict) -> None:
+    """Every log in the current layout with the same samples and records, its fingerprint in the
+    ledger, no temporary file or journal left."""
+    rows = _ledger_rows(directory)
+    for point_id, old in before.items():
+        path = directory / rows[point_id]["log_path"]
+        assert unindexed_messages(path) == 0
+        new = read_run(path)
+        assert np.array_equal(new.data.view(np.uint64), old.data.view(np.uint64)), point_id
+        assert new.metadata["run"] == {**old.metadata["run"], "log_format": writer.LOG_FORMAT}
+        assert (new.outcome, new.channels, new.attachments) == (old.outcome, old.channels, old.attachments)
+        assert tuple(rows[point_id][c] for c in FINGERPRINT_COLUMNS) == fingerprint(path), point_id
+    assert not list((directory / "runs").glob(".tmp-*"))
+    with Ledger.open_readonly(directory) as ledger:
+        assert JOURNAL_KEY not in ledger.meta()
+
+
+def test_old_logs_are_rewritten_once_and_open_in_foxglove(old_campaign, capsys):
+    directory, before = old_campaign
+    first = next(iter((directory / "runs").glob("*.mcap")))
+    assert "chunk index without message indexes" in read_with_mcap_core(first)["indexed"]["error"]
+    stats = {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")}
+
+    assert main(["upgrade-logs", str(directory), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "would rewrite 3 log(s)" in out and "0 already current" in out
+    assert {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")} == stats  # nothing touched
+
+    assert main(["upgrade-logs", str(directory)]) == 0
+    captured = capsys.readouterr()
+    assert "rewrote 3 log(s)" in captured.out and "3/3 logs checked, 3 rewritten" in captured.err
+    assert_upgraded(directory, before)
+    for path in (directory / "runs").glob("*.mcap"):
+        check_log(path)
+    summary = analyse(directory, workers=1, progress=False)  # the new fingerprints vouch: no log read
+    assert summary["logs_read"] == 0 and not summary["problems"]
+
+    stats = {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")}
+    assert main(["upgrade-logs", str(directory)]) == 0  # idempotent: nothing left to rewrite
+    out = capsys.readouterr().out
+    assert "rewrote 0 log(s)" in out and "3 already current" in out
+    assert {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")} == stats
+
+
+def test_refused_while_a_runner_holds_the_campaign(old_campaign, capsys):
+    directory, _ = old_campaign
+    stats = {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")}
+    with DirectoryLock(directory, "run"):
+        assert main(["upgrade-logs", str(directory)]) == 1
+    assert "is in use by" in capsys.readouterr().err
+    assert {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")} == stats
+
+
+# Runs ``labrunner upgrade-logs DIR`` and SIGKILLs itself at the n-th call of one step.
+KILLER = textwrap.dedent(
+    """
+    import os, signal, sys
+    import labrunner.logs.upgrade as upgrade
+    from labrunner.campaign.ledger import Ledger
+    from labrunner.cli import main
+
+    directory, step, nth = sys.argv[1], sys.argv[2], int(sys.argv[3])
+    calls = []
+
+    def killing(function, after):
+        def wrapped(*args, **kwargs):
+            calls.append(1)
+            if len(calls) == nth and not after:
+                os.kill(os.getpid(), signal.SIGKILL)
+            result = function(*args, **kwargs)
+            if len(calls) == nth and after:
+                os.kill(os.getpid(), signal.SIGKILL)
+            return result
+        return wrapped
+
+    if step == "rewritten":  # a temporary file written, not yet fsynced nor in the journal
+        upgrade.rewrite = killing(upgrade.rewrite, after=True)
+    elif step == "renaming":  # the batch in the journal, some of its files renamed
+        os.replace = killing(os.replace, after=False)
+    elif step == "renamed":  # every file renamed, the fingerprints not yet in the ledger
+        Ledger.set_fingerprints = killing(Ledger.set_fingerprints, after=False)
+    main(["upgrade-logs", directory])
+    """
+)
+
+
+@pytest.mark.parametrize(
+    "step, nth, renamed", [("rewritten", 2, 0), ("renaming", 2, 1), ("renamed", 1, 3)]
+)  # renamed: logs already in the new layout when the process dies
+def test_a_kill_at_any_step_loses_nothing_and_the_next_run_finishes(old_campaign, step, nth, renamed):
+    directory, before = old_campaign
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run(
+        [sys.executable, "-c", KILLER, str(directory), step, str(nth)], env=env, capture_output=True, timeout=120
+    )
+    assert done.returncode == -signal.SIGKILL, done.stderr
+    rows = _ledger_rows(directory)
+    new = [pid for pid, row in rows.items() if unindexed_messages(directory / row["log_path"]) == 0]
+    assert len(new) == renamed
+    for point_id, old in before.items():  # every log whole, old or new, and still its point's
+        log = read_run(directory / rows[point_id]["log_path"])
+        assert not log.torn and not log.damaged and log.metadata["run"]["point_id"] == point_id
+        assert np.array_equal(log.data.view(np.uint64), old.data.view(np.uint64))
+    with Ledger.open_readonly(directory) as ledger:
+        assert (JOURNAL_KEY in ledger.meta()) == (step != "rewritten")
+
+    assert main(["upgrade-logs", str(directory)]) == 0
+    assert_upgraded(directory, before)
