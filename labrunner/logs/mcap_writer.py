@@ -53,6 +53,7 @@ CHUNK_SIZE = 1 << 20  # uncompressed bytes of records per chunk (mcap's default)
 # coding of the float64 mantissas (files ~10 % larger) for 5× faster compression.
 ZSTD_LEVEL = 1
 _CHUNK_TAIL = struct.pack("<I", 4) + b"zstd"  # the chunks' compression, as MCAP names it
+_RECORD_LENGTH = struct.Struct("<Q")
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log and publish time
 _MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")  # opcode, record length, channel, index byte length
 _CHUNK_HEADER = struct.Struct("<BQQQQI")  # opcode, record length, start and end time, size, CRC
@@ -117,6 +118,9 @@ def message_indexes(records: bytes | memoryview) -> dict[int, np.ndarray]:
     """The message index of a chunk's uncompressed ``records``: channel id → :data:`_INDEX_ENTRY`
     rows (log time, offset of the message's record), channels in order of first appearance.
     McapError for a record that is not a message or runs past the end."""
+    fixed = _fixed_size_indexes(records)
+    if fixed is not None:
+        return fixed
     found: dict[int, list[tuple[int, int]]] = {}
     pos, end = 0, len(records)
     while pos < end:
@@ -128,6 +132,41 @@ def message_indexes(records: bytes | memoryview) -> dict[int, np.ndarray]:
         found.setdefault(channel_id, []).append((log_time, pos))
         pos += 9 + length
     return {channel_id: np.array(entries, dtype=_INDEX_ENTRY) for channel_id, entries in found.items()}
+
+
+def _fixed_size_indexes(records: bytes | memoryview) -> dict[int, np.ndarray] | None:
+    """:func:`message_indexes` of records that are all messages of one size (this writer's
+    chunks), read as one numpy array (~60× faster than record by record); None for any other."""
+    if len(records) < _MESSAGE_HEADER.size:
+        return None
+    size = 9 + _RECORD_LENGTH.unpack_from(records, 1)[0]
+    if size < _MESSAGE_HEADER.size or len(records) % size:
+        return None
+    rows = np.frombuffer(records, dtype=_message_header_dtype(size))
+    if not ((rows["opcode"] == Opcode.MESSAGE).all() and (rows["length"] == size - 9).all()):
+        return None
+    channels, first = np.unique(rows["channel"], return_index=True)
+    offsets = size * np.arange(len(rows), dtype=np.uint64)
+    indexes = {}
+    for channel_id in channels[np.argsort(first)]:
+        mine = rows["channel"] == channel_id
+        entries = np.empty(int(mine.sum()), dtype=_INDEX_ENTRY)
+        entries["log_time"], entries["offset"] = rows["log_time"][mine], offsets[mine]
+        indexes[int(channel_id)] = entries
+    return indexes
+
+
+@functools.lru_cache(maxsize=16)
+def _message_header_dtype(size: int) -> np.dtype:
+    """A message record of ``size`` bytes: its header's fields, the payload skipped."""
+    return np.dtype(
+        {
+            "names": ["opcode", "length", "channel", "log_time"],
+            "formats": ["u1", "<u8", "<u2", "<u8"],
+            "offsets": [0, 1, 9, 15],
+            "itemsize": size,
+        }
+    )
 
 
 def _encoded(records: Sequence[McapRecord]) -> bytes:
