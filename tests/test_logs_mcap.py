@@ -36,7 +36,8 @@ from mcap.writer import CompressionType, Writer
 from test_logs_support import COMPLETED, motor_run
 
 from labrunner.logs import mcap_records, read_run, schema as log_schema, write_run
-from labrunner.logs.mcap_writer import BulkWriter, message_indexes
+from labrunner.logs.mcap_index import message_indexes
+from labrunner.logs.mcap_writer import BulkWriter
 from labrunner.logs.metadata_text import encode_record
 
 

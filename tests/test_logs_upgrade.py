@@ -165,3 +165,70 @@ def test_a_kill_at_any_step_loses_nothing_and_the_next_run_finishes(old_campaign
 
     assert main(["upgrade-logs", str(directory)]) == 0
     assert_upgraded(directory, before)
+
+
+def test_thinned_float32_logs_are_upgraded(project):
+    """Logs with both topics (``samples_hz``) and float32 fields (``precision``) keep them."""
+    extra = '[logging]\nsamples_hz = 40.0\nprecision = "float32"\n'
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(writer, "LogPrefix", _OldPrefix)
+        path = write(project / "thin.toml", campaign_text("thin", grid=GRID, duration=1.0, extra=extra))
+        assert main(["run", str(path), "--workers", "1"]) == 0
+    directory = project / "data" / "thin"
+    before = {p.stem: read_run(p) for p in (directory / "runs").glob("*.mcap")}
+    assert main(["upgrade-logs", str(directory)]) == 0
+    assert_upgraded(directory, before)
+    for path in (directory / "runs").glob("*.mcap"):
+        log = check_log(path)
+        assert log.metadata["run"]["samples"].startswith("every 5th") and "float32" in log.metadata["run"]["samples"]
+
+
+def test_a_streamed_log_keeps_its_chunks_as_they_were(tmp_path):
+    """A real rig's log (a chunk per flush) is rewritten chunk for chunk: the compressed bytes are
+    copied, not compressed again, and each chunk gets its index."""
+    from mcap.reader import make_reader
+
+    from labrunner.logs import RunLogWriter
+    from labrunner.logs.upgrade import rewrite, same_run
+
+    old, new = tmp_path / "old.mcap", tmp_path / "new.mcap"
+    prefix = writer.LogPrefix(fs=500.0, channels=["y", "u"], log_format="labrunner-3")
+    k = np.arange(2000.0)
+    with RunLogWriter(old, metadata={"run": {"point_id": "p"}}, prefix=prefix, flush_interval_s=0.0) as w:
+        for start in range(0, 2000, 300):
+            w.write_block(start, {"y": np.sin(k[start : start + 300]), "u": -k[start : start + 300]})
+        w.finish({"status": "completed"})
+    with open(new, "wb") as fh:
+        rewrite(old, fh)
+    same_run(read_run(old), new)
+
+    def chunks(path: Path) -> list[tuple[bytes, int]]:
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+            out = []
+            for index in summary.chunk_indexes:
+                f.seek(index.chunk_start_offset)
+                record = f.read(index.chunk_length)
+                out.append((record[-index.compressed_size :], index.message_index_length))
+            return out
+
+    before, after = chunks(old), chunks(new)
+    assert len(before) == 7 and [c for c, _ in after] == [c for c, _ in before]
+    assert all(n == 0 for _, n in before) and all(n > 0 for _, n in after)
+    check_log(new)
+
+
+def test_a_log_that_cannot_be_read_is_left_as_it_is_and_named(old_campaign, capsys):
+    directory, before = old_campaign
+    torn = sorted((directory / "runs").glob("*.mcap"))[0]
+    with open(torn, "r+b") as f:
+        f.truncate(torn.stat().st_size - 8)
+    damaged = torn.read_bytes()
+    assert main(["upgrade-logs", str(directory)]) == 1
+    out = capsys.readouterr().out
+    assert "rewrote 2 log(s)" in out and f"skipped {torn.stem}: runs/{torn.name}" in out
+    assert torn.read_bytes() == damaged
+    del before[torn.stem]
+    rows = _ledger_rows(directory)
+    for point_id in before:
+        assert unindexed_messages(directory / rows[point_id]["log_path"]) == 0

@@ -39,13 +39,13 @@ from typing import BinaryIO
 import numpy as np
 import zstandard
 from mcap.data_stream import RecordBuilder
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, AttachmentIndex, Channel, Chunk, Header, McapRecord, Schema
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import MCAP0_MAGIC
 
 from labrunner.logs import mcap_records
+from labrunner.logs.mcap_index import INDEX_ENTRY, MESSAGE_HEADER, message_indexes
 
 CHUNK_SIZE = 1 << 20  # uncompressed bytes of records per chunk (mcap's default)
 # zstd level 1: level 3 (zstd's and mcap's default) makes a 3 s, 32 kHz plate run's file < 1 %
@@ -53,12 +53,10 @@ CHUNK_SIZE = 1 << 20  # uncompressed bytes of records per chunk (mcap's default)
 # coding of the float64 mantissas (files ~10 % larger) for 5× faster compression.
 ZSTD_LEVEL = 1
 _CHUNK_TAIL = struct.pack("<I", 4) + b"zstd"  # the chunks' compression, as MCAP names it
-_RECORD_LENGTH = struct.Struct("<Q")
-_MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log and publish time
+
 _MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")  # opcode, record length, channel, index byte length
 _CHUNK_HEADER = struct.Struct("<BQQQQI")  # opcode, record length, start and end time, size, CRC
 _FOOTER_PREFIX = struct.Struct("<BQQQ")  # opcode, record length, summary start, summary offset start
-_INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 
 
 @functools.lru_cache(maxsize=16)
@@ -81,8 +79,8 @@ def message_row(channel_id: int, payload: np.dtype | int, template: np.ndarray |
         {
             "names": ["opcode", "length", "channel", "sequence", "log_time", "publish_time", "data"],
             "formats": ["u1", "<u8", "<u2", "<u4", "<u8", "<u8", payload],
-            "offsets": [0, 1, 9, 11, 15, 23, _MESSAGE_HEADER.size],
-            "itemsize": _MESSAGE_HEADER.size + payload.itemsize,
+            "offsets": [0, 1, 9, 11, 15, 23, MESSAGE_HEADER.size],
+            "itemsize": MESSAGE_HEADER.size + payload.itemsize,
         }
     )
     row = np.zeros(1, dtype=dtype)
@@ -112,61 +110,6 @@ def message_records(channel_id: int, log_times: np.ndarray, sequences: np.ndarra
     records = message_array(payloads.shape[0], channel_id, payloads.shape[1])
     records["data"], records["log_time"], records["sequence"] = payloads, log_times, sequences
     return records
-
-
-def message_indexes(records: bytes | memoryview) -> dict[int, np.ndarray]:
-    """The message index of a chunk's uncompressed ``records``: channel id → :data:`_INDEX_ENTRY`
-    rows (log time, offset of the message's record), channels in order of first appearance.
-    McapError for a record that is not a message or runs past the end."""
-    fixed = _fixed_size_indexes(records)
-    if fixed is not None:
-        return fixed
-    found: dict[int, list[tuple[int, int]]] = {}
-    pos, end = 0, len(records)
-    while pos < end:
-        if pos + _MESSAGE_HEADER.size > end:
-            raise McapError(f"chunk records end inside a record at offset {pos}")
-        opcode, length, channel_id, _, log_time, _ = _MESSAGE_HEADER.unpack_from(records, pos)
-        if opcode != Opcode.MESSAGE or pos + 9 + length > end:
-            raise McapError(f"chunk holds a record of opcode {opcode:#x} at offset {pos}, not a whole message")
-        found.setdefault(channel_id, []).append((log_time, pos))
-        pos += 9 + length
-    return {channel_id: np.array(entries, dtype=_INDEX_ENTRY) for channel_id, entries in found.items()}
-
-
-def _fixed_size_indexes(records: bytes | memoryview) -> dict[int, np.ndarray] | None:
-    """:func:`message_indexes` of records that are all messages of one size (this writer's
-    chunks), read as one numpy array (~60× faster than record by record); None for any other."""
-    if len(records) < _MESSAGE_HEADER.size:
-        return None
-    size = 9 + _RECORD_LENGTH.unpack_from(records, 1)[0]
-    if size < _MESSAGE_HEADER.size or len(records) % size:
-        return None
-    rows = np.frombuffer(records, dtype=_message_header_dtype(size))
-    if not ((rows["opcode"] == Opcode.MESSAGE).all() and (rows["length"] == size - 9).all()):
-        return None
-    channels, first = np.unique(rows["channel"], return_index=True)
-    offsets = size * np.arange(len(rows), dtype=np.uint64)
-    indexes = {}
-    for channel_id in channels[np.argsort(first)]:
-        mine = rows["channel"] == channel_id
-        entries = np.empty(int(mine.sum()), dtype=_INDEX_ENTRY)
-        entries["log_time"], entries["offset"] = rows["log_time"][mine], offsets[mine]
-        indexes[int(channel_id)] = entries
-    return indexes
-
-
-@functools.lru_cache(maxsize=16)
-def _message_header_dtype(size: int) -> np.dtype:
-    """A message record of ``size`` bytes: its header's fields, the payload skipped."""
-    return np.dtype(
-        {
-            "names": ["opcode", "length", "channel", "log_time"],
-            "formats": ["u1", "<u8", "<u2", "<u8"],
-            "offsets": [0, 1, 9, 15],
-            "itemsize": size,
-        }
-    )
 
 
 def _encoded(records: Sequence[McapRecord]) -> bytes:
@@ -334,8 +277,8 @@ class BulkWriter:
     def add_message(self, channel_id: int, log_time: int, sequence: int, parts: Sequence[bytes | np.ndarray]) -> None:
         """Append one message whose payload is ``parts`` concatenated (bytes-like pieces, joined
         only when the chunk is written); ``log_time`` [ns]."""
-        length = _MESSAGE_HEADER.size - 9 + sum(memoryview(p).nbytes for p in parts)
-        header = _MESSAGE_HEADER.pack(Opcode.MESSAGE, length, channel_id, sequence, log_time, log_time)
+        length = MESSAGE_HEADER.size - 9 + sum(memoryview(p).nbytes for p in parts)
+        header = MESSAGE_HEADER.pack(Opcode.MESSAGE, length, channel_id, sequence, log_time, log_time)
         chunk = self._chunk(channel_id)
         self._append(
             chunk,
@@ -374,7 +317,7 @@ class BulkWriter:
     def _append(self, chunk: _Chunk, channel_id: int, log_times: np.ndarray, offsets: np.ndarray, pieces: list) -> None:
         """Add records (``pieces``, in order) of one channel's messages at ``offsets`` in its open
         chunk; close the chunk once full."""
-        entries = np.empty(len(offsets), dtype=_INDEX_ENTRY)
+        entries = np.empty(len(offsets), dtype=INDEX_ENTRY)
         entries["log_time"], entries["offset"] = log_times, offsets
         chunk.index.setdefault(channel_id, []).append(entries)
         chunk.pieces += pieces
@@ -431,7 +374,7 @@ class BulkWriter:
         index: Mapping[int, np.ndarray],
     ) -> None:
         """Write a chunk record (``compression``: the encoded name), the message index of each
-        channel in ``index`` after it (channel id → :data:`_INDEX_ENTRY` rows), its chunk index."""
+        channel in ``index`` after it (channel id → :data:`INDEX_ENTRY` rows), its chunk index."""
         start_time, end_time = times
         compressed_size = len(compressed)
         length = _CHUNK_HEADER.size - 9 + len(compression) + 8 + compressed_size
