@@ -5,12 +5,15 @@ once, with the values labrunner's reader gives, bit for bit (:mod:`foxglove_read
 Kinds: motor, valve and plate twins through ``labrunner run`` (completed and aborted runs), a
 campaign thinned by ``[logging] samples_hz``, a motor campaign whose loop runs on the emulated
 device, a streamed run that failed, a streamed run killed mid-run (torn: the stream reader reads
-it up to the cut, as labrunner salvages it) and the labrunner-2 log kept as a fixture."""
+it up to the cut, as labrunner salvages it), the logs ``resume`` accepts and quarantines after a
+runner's crash, and the labrunner-2 log kept as a fixture."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 from pathlib import Path
@@ -177,3 +180,26 @@ def test_a_labrunner_3_log_is_refused_by_the_indexed_reader(tmp_path):
     out = read_with_mcap_core(path)
     assert "chunk index without message indexes" in out["indexed"]["error"]
     assert len(out["stream"]["messages"]["/run/samples"]) == 50
+
+
+def test_logs_recovered_after_a_crash(project):
+    """A runner that died after a worker published a log and before it committed the row, while
+    another log was half written: ``resume`` accepts the first (``recovered``) and quarantines the
+    second; both open, the torn one by the stream reader up to its cut."""
+    logs = _campaign(project, campaign_text("crash", grid=MOTOR_GRID, duration=1.5))
+    directory = project / "out"
+    published, other = logs
+    torn = directory / "runs" / f".tmp-{other.stem}-999-x.mcap"
+    torn.write_bytes(other.read_bytes()[: other.stat().st_size * 2 // 3])
+    db = sqlite3.connect(directory / "ledger.sqlite")
+    with db:
+        db.execute("UPDATE points SET state = 'claimed' WHERE id = ?", (published.stem,))
+    db.close()
+    assert main(["resume", str(directory)]) == 0
+    db = sqlite3.connect(directory / "ledger.sqlite")
+    (outcome,) = db.execute("SELECT outcome_json FROM points WHERE id = ?", (published.stem,)).fetchone()
+    (moved,) = db.execute("SELECT moved_to FROM quarantine").fetchone()
+    db.close()
+    assert json.loads(outcome)["recovered"] is True
+    check_log(published)
+    assert check_log(directory / moved).torn
