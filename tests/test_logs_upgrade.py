@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import stat
 import subprocess
 import sys
 import textwrap
@@ -74,10 +75,12 @@ def assert_upgraded(directory: Path, before: dict) -> None:
         assert JOURNAL_KEY not in ledger.meta()
 
 
+@pytest.mark.slow
 def test_old_logs_are_rewritten_once_and_open_in_foxglove(old_campaign, capsys):
     directory, before = old_campaign
     first = next(iter((directory / "runs").glob("*.mcap")))
     assert "chunk index without message indexes" in read_with_mcap_core(first)["indexed"]["error"]
+    first.chmod(0o440)  # a log made read-only stays so
     stats = {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")}
 
     assert main(["upgrade-logs", str(directory), "--dry-run"]) == 0
@@ -89,6 +92,7 @@ def test_old_logs_are_rewritten_once_and_open_in_foxglove(old_campaign, capsys):
     captured = capsys.readouterr()
     assert "rewrote 3 log(s)" in captured.out and "3/3 logs checked, 3 rewritten" in captured.err
     assert_upgraded(directory, before)
+    assert stat.S_IMODE(first.stat().st_mode) == 0o440
     for path in (directory / "runs").glob("*.mcap"):
         check_log(path)
     summary = analyse(directory, workers=1, progress=False)  # the new fingerprints vouch: no log read
@@ -232,3 +236,11 @@ def test_a_log_that_cannot_be_read_is_left_as_it_is_and_named(old_campaign, caps
     rows = _ledger_rows(directory)
     for point_id in before:
         assert unindexed_messages(directory / rows[point_id]["log_path"]) == 0
+
+
+def test_a_directory_without_a_ledger_is_refused_in_one_line(tmp_path, capsys):
+    for extra in ([], ["--dry-run"]):
+        assert main(["upgrade-logs", str(tmp_path), *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "holds no campaign ledger" in err and len(err.splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []  # no lock file made

@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from labrunner.campaign import seal
-from labrunner.campaign.ledger import TERMINAL, Ledger, fsync_dir
+from labrunner.campaign.ledger import TERMINAL, Ledger, fsync_dir, ledger_path
 from labrunner.campaign.lock import DirectoryLock
 from labrunner.campaign.recovery import verify_log
 from labrunner.campaign.worker import TMP_PREFIX
@@ -126,6 +127,7 @@ def upgrade_logs(directory: Path, *, progress: Callable[[str], None] | None = No
 
     start = time.monotonic()
     report = UpgradeReport()
+    ledger_path(directory)  # a directory that is no campaign's is refused before its lock is made
     with DirectoryLock(directory, "upgrade-logs"), Ledger.open(directory) as ledger:
         seal.clear(ledger)
         report.finished = _finish(ledger, json.loads(ledger.meta().get(JOURNAL_KEY) or "{}"), report)
@@ -147,6 +149,7 @@ def upgrade_logs(directory: Path, *, progress: Callable[[str], None] | None = No
                     _check(old, point_id)
                     with open(tmp, "wb") as fh:
                         rewrite(path, fh)
+                        os.fchmod(fh.fileno(), stat.S_IMODE(path.stat().st_mode))  # as the log was
                         os.fsync(fh.fileno())
                     same_run(old, tmp)
                 except OSError:  # the environment's (a full disk, permissions): stop, the CLI says where
