@@ -81,12 +81,12 @@ def test_old_logs_are_rewritten_once_and_open_in_foxglove(old_campaign, capsys):
     first = next(iter((directory / "runs").glob("*.mcap")))
     assert "chunk index without message indexes" in read_with_mcap_core(first)["indexed"]["error"]
     first.chmod(0o440)  # a log made read-only stays so
-    stats = {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")}
+    stats = {p.name: fingerprint(p) for p in (directory / "runs").glob("*.mcap")}
 
     assert main(["upgrade-logs", str(directory), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "would rewrite 3 log(s)" in out and "0 already current" in out
-    assert {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")} == stats  # nothing touched
+    assert {p.name: fingerprint(p) for p in (directory / "runs").glob("*.mcap")} == stats  # nothing touched
 
     assert main(["upgrade-logs", str(directory)]) == 0
     captured = capsys.readouterr()
@@ -98,20 +98,20 @@ def test_old_logs_are_rewritten_once_and_open_in_foxglove(old_campaign, capsys):
     summary = analyse(directory, workers=1, progress=False)  # the new fingerprints vouch: no log read
     assert summary["logs_read"] == 0 and not summary["problems"]
 
-    stats = {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")}
+    stats = {p.name: fingerprint(p) for p in (directory / "runs").glob("*.mcap")}
     assert main(["upgrade-logs", str(directory)]) == 0  # idempotent: nothing left to rewrite
     out = capsys.readouterr().out
     assert "rewrote 0 log(s)" in out and "3 already current" in out
-    assert {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")} == stats
+    assert {p.name: fingerprint(p) for p in (directory / "runs").glob("*.mcap")} == stats
 
 
 def test_refused_while_a_runner_holds_the_campaign(old_campaign, capsys):
     directory, _ = old_campaign
-    stats = {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")}
+    stats = {p.name: fingerprint(p) for p in (directory / "runs").glob("*.mcap")}
     with DirectoryLock(directory, "run"):
         assert main(["upgrade-logs", str(directory)]) == 1
     assert "is in use by" in capsys.readouterr().err
-    assert {p.name: os.stat(p) for p in (directory / "runs").glob("*.mcap")} == stats
+    assert {p.name: fingerprint(p) for p in (directory / "runs").glob("*.mcap")} == stats
 
 
 # Runs ``labrunner upgrade-logs DIR`` and SIGKILLs itself at the n-th call of one step.
