@@ -222,17 +222,19 @@ def test_a_streamed_log_keeps_its_chunks_as_they_were(tmp_path):
     check_log(new)
 
 
-def test_a_log_that_cannot_be_read_is_left_as_it_is_and_named(old_campaign, capsys):
+def test_a_log_that_cannot_be_read_or_is_missing_is_left_as_it_is_and_named(old_campaign, capsys):
     directory, before = old_campaign
-    torn = sorted((directory / "runs").glob("*.mcap"))[0]
+    torn, gone, _ = sorted((directory / "runs").glob("*.mcap"))
     with open(torn, "r+b") as f:
         f.truncate(torn.stat().st_size - 8)
     damaged = torn.read_bytes()
+    gone.unlink()
     assert main(["upgrade-logs", str(directory)]) == 1
     out = capsys.readouterr().out
-    assert "rewrote 2 log(s)" in out and f"skipped {torn.stem}: runs/{torn.name}" in out
-    assert torn.read_bytes() == damaged
-    del before[torn.stem]
+    assert "rewrote 1 log(s)" in out and f"skipped {torn.stem}: runs/{torn.name}" in out
+    assert f"skipped {gone.stem}: runs/{gone.name}: missing" in out
+    assert torn.read_bytes() == damaged and not gone.exists()
+    del before[torn.stem], before[gone.stem]
     rows = _ledger_rows(directory)
     for point_id in before:
         assert unindexed_messages(directory / rows[point_id]["log_path"]) == 0

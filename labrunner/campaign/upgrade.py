@@ -30,6 +30,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from labrunner.campaign import seal
 from labrunner.campaign.ledger import TERMINAL, Ledger, fsync_dir, ledger_path
@@ -37,6 +38,9 @@ from labrunner.campaign.lock import DirectoryLock
 from labrunner.campaign.recovery import verify_log
 from labrunner.campaign.worker import TMP_PREFIX
 from labrunner.run_identity import fingerprint
+
+if TYPE_CHECKING:  # the log reader is imported where logs are read: `labrunner --help` stays light
+    from labrunner.logs import RunLog
 
 #: The ledger ``meta`` key of the batch being renamed (JSON: point id → [log path, temporary file name]).
 JOURNAL_KEY = "logs_upgrading"
@@ -141,6 +145,9 @@ def upgrade_logs(directory: Path, *, progress: Callable[[str], None] | None = No
             for point_id, log_path in batch:
                 path = directory / log_path
                 tmp = path.with_name(f"{TMP_PREFIX}{point_id}{_SUFFIX}")
+                if not path.exists():
+                    report.skipped.append(f"{point_id}: {log_path}: missing (`labrunner resume` reruns its point)")
+                    continue
                 try:
                     if not unindexed_messages(path):
                         report.current += 1
@@ -176,7 +183,7 @@ def upgrade_logs(directory: Path, *, progress: Callable[[str], None] | None = No
     return report
 
 
-def _check(log, point_id: str) -> None:
+def _check(log: RunLog, point_id: str) -> None:
     """UpgradeError unless ``log`` is a complete, undamaged run of ``point_id``."""
     from labrunner.logs.upgrade import UpgradeError
     from labrunner.run_identity import mismatch
