@@ -68,7 +68,9 @@ class UpgradeReport:
         about = "about " if self.dry_run else ""
         parts = [
             f"{verb} {self.rewritten} log(s) in the current layout "
-            f"({_mb(self.bytes_before)} → {about}{_mb(self.bytes_after)}, {about}+{_mb(growth)})",
+            f"({_mb(self.bytes_before)} → {about}{_mb(self.bytes_after)}, {about}+{_mb(growth)})"
+            if self.rewritten
+            else f"nothing to rewrite{' now' if self.dry_run else ''}",
             f"{self.current} already current",
         ]
         if self.finished:
