@@ -129,6 +129,8 @@ def check_log(path: Path) -> RunLog:
                     full[signal["name"]] += [_number(v) for v in signal["values"]]
             for j, name in enumerate(log.names):
                 assert_same_bits(np.array(full[name]), log.data[j], f"{which} {BLOCK_TOPIC} {name}")
+        for topic, (forwards, backwards) in got.get("byTopic", {}).items():  # a panel's read of one topic
+            assert forwards == backwards == [row[0] for row in got["messages"][topic]], f"{which} {topic} alone"
         seen.append(Counter((topic, row[0], int(row[1])) for topic, rows in got["messages"].items() for row in rows))
     assert all(max(c.values(), default=1) == 1 for c in seen), "a message read twice"
     if not log.torn:

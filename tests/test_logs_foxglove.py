@@ -203,3 +203,17 @@ def test_logs_recovered_after_a_crash(project):
     assert json.loads(outcome)["recovered"] is True
     check_log(published)
     assert check_log(directory / moved).torn
+
+
+def test_without_the_typescript_reader_ci_fails_and_a_laptop_skips(tmp_path, monkeypatch):
+    """No node_modules (``npm ci --prefix tests/js`` not run): under LABRUNNER_CI=1 the tests fail,
+    elsewhere they skip."""
+    import foxglove_reader
+
+    monkeypatch.setattr(foxglove_reader, "JS", tmp_path)
+    monkeypatch.setenv("LABRUNNER_CI", "1")
+    with pytest.raises(pytest.fail.Exception, match="npm ci --prefix tests/js"):
+        foxglove_reader.node_command()
+    monkeypatch.delenv("LABRUNNER_CI")
+    with pytest.raises(pytest.skip.Exception):
+        foxglove_reader.node_command()

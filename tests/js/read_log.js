@@ -5,7 +5,9 @@
 //   {"indexed": READ | {"error": "..."}, "stream": READ | {"error": "..."}}
 //   READ = {"metadata": {name: {key: value}},
 //           "messages": {topic: [[sequence, logTime, {field: value}], ...]},  // in the reader's order
-//           "complete": bool}  // stream: the file ended with its footer and magic
+//           "complete": bool,  // stream: the file ended with its footer and magic
+//           "byTopic": {topic: [sequences read with that topic alone, the same read in reverse
+//                       and turned back]}}  // indexed only
 //
 // Protobuf payloads are decoded with protobufjs from the schema stored in the file (the
 // FileDescriptorSet, as Foxglove decodes them). Numbers are written so that Python reads back the
@@ -96,7 +98,18 @@ async function readIndexed(path) {
     for await (const record of reader.readMetadata()) metadata[record.name] = Object.fromEntries(record.metadata);
     const messages = {};
     for await (const record of reader.readMessages({ validateCrcs: true })) add(messages, decoders.message(record));
-    return { metadata, messages, complete: true };
+    // as a Foxglove panel reads: one topic at a time, forwards and (to find the latest) backwards
+    const byTopic = {};
+    for (const topic of Object.keys(messages)) {
+      const sequences = [];
+      for (const reverse of [false, true]) {
+        const seen = [];
+        for await (const record of reader.readMessages({ topics: [topic], reverse })) seen.push(record.sequence);
+        sequences.push(reverse ? seen.reverse() : seen);
+      }
+      byTopic[topic] = sequences;
+    }
+    return { metadata, messages, byTopic, complete: true };
   } finally {
     await handle.close();
   }
