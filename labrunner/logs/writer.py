@@ -13,8 +13,9 @@ File layout, in order (zstd chunks, full MCAP indexes and summary; written by
    file killed before its first sample names its run and its topics;
 3. chunks of ``/run/samples`` messages, each sample stored once (and, only when ``[logging]
    samples_hz`` thins them, ``/run/blocks`` in chunks of their own; see
-   :mod:`labrunner.logs.schema`), flushed every ``flush_interval_s`` of wall time, so a killed
-   writer leaves a file whose complete chunks :func:`labrunner.logs.read_run` salvages;
+   :mod:`labrunner.logs.schema`), each chunk followed by its message index (which Foxglove's
+   reader requires), flushed every ``flush_interval_s`` of wall time, so a killed writer leaves a
+   file whose complete chunks :func:`labrunner.logs.read_run` salvages;
 4. metadata ``outcome`` (the caller's outcome plus ``n_samples``), after the last chunk: a file
    without it did not finish;
 5. summary and footer. A file without a footer is *torn*.
