@@ -1,5 +1,6 @@
 """What the official TypeScript MCAP reader (@mcap/core, the Foxglove app's) and the official Python
-reader (``mcap``) read from a run log, checked against labrunner's reader (no tests here).
+reader (``mcap``, payloads decoded by protobuf classes built from the file's schema) read from a run
+log, checked against labrunner's reader (no tests here).
 
 ``tests/js/read_log.js`` prints what @mcap/core's ``McapIndexedReader`` and ``McapStreamReader``
 decode (payloads decoded by protobufjs from the file's own schema, as Foxglove does); it needs
@@ -23,6 +24,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Metadata
 from mcap.stream_reader import StreamReader
+from test_logs import classes_from_file
 
 from labrunner.logs import BLOCK_TOPIC, SAMPLES_TOPIC, RunLog, read_run
 from labrunner.logs.schema import sample_fields
@@ -84,10 +86,23 @@ def stored_records(path: Path) -> tuple[dict[str, dict[str, str]], int]:
     return metadata, decimation
 
 
-def _official_python(path: Path) -> Counter:
-    """(topic, sequence, log time) of every message, through ``mcap``'s seeking reader."""
+def _official_python(path: Path, log: RunLog, fields: list[str], step: int, old_samples: bool) -> Counter:
+    """(topic, sequence, log time) of every message through ``mcap``'s seeking reader, its
+    ``/run/samples`` payloads decoded by protobuf classes built from the file's own schema and
+    checked against labrunner's reading bit for bit."""
+    classes = classes_from_file(path)
+    seen: Counter = Counter()
+    values: dict[str, list[float]] = {field: [] for field in fields}
     with open(path, "rb") as f:
-        return Counter((c.topic, m.sequence, m.log_time) for _, c, m in make_reader(f).iter_messages())
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            seen[(channel.topic, message.sequence, message.log_time)] += 1
+            if channel.topic == SAMPLES_TOPIC and not old_samples:
+                decoded = classes[schema.name].FromString(message.data)
+                for field in fields:
+                    values[field].append(getattr(decoded, field))
+    for j, field in enumerate(fields if not old_samples else ()):
+        assert_same_bits(np.array(values[field]), log.data[j, ::step], f"mcap (Python) {field}")
+    return seen
 
 
 def check_log(path: Path) -> RunLog:
@@ -134,5 +149,5 @@ def check_log(path: Path) -> RunLog:
         seen.append(Counter((topic, row[0], int(row[1])) for topic, rows in got["messages"].items() for row in rows))
     assert all(max(c.values(), default=1) == 1 for c in seen), "a message read twice"
     if not log.torn:
-        assert seen[0] == seen[1] == _official_python(path)
+        assert seen[0] == seen[1] == _official_python(path, log, fields, step, old_samples)
     return log
