@@ -27,6 +27,18 @@ Last measured 2026-12-03 (2-core machine, other jobs running; sizes do not depen
 and (2026-12-03 11:00, the same log's floors computed alone): metadata 6.5 kB; the whole run as
 one message of packed arrays 32.6 kB float64, 16.0 kB float32 (zstd -19).
 
+2026-12-04 15:05 UTC, format labrunner-4 (every chunk with its message indexes, which
+@mcap/core's indexed reader — Foxglove's — requires: 16 uncompressed bytes a sample)::
+
+    quickstart       100       3.7MB       2.9MB                   64.8 kB / 48.5 kB
+
+    floors for the largest quickstart log (1000 samples, 68.7 kB): ... before message indexes
+    (16.0 kB in this log) and metadata (6.6 kB)
+
+so the indexes cost +16.0 kB a 1000-sample motor run (+33 % at float64, +50 % at float32). The
+valve and plate campaigns were not rerun (minutes and 2.3 GB); their runs grow by the same 16 B
+a sample: +1.6 MB a 25 s valve run at 4 kHz, +2.0 MB a 4 s plate run at 32 kHz (computed).
+
 A motor log of 1000 samples at ≤ 20 kB (the issue's target) is out of reach with one message per
 sample, and exact (float64) in any layout a third-party MCAP reader can decompress: ≥ 33.9 kB
 per sample, ≥ 39 kB (32.6 + 6.5) as one message of arrays. Only float32 as one message of
@@ -108,17 +120,19 @@ def floors(log: Path) -> dict[str, int]:
         # repeated fields): no per-sample header, but only what zstd alone makes of the values,
         # since a third-party reader can undo no shuffle
         out[f"one_message_{key[-3:]}"] = len(zstd.compress(values.T.astype(dtype).tobytes()))
-    out["metadata"] = log.stat().st_size - _chunk_bytes(log)
+    out["indexes"] = _record_bytes(log, 0x07)
+    out["metadata"] = log.stat().st_size - _record_bytes(log, 0x06) - out["indexes"]
     return out
 
 
-def _chunk_bytes(log: Path) -> int:
-    """Bytes of the log's chunk records (the compressed samples); the rest is metadata, schemas,
-    channels, the attachment and the summary."""
+def _record_bytes(log: Path, opcode: int) -> int:
+    """Bytes of the log's records of ``opcode`` in its data section: chunks (0x06, the compressed
+    samples) or message indexes (0x07, 16 bytes a message, uncompressed, which Foxglove's indexed
+    reader needs); the rest is metadata, schemas, channels, the attachment and the summary."""
     data, offset, total = log.read_bytes(), 8, 0
     while offset < len(data) - 8:
         length = 9 + int.from_bytes(data[offset + 1 : offset + 9], "little")
-        total += length if data[offset] == 0x06 else 0
+        total += length if data[offset] == opcode else 0
         offset += length
     return total
 
@@ -152,8 +166,9 @@ def main() -> None:
                 f"message headers {f['headers'] / 1e3:.1f} kB; values float64 {f['values_f64'] / 1e3:.1f} kB, "
                 f"float32 {f['values_f32'] / 1e3:.1f} kB (each column alone, shuffled, zstd -19); "
                 f"so one message per sample needs ≥ {(f['headers'] + f['values_f64']) / 1e3:.1f} kB exact, "
-                f"≥ {(f['headers'] + f['values_f32']) / 1e3:.1f} kB in float32, before metadata "
-                f"({f['metadata'] / 1e3:.1f} kB in this log); the whole run as one message of arrays "
+                f"≥ {(f['headers'] + f['values_f32']) / 1e3:.1f} kB in float32, before message indexes "
+                f"({f['indexes'] / 1e3:.1f} kB in this log) and metadata "
+                f"({f['metadata'] / 1e3:.1f} kB); the whole run as one message of arrays "
                 f"(no per-sample plot over time) {f['one_message_f64'] / 1e3:.1f} kB float64, "
                 f"{f['one_message_f32'] / 1e3:.1f} kB float32 (zstd -19), before metadata"
             )

@@ -17,6 +17,7 @@ QUICK = {
     "bench_engine.py": (["--batch", "4", "--repeat", "1"], "runs/s per core"),
     "bench_plate.py": (["--batch", "2", "--seconds", "0.1", "--repeat", "1"], "engine.run_batch + safety"),
     "bench_logs.py": (["--repeat", "1", "--motor-runs", "8"], "write"),
+    "bench_log_index.py": (["--repeat", "1", "--motor-runs", "4"], "upgrade-logs per log"),
     "bench_startup.py": (["--repeat", "1"], "first batch in the engine"),
     "bench_hostloop.py": (["--seconds", "0.3"], "period"),
     "bench_differentiators.py": ([], ""),

@@ -87,7 +87,7 @@ def test_round_trip_is_exact(motor_log):
         **metadata()["run"],
         "fs": 200.0,
         "labrunner_version": log.metadata["run"]["labrunner_version"],
-        "log_format": "labrunner-3",
+        "log_format": "labrunner-4",
         "samples": "every sample (200 Hz)",
     }
     assert log.metadata["config"] == metadata()["config"]

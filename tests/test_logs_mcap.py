@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 from mcap.data_stream import ReadDataStream, RecordBuilder
+from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import (
@@ -30,11 +31,12 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
-from mcap.stream_reader import get_chunk_data_stream
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 from test_logs_support import COMPLETED, motor_run
 
 from labrunner.logs import mcap_records, read_run, schema as log_schema, write_run
+from labrunner.logs.mcap_index import message_indexes
 from labrunner.logs.mcap_writer import BulkWriter
 from labrunner.logs.metadata_text import encode_record
 
@@ -128,8 +130,8 @@ def test_bulk_writer_reads_back_like_mcap_writer():
 
 def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
     """Every chunk carries the CRC of its records, every message index entry points at a message
-    of its channel with its log time, every block message is indexed once, the per-sample
-    channel (thinned here, so that both topics are written) not at all; chunk indexes point at
+    of its channel with its log time, every message of both topics (thinned here, so that both
+    are written) is indexed exactly once, in chunks of its topic alone; chunk indexes point at
     their chunks; the footer's CRC covers the summary and the footer's start (MCAP spec:
     Footer.summary_crc)."""
     path = tmp_path / "run.mcap"
@@ -152,12 +154,8 @@ def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
         assert size == index.uncompressed_size and len(chunk.data) == index.compressed_size
         op, _, first_channel, _, _ = struct.unpack_from("<BQHIQ", records, 0)
         assert op == Opcode.MESSAGE
-        if summary.channels[first_channel].topic == log_schema.SAMPLES_TOPIC:
-            # no message index (optional in MCAP: 16 bytes a sample); the official reader scans
-            # the chunk (test_logs: every sample through iter_messages)
-            assert index.message_index_offsets == {} and index.message_index_length == 0
-        else:
-            assert {summary.channels[c].topic for c in index.message_index_offsets} == {log_schema.BLOCK_TOPIC}
+        # @mcap/core's indexed reader (Foxglove's) refuses a chunk of messages without indexes
+        assert set(index.message_index_offsets) == {first_channel} and index.message_index_length > 0
         assert chunk.uncompressed_crc == zlib.crc32(records) != 0  # 0 would mean "not computed"
         for channel_id, offset in index.message_index_offsets.items():
             f.seek(offset)
@@ -171,7 +169,7 @@ def test_message_indexes_and_summary_crc_follow_the_spec(tmp_path):
                 op, _, channel, _, t = struct.unpack_from("<BQHIQ", records, at)
                 assert (op, channel, t) == (Opcode.MESSAGE, channel_id, log_time)
             indexed += len(entries.records)
-    assert indexed == 3 and summary.statistics.message_count == 3 + 300  # blocks + thinned samples
+    assert indexed == summary.statistics.message_count == 3 + 300  # blocks + thinned samples
     footer_at = len(data) - 8 - 29
     assert data[footer_at] == Opcode.FOOTER
     footer = Footer.read(ReadDataStream(io.BytesIO(data[footer_at + 9 :])))
@@ -325,3 +323,44 @@ def test_record_encoders_agree_with_mcap_records(name, mapping, numbers, small, 
     assert mcap_records.footer(h, i, small[1]) == _mcap_bytes(
         Footer(summary_start=h, summary_offset_start=i, summary_crc=small[1])
     )
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    sizes=st.lists(st.integers(0, 40), min_size=1, max_size=60),
+    channels=st.lists(st.sampled_from([1, 2, 3]), min_size=60, max_size=60),
+    fixed=st.booleans(),
+)
+def test_message_indexes_of_a_chunk_equal_those_mcap_writes(sizes, channels, fixed):
+    """``message_indexes`` (how ``upgrade-logs`` indexes a copied chunk; messages of one size take
+    a numpy path) gives the entries ``mcap``'s own writer wrote for the same chunk."""
+    buffer = io.BytesIO()
+    w = Writer(buffer, chunk_size=1 << 20, compression=CompressionType.NONE, use_chunking=True)
+    w.start()
+    sid = w.register_schema("s", "raw", b"")
+    ids = [w.register_channel(f"/t{c}", "raw", sid) for c in (1, 2, 3)]
+    for i, size in enumerate(sizes):
+        w.add_message(
+            ids[channels[i] - 1], log_time=1000 - i, data=bytes(8 if fixed else size), publish_time=0, sequence=i
+        )
+    w.finish()
+    buffer.seek(0)
+    records, written = None, {}
+    for record in StreamReader(buffer, emit_chunks=True).records:
+        if isinstance(record, Chunk):
+            stream, size = get_chunk_data_stream(record)
+            records = stream.read(size)
+        elif isinstance(record, MessageIndex) and record.records:
+            written[record.channel_id] = record.records
+    # mcap's writer puts the schema and channels inside the chunk: index the messages after them
+    start = records.index(bytes([Opcode.MESSAGE]) + struct.pack("<Q", 22 + (8 if fixed else sizes[0])))
+    ours = message_indexes(records[start:])
+    assert {c: [(int(t), int(o) + start) for t, o in e] for c, e in ours.items()} == written
+    assert sorted(written) == sorted(ours)
+
+
+def test_message_indexes_refuse_what_is_not_a_message():
+    with pytest.raises(McapError, match="opcode"):
+        message_indexes(bytes([Opcode.SCHEMA]) + struct.pack("<Q", 30) + bytes(30))
+    with pytest.raises(McapError, match="inside a record"):
+        message_indexes(bytes([Opcode.MESSAGE]) + struct.pack("<Q", 22))

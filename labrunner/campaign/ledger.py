@@ -289,10 +289,25 @@ class Ledger:
     def set_meta(self, key: str, value: str | None) -> None:
         """Write (or, with None, remove) one ``meta`` entry."""
         with self._txn():
-            if value is None:
-                self.db.execute("DELETE FROM meta WHERE key = ?", (key,))
-            else:
-                self.db.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
+            self._put_meta(key, value)
+
+    def _put_meta(self, key: str, value: str | None) -> None:
+        if value is None:
+            self.db.execute("DELETE FROM meta WHERE key = ?", (key,))
+        else:
+            self.db.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
+
+    def set_fingerprints(self, fingerprints: Mapping[str, Fingerprint], meta: Mapping[str, str | None]) -> None:
+        """Record the logs' new fingerprints (point id → fingerprint) and write (None: remove) the
+        ``meta`` entries, in one transaction (``upgrade-logs``: rewritten logs and the end of
+        their journal entry together)."""
+        with self._txn():
+            self.db.executemany(
+                f"UPDATE points SET {_FINGERPRINT_SET} WHERE id = ?",
+                [(*fp, point_id) for point_id, fp in fingerprints.items()],
+            )
+            for key, value in meta.items():
+                self._put_meta(key, value)
 
     def start_session(self, command: str) -> int:
         now = time.time()

@@ -38,6 +38,7 @@ COMMANDS = (
     "resume",
     "status",
     "repair",
+    "upgrade-logs",
     "analyse",
     "inspect",
     "plot",

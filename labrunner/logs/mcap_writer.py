@@ -14,8 +14,10 @@ offsets; footer with the summary CRC. Three differences: schemas and channels go
 section when they are added rather than inside the next chunk, so a file torn before its first
 chunk still declares its topics; each channel's messages go into chunks of their own, so that
 reading one topic decompresses nothing of another; and a channel may be written without message
-indexes (``indexed=False``; optional in MCAP, readers scan such chunks), which for one small
-message per sample saves 16 uncompressed bytes a sample. The records a file
+indexes (``indexed=False``; optional in MCAP, and 16 uncompressed bytes a message less, but
+@mcap/core's indexed reader — Foxglove's — refuses such chunks: only the old labrunner-3 layout,
+written for tests, uses it). :meth:`BulkWriter.copy_chunk` copies a chunk of another file as it
+is and indexes it (how :mod:`labrunner.logs.upgrade` rewrites those logs). The records a file
 writes once (header, schemas, channels, attachments) are written by ``mcap.records``' own
 classes, those every file writes (metadata, indexes, statistics, footer) by
 :mod:`labrunner.logs.mcap_records` in one ``struct`` call each. The start of a file that many files
@@ -38,10 +40,12 @@ import numpy as np
 import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import Attachment, AttachmentIndex, Channel, Header, McapRecord, Schema
+from mcap.records import Attachment, AttachmentIndex, Channel, Chunk, Header, McapRecord, Schema
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import MCAP0_MAGIC
 
 from labrunner.logs import mcap_records
+from labrunner.logs.mcap_index import INDEX_ENTRY, MESSAGE_HEADER, message_indexes
 
 CHUNK_SIZE = 1 << 20  # uncompressed bytes of records per chunk (mcap's default)
 # zstd level 1: level 3 (zstd's and mcap's default) makes a 3 s, 32 kHz plate run's file < 1 %
@@ -49,11 +53,10 @@ CHUNK_SIZE = 1 << 20  # uncompressed bytes of records per chunk (mcap's default)
 # coding of the float64 mantissas (files ~10 % larger) for 5× faster compression.
 ZSTD_LEVEL = 1
 _CHUNK_TAIL = struct.pack("<I", 4) + b"zstd"  # the chunks' compression, as MCAP names it
-_MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log and publish time
+
 _MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")  # opcode, record length, channel, index byte length
 _CHUNK_HEADER = struct.Struct("<BQQQQI")  # opcode, record length, start and end time, size, CRC
 _FOOTER_PREFIX = struct.Struct("<BQQQ")  # opcode, record length, summary start, summary offset start
-_INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 
 
 @functools.lru_cache(maxsize=16)
@@ -76,8 +79,8 @@ def message_row(channel_id: int, payload: np.dtype | int, template: np.ndarray |
         {
             "names": ["opcode", "length", "channel", "sequence", "log_time", "publish_time", "data"],
             "formats": ["u1", "<u8", "<u2", "<u4", "<u8", "<u8", payload],
-            "offsets": [0, 1, 9, 11, 15, 23, _MESSAGE_HEADER.size],
-            "itemsize": _MESSAGE_HEADER.size + payload.itemsize,
+            "offsets": [0, 1, 9, 11, 15, 23, MESSAGE_HEADER.size],
+            "itemsize": MESSAGE_HEADER.size + payload.itemsize,
         }
     )
     row = np.zeros(1, dtype=dtype)
@@ -274,8 +277,8 @@ class BulkWriter:
     def add_message(self, channel_id: int, log_time: int, sequence: int, parts: Sequence[bytes | np.ndarray]) -> None:
         """Append one message whose payload is ``parts`` concatenated (bytes-like pieces, joined
         only when the chunk is written); ``log_time`` [ns]."""
-        length = _MESSAGE_HEADER.size - 9 + sum(memoryview(p).nbytes for p in parts)
-        header = _MESSAGE_HEADER.pack(Opcode.MESSAGE, length, channel_id, sequence, log_time, log_time)
+        length = MESSAGE_HEADER.size - 9 + sum(memoryview(p).nbytes for p in parts)
+        header = MESSAGE_HEADER.pack(Opcode.MESSAGE, length, channel_id, sequence, log_time, log_time)
         chunk = self._chunk(channel_id)
         self._append(
             chunk,
@@ -314,7 +317,7 @@ class BulkWriter:
     def _append(self, chunk: _Chunk, channel_id: int, log_times: np.ndarray, offsets: np.ndarray, pieces: list) -> None:
         """Add records (``pieces``, in order) of one channel's messages at ``offsets`` in its open
         chunk; close the chunk once full."""
-        entries = np.empty(len(offsets), dtype=_INDEX_ENTRY)
+        entries = np.empty(len(offsets), dtype=INDEX_ENTRY)
         entries["log_time"], entries["offset"] = log_times, offsets
         chunk.index.setdefault(channel_id, []).append(entries)
         chunk.pieces += pieces
@@ -338,22 +341,53 @@ class BulkWriter:
         # joined and compressed in one call: ~30 µs a chunk less than zstd's streaming chunker (whose
         # buffers are fresh memory each time); the frame still records the content size
         records = b"".join(chunk.pieces)
-        crc = zlib.crc32(records)
         compressed = _compressor(self._level, threading.get_ident()).compress(records)
+        index = {}
+        for channel_id, parts in chunk.index.items() if chunk.indexed else ():
+            index[channel_id] = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        self._write_chunk(chunk.times, chunk.size, zlib.crc32(records), _CHUNK_TAIL, compressed, index)
+
+    def copy_chunk(self, chunk: Chunk) -> None:
+        """Write ``chunk`` (read from another file) as it is, compressed data and CRC included,
+        with a message index of every channel in it and its times taken from its messages, after
+        everything added so far (open chunks are closed first). McapError for a chunk that holds
+        anything but messages (e.g. schemas, as ``mcap``'s writer puts there: the summary would
+        lack them)."""
+        self._close_chunks()
+        stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+        index = message_indexes(stream.read(size))
+        if not index:
+            return
+        for channel_id, entries in index.items():
+            self._counts[channel_id] += len(entries)
+        times = [(int(e["log_time"].min()), int(e["log_time"].max())) for e in index.values()]
+        span = (min(t[0] for t in times), max(t[1] for t in times))
+        self._write_chunk(span, size, chunk.uncompressed_crc, mcap_records.string(chunk.compression), chunk.data, index)
+
+    def _write_chunk(
+        self,
+        times: tuple[int, int],
+        size: int,
+        crc: int,
+        compression: bytes,
+        compressed: bytes,
+        index: Mapping[int, np.ndarray],
+    ) -> None:
+        """Write a chunk record (``compression``: the encoded name), the message index of each
+        channel in ``index`` after it (channel id → :data:`INDEX_ENTRY` rows), its chunk index."""
+        start_time, end_time = times
         compressed_size = len(compressed)
-        start_time, end_time = chunk.times
-        length = _CHUNK_HEADER.size - 9 + len(_CHUNK_TAIL) + 8 + compressed_size
+        length = _CHUNK_HEADER.size - 9 + len(compression) + 8 + compressed_size
         chunk_start = self._offset
         self._write(
-            _CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, chunk.size, crc)
-            + _CHUNK_TAIL
+            _CHUNK_HEADER.pack(Opcode.CHUNK, length, start_time, end_time, size, crc)
+            + compression
             + struct.pack("<Q", compressed_size)
         )
         self._write(compressed)
         chunk_length = self._offset - chunk_start
         offsets = {}
-        for channel_id, parts in chunk.index.items() if chunk.indexed else ():
-            entries = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        for channel_id, entries in index.items():
             offsets[channel_id] = self._offset
             self._write(
                 _MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes, channel_id, entries.nbytes)
@@ -367,9 +401,9 @@ class BulkWriter:
                 chunk_length,
                 offsets,
                 self._offset - chunk_start - chunk_length,
-                "zstd",
+                compression[4:].decode(),
                 compressed_size,
-                chunk.size,
+                size,
             )
         )
         self._first_time = start_time if self._first_time is None else min(self._first_time, start_time)

@@ -1,8 +1,9 @@
 """Reading run logs: the signals as a DataFrame, the metadata, the outcome; salvage of torn files.
 
 A finished file is read through its summary (``mcap``'s seeking reader). The signals come from
-``/run/samples`` (format ``labrunner-3``: each sample once, its ``sequence`` the sample index; a
-chunk of the writer's fixed-size messages is read as one numpy view), or from ``/run/blocks``
+``/run/samples`` (formats ``labrunner-4`` and ``labrunner-3``, the same but for message indexes:
+each sample once, its ``sequence`` the sample index; a chunk of the writer's fixed-size messages is
+read as one numpy view, the indexes unused), or from ``/run/blocks``
 where the file has them (thinned samples, and the logs of format ``labrunner-2``, which held both
 topics): only the chunks of the topic read are decompressed. A *torn* file (no footer or summary: its writer was
 killed) is read front to back with ``mcap``'s stream reader, in file order, keeping every record

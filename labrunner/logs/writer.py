@@ -13,8 +13,9 @@ File layout, in order (zstd chunks, full MCAP indexes and summary; written by
    file killed before its first sample names its run and its topics;
 3. chunks of ``/run/samples`` messages, each sample stored once (and, only when ``[logging]
    samples_hz`` thins them, ``/run/blocks`` in chunks of their own; see
-   :mod:`labrunner.logs.schema`), flushed every ``flush_interval_s`` of wall time, so a killed
-   writer leaves a file whose complete chunks :func:`labrunner.logs.read_run` salvages;
+   :mod:`labrunner.logs.schema`), each chunk followed by its message index (which Foxglove's
+   reader requires), flushed every ``flush_interval_s`` of wall time, so a killed writer leaves a
+   file whose complete chunks :func:`labrunner.logs.read_run` salvages;
 4. metadata ``outcome`` (the caller's outcome plus ``n_samples``), after the last chunk: a file
    without it did not finish;
 5. summary and footer. A file without a footer is *torn*.
@@ -52,8 +53,10 @@ from labrunner.version import __version__
 ROLES = ("input", "output", "controlled", "reference", "error", "estimate", "signal")
 STATUSES = ("completed", "aborted", "no-motion", "failed")  # engine.RunResult.outcome["status"]
 RESERVED_RECORDS = ("channels", "outcome")
-LOG_FORMAT = "labrunner-3"  # run.log_format: each sample once in /run/samples (sequence = k)
-PLAIN_FORMATS = ("labrunner-2", LOG_FORMAT)  # formats with plain-text metadata (2: blocks and samples both)
+# run.log_format: each sample once in /run/samples (sequence = k), every chunk with its message
+# indexes; labrunner-3 was the same without the samples' indexes (upgraded by labrunner.logs.upgrade)
+LOG_FORMAT = "labrunner-4"
+PLAIN_FORMATS = ("labrunner-2", "labrunner-3", LOG_FORMAT)  # plain-text metadata (2: blocks and samples both)
 _ROLE_GROUPS = {f"{role}s" if role != "controlled" else role: role for role in ROLES}
 _MEDIA_TYPES = {".toml": "application/toml", ".json": "application/json", ".txt": "text/plain"}
 
@@ -128,7 +131,10 @@ class LogPrefix:
     sample (None: every sample); the channel's metadata says so (``decimation``, ``rate_hz``), and
     only then is every sample also kept, in ``/run/blocks``. ``float32`` names the signals stored
     as float32 (their values are rounded to it on writing, in ``/run/blocks`` too; a device's
-    samples are float32 already, so nothing changes), the rest as float64.
+    samples are float32 already, so nothing changes), the rest as float64. ``log_format``
+    ``labrunner-3`` writes that format's layout (``/run/samples`` without message indexes, which
+    Foxglove's reader refuses): only to make old logs for the tests and benchmarks of
+    :mod:`labrunner.logs.upgrade`.
     """
 
     def __init__(
@@ -141,8 +147,12 @@ class LogPrefix:
         samples_hz: float | None = None,
         created: float | None = None,
         float32: Collection[str] = (),
+        log_format: str = LOG_FORMAT,
     ) -> None:
         self.fs = _positive("fs", fs)
+        if log_format not in (LOG_FORMAT, "labrunner-3"):
+            raise InvalidParameter("log_format", f"must be {LOG_FORMAT!r} or 'labrunner-3', got {log_format!r}")
+        self.log_format = log_format
         if samples_hz is not None and not _positive("samples_hz", samples_hz) <= self.fs:
             raise InvalidParameter("samples_hz", f"must be in (0, fs = {self.fs:g}] Hz, got {samples_hz}")
         self.channels = normalise_channels(channels)
@@ -185,9 +195,14 @@ class LogPrefix:
             "time": "log_time: wall-clock time of the sample; sequence: its index k (t = k / fs)",
             **{f"unit.{f}": u for f, u in zip(self.fields, units) if u},
         }
-        # no message index: 16 bytes a sample; a reader finds a sample by its sequence (= k) instead
+        # indexed like every channel (16 uncompressed bytes a sample): @mcap/core's indexed reader, the
+        # one the Foxglove app opens a local file with, refuses a chunk without message indexes
         self.samples_channel = mcap.add_channel(
-            schema.SAMPLES_TOPIC, MessageEncoding.Protobuf, sample_schema, channel_meta, indexed=False
+            schema.SAMPLES_TOPIC,
+            MessageEncoding.Protobuf,
+            sample_schema,
+            channel_meta,
+            indexed=log_format == LOG_FORMAT,
         )
         self.encoded: Prefix = mcap.prefix()
         self._sample_row = message_row(self.samples_channel, self._tags.dtype, self._tags)
@@ -275,7 +290,7 @@ class RunLogWriter:
         run = metadata.get("run", {})
         if not isinstance(run, Mapping):
             raise InvalidParameter("metadata.run", f"must be a mapping, got {type(run).__name__}")
-        run = {**run, "fs": self.fs, "log_format": LOG_FORMAT, "samples": self.prefix.describe_samples()}
+        run = {**run, "fs": self.fs, "log_format": self.prefix.log_format, "samples": self.prefix.describe_samples()}
         run.setdefault("labrunner_version", __version__)
         records = {"run": encode_record("run", run)}
         records.update({name: encode_record(name, rec) for name, rec in metadata.items() if name != "run"})
