@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrunner.analysis import table, table_files
+from labrunner.analysis import table, table_files, table_rows
 
 
 def _rows(n: int) -> list[dict]:
@@ -45,7 +45,7 @@ def _rows(n: int) -> list[dict]:
 
 def _reference(rows: list[dict]) -> pd.DataFrame:
     """The table as one DataFrame of every row (the plain way, before chunking)."""
-    frame, _ = table._chunk_frame(rows)
+    frame, _ = table_rows.chunk_frame(rows)
     return frame
 
 

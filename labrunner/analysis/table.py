@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import functools
 import itertools
-import json
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -43,10 +42,9 @@ from labrunner.analysis.log_checks import (
     read_many,
     same_file,
 )
-from labrunner.campaign.rig_timing import timing_counts
+from labrunner.analysis.table_rows import chunk_frame
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
-from labrunner.rigs.device.lawflag import flag_of
 
 #: Columns that identify a point and its run, in this order at the left of the table.
 ID_COLUMNS = (
@@ -73,7 +71,6 @@ METRICS_VERSION = (
     5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
     # columns; 5: the detector's sustained-oscillation rule (periodicity)
 )
-_LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)
 
 
 @dataclass
@@ -136,18 +133,6 @@ def log_metrics(
     return out
 
 
-def _float(value: Any) -> float:
-    return float(value) if value is not None else float("nan")
-
-
-def _ledger_metrics(r: Mapping[str, Any]) -> dict[str, Any] | None:
-    """The run's metrics as committed (None: this ledger row holds only the three summary columns)."""
-    text = r.get("metrics_json")
-    if text:  # an undefined metric is stored as null (strict JSON; older ledgers: NaN)
-        return {k: np.nan if v is None else v for k, v in json.loads(text).items()}
-    return None
-
-
 #: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
 #: while it is turned into columns) are freed before the next is read, so that building the table
 #: of 10^6 points holds one chunk's, not all.
@@ -172,7 +157,7 @@ def ledger_frame(
     iterator = iter(rows)
     start = fresh = 0
     while chunk := list(itertools.islice(iterator, CHUNK_ROWS)):
-        frame, absent = _chunk_frame(chunk)
+        frame, absent = chunk_frame(chunk)
         if on_chunk is not None:
             on_chunk(start, chunk, absent)
         for col in frame.columns:
@@ -240,39 +225,6 @@ def _one_chunk(text: pd.Series) -> pd.Series:
     if not isinstance(data, pa.ChunkedArray) or data.num_chunks <= 1:
         return text
     return pd.Series(pd.array(data.combine_chunks(), dtype=text.dtype), name=text.name)
-
-
-def _chunk_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
-    """:func:`ledger_frame` of one chunk of rows (positions relative to it)."""
-    records = []
-    missing: list[int] = []
-    for i, r in enumerate(rows):
-        outcome = json.loads(r["outcome_json"]) if r["outcome_json"] else {}
-        params = json.loads(r["parameters"])
-        aborted = r["outcome"] == "aborted"
-        metrics = _ledger_metrics(r)
-        if metrics is None:
-            metrics = {k: _float(r.get(k)) for k in _LEDGER_METRICS}
-            if r.get("log_path"):
-                missing.append(i)
-        records.append(
-            {
-                "seq": r["seq"],
-                "id": r["id"],
-                "outcome": r["outcome"] or r["state"],
-                "monitor": outcome.get("monitor"),
-                "abort_time": _float(outcome.get("time")) if aborted else np.nan,
-                "abort_value": _float(outcome.get("value")) if aborted else np.nan,
-                "attempts": r["attempts"],
-                "log_path": r["log_path"],
-                "torn": False,
-                "law_check": flag_of(outcome),  # a device-loop run's reference-law check, "" for others
-                **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
-                **metrics,
-                **timing_counts(outcome.get("diagnostics")),
-            }
-        )
-    return pd.DataFrame.from_records(records), missing
 
 
 def metric_columns(frame: pd.DataFrame) -> list[str]:
