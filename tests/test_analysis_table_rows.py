@@ -61,8 +61,13 @@ def _per_row_frame(rows):
     return pd.DataFrame.from_records(records), missing
 
 
+def _rows_of(chunk):
+    """A column-wise chunk as one dict a row, as the per-row path read the ledger."""
+    return [dict(zip(chunk, values)) for values in zip(*chunk.values())]
+
+
 def _assert_same(rows):
-    frame, missing = table_rows.chunk_frame(rows)
+    frame, missing = table_rows.chunk_frame(next(table_rows.in_chunks(rows)))
     reference, reference_missing = _per_row_frame(rows)
     assert missing == reference_missing
     pd.testing.assert_frame_equal(frame, reference, check_exact=True)
@@ -94,10 +99,22 @@ def _edge_rows():
     return rows
 
 
+def _before_metrics_json():
+    """Rows of a ledger from before ``metrics_json`` and the logs' fingerprints were columns."""
+    return [{k: v for k, v in r.items() if k != "metrics_json"} for r in _rows(9)]
+
+
 @pytest.mark.parametrize(
     "rows",
-    [_rows(23), [r for r in _rows(20) if r["metrics_json"]], _device_rows(), _edge_rows(), _rows(1)],
-    ids=["outcomes", "all-with-metrics", "device-diagnostics", "older-ledgers", "one-row"],
+    [
+        _rows(23),
+        [r for r in _rows(20) if r["metrics_json"]],
+        _device_rows(),
+        _edge_rows(),
+        _before_metrics_json(),
+        _rows(1),
+    ],
+    ids=["outcomes", "all-with-metrics", "device-diagnostics", "older-ledgers", "no-metrics-column", "one-row"],
 )
 def test_columns_equal_the_per_row_frame(rows):
     _assert_same(rows)
@@ -118,7 +135,7 @@ def test_parsed_metrics_are_bit_exact():
     rows = _rows(len(values))
     for r, v in zip(rows, values):
         r["metrics_json"] = json.dumps({"rms_error": v, "n_samples": 1})
-    frame, _ = table_rows.chunk_frame(rows)
+    frame, _ = table_rows.chunk_frame(next(table_rows.in_chunks(rows)))
     assert frame["rms_error"].to_numpy().tobytes() == np.array([json.loads(json.dumps(v)) for v in values]).tobytes()
     assert not any(math.isnan(v) for v in frame["rms_error"])
 
@@ -141,7 +158,7 @@ def test_a_real_campaigns_table_equals_the_per_row_path(tmp_path, monkeypatch):
         db.execute("UPDATE points SET state = 'planned', outcome = NULL, log_path = NULL WHERE seq >= 7")
     for d in (directory, older):
         new = labrunner.open_campaign(d).table()
-        monkeypatch.setattr(table, "chunk_frame", lambda rows: _per_row_frame(rows))
+        monkeypatch.setattr(table, "chunk_frame", lambda chunk: _per_row_frame(_rows_of(chunk)))
         reference = labrunner.open_campaign(d).table()
         monkeypatch.undo()
         assert set(new["outcome"]) >= {"completed", "aborted"}

@@ -80,7 +80,7 @@ def _analyse(
 ) -> dict[str, Any]:
     import pandas as pd
 
-    from labrunner.analysis import memory, selection, table as table_mod, table_files
+    from labrunner.analysis import memory, selection, table as table_mod, table_files, table_rows
     from labrunner.campaign.ledger import Ledger
     from labrunner.campaign.progress import Steps
 
@@ -105,7 +105,7 @@ def _analyse(
         advance()
         step("metrics table")
         built = table_mod.build_table(
-            ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
+            table_rows.ledger_chunks(ledger.db),  # streamed: one chunk of rows at a time
             directory,
             cache=out / table_files.METRICS_PARQUET,
             workers=workers,

@@ -21,7 +21,6 @@ missing one falls back to the ledger's metrics and is listed in ``problems``, an
 from __future__ import annotations
 
 import functools
-import itertools
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -42,7 +41,7 @@ from labrunner.analysis.log_checks import (
     read_many,
     same_file,
 )
-from labrunner.analysis.table_rows import chunk_frame
+from labrunner.analysis.table_rows import Chunk, chunk_frame
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
 
@@ -133,36 +132,31 @@ def log_metrics(
     return out
 
 
-#: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
-#: while it is turned into columns) are freed before the next is read, so that building the table
-#: of 10^6 points holds one chunk's, not all.
-CHUNK_ROWS = 2_000
 #: Text columns kept as such; every other text column (outcome, monitor, law_check, text
 #: parameters: a few words repeated) is categorical, 1 byte a row instead of ~16.
 FREE_TEXT = ("id", "log_path")
 
 
 def ledger_frame(
-    rows: Iterable[Mapping[str, Any]],
-    on_chunk: Callable[[int, Sequence[Mapping[str, Any]], list[int]], None] | None = None,
+    chunks: Iterable[Chunk],
+    on_chunk: Callable[[int, Chunk, list[int]], None] | None = None,
 ) -> tuple[pd.DataFrame, list[int]]:
     """One row per ledger point: ids, outcome and its details, parameters (dotted keys), metrics;
     and the positions of finished rows whose ledger holds no full metrics (their logs must be
-    read). ``rows`` may be an iterator (a ledger cursor): it is consumed :data:`CHUNK_ROWS` at a
-    time, each chunk handed to ``on_chunk(start, rows, positions without metrics)`` and turned
-    into columns, which are joined column by column (so the table is never held twice)."""
+    read). ``chunks`` (:func:`ledger_chunks`, :func:`in_chunks`) are consumed one at a time, each
+    handed to ``on_chunk(start, chunk, positions without metrics)`` and turned into columns,
+    which are joined column by column (so the table is never held twice)."""
     pieces: dict[str, list[pd.Series]] = {}
     lengths: list[int] = []
     missing: list[int] = []
-    iterator = iter(rows)
     start = fresh = 0
-    while chunk := list(itertools.islice(iterator, CHUNK_ROWS)):
+    for chunk in chunks:
         frame, absent = chunk_frame(chunk)
         if on_chunk is not None:
             on_chunk(start, chunk, absent)
         for col in frame.columns:
             pieces.setdefault(col, [None] * len(lengths)).append(frame[col].copy())
-        lengths.append(len(chunk))
+        lengths.append(len(frame))
         for column in pieces.values():
             column += [None] * (len(lengths) - len(column))  # a column this chunk lacks
         fresh += 1
@@ -172,7 +166,7 @@ def ledger_frame(
             lengths[-fresh:] = [sum(lengths[-fresh:])]
             fresh = 0
         missing += [start + i for i in absent]
-        start += len(chunk)
+        start += len(frame)
         del frame, chunk
     if not lengths:
         return pd.DataFrame(columns=list(ID_COLUMNS)), missing
@@ -268,7 +262,7 @@ def _unsplit(row: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
 
 
 def build_table(
-    rows: Iterable[Mapping[str, Any]],
+    chunks: Iterable[Chunk],
     directory: Path,
     *,
     cache: Path | None = None,
@@ -279,14 +273,14 @@ def build_table(
     tick: Callable[[int], None] | None = None,
     announce: Callable[[int], None] | None = None,
 ) -> CampaignTable:
-    """The table of ledger ``rows``: metrics from the ledger; from the logs (reusing the rows of
+    """The table of the ledger rows in ``chunks`` (:func:`ledger_chunks`): metrics from the ledger; from the logs (reusing the rows of
     the previous table at ``cache``, its ``metrics.parquet``, that still match) where the ledger
     has none, or for every run with ``recompute``. Every log is checked (:mod:`.log_checks`).
     ``units`` are the rig's signal units, for logs that record none; ``limits`` its input limits
     (the oscillation detector's columns); ``announce(n)`` is told how many logs will be read
     (before the first), ``tick(n)`` as they are read."""
     checks = LogChecks(directory, recompute)
-    frame, _ = ledger_frame(rows, checks.add)
+    frame, _ = ledger_frame(chunks, checks.add)
     sizes, mtimes = checks.stats()
     ids, paths = frame["id"], frame["log_path"]
     wanted = [] if recompute else [*checks.todo, *checks.unproved]

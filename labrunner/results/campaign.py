@@ -57,13 +57,14 @@ class CampaignResults:
     def _built(self) -> tuple[pd.DataFrame, list[dict[str, str]], list[str]]:
         from labrunner.analysis import selection, table as table_mod
         from labrunner.analysis.table_files import METRICS_PARQUET
+        from labrunner.analysis.table_rows import ledger_chunks
 
         campaign, _ = selection.load_campaign(self.meta, self.directory)
         units, limits = selection.rig_signals(campaign)
         with Ledger.open_readonly(self.directory) as ledger:
             first = ledger.db.execute("SELECT parameters FROM points ORDER BY seq LIMIT 1").fetchone()
             built = table_mod.build_table(
-                ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
+                ledger_chunks(ledger.db),  # streamed: one chunk of rows at a time
                 self.directory,
                 cache=self.directory / REPORT_DIR / METRICS_PARQUET,
                 units=units,
@@ -73,10 +74,9 @@ class CampaignResults:
         named = [k for k in (json.loads(first[0]) if first else {}) if k in built.frame.columns]
         parameters = [*named, *(c for c in built.frame.columns if "." in c and c not in named)]
         frame = table_mod.ordered(built.frame).assign(metrics_version=table_mod.METRICS_VERSION)  # as metrics.csv
-        root = str(self.directory.resolve())
-        frame = frame.assign(
-            log_path=frame["log_path"].map(lambda p: os.path.join(root, p) if isinstance(p, str) else None)
-        )
+        paths = frame["log_path"]  # made absolute as text, not a join a row (~8 us each)
+        inside = str(self.directory.resolve()) + os.sep + paths
+        frame = frame.assign(log_path=inside.where(~paths.str.startswith(os.sep).fillna(False).astype(bool), paths))
         return frame.reset_index(drop=True), built.problems, parameters
 
     def table(self) -> pd.DataFrame:
