@@ -160,8 +160,11 @@ def _context(
     )
 
 
-def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | None = None) -> Figure | SubFigure:
-    """Draw a run (a :class:`RunLog` or the path of its MCAP) into ``fig`` (a new one if None).
+def plot_run(
+    log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | None = None, *, width: float = 7.5
+) -> Figure | SubFigure:
+    """Draw a run (a :class:`RunLog` or the path of its MCAP) into ``fig`` (a new one ``width``
+    inches wide if None: 3.5 for a paper's column, 7.16 across its page).
 
     ``fig.axes`` are the panels, top to bottom; an aborted run that ended early has one more, last
     in the list and drawn above the panels: the planned run as context (:func:`_abort_window`)."""
@@ -173,7 +176,8 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     context = t_abort is not None and zoom_end < t_end
     heights = [1.8] * len(panels) + ([0.9] if context else [])
     if fig is None:
-        fig = Figure(figsize=(7.5, 1.4 + sum(heights) + (0.4 if context else 0.0)))
+        height = 1.4 + sum(heights) + (0.4 if context else 0.0)
+        fig = Figure(figsize=(width, height * min(1.0, width / 6.0)))
     grid = fig.add_gridspec(len(heights), 1, height_ratios=[heights[-1], *heights[:-1]] if context else heights)
     rows = range(1, len(heights)) if context else range(len(heights))
     axes: list[Axes] = []

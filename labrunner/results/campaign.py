@@ -180,6 +180,14 @@ class CampaignResults:
                 coords[column] = ("point", by_id.loc[ids, column].to_numpy())
         return xr.Dataset(data, coords=coords, attrs={"campaign": self.name, "directory": str(self.directory)})
 
+    def plot_map(self, metric: str = "rms_error", *, size: str = "screen", title: bool = True, facet: int = 1):
+        """The map of ``metric`` (a table column ``analyse`` maps: ``rms_error``, ``input_energy``,
+        ...) as ``analyse`` draws it, a matplotlib Figure: ``size`` "screen" (7.5 in), "column"
+        (3.5 in) or "page" (7.16 in) wide; ``title`` False for none (:mod:`labrunner.results.plots`)."""
+        from labrunner.results.plots import campaign_map
+
+        return campaign_map(self, metric, size=size, title=title, facet=facet)
+
 
 def _matches(column: pd.Series, wanted: Any) -> np.ndarray:
     """Boolean mask of ``column`` against one :meth:`CampaignResults.select` condition."""

@@ -112,6 +112,13 @@ class RunResults:
             out["n_samples"] = self.log.n_samples
         return {**out, **record}
 
+    def plot(self, *, size: str = "screen"):
+        """The run's plot as ``labrunner plot`` draws it (a matplotlib Figure), ``size`` "screen"
+        (7.5 in), "column" (3.5 in) or "page" (7.16 in) wide."""
+        from labrunner.results.plots import run_figure
+
+        return run_figure(self, size=size)
+
     def to_xarray(self) -> xr.Dataset:
         """The signals as an xarray Dataset over ``time`` [s], each variable's ``units`` attribute set."""
         xr = require_xarray()
