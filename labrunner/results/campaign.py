@@ -24,6 +24,7 @@ import pandas as pd
 
 from labrunner.campaign.ledger import Ledger
 from labrunner.errors import InvalidParameter
+from labrunner.results.describe import column_units, logged_units
 from labrunner.results.run import RunResults, require_xarray
 
 if TYPE_CHECKING:
@@ -47,7 +48,15 @@ class CampaignResults:
         self.name = self.meta.get("campaign") or self.directory.name
 
     def __repr__(self) -> str:
-        return f"CampaignResults({str(self.directory)!r})"
+        """Name, description, rig, date, points by outcome, parameters (from the ledger: no table built)."""
+        from labrunner.results import describe
+
+        return describe.text("CampaignResults", describe.campaign_facts(self))
+
+    def _repr_html_(self) -> str:
+        from labrunner.results import describe
+
+        return describe.html_table("CampaignResults", describe.campaign_facts(self))
 
     def refresh(self) -> None:
         """Forget the table read so far (a running campaign has moved on)."""
@@ -77,7 +86,10 @@ class CampaignResults:
         paths = frame["log_path"]  # made absolute as text, not a join a row (~8 us each)
         inside = str(self.directory.resolve()) + os.sep + paths
         frame = frame.assign(log_path=inside.where(~paths.str.startswith(os.sep).fillna(False).astype(bool), paths))
-        return frame.reset_index(drop=True), built.problems, parameters
+        frame = frame.reset_index(drop=True)
+        known = selection.table_units(frame, self.directory, campaign)
+        frame.attrs["units"] = column_units(frame, known, {**units, **logged_units(frame)})
+        return frame, built.problems, parameters
 
     def table(self) -> pd.DataFrame:
         """One row per grid point: ids, outcome, parameters (dotted keys), metrics (a copy)."""
@@ -118,9 +130,11 @@ class CampaignResults:
         return found[0]
 
     def run(self, point: str | int) -> RunResults:
-        """One run, by point id or by ``seq``; a point without a log (not run, or failed before
-        writing one) is refused, naming its outcome."""
+        """One run, by point id (or a prefix of it that only one id starts with) or by ``seq``; a
+        point without a log (not run, or failed before writing one) is refused, naming its outcome."""
         frame = self._built[0]
+        if isinstance(point, str):
+            point = self._full_id(point)
         hit = frame[frame["seq"] == point] if isinstance(point, (int, np.integer)) else frame[frame["id"] == point]
         if hit.empty:
             raise InvalidParameter("point", f"{point!r} is no point of campaign {self.name!r}")
@@ -128,6 +142,18 @@ class CampaignResults:
         if not isinstance(row["log_path"], str):
             raise InvalidParameter("point", f"{row['id']} has no run log (outcome {row['outcome']})")
         return RunResults(row["log_path"], row["id"])
+
+    def _full_id(self, prefix: str) -> str:
+        """The point id ``prefix`` names: itself, or the one id that starts with it (as git's short
+        hashes); an ambiguous prefix is refused, naming how many ids start with it."""
+        ids = self._built[0]["id"]
+        if not prefix or (ids == prefix).any():
+            return prefix
+        found = ids[ids.str.startswith(prefix)]
+        if len(found) > 1:
+            shown = ", ".join(found.head(3)) + (", ..." if len(found) > 3 else "")
+            raise InvalidParameter("point", f"{prefix!r} starts {len(found)} point ids ({shown}): give more of it")
+        return str(found.iloc[0]) if len(found) else prefix
 
     def runs(self, rows: pd.DataFrame | None = None) -> list[RunResults]:
         """The runs of ``rows`` (default: the whole table) that have a log, in table order."""

@@ -43,7 +43,15 @@ class RunResults:
         self.id = point_id if point_id is not None else self.path.stem
 
     def __repr__(self) -> str:
-        return f"RunResults({str(self.path)!r})"
+        """Point, outcome, samples and rate, start time, parameters, RMS error (from its log)."""
+        from labrunner.results import describe
+
+        return describe.text("RunResults", describe.run_facts(self))
+
+    def _repr_html_(self) -> str:
+        from labrunner.results import describe
+
+        return describe.html_table("RunResults", describe.run_facts(self))
 
     @functools.cached_property
     def log(self) -> RunLog:
