@@ -87,7 +87,7 @@ class LogChecks:
         for i, (point, rel, recorded) in enumerate(zip(rows["id"], rows["log_path"], recorded_all)):
             if not rel:
                 continue
-            st = _stat(rel if os.path.isabs(rel) else root + rel, recorded)
+            st = _stat(rel if rel.startswith(os.sep) else root + rel, recorded)
             if st is None:
                 self.problems.append({"path": rel, "kind": "missing", "detail": f"point {point}: log file not found"})
                 continue
