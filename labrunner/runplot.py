@@ -65,15 +65,23 @@ def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
     return [(title, lines) for title, lines in panels if lines]
 
 
+#: The gains in a title, in math type as the maps set them.
+_GAINS = {"gamma": r"$\gamma$", "k_p": r"$k_\mathrm{p}$", "k_d": r"$k_\mathrm{d}$"}
+
+
+def _symbol(key: str) -> str:
+    name = key.rsplit(".", 1)[-1]
+    return _GAINS.get(name, name)
+
+
 def _title(log: RunLog) -> str:
     """Which run (its id and grid values) over how it ended: two lines, so that both fit the width."""
     run = log.metadata.get("run", {})
     head = str(run.get("point_id") or run.get("name") or "run")
     params = log.metadata.get("parameters") or {}
-    if params:  # the grid values that make this run what it is, e.g. "(gamma = 108.6, k_p = 50)"
+    if params:  # the grid values that make this run what it is, e.g. "(γ = 108.6, k_p = 50)", in math type
         shown = ", ".join(
-            f"{k.rsplit('.', 1)[-1]} = {v:.4g}" if is_number(v) else f"{k.rsplit('.', 1)[-1]} = {v}"
-            for k, v in params.items()
+            f"{_symbol(k)} = {v:.4g}" if is_number(v) else f"{_symbol(k)} = {v}" for k, v in params.items()
         )
         head = f"{head} ({shown})"
     out: dict[str, Any] | None = log.outcome
