@@ -161,11 +161,13 @@ def _context(
     ax.set_xlim(0.0, t_end)
     ax.set_yticks([])
     ax.set_ylabel(f"[{unit}]" if unit else "")
-    ax.set_title(
-        f"planned run, 0 – {t_end:.4g} s: aborted at {t_abort:.4g} s ({t_abort / t_end:.0%}); below: 0 – {zoom_end:.3g} s",
-        fontsize="small",
-        loc="left",
-    )
+    planned = f"planned run, 0 – {t_end:.4g} s: aborted at {t_abort:.4g} s ({t_abort / t_end:.0%})"
+    below = f"below: 0 – {zoom_end:.3g} s"
+    figure = ax.figure
+    while not hasattr(figure, "get_size_inches"):  # drawn into a sub-figure: its root's width
+        figure = figure.figure
+    narrow = figure.get_size_inches()[0] < 5  # a paper's column: two lines
+    ax.set_title(f"{planned}{chr(10) if narrow else '; '}{below}", fontsize="small", loc="left")
 
 
 def plot_run(
