@@ -84,6 +84,9 @@ def test_units_of_the_table_columns_are_the_logs(project):
     assert units["max_abs_input"] == run.units["u"] == "V" and units["input_energy"] == "V²"
     assert units["controller.k_p"] == "1/s" and units["abort_time"] == "s"
     assert "outcome" not in units and "seq" not in units
+    science = campaign.table(housekeeping=False)
+    assert list(table.columns[-3:]) == ["log_size", "log_mtime_ns", "metrics_version"]
+    assert list(science.columns) == list(table.columns[:-3]) and science.attrs["units"] == units
 
 
 def test_catalog_summary_latest_and_table(project):

@@ -32,6 +32,9 @@ if TYPE_CHECKING:
 
 #: Folder of ``analyse``'s outputs, whose metrics.parquet caches rows read from logs.
 REPORT_DIR = "report"
+#: The table's columns about the files behind a row rather than the run (the log's size and
+#: mtime, the metrics' version): the table's last columns, as in metrics.csv.
+HOUSEKEEPING = ("log_size", "log_mtime_ns", "metrics_version")
 
 
 class CampaignResults:
@@ -91,9 +94,11 @@ class CampaignResults:
         frame.attrs["units"] = column_units(frame, known, {**units, **logged_units(frame)})
         return frame, built.problems, parameters
 
-    def table(self) -> pd.DataFrame:
-        """One row per grid point: ids, outcome, parameters (dotted keys), metrics (a copy)."""
-        return self._built[0].copy()
+    def table(self, *, housekeeping: bool = True) -> pd.DataFrame:
+        """One row per grid point: ids, outcome, parameters (dotted keys), metrics (a copy); last,
+        the :data:`HOUSEKEEPING` columns, left out with ``housekeeping=False``."""
+        frame = self._built[0]
+        return frame.copy() if housekeeping else frame.drop(columns=[c for c in HOUSEKEEPING if c in frame])
 
     @property
     def parameters(self) -> list[str]:
