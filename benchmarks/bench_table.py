@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -89,7 +90,7 @@ def main() -> None:
         "   points  table() [s]  CPU [s]  CPU per 10^4 [s]  again [s]  select [s]  run [s]  imports [s]  open [s]  peak RSS  columns"
     )
     try:
-        side = 100
+        side = min(100, math.isqrt(args.max))  # 10^4 first; less only when --max asks (a quick check)
         while side * side <= args.max:
             t0 = time.perf_counter()
             directory = synthetic_ledger.make(work, f"table{side * side}", side, side)
