@@ -118,6 +118,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from labrunner.analysis import table as table_mod
+    from labrunner.analysis.table_rows import in_chunks
     from labrunner.campaign.ledger import Ledger
 
     tmp = Path(tempfile.mkdtemp(prefix="bench-analysis-"))
@@ -135,7 +136,7 @@ def main() -> None:
         with Ledger.open_readonly(directory) as ledger:
             rows = [dict(r) for r in ledger.rows()]
         t, c = time.perf_counter(), time.process_time()
-        built = table_mod.build_table(rows, directory, workers=args.workers)
+        built = table_mod.build_table(in_chunks(rows), directory, workers=args.workers)
         table_wall, table_cpu = time.perf_counter() - t, time.process_time() - c
         print(f"{points} runs:")
         print(f"  analyse, fresh process:         {cpu:6.2f} s CPU ({wall:6.2f} s wall)")

@@ -65,15 +65,23 @@ def _panels(log: RunLog) -> list[tuple[str, list[tuple[str, str]]]]:
     return [(title, lines) for title, lines in panels if lines]
 
 
+#: The gains in a title, in math type as the maps set them.
+_GAINS = {"gamma": r"$\gamma$", "k_p": r"$k_\mathrm{p}$", "k_d": r"$k_\mathrm{d}$"}
+
+
+def _symbol(key: str) -> str:
+    name = key.rsplit(".", 1)[-1]
+    return _GAINS.get(name, name)
+
+
 def _title(log: RunLog) -> str:
     """Which run (its id and grid values) over how it ended: two lines, so that both fit the width."""
     run = log.metadata.get("run", {})
     head = str(run.get("point_id") or run.get("name") or "run")
     params = log.metadata.get("parameters") or {}
-    if params:  # the grid values that make this run what it is, e.g. "(gamma = 108.6, k_p = 50)"
+    if params:  # the grid values that make this run what it is, e.g. "(γ = 108.6, k_p = 50)", in math type
         shown = ", ".join(
-            f"{k.rsplit('.', 1)[-1]} = {v:.4g}" if is_number(v) else f"{k.rsplit('.', 1)[-1]} = {v}"
-            for k, v in params.items()
+            f"{_symbol(k)} = {v:.4g}" if is_number(v) else f"{_symbol(k)} = {v}" for k, v in params.items()
         )
         head = f"{head} ({shown})"
     out: dict[str, Any] | None = log.outcome
@@ -153,15 +161,20 @@ def _context(
     ax.set_xlim(0.0, t_end)
     ax.set_yticks([])
     ax.set_ylabel(f"[{unit}]" if unit else "")
-    ax.set_title(
-        f"planned run, 0 – {t_end:.4g} s: aborted at {t_abort:.4g} s ({t_abort / t_end:.0%}); below: 0 – {zoom_end:.3g} s",
-        fontsize="small",
-        loc="left",
-    )
+    planned = f"planned run, 0 – {t_end:.4g} s: aborted at {t_abort:.4g} s ({t_abort / t_end:.0%})"
+    below = f"below: 0 – {zoom_end:.3g} s"
+    figure = ax.figure
+    while not hasattr(figure, "get_size_inches"):  # drawn into a sub-figure: its root's width
+        figure = figure.figure
+    narrow = figure.get_size_inches()[0] < 5  # a paper's column: two lines
+    ax.set_title(f"{planned}{chr(10) if narrow else '; '}{below}", fontsize="small", loc="left")
 
 
-def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | None = None) -> Figure | SubFigure:
-    """Draw a run (a :class:`RunLog` or the path of its MCAP) into ``fig`` (a new one if None).
+def plot_run(
+    log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | None = None, *, width: float = 7.5
+) -> Figure | SubFigure:
+    """Draw a run (a :class:`RunLog` or the path of its MCAP) into ``fig`` (a new one ``width``
+    inches wide if None: 3.5 for a paper's column, 7.16 across its page).
 
     ``fig.axes`` are the panels, top to bottom; an aborted run that ended early has one more, last
     in the list and drawn above the panels: the planned run as context (:func:`_abort_window`)."""
@@ -173,7 +186,8 @@ def plot_run(log: RunLog | str | os.PathLike[str], fig: Figure | SubFigure | Non
     context = t_abort is not None and zoom_end < t_end
     heights = [1.8] * len(panels) + ([0.9] if context else [])
     if fig is None:
-        fig = Figure(figsize=(7.5, 1.4 + sum(heights) + (0.4 if context else 0.0)))
+        height = 1.4 + sum(heights) + (0.4 if context else 0.0)
+        fig = Figure(figsize=(width, height * min(1.0, width / 6.0)))
     grid = fig.add_gridspec(len(heights), 1, height_ratios=[heights[-1], *heights[:-1]] if context else heights)
     rows = range(1, len(heights)) if context else range(len(heights))
     axes: list[Axes] = []

@@ -10,6 +10,7 @@ from test_analysis_support import expected_metrics, make_campaign, outcome_of, t
 
 from labrunner.analysis.analyse import analyse
 from labrunner.analysis.table import build_table
+from labrunner.analysis.table_rows import in_chunks
 from labrunner.campaign.ledger import Ledger
 from labrunner.cli import main
 
@@ -102,16 +103,17 @@ def test_parallel_reading_equals_serial(tmp_path):
     make_campaign(d, gammas=tuple(np.logspace(0, 3, 9)), k_ps=tuple(np.logspace(-1, 2, 8)))  # 72 logs
     with Ledger.open_readonly(d) as ledger:
         rows = [dict(r) for r in ledger.rows()]
+    chunks = list(in_chunks(rows))
     events: list[tuple[str, int]] = []
     serial = build_table(
-        rows,
+        chunks,
         d,
         workers=1,
         recompute=True,
         announce=lambda n: events.append(("logs", n)),
         tick=lambda n: events.append(("read", n)),
     )
-    parallel = build_table(rows, d, workers=2, recompute=True)
+    parallel = build_table(chunks, d, workers=2, recompute=True)
     pd.testing.assert_frame_equal(serial.frame, parallel.frame)
     assert events == [("logs", 72)] + [("read", 1)] * 72  # the progress knows the total before the first log
     assert serial.n_read == parallel.n_read == 72 and not serial.problems

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrunner.analysis import table, table_files
+from labrunner.analysis import table, table_files, table_rows
 
 
 def _rows(n: int) -> list[dict]:
@@ -45,16 +45,17 @@ def _rows(n: int) -> list[dict]:
 
 def _reference(rows: list[dict]) -> pd.DataFrame:
     """The table as one DataFrame of every row (the plain way, before chunking)."""
-    frame, _ = table._chunk_frame(rows)
+    frame, _ = table_rows.chunk_frame({k: [r[k] for r in rows] for k in rows[0]})
     return frame
 
 
 @pytest.mark.parametrize("chunk", [1, 3, 4, 1000])
 def test_ledger_frame_in_chunks_equals_one_frame_of_every_row(monkeypatch, chunk):
     rows = _rows(23)
-    monkeypatch.setattr(table, "CHUNK_ROWS", chunk)
+    monkeypatch.setattr(table_rows, "CHUNK_ROWS", chunk)
     seen = []
-    frame, missing = table.ledger_frame(iter(rows), lambda start, part, absent: seen.append((start, len(part))))
+    chunks = table_rows.in_chunks(iter(rows))
+    frame, missing = table.ledger_frame(chunks, lambda start, part, absent: seen.append((start, len(part["id"]))))
     assert seen == [(s, min(chunk, 23 - s)) for s in range(0, 23, chunk)]
     assert missing == []
     reference = _reference(rows)
@@ -76,8 +77,8 @@ def test_ledger_frame_in_chunks_equals_one_frame_of_every_row(monkeypatch, chunk
 def test_written_files_equal_one_to_csv_and_to_parquet_of_the_whole_table(tmp_path, monkeypatch, rows_at_a_time):
     directory = tmp_path / "c"
     (directory / "runs").mkdir(parents=True)
-    monkeypatch.setattr(table, "CHUNK_ROWS", 4)
-    frame, _ = table.ledger_frame(_rows(23))
+    monkeypatch.setattr(table_rows, "CHUNK_ROWS", 4)
+    frame, _ = table.ledger_frame(table_rows.in_chunks(_rows(23)))
     table.split_aborted(frame)
     frame["n_samples"] = frame["n_samples"].astype("Int64")
     frame["log_state"] = table.log_states(frame["log_path"], [])

@@ -28,6 +28,7 @@ SLOW = {
     "bench_stability.py": ([], ""),
     "bench_control.py": ([], ""),
     "bench_scale.py": (["--max", "1000", "--synthetic", "400"], "synthetic ledger"),
+    "bench_table.py": (["--max", "400", "--repeat", "1"], "per 10^4"),
     "bench_log_size.py": (["--only", "quickstart"], "floors for"),
     "bench_dask_scheduler.py": (["--points", "100"], "bytes a run"),
     "bench_live.py": (["--trials", "1", "--grid", "5", "4"], "one reading, one never reading"),

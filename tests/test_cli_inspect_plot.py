@@ -127,7 +127,7 @@ def test_title_names_the_grid_values(tmp_path):
     path = tmp_path / "point.mcap"
     meta = {**metadata(), "parameters": {"controller.gamma": 108.55, "controller.k_p": 50.0}}
     write_run(path, metadata=meta, fs=200.0, signals=motor_run(), outcome=ABORTED, channels=CHANNELS)
-    assert plot_run(path).get_suptitle().startswith("p-0042 (gamma = 108.5, k_p = 50)\naborted")
+    assert plot_run(path).get_suptitle().startswith("p-0042 ($\\gamma$ = 108.5, $k_\\mathrm{p}$ = 50)\naborted")
 
 
 def test_plot_into_given_figure_and_torn(torn_run):

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from labrunner.analysis import drawing, run_plots
+from labrunner.analysis import drawing, png, run_plots
 from labrunner.analysis.background import Background
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.device import lawflag
@@ -45,6 +45,7 @@ def analyse(
     plot: Sequence[str] = (),
     stream: TextIO | None = None,
     progress: bool = True,
+    style: png.FigureStyle | None = None,
 ) -> dict[str, Any]:
     """Analyse a campaign directory; write the table, figures and ``index.html`` under ``out``.
 
@@ -54,13 +55,26 @@ def analyse(
     to draw besides the best, worst and first aborted ones (see
     :func:`~labrunner.analysis.selection.plot_selection`). Progress
     goes to ``stream`` (default stderr: a bar on a terminal, else plain lines; ``progress=False``: none).
+    ``style``: the figures' formats, resolution, size and title (:class:`~.png.FigureStyle`).
     """
     if error not in ("e", "e_hat"):
         raise InvalidParameter("error", f"must be 'e' or 'e_hat', got {error!r}")
     concurrent = (workers or os.cpu_count() or 1) > 1
     plotter = Background.ahead(drawing.prepare) if concurrent else None  # before the imports below
     try:
-        return _analyse(Path(directory), out, workers, margin, error, recompute, plot, stream, progress, plotter)
+        return _analyse(
+            Path(directory),
+            out,
+            workers,
+            margin,
+            error,
+            recompute,
+            plot,
+            stream,
+            progress,
+            plotter,
+            style or png.FigureStyle(),
+        )
     finally:
         if plotter is not None:
             plotter.close()
@@ -77,10 +91,11 @@ def _analyse(
     stream: TextIO | None,
     progress: bool,
     plotter: Background[dict[str, Path]] | None,
+    style: png.FigureStyle,
 ) -> dict[str, Any]:
     import pandas as pd
 
-    from labrunner.analysis import memory, selection, table as table_mod, table_files
+    from labrunner.analysis import memory, selection, table as table_mod, table_files, table_rows
     from labrunner.campaign.ledger import Ledger
     from labrunner.campaign.progress import Steps
 
@@ -105,7 +120,7 @@ def _analyse(
         advance()
         step("metrics table")
         built = table_mod.build_table(
-            ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
+            table_rows.ledger_chunks(ledger.db),  # streamed: one chunk of rows at a time
             directory,
             cache=out / table_files.METRICS_PARQUET,
             workers=workers,
@@ -141,16 +156,16 @@ def _analyse(
         "ê" if error == "e_hat" else "e",
     )
     theories = Theories(campaign)
-    jobs = figures.map_jobs(frame, ctx, theories)
+    jobs = figures.map_jobs(frame, ctx, theories, style)
     # Two cores: the child forked ahead draws the maps and the usual few run plots from now (with a
     # child of its own: drawing.draw) while this process writes the tables and compares with the
     # theory; many run plots (--plot all) are drawn here, with progress, while it draws the maps.
     many = plotter is not None and len(plots_of) > BACKGROUND_PLOTS
-    if plotter is not None and not jobs and not run_plots.to_draw([] if many else plots_of):
+    if plotter is not None and not jobs and not run_plots.to_draw([] if many else plots_of, style):
         plotter.close()  # nothing for it to draw (no map, the plots kept): not waited for
         plotter = many = None
     if plotter is not None:
-        plotter.start(functools.partial(drawing.draw, [] if many else plots_of, jobs))
+        plotter.start(functools.partial(drawing.draw, [] if many else plots_of, jobs, style=style))
         memory.trim()  # the pickled maps
     csv, parquet = table_files.write_table(built.frame, out, directory)
     memory.trim()
@@ -164,14 +179,14 @@ def _analyse(
 
         sections, guided = guided_report.sections(campaign, guided_rows, out)
     if plotter is None:  # one process: the maps, then the run plots with progress
-        maps, _ = drawing.draw([], jobs, split=False)
+        maps, _ = drawing.draw([], jobs, split=False, style=style)
     elif not many:
         maps, plots = plotter.result()
     del jobs  # the maps' cells (17 MB at 10^6 points): drawn, or the child's to draw
     advance()
     step("run plots", len(plots_of))
     if plotter is None or many:
-        plots = run_plots.draw(plots_of, tick=advance)
+        plots = run_plots.draw(plots_of, tick=advance, style=style)
     else:
         advance(len(plots_of))
     if many:

@@ -32,12 +32,14 @@ class FigureJob:
     figure: str  # "map_figure" or "sweep_figure"
     args: tuple[Any, ...]
     kwargs: Mapping[str, Any] = field(default_factory=dict)
+    style: png.FigureStyle = png.FigureStyle()
 
     def make(self) -> Any:
-        """The matplotlib figure."""
+        """The matplotlib figure, at the style's width and text size."""
         from labrunner.analysis import maps
 
-        return getattr(maps, self.figure)(*self.args, **self.kwargs)
+        with self.style.drawing():
+            return getattr(maps, self.figure)(*self.args, **self.kwargs, width=self.style.width)
 
 
 def prepare() -> None:
@@ -55,7 +57,7 @@ def draw_maps(jobs: Sequence[FigureJob]) -> list[tuple[Path, str]]:
     drawn = []
     for job in jobs:
         fig = job.make()
-        drawn.append((png.save(fig, job.path), job.caption))
+        drawn.append((png.save(fig, job.path, job.style), job.caption))
         fig.clear()
         gc.collect()
     return drawn
@@ -67,15 +69,16 @@ def draw(
     *,
     split: bool = True,
     tick: Callable[[int], None] | None = None,
+    style: png.FigureStyle | None = None,
 ) -> tuple[list[tuple[Path, str]], dict[str, Path]]:
     """(maps drawn, run plots by id). With ``split``, the last maps are drawn in a forked child, as
     many as make its share of the figures to draw half (a map and a run plot cost about the same,
-    ~0.15 s); the run plots and the other maps here. ``tick`` is told of each run plot."""
-    half = (len(run_plots.to_draw(plots)) + len(jobs)) // 2 if split else 0
+    ~0.15 s); the run plots (in ``style``) and the other maps here. ``tick`` is told of each run plot."""
+    half = (len(run_plots.to_draw(plots, style)) + len(jobs)) // 2 if split else 0
     here = len(jobs) - min(half, len(jobs))
     child = Background(lambda: draw_maps(jobs[here:])) if here < len(jobs) else None
     try:
-        drawn = run_plots.draw(plots, tick=tick)
+        drawn = run_plots.draw(plots, tick=tick, style=style)
         maps = draw_maps(jobs[:here]) + (child.result() if child is not None else [])
     finally:
         if child is not None:

@@ -30,6 +30,7 @@ from labrunner.analysis.overlays import (
     kp_kd_lines,
     sweep_lines,
 )
+from labrunner.analysis.png import FigureStyle
 
 
 def map_metrics(error: str, frame: pd.DataFrame | None = None) -> tuple[tuple[str, str, str], ...]:
@@ -170,12 +171,22 @@ def mark_outside(lines: Sequence[OverlayLine], x: Axis, y: Axis) -> list[Overlay
     return [replace(line, label=f"{line.label} (outside the map)") if _outside(line, x, y) else line for line in lines]
 
 
-def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[FigureJob]:
+def figure_name(ctx: Context) -> str:
+    """What a figure's title calls the campaign: its description (first line), else its name."""
+    if ctx.campaign is None:
+        return ctx.directory.name
+    return (ctx.campaign.description.strip().splitlines() or [ctx.campaign.name])[0]
+
+
+def map_jobs(
+    frame: pd.DataFrame, ctx: Context, theories: Theories, style: FigureStyle | None = None
+) -> list[FigureJob]:
     """The RMS and energy maps (2-D grids) or the sweep plot (1-D) as figures to draw, their
     overlays computed now (the theory, once), the drawing left to :mod:`.drawing` (so that a
-    forked process can draw them)."""
+    forked process can draw them); ``style``: their size, formats and whether titled."""
     jobs: list[FigureJob] = []
-    name = ctx.campaign.name if ctx.campaign is not None else ctx.directory.name
+    style = style or FigureStyle()
+    name = figure_name(ctx)
     units, forms = ctx.units, grid_forms(ctx.campaign)
     if len(ctx.axes) == 1:
         key = ctx.axes[0]
@@ -198,7 +209,8 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Figu
                 f"RMS of {ctx.error} and input energy over {x.label}",
                 "sweep_figure",
                 (points, x, columns),
-                {"title": title, "overlays": lines},
+                {"title": title if style.title else "", "overlays": lines},
+                style,
             )
         ]
     if len(ctx.axes) < 2:
@@ -216,11 +228,12 @@ def map_jobs(frame: pd.DataFrame, ctx: Context, theories: Theories) -> list[Figu
             head = f"{name}: {title}"
             sub = ", ".join(s for s in (suffix, note) if s)
             kwargs = {
-                "title": f"{head}\n{sub}" if sub else head,
+                "title": "" if not style.title else f"{head}\n{sub}" if sub else head,
                 "colour_label": _with_unit(label, units.get(column, "")),
                 "overlays": lines,
             }
             tag = f"_{i + 1}" if extra else ""
             caption = f"{title} over {x.label} and {y.label}" + (f" ({suffix})" if suffix else "")
-            jobs.append(FigureJob(ctx.out / f"map_{column}{tag}.png", caption, "map_figure", (grid, column), kwargs))
+            path = ctx.out / f"map_{column}{tag}.png"
+            jobs.append(FigureJob(path, caption, "map_figure", (grid, column), kwargs, style))
     return jobs

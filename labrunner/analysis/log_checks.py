@@ -43,7 +43,7 @@ _PARALLEL_MIN = 64
 _MAGIC = b"\x89MCAP0\r\n"
 
 
-def _stat(path: Path, recorded: Fingerprint | tuple[None, ...]) -> tuple[Fingerprint, bool] | None:
+def _stat(path: str, recorded: Fingerprint | tuple[None, ...]) -> tuple[Fingerprint, bool] | None:
     """(fingerprint, intact) of a log, None if it is missing; a log whose fingerprint is the
     ``recorded`` one is whole without reading it (see the module)."""
     try:
@@ -76,19 +76,20 @@ class LogChecks:
     _sizes: list[np.ndarray] = field(default_factory=list)
     _mtimes: list[np.ndarray] = field(default_factory=list)
 
-    def add(self, start: int, rows: Sequence[Mapping[str, Any]], no_metrics: Collection[int]) -> None:
-        """Check the logs of ``rows`` (ledger rows from position ``start`` on); ``no_metrics``:
-        positions in ``rows`` of finished rows whose ledger holds no full metrics."""
-        size = np.full(len(rows), -1, dtype=np.int64)
+    def add(self, start: int, rows: Mapping[str, Sequence[Any]], no_metrics: Collection[int]) -> None:
+        """Check the logs of ``rows`` (a column-wise chunk of ledger rows from position ``start``
+        on); ``no_metrics``: positions in it of finished rows whose ledger holds no full metrics."""
+        n = len(rows["id"])
+        size = np.full(n, -1, dtype=np.int64)
         mtime = size.copy()
-        for i, r in enumerate(rows):
-            rel = r.get("log_path")
+        root = str(self.directory) + os.sep  # joined as text: a tenth of pathlib's cost a row
+        recorded_all = zip(*(rows.get(c) or [None] * n for c in FINGERPRINT_COLUMNS))
+        for i, (point, rel, recorded) in enumerate(zip(rows["id"], rows["log_path"], recorded_all)):
             if not rel:
                 continue
-            recorded = tuple(r.get(c) for c in FINGERPRINT_COLUMNS)
-            st = _stat(self.directory / rel, recorded)
+            st = _stat(rel if rel.startswith(os.sep) else root + rel, recorded)
             if st is None:
-                self.problems.append({"path": rel, "kind": "missing", "detail": f"point {r['id']}: log file not found"})
+                self.problems.append({"path": rel, "kind": "missing", "detail": f"point {point}: log file not found"})
                 continue
             stat, intact = st
             size[i], mtime[i] = stat[:2]

@@ -144,7 +144,7 @@ _UNITS = {"differentiator.omega_c": "rad/s", "fs": "Hz"}
 def axis_label(key: str, units: dict[str, str] | None = None) -> str:
     """Readable label with its SI unit for a dotted campaign key (thesis symbols)."""
     unit = {**_UNITS, **(units or {})}.get(key)
-    name = _NAMES.get(key, key)
+    name = _NAMES.get(key, key.removeprefix("rig_parameters."))  # a rig parameter by its rig file's name
     return f"{name} [{unit}]" if unit else name
 
 

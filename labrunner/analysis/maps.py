@@ -81,6 +81,40 @@ def colour_norm(z: np.ndarray, log: bool | None = None) -> colors.Normalize:
     return colors.Normalize(vmin=0.0, vmax=1.0)
 
 
+#: The thesis's symbols in labels and legends as math type: gains with upright subscripts
+#: ($k_\mathrm{p}$, ISO 80000-2), Greek letters in the math font.
+MATH = {
+    "k_p": r"$k_\mathrm{p}$",
+    "k_d": r"$k_\mathrm{d}$",
+    "ω_c": r"$\omega_\mathrm{c}$",
+    "f_s": r"$f_\mathrm{s}$",
+    "δ_t": r"$\delta_t$",
+    "γ": r"$\gamma$",
+    "ρ": r"$\rho$",
+    "α": r"$\alpha$",
+    "β": r"$\beta$",
+    "δ": r"$\delta$",
+    "ê": r"$\hat{e}$",
+}
+
+
+def math_text(text: str) -> str:
+    """``text`` with the symbols of :data:`MATH` in math type (a label, title or legend entry)."""
+    out, i = [], 0
+    while i < len(text):
+        hit = next((s for s in MATH if text.startswith(s, i) and _alone(text, i, len(s))), None)
+        out.append(MATH[hit] if hit else text[i])
+        i += len(hit) if hit else 1
+    return "".join(out)
+
+
+def _alone(text: str, i: int, n: int) -> bool:
+    """Whether ``text[i:i + n]`` is a symbol, not part of a word (the k_p of ``k_p_max``: no)."""
+    before = text[i - 1] if i else " "
+    after = text[i + n] if i + n < len(text) else " "
+    return not (before.isalnum() or before == "_") and not (after.isalnum() or after == "_")
+
+
 def draw_markers(ax: Axes, x: np.ndarray, y: np.ndarray, outcome: np.ndarray) -> None:
     """Scatter one marker per run at (``x``, ``y``), styled by its outcome code; each outcome one
     labelled collection."""
@@ -165,8 +199,8 @@ def draw_heatmap(
         line.draw(ax)
     ax.set_xlim(*x_edges[[0, -1]])
     ax.set_ylim(*y_edges[[0, -1]])
-    ax.set_xlabel(x.label)
-    ax.set_ylabel(y.label)
+    ax.set_xlabel(math_text(x.label))
+    ax.set_ylabel(math_text(y.label))
     return patches
 
 
@@ -222,35 +256,66 @@ def map_figure(
     colour_label: str,
     overlays: Sequence[OverlayLine] = (),
     log_colour: bool | None = None,
+    width: float = 7.5,
 ) -> Figure:
-    """A figure with one heat map and a legend of markers (or cell colours) and overlays below it.
+    """A figure ``width`` inches wide with one heat map and a legend of markers (or cell colours)
+    and overlays below it; ``title`` "" draws none. Symbols are set in math type (:func:`math_text`).
 
     Laid out first for a legend of an entry per outcome present and per overlay line, the most
     it will have (the axes' size decides between markers and raster), then for the legend drawn.
     """
-    fig = Figure(figsize=(7.5, 6.4))
+    fig = Figure(figsize=(width, width))
+    title = _wrapped(title, width)
     ax = fig.add_subplot()
-    _frame(fig, title, len(set(np.unique(grid.outcome)) - {NO_RUN}) + len(overlays), 2)
-    patches = draw_heatmap(ax, grid, column, colour_label=colour_label, log_colour=log_colour, overlays=overlays)
-    ax.set_title(title)
+    ncols = _legend_columns(width)
+    plot_height = 0.62 * width  # [in] the map's, whatever the title and legend take
+    _frame(fig, title, len(set(np.unique(grid.outcome)) - {NO_RUN}) + len(overlays), ncols, plot_height)
+    patches = draw_heatmap(
+        ax, grid, column, colour_label=math_text(colour_label), log_colour=log_colour, overlays=overlays
+    )
+    if title:
+        ax.set_title(math_text(title))
     handles, labels = ax.get_legend_handles_labels()
-    handles, labels = [*patches, *handles], [*(p.get_label() for p in patches), *labels]
-    _frame(fig, title, len(handles), 2)
+    handles, labels = [*patches, *handles], [math_text(t) for t in (*(p.get_label() for p in patches), *labels)]
+    _frame(fig, title, len(handles), ncols, plot_height)
     if handles:
-        fig.legend(handles, labels, loc="lower center", ncols=2, fontsize="small", framealpha=0.9)
+        fig.legend(handles, labels, loc="lower center", ncols=ncols, fontsize="small", framealpha=0.9)
     visible_ticks_only(fig)
     return fig
 
 
-def _frame(fig: Figure, title: str, entries: int, ncols: int) -> None:
+def _wrapped(title: str, width: float) -> str:
+    """``title`` broken into lines that fit ``width`` inches at the current text size."""
+    import textwrap
+
+    import matplotlib
+
+    chars = max(20, int(width * 72 / (matplotlib.rcParams["font.size"] * 0.6)))
+    return "\n".join(textwrap.fill(line, chars) for line in title.splitlines())
+
+
+def _legend_columns(width: float) -> int:
+    """Legend columns that fit ``width`` inches: one in a paper's column, else two."""
+    return 1 if width < 5 else 2
+
+
+def _frame(fig: Figure, title: str, entries: int, ncols: int, plot_height: float) -> None:
     """Fixed margins from the title's lines and the legend's rows — no layout engine, which
-    would measure every text box of the figure (≈ 2 s of a 1000-run analysis)."""
-    width, height = fig.get_size_inches()
+    would measure every text box of the figure (≈ 2 s of a 1000-run analysis) — and the figure's
+    height from them and ``plot_height`` [in], the axes' (so that a long legend in a paper's
+    column makes the figure taller, not the plot smaller). Sizes in lines of the text size
+    (rcParams: a paper's column draws smaller text)."""
+    import matplotlib
+
+    line = matplotlib.rcParams["font.size"] / 72 * 1.58  # [in] a line of text, as at 10 pt: 0.22 in
     rows = -(-entries // ncols)
-    top = 0.25 + 0.22 * (title.count("\n") + 1)  # [in] title lines
-    bottom = 0.55 + (0.22 * rows + 0.15 if rows else 0.0)  # [in] tick labels and axis label, legend rows
+    top = 0.1 + line * 0.7 + (line * (title.count("\n") + 1) if title else 0.0)  # [in] title lines
+    bottom = 2.5 * line + (line * rows + 0.15 if rows else 0.0)  # [in] tick and axis labels, legend rows
+    width = fig.get_size_inches()[0]
+    height = plot_height + top + bottom
+    fig.set_size_inches(width, height)
     fig.subplots_adjust(
-        left=0.85 / width, right=1 - 0.2 / width, top=1 - top / height, bottom=bottom / height, hspace=0.12
+        left=3.9 * line / width, right=1 - 0.2 / width, top=1 - top / height, bottom=bottom / height, hspace=0.12
     )
 
 
@@ -261,12 +326,16 @@ def sweep_figure(
     *,
     title: str,
     overlays: Sequence[OverlayLine] = (),
+    width: float = 7.5,
 ) -> Figure:
-    """1-D sweep: one panel per (column, label) over the axis, run markers by outcome (an aborted
-    run's marker at its ``<column>_until_abort`` value, the metric of its run up to the abort).
-    Where the runs lie too close for a marker each (:func:`markers_fit`), the line alone, labelled,
-    shows the completed runs, and markers the others."""
-    fig = Figure(figsize=(7.5, 2.6 * len(columns) + 0.8))
+    """1-D sweep, ``width`` inches wide: one panel per (column, label) over the axis, run markers
+    by outcome (an aborted run's marker at its ``<column>_until_abort`` value, the metric of its
+    run up to the abort). Where the runs lie too close for a marker each (:func:`markers_fit`),
+    the line alone, labelled, shows the completed runs, and markers the others; ``title`` "":
+    none."""
+    plot_height = (2.6 * len(columns) - 0.9) * min(1.0, width / 6.0)  # [in] the panels'
+    fig = Figure(figsize=(width, plot_height + 2.0))
+    title = _wrapped(title, width)
     axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
     ordered = points.where(np.argsort(points[x.key], kind="quicksort"))  # as pandas' sort_values
     ok = ordered.where(ordered.coloured())
@@ -288,15 +357,17 @@ def sweep_figure(
             ax.set_yscale("log")
         for line in overlays:
             line.draw(ax)
-        ax.set_ylabel(label)
+        ax.set_ylabel(math_text(label))
         ax.grid(True, which="both", alpha=0.3)
     if x.log:
         axes[-1].set_xscale("log")
-    axes[-1].set_xlabel(x.label)
-    axes[0].set_title(title)
+    axes[-1].set_xlabel(math_text(x.label))
+    if title:
+        axes[0].set_title(math_text(title))
     handles, labels = axes[0].get_legend_handles_labels()
-    _frame(fig, title, len(handles), 3)
+    ncols = _legend_columns(width) + (width >= 5)
+    _frame(fig, title, len(handles), ncols, plot_height)
     if handles:
-        fig.legend(handles, labels, loc="lower center", ncols=3, fontsize="small")
+        fig.legend(handles, [math_text(t) for t in labels], loc="lower center", ncols=ncols, fontsize="small")
     visible_ticks_only(fig)
     return fig

@@ -170,23 +170,38 @@ def _family(case: str) -> str:
     return case.split("-", 1)[1]
 
 
+_MODELS = {"ultralocal": "ultra-local model", "motor": "motor model"}
+
+
+def bound_label(case: str, which: str) -> str:
+    """A bound's legend entry, saying what the line is and where it comes from:
+    "stability bound, max k_p (motor model), Eq. (2.46)"."""
+    eq = EQUATIONS[case]
+    return f"stability bound, {which} ({_MODELS[_family(case)]}), {'Eqs.' if '–' in eq else 'Eq.'} {eq}"
+
+
 def gamma_kp_lines(theory: Theory, gammas: np.ndarray) -> list[OverlayLine]:
     """Bounds of k_p over a dense γ axis (x = γ, y = k_p), and the nominal gain line."""
     lines = []
     for case in theory.cases():
         lo, hi = theory.k_p_limits(case, gammas)
-        eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
-        lines.append(OverlayLine(f"{eq} max k_p", gammas, hi, colour, "-", f"bound:{case}:k_p_max"))
+        colour = _COLOURS[_family(case)]
+        lines.append(OverlayLine(bound_label(case, "max k_p"), gammas, hi, colour, "-", f"bound:{case}:k_p_max"))
         if np.any(lo > 0):
             lines.append(
                 OverlayLine(
-                    f"{eq} min k_p", gammas, np.where(lo > 0, lo, np.nan), colour, "--", f"bound:{case}:k_p_min"
+                    bound_label(case, "min k_p"),
+                    gammas,
+                    np.where(lo > 0, lo, np.nan),
+                    colour,
+                    "--",
+                    f"bound:{case}:k_p_min",
                 )
             )
     if theory.rho is not None:
         lines.append(
             OverlayLine(
-                f"nominal input gain ρ = {theory.rho:g}",
+                f"nominal input gain ρ = {theory.rho:.5g}",
                 theory.rho,
                 None,
                 "white",
@@ -202,19 +217,26 @@ def kp_kd_lines(theory: Theory, gamma: float, k_ds: np.ndarray) -> list[OverlayL
     """Bounds on a k_p–k_d map (x = k_p, y = k_d) at fixed γ: k_d limits and k_p(k_d) limits."""
     lines = []
     for case in theory.cases():
-        eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
+        colour = _COLOURS[_family(case)]
         first = theory.bounds(case, gamma, float(k_ds[0]))
         kd_lo, kd_hi = _interval(first, "k_d")
         lo, hi = theory.k_p_limits(case, np.full(len(k_ds), float(gamma)), k_ds)
-        lines.append(OverlayLine(f"{eq} max k_p", hi, k_ds, colour, "-", f"bound:{case}:k_p_max"))
+        lines.append(OverlayLine(bound_label(case, "max k_p"), hi, k_ds, colour, "-", f"bound:{case}:k_p_max"))
         if np.any(lo > 0):
             lines.append(
-                OverlayLine(f"{eq} min k_p", np.where(lo > 0, lo, np.nan), k_ds, colour, "--", f"bound:{case}:k_p_min")
+                OverlayLine(
+                    bound_label(case, "min k_p"),
+                    np.where(lo > 0, lo, np.nan),
+                    k_ds,
+                    colour,
+                    "--",
+                    f"bound:{case}:k_p_min",
+                )
             )
         if np.isfinite(kd_hi):
-            lines.append(OverlayLine(f"{eq} max k_d", None, kd_hi, colour, ":", f"bound:{case}:k_d_max"))
+            lines.append(OverlayLine(bound_label(case, "max k_d"), None, kd_hi, colour, ":", f"bound:{case}:k_d_max"))
         if np.isfinite(kd_lo) and kd_lo > 0:
-            lines.append(OverlayLine(f"{eq} min k_d", None, kd_lo, colour, "-.", f"bound:{case}:k_d_min"))
+            lines.append(OverlayLine(bound_label(case, "min k_d"), None, kd_lo, colour, "-.", f"bound:{case}:k_d_min"))
     return lines
 
 
@@ -233,15 +255,22 @@ def sweep_lines(theory: Theory, key: str, dense: np.ndarray, fixed: Mapping[str,
     """Vertical lines at the predicted stability limits along a 1-D sweep of ``key`` (γ, k_p or k_d)."""
     lines = []
     for case in theory.cases():
-        eq, colour = EQUATIONS[case], _COLOURS[_family(case)]
+        colour = _COLOURS[_family(case)]
         found = transitions(dense, lambda v: (p := theory.predict(case, {**fixed, key: v})) and p[0])
         lines += [
-            OverlayLine(f"{eq} stability limit" if i == 0 else "_", x, None, colour, "--", f"bound:{case}:{key}")
+            OverlayLine(
+                bound_label(case, f"{'γ' if key == 'gamma' else key} limit") if i == 0 else "_",
+                x,
+                None,
+                colour,
+                "--",
+                f"bound:{case}:{key}",
+            )
             for i, x in enumerate(found)
         ]
     if key == "gamma" and theory.rho is not None:
         lines.append(
-            OverlayLine(f"nominal input gain ρ = {theory.rho:g}", theory.rho, None, "grey", "-", "nominal-gain")
+            OverlayLine(f"nominal input gain ρ = {theory.rho:.5g}", theory.rho, None, "grey", "-", "nominal-gain")
         )
     return lines
 

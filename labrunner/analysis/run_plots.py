@@ -32,17 +32,19 @@ def items(logs: Mapping[str, object], ids: Sequence[str], directory: Path, out: 
     ]
 
 
-def _kept(log: Path, plot: Path) -> bool:
-    """Whether ``plot`` is newer than its ``log`` (then it is not drawn again)."""
-    return plot.is_file() and plot.stat().st_mtime_ns >= log.stat().st_mtime_ns
+def _kept(log: Path, plot: Path, style: png.FigureStyle | None) -> bool:
+    """Whether ``plot`` in each of the style's formats is newer than its ``log`` (then it is not drawn again)."""
+    formats = dict.fromkeys(["png", *(style or png.FigureStyle()).formats])
+    files = [plot.with_suffix(f".{fmt}") for fmt in formats]
+    return all(f.is_file() and f.stat().st_mtime_ns >= log.stat().st_mtime_ns for f in files)
 
 
-def to_draw(plots: Sequence[Item]) -> list[str]:
+def to_draw(plots: Sequence[Item], style: png.FigureStyle | None = None) -> list[str]:
     """The ids among ``plots`` whose plot :func:`draw` would draw (not kept, a log to draw it from)."""
     todo = []
     for point_id, log, plot in plots:
         try:
-            if not _kept(log, plot):
+            if not _kept(log, plot, style):
                 todo.append(point_id)
         except OSError:
             pass
@@ -56,12 +58,15 @@ def prepare() -> None:
     png.warm_text()
 
 
-def draw(plots: Sequence[Item], tick: Callable[[int], None] | None = None) -> dict[str, Path]:
-    """Draw each plot not kept; the PNG of every plot there is, by id (unreadable logs are skipped)."""
+def draw(
+    plots: Sequence[Item], tick: Callable[[int], None] | None = None, style: png.FigureStyle | None = None
+) -> dict[str, Path]:
+    """Draw each plot not kept, in ``style``; the PNG of every plot there is, by id (unreadable logs are skipped)."""
     out: dict[str, Path] = {}
+    style = style or png.FigureStyle()
     for point_id, log, plot in plots:
         try:
-            if not _kept(log, plot):
+            if not _kept(log, plot, style):
                 from labrunner import run_identity
                 from labrunner.logs import read_run
                 from labrunner.runplot import plot_run  # matplotlib: only when a plot is drawn
@@ -69,7 +74,9 @@ def draw(plots: Sequence[Item], tick: Callable[[int], None] | None = None) -> di
                 run = read_run(log)
                 run_identity.check(run.metadata, point_id, log)  # a swapped log would plot another run
                 plot.parent.mkdir(parents=True, exist_ok=True)
-                png.save(plot_run(run), plot)
+                with style.drawing():
+                    fig = plot_run(run, width=style.width)
+                png.save(fig, plot, style)
             out[point_id] = plot
         except (LabrunnerError, OSError, ValueError, KeyError):
             pass

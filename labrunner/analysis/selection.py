@@ -69,7 +69,23 @@ def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign:
 
 
 def table_units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> dict[str, str]:
-    """Units of the gains and metrics, from the first readable log's channel record."""
+    """Units of the gains and metrics, from the first readable log's channel record; of the rig's
+    parameters a grid may vary (``rig_parameters.<key>``), from the rig kind's schema."""
+    rig = rig_parameter_units(campaign)
+    return {**rig, **_log_units(frame, directory, campaign)}
+
+
+def rig_parameter_units(campaign: Campaign | None) -> dict[str, str]:
+    """``rig_parameters.<key>`` → unit of each parameter the campaign's rig lets a grid vary."""
+    if campaign is None:
+        return {}
+    from labrunner.rigs.kinds import rig_class
+
+    schema = rig_class(campaign.rig_config.kind).overridable()
+    return {f"rig_parameters.{key}": param.unit for key, param in schema.items() if param.unit}
+
+
+def _log_units(frame: pd.DataFrame, directory: Path, campaign: Campaign | None) -> dict[str, str]:
     from labrunner.logs import read_metadata
 
     for path in frame["log_path"].dropna().head(5):

@@ -21,8 +21,6 @@ missing one falls back to the ledger's metrics and is listed in ``problems``, an
 from __future__ import annotations
 
 import functools
-import itertools
-import json
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -43,10 +41,9 @@ from labrunner.analysis.log_checks import (
     read_many,
     same_file,
 )
-from labrunner.campaign.rig_timing import timing_counts
+from labrunner.analysis.table_rows import Chunk, chunk_frame
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
-from labrunner.rigs.device.lawflag import flag_of
 
 #: Columns that identify a point and its run, in this order at the left of the table.
 ID_COLUMNS = (
@@ -73,7 +70,6 @@ METRICS_VERSION = (
     5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
     # columns; 5: the detector's sustained-oscillation rule (periodicity)
 )
-_LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)
 
 
 @dataclass
@@ -136,48 +132,31 @@ def log_metrics(
     return out
 
 
-def _float(value: Any) -> float:
-    return float(value) if value is not None else float("nan")
-
-
-def _ledger_metrics(r: Mapping[str, Any]) -> dict[str, Any] | None:
-    """The run's metrics as committed (None: this ledger row holds only the three summary columns)."""
-    text = r.get("metrics_json")
-    if text:  # an undefined metric is stored as null (strict JSON; older ledgers: NaN)
-        return {k: np.nan if v is None else v for k, v in json.loads(text).items()}
-    return None
-
-
-#: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
-#: while it is turned into columns) are freed before the next is read, so that building the table
-#: of 10^6 points holds one chunk's, not all.
-CHUNK_ROWS = 2_000
 #: Text columns kept as such; every other text column (outcome, monitor, law_check, text
 #: parameters: a few words repeated) is categorical, 1 byte a row instead of ~16.
 FREE_TEXT = ("id", "log_path")
 
 
 def ledger_frame(
-    rows: Iterable[Mapping[str, Any]],
-    on_chunk: Callable[[int, Sequence[Mapping[str, Any]], list[int]], None] | None = None,
+    chunks: Iterable[Chunk],
+    on_chunk: Callable[[int, Chunk, list[int]], None] | None = None,
 ) -> tuple[pd.DataFrame, list[int]]:
     """One row per ledger point: ids, outcome and its details, parameters (dotted keys), metrics;
     and the positions of finished rows whose ledger holds no full metrics (their logs must be
-    read). ``rows`` may be an iterator (a ledger cursor): it is consumed :data:`CHUNK_ROWS` at a
-    time, each chunk handed to ``on_chunk(start, rows, positions without metrics)`` and turned
-    into columns, which are joined column by column (so the table is never held twice)."""
+    read). ``chunks`` (:func:`ledger_chunks`, :func:`in_chunks`) are consumed one at a time, each
+    handed to ``on_chunk(start, chunk, positions without metrics)`` and turned into columns,
+    which are joined column by column (so the table is never held twice)."""
     pieces: dict[str, list[pd.Series]] = {}
     lengths: list[int] = []
     missing: list[int] = []
-    iterator = iter(rows)
     start = fresh = 0
-    while chunk := list(itertools.islice(iterator, CHUNK_ROWS)):
-        frame, absent = _chunk_frame(chunk)
+    for chunk in chunks:
+        frame, absent = chunk_frame(chunk)
         if on_chunk is not None:
             on_chunk(start, chunk, absent)
         for col in frame.columns:
             pieces.setdefault(col, [None] * len(lengths)).append(frame[col].copy())
-        lengths.append(len(chunk))
+        lengths.append(len(frame))
         for column in pieces.values():
             column += [None] * (len(lengths) - len(column))  # a column this chunk lacks
         fresh += 1
@@ -187,7 +166,7 @@ def ledger_frame(
             lengths[-fresh:] = [sum(lengths[-fresh:])]
             fresh = 0
         missing += [start + i for i in absent]
-        start += len(chunk)
+        start += len(frame)
         del frame, chunk
     if not lengths:
         return pd.DataFrame(columns=list(ID_COLUMNS)), missing
@@ -242,39 +221,6 @@ def _one_chunk(text: pd.Series) -> pd.Series:
     return pd.Series(pd.array(data.combine_chunks(), dtype=text.dtype), name=text.name)
 
 
-def _chunk_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[int]]:
-    """:func:`ledger_frame` of one chunk of rows (positions relative to it)."""
-    records = []
-    missing: list[int] = []
-    for i, r in enumerate(rows):
-        outcome = json.loads(r["outcome_json"]) if r["outcome_json"] else {}
-        params = json.loads(r["parameters"])
-        aborted = r["outcome"] == "aborted"
-        metrics = _ledger_metrics(r)
-        if metrics is None:
-            metrics = {k: _float(r.get(k)) for k in _LEDGER_METRICS}
-            if r.get("log_path"):
-                missing.append(i)
-        records.append(
-            {
-                "seq": r["seq"],
-                "id": r["id"],
-                "outcome": r["outcome"] or r["state"],
-                "monitor": outcome.get("monitor"),
-                "abort_time": _float(outcome.get("time")) if aborted else np.nan,
-                "abort_value": _float(outcome.get("value")) if aborted else np.nan,
-                "attempts": r["attempts"],
-                "log_path": r["log_path"],
-                "torn": False,
-                "law_check": flag_of(outcome),  # a device-loop run's reference-law check, "" for others
-                **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
-                **metrics,
-                **timing_counts(outcome.get("diagnostics")),
-            }
-        )
-    return pd.DataFrame.from_records(records), missing
-
-
 def metric_columns(frame: pd.DataFrame) -> list[str]:
     """The columns holding a run's metrics, of the whole run or of a window (``<metric>@<name>``),
     other than its sample counts."""
@@ -316,7 +262,7 @@ def _unsplit(row: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
 
 
 def build_table(
-    rows: Iterable[Mapping[str, Any]],
+    chunks: Iterable[Chunk],
     directory: Path,
     *,
     cache: Path | None = None,
@@ -327,14 +273,14 @@ def build_table(
     tick: Callable[[int], None] | None = None,
     announce: Callable[[int], None] | None = None,
 ) -> CampaignTable:
-    """The table of ledger ``rows``: metrics from the ledger; from the logs (reusing the rows of
+    """The table of the ledger rows in ``chunks`` (:func:`ledger_chunks`): metrics from the ledger; from the logs (reusing the rows of
     the previous table at ``cache``, its ``metrics.parquet``, that still match) where the ledger
     has none, or for every run with ``recompute``. Every log is checked (:mod:`.log_checks`).
     ``units`` are the rig's signal units, for logs that record none; ``limits`` its input limits
     (the oscillation detector's columns); ``announce(n)`` is told how many logs will be read
     (before the first), ``tick(n)`` as they are read."""
     checks = LogChecks(directory, recompute)
-    frame, _ = ledger_frame(rows, checks.add)
+    frame, _ = ledger_frame(chunks, checks.add)
     sizes, mtimes = checks.stats()
     ids, paths = frame["id"], frame["log_path"]
     wanted = [] if recompute else [*checks.todo, *checks.unproved]

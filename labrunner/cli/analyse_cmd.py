@@ -54,6 +54,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "failed) or all; repeat or separate by commas",
     )
     p.add_argument(
+        "--format",
+        default="png",
+        metavar="LIST",
+        help="figure formats, comma-separated: png, pdf, svg (vector, fonts embedded); the PNG is always "
+        "written, for the report (default png)",
+    )
+    p.add_argument("--dpi", type=float, default=None, metavar="N", help="resolution of the PNGs (default 110)")
+    p.add_argument(
+        "--size",
+        choices=("screen", "column", "page"),
+        default="screen",
+        help="figure width: screen (7.5 in, the report's), column (3.5 in: one column of a two-column "
+        "paper) or page (7.16 in: across both)",
+    )
+    p.add_argument(
+        "--no-title",
+        action="store_true",
+        help="draw no titles in the figures (a paper's caption says what they show)",
+    )
+    p.add_argument(
         "--recompute",
         action="store_true",
         help="read every run log and compute the metrics again instead of taking the ledger's",
@@ -86,8 +106,12 @@ def run(args: argparse.Namespace) -> int:
 
     with Ledger.open_readonly(Path(args.directory)):  # a missing or damaged ledger: one line, before any progress
         pass
+    from labrunner.analysis.png import DPI, FigureStyle, parse_formats
     from labrunner.campaign.progress import format_counts
+    from labrunner.errors import check_finite
 
+    dpi = DPI if args.dpi is None else check_finite("--dpi", args.dpi)
+    style = FigureStyle(parse_formats(args.format), dpi, args.size, not args.no_title)
     plot = [word for item in args.plot for word in item.split(",") if word]
     summary = analyse(
         args.directory,
@@ -97,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
         error=args.error,
         recompute=args.recompute,
         plot=plot,
+        style=style,
     )
     if args.json:
         print(json.dumps(_strict(summary), ensure_ascii=False))

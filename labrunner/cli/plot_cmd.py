@@ -26,10 +26,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="image file (.png, .pdf, .svg); default: RUN.png beside the (first) log, RUN-overlay.png for several",
     )
     parser.add_argument("--dpi", type=float, default=150.0, help="resolution of raster images (default 150)")
+    parser.add_argument(
+        "--size",
+        choices=("screen", "column", "page"),
+        default="screen",
+        help="figure width: screen (7.5 in), column (3.5 in: one column of a two-column paper) or page (7.16 in)",
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from labrunner.analysis.png import FigureStyle
     from labrunner.errors import InvalidParameter, check_finite
     from labrunner.runplot import plot_run
 
@@ -41,15 +48,17 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output) if args.output else default
     if not output.parent.is_dir():
         raise InvalidParameter("output", f"directory does not exist: {str(output.parent)!r}")
-    if len(args.paths) == 1:
-        fig = plot_run(args.paths[0])
-    else:
-        from labrunner.overlay import plot_overlay
+    style = FigureStyle(dpi=dpi, size=args.size)
+    with style.drawing():  # the width's text size; fonts embedded in a PDF or SVG
+        if len(args.paths) == 1:
+            fig = plot_run(args.paths[0], width=style.width)
+        else:
+            from labrunner.overlay import plot_overlay
 
-        fig = plot_overlay(args.paths)
-    try:
-        fig.savefig(output, dpi=dpi)
-    except ValueError as exc:  # unknown image format
-        raise InvalidParameter("output", str(exc)) from None
+            fig = plot_overlay(args.paths)
+        try:
+            fig.savefig(output, dpi=dpi)
+        except ValueError as exc:  # unknown image format
+            raise InvalidParameter("output", str(exc)) from None
     print(output)
     return 0

@@ -24,6 +24,7 @@ import pandas as pd
 
 from labrunner.campaign.ledger import Ledger
 from labrunner.errors import InvalidParameter
+from labrunner.results.describe import column_units, logged_units
 from labrunner.results.run import RunResults, require_xarray
 
 if TYPE_CHECKING:
@@ -31,6 +32,9 @@ if TYPE_CHECKING:
 
 #: Folder of ``analyse``'s outputs, whose metrics.parquet caches rows read from logs.
 REPORT_DIR = "report"
+#: The table's columns about the files behind a row rather than the run (the log's size and
+#: mtime, the metrics' version): the table's last columns, as in metrics.csv.
+HOUSEKEEPING = ("log_size", "log_mtime_ns", "metrics_version")
 
 
 class CampaignResults:
@@ -47,7 +51,15 @@ class CampaignResults:
         self.name = self.meta.get("campaign") or self.directory.name
 
     def __repr__(self) -> str:
-        return f"CampaignResults({str(self.directory)!r})"
+        """Name, description, rig, date, points by outcome, parameters (from the ledger: no table built)."""
+        from labrunner.results import describe
+
+        return describe.text("CampaignResults", describe.campaign_facts(self))
+
+    def _repr_html_(self) -> str:
+        from labrunner.results import describe
+
+        return describe.html_table("CampaignResults", describe.campaign_facts(self))
 
     def refresh(self) -> None:
         """Forget the table read so far (a running campaign has moved on)."""
@@ -57,13 +69,14 @@ class CampaignResults:
     def _built(self) -> tuple[pd.DataFrame, list[dict[str, str]], list[str]]:
         from labrunner.analysis import selection, table as table_mod
         from labrunner.analysis.table_files import METRICS_PARQUET
+        from labrunner.analysis.table_rows import ledger_chunks
 
         campaign, _ = selection.load_campaign(self.meta, self.directory)
         units, limits = selection.rig_signals(campaign)
         with Ledger.open_readonly(self.directory) as ledger:
             first = ledger.db.execute("SELECT parameters FROM points ORDER BY seq LIMIT 1").fetchone()
             built = table_mod.build_table(
-                ledger.iter_rows(),  # streamed: one chunk of rows as Python objects at a time
+                ledger_chunks(ledger.db),  # streamed: one chunk of rows at a time
                 self.directory,
                 cache=self.directory / REPORT_DIR / METRICS_PARQUET,
                 units=units,
@@ -73,15 +86,19 @@ class CampaignResults:
         named = [k for k in (json.loads(first[0]) if first else {}) if k in built.frame.columns]
         parameters = [*named, *(c for c in built.frame.columns if "." in c and c not in named)]
         frame = table_mod.ordered(built.frame).assign(metrics_version=table_mod.METRICS_VERSION)  # as metrics.csv
-        root = str(self.directory.resolve())
-        frame = frame.assign(
-            log_path=frame["log_path"].map(lambda p: os.path.join(root, p) if isinstance(p, str) else None)
-        )
-        return frame.reset_index(drop=True), built.problems, parameters
+        paths = frame["log_path"]  # made absolute as text, not a join a row (~8 us each)
+        inside = str(self.directory.resolve()) + os.sep + paths
+        frame = frame.assign(log_path=inside.where(~paths.str.startswith(os.sep).fillna(False).astype(bool), paths))
+        frame = frame.reset_index(drop=True)
+        known = selection.table_units(frame, self.directory, campaign)
+        frame.attrs["units"] = column_units(frame, known, {**units, **logged_units(frame)})
+        return frame, built.problems, parameters
 
-    def table(self) -> pd.DataFrame:
-        """One row per grid point: ids, outcome, parameters (dotted keys), metrics (a copy)."""
-        return self._built[0].copy()
+    def table(self, *, housekeeping: bool = True) -> pd.DataFrame:
+        """One row per grid point: ids, outcome, parameters (dotted keys), metrics (a copy); last,
+        the :data:`HOUSEKEEPING` columns, left out with ``housekeeping=False``."""
+        frame = self._built[0]
+        return frame.copy() if housekeeping else frame.drop(columns=[c for c in HOUSEKEEPING if c in frame])
 
     @property
     def parameters(self) -> list[str]:
@@ -118,9 +135,11 @@ class CampaignResults:
         return found[0]
 
     def run(self, point: str | int) -> RunResults:
-        """One run, by point id or by ``seq``; a point without a log (not run, or failed before
-        writing one) is refused, naming its outcome."""
+        """One run, by point id (or a prefix of it that only one id starts with) or by ``seq``; a
+        point without a log (not run, or failed before writing one) is refused, naming its outcome."""
         frame = self._built[0]
+        if isinstance(point, str):
+            point = self._full_id(point)
         hit = frame[frame["seq"] == point] if isinstance(point, (int, np.integer)) else frame[frame["id"] == point]
         if hit.empty:
             raise InvalidParameter("point", f"{point!r} is no point of campaign {self.name!r}")
@@ -128,6 +147,18 @@ class CampaignResults:
         if not isinstance(row["log_path"], str):
             raise InvalidParameter("point", f"{row['id']} has no run log (outcome {row['outcome']})")
         return RunResults(row["log_path"], row["id"])
+
+    def _full_id(self, prefix: str) -> str:
+        """The point id ``prefix`` names: itself, or the one id that starts with it (as git's short
+        hashes); an ambiguous prefix is refused, naming how many ids start with it."""
+        ids = self._built[0]["id"]
+        if not prefix or (ids == prefix).any():
+            return prefix
+        found = ids[ids.str.startswith(prefix)]
+        if len(found) > 1:
+            shown = ", ".join(found.head(3)) + (", ..." if len(found) > 3 else "")
+            raise InvalidParameter("point", f"{prefix!r} starts {len(found)} point ids ({shown}): give more of it")
+        return str(found.iloc[0]) if len(found) else prefix
 
     def runs(self, rows: pd.DataFrame | None = None) -> list[RunResults]:
         """The runs of ``rows`` (default: the whole table) that have a log, in table order."""
@@ -179,6 +210,14 @@ class CampaignResults:
             if column in by_id.columns:
                 coords[column] = ("point", by_id.loc[ids, column].to_numpy())
         return xr.Dataset(data, coords=coords, attrs={"campaign": self.name, "directory": str(self.directory)})
+
+    def plot_map(self, metric: str = "rms_error", *, size: str = "screen", title: bool = True, facet: int = 1):
+        """The map of ``metric`` (a table column ``analyse`` maps: ``rms_error``, ``input_energy``,
+        ...) as ``analyse`` draws it, a matplotlib Figure: ``size`` "screen" (7.5 in), "column"
+        (3.5 in) or "page" (7.16 in) wide; ``title`` False for none (:mod:`labrunner.results.plots`)."""
+        from labrunner.results.plots import campaign_map
+
+        return campaign_map(self, metric, size=size, title=title, facet=facet)
 
 
 def _matches(column: pd.Series, wanted: Any) -> np.ndarray:

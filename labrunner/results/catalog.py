@@ -51,11 +51,58 @@ class Catalog:
                 "campaign", f"{name!r} is not in the catalog; it holds {list(self.campaigns)}"
             ) from None
 
+    def summary(self) -> pd.DataFrame:
+        """One row per campaign: ``campaign``, ``rig``, ``date`` (created, UTC), ``description``,
+        ``points``, the count of each outcome, ``directory``; from the ledgers (no table built)."""
+        rows = [{"campaign": name, **_about(c)} for name, c in self.campaigns.items()]
+        if not rows:
+            return pd.DataFrame(columns=["campaign", *ABOUT])
+        frame = pd.DataFrame(rows)
+        outcomes = [c for c in frame.columns if c not in ("campaign", *ABOUT)]
+        frame[outcomes] = frame[outcomes].fillna(0).astype(int)  # a campaign without that outcome: 0 points
+        return frame[["campaign", *ABOUT[:-1], *outcomes, ABOUT[-1]]]
+
+    def latest(self) -> CampaignResults:
+        """The campaign created last (the ledger's creation time)."""
+        if not self.campaigns:
+            raise InvalidParameter("catalog", "holds no campaign")
+        return max(self.campaigns.values(), key=lambda c: _created(c) or 0.0)
+
     def table(self) -> pd.DataFrame:
-        """Every campaign's table, one below the other, with a first column ``campaign``; a
-        parameter one campaign lacks is empty in its rows."""
-        frames = [c.table().assign(campaign=name) for name, c in self.campaigns.items()]
+        """Every campaign's table, one below the other, with first columns ``campaign``, ``rig``,
+        ``date`` and ``description``; a parameter one campaign lacks is empty in its rows."""
+        frames = [c.table().assign(campaign=name, **_about(c, counts=False)) for name, c in self.campaigns.items()]
         if not frames:
-            return pd.DataFrame(columns=["campaign"])
+            return pd.DataFrame(columns=["campaign", *ABOUT[:3]])
         frame = pd.concat(frames, ignore_index=True)
-        return frame[["campaign", *(c for c in frame.columns if c != "campaign")]]
+        first = ["campaign", *ABOUT[:3]]
+        return frame[[*first, *(c for c in frame.columns if c not in first)]]
+
+
+#: Columns of :meth:`Catalog.summary` after ``campaign`` (the outcome counts come between).
+ABOUT = ("rig", "date", "description", "points", "directory")
+
+
+def _created(campaign: CampaignResults) -> float | None:
+    try:
+        return float(campaign.meta.get("created_at", ""))
+    except ValueError:
+        return None
+
+
+def _about(campaign: CampaignResults, counts: bool = True) -> dict[str, object]:
+    """A campaign's rig, creation date, description (and point counts by outcome, directory)."""
+    from labrunner.results import describe
+
+    facts = dict(describe.campaign_facts(campaign))
+    created = _created(campaign)
+    out: dict[str, object] = {
+        "rig": facts.get("rig", ""),
+        "date": pd.Timestamp(created, unit="s", tz="UTC") if created is not None else pd.NaT,
+        "description": facts.get("description", ""),
+    }
+    if counts:
+        out["points"] = int(campaign.meta.get("points") or 0)
+        out.update(describe.outcome_counts(campaign))
+        out["directory"] = str(campaign.directory)
+    return out

@@ -43,7 +43,15 @@ class RunResults:
         self.id = point_id if point_id is not None else self.path.stem
 
     def __repr__(self) -> str:
-        return f"RunResults({str(self.path)!r})"
+        """Point, outcome, samples and rate, start time, parameters, RMS error (from its log)."""
+        from labrunner.results import describe
+
+        return describe.text("RunResults", describe.run_facts(self))
+
+    def _repr_html_(self) -> str:
+        from labrunner.results import describe
+
+        return describe.html_table("RunResults", describe.run_facts(self))
 
     @functools.cached_property
     def log(self) -> RunLog:
@@ -111,6 +119,13 @@ class RunResults:
         if out["n_samples"] is None:
             out["n_samples"] = self.log.n_samples
         return {**out, **record}
+
+    def plot(self, *, size: str = "screen"):
+        """The run's plot as ``labrunner plot`` draws it (a matplotlib Figure), ``size`` "screen"
+        (7.5 in), "column" (3.5 in) or "page" (7.16 in) wide."""
+        from labrunner.results.plots import run_figure
+
+        return run_figure(self, size=size)
 
     def to_xarray(self) -> xr.Dataset:
         """The signals as an xarray Dataset over ``time`` [s], each variable's ``units`` attribute set."""

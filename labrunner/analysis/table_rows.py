@@ -1,0 +1,235 @@
+"""Ledger rows into the metrics table's columns, a chunk of rows at a time (issue 34 part 5).
+
+Each chunk is built a column at a time, not a record a row: the ledger's JSON texts of a column
+are parsed together — the metrics (the widest: ~360 bytes a row) by Arrow's JSON reader straight
+into typed arrays, parameters and outcomes by one ``json.loads`` of the chunk's texts joined as
+an array — and each column is handed to pandas as one list or array. The result is the frame of
+per-row records the table was built from before (``pd.DataFrame.from_records``), value for value
+and type for type (tests/test_analysis_table_rows.py checks it against that path): where Arrow
+would type a metric otherwise (a text, a boolean, a number and a boolean in one column) the
+chunk's metrics are parsed as the parameters are. With the rows read column-wise
+(:func:`ledger_chunks`: no dict a row), the whole ``table()`` of a 10^5-point campaign took
+3.0 s of CPU where the per-row path took 8.3 s, in the same minute on the shared 2-core machine
+(benchmarks/bench_table.py).
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import json
+import sqlite3
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from labrunner.campaign.rig_timing import timing_counts
+from labrunner.rigs.device.lawflag import flag_of
+from labrunner.run_identity import FINGERPRINT_COLUMNS
+
+#: The ledger's own metric columns (older ledgers hold only these, no ``metrics_json``).
+LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")
+#: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
+#: while it is turned into columns) are freed before the next is read, so that building the table
+#: of 10^6 points holds one chunk's, not all.
+CHUNK_ROWS = 2_000
+#: A chunk of ledger rows, column-wise: column name → one value a row.
+Chunk = Mapping[str, Sequence[Any]]
+#: The ledger columns the table reads (an older ledger lacks some: read as None).
+LEDGER_COLUMNS = (
+    "seq",
+    "id",
+    "state",
+    "outcome",
+    "outcome_json",
+    "parameters",
+    "metrics_json",
+    "log_path",
+    "attempts",
+    *LEDGER_METRICS,
+    *FINGERPRINT_COLUMNS,
+)
+
+
+def ledger_chunks(db: sqlite3.Connection) -> Iterator[dict[str, list[Any]]]:
+    """The ledger's points in grid order, :data:`CHUNK_ROWS` at a time, column-wise: one tuple a
+    row from SQLite, transposed (a dict a row would cost as much as the rest of the table)."""
+    present = {r[1] for r in db.execute("PRAGMA table_info(points)")}
+    names = [c for c in LEDGER_COLUMNS if c in present]
+    cursor = db.execute(f"SELECT {', '.join(names)} FROM points ORDER BY seq")
+    cursor.row_factory = None
+    while rows := cursor.fetchmany(CHUNK_ROWS):
+        yield dict(zip(names, map(list, zip(*rows))))
+
+
+def in_chunks(rows: Iterable[Mapping[str, Any]]) -> Iterator[dict[str, list[Any]]]:
+    """Rows as mappings (``dict(sqlite3.Row)``) cut into column-wise chunks, as :func:`ledger_chunks` gives them."""
+    iterator = iter(rows)
+    while chunk := list(itertools.islice(iterator, CHUNK_ROWS)):
+        yield {k: [r.get(k) for r in chunk] for k in dict.fromkeys(itertools.chain(*chunk))}
+
+
+_SCALARS = (int, float, str, bool)
+
+
+def as_float(value: Any) -> float:
+    """``value`` as a float, NaN for None."""
+    return float(value) if value is not None else float("nan")
+
+
+def parsed(texts: Sequence[str | None]) -> list[Any]:
+    """Every JSON text of a chunk's column, parsed in one call (an array of them: half the cost of a
+    ``json.loads`` each); an empty or missing text is ``None``."""
+    return json.loads("[" + ",".join(t or "null" for t in texts) + "]")
+
+
+def _distinct_parsed(texts: Sequence[str | None]) -> list[Any]:
+    """:func:`parsed`, each distinct text once (a completed run's outcome is the same text in
+    every such row); rows of one text share its parsed value: read it, never change it."""
+    distinct = dict.fromkeys(texts)
+    by_text = dict(zip(distinct, parsed(list(distinct))))
+    return [by_text[t] for t in texts]
+
+
+def _arrow_table(texts: Sequence[str]) -> Any:
+    """JSON objects, one a text, as an Arrow table (a column a key, in the order keys first
+    appear); None where Arrow cannot read them as such."""
+    import pyarrow as pa
+    import pyarrow.json as pj
+
+    options = pj.ReadOptions(use_threads=False, block_size=1 << 26)
+    try:
+        return pj.read_json(io.BytesIO("\n".join(texts).encode()), read_options=options)
+    except pa.ArrowInvalid:
+        return None
+
+
+def _arrow_parameters(texts: Sequence[str]) -> list[dict[str, Any]] | None:
+    """The parameters of a chunk's rows, their scalars only (a list or table is no column), from
+    Arrow's reading; None (read them a row at a time) unless every row gives every key a number,
+    a text or a boolean (Arrow would make a date of a text that looks like one)."""
+    import pyarrow as pa
+
+    table = _arrow_table(texts)
+    if table is None:
+        return None
+    columns = {}
+    for name, column in zip(table.column_names, table.columns):
+        kind = column.type
+        if column.null_count:
+            return None
+        if (
+            pa.types.is_integer(kind)
+            or pa.types.is_floating(kind)
+            or pa.types.is_string(kind)
+            or pa.types.is_boolean(kind)
+        ):
+            columns[name] = column.to_pylist()
+        elif not (pa.types.is_list(kind) or pa.types.is_struct(kind)):
+            return None
+    return [dict(zip(columns, values)) for values in zip(*columns.values())] if columns else [{} for _ in texts]
+
+
+def _arrow_metrics(texts: Sequence[str]) -> dict[str, np.ndarray] | None:
+    """The metrics texts of a chunk as one float or integer array per key (NaN where a row stores
+    null or lacks the key), keys in the order they first appear; None where a metric is not a
+    number in every row (then :func:`parsed` types it, as a record a row would)."""
+    import pyarrow as pa
+
+    table = _arrow_table(texts)
+    if table is None:
+        return None
+    out: dict[str, np.ndarray] = {}
+    for name, column in zip(table.column_names, table.columns):
+        kind = column.type
+        if pa.types.is_null(kind):
+            out[name] = np.full(len(column), np.nan)
+        elif pa.types.is_integer(kind) or pa.types.is_floating(kind):
+            values = column.to_numpy()  # an integer column with a null comes as floats with NaN
+            out[name] = values.astype(float) if pa.types.is_floating(kind) else values
+        else:
+            return None
+    return out
+
+
+def _metric_columns(chunk: Chunk, texts: Sequence[str | None]) -> tuple[dict[str, Any], list[tuple[str, ...]]] | None:
+    """The chunk's metric columns — rows without stored metrics hold the ledger's own columns
+    (:data:`LEDGER_METRICS`), NaN elsewhere — and each row's metric names in its order; None:
+    see :func:`_arrow_metrics`."""
+    have = [i for i, t in enumerate(texts) if t]
+    stored = _arrow_metrics([texts[i] for i in have]) if have else {}
+    if stored is None:
+        return None
+    names = tuple(stored)
+    shapes = [names if t else LEDGER_METRICS for t in texts]
+    if len(have) == len(texts):
+        return stored, shapes
+    lacking = [i for i, t in enumerate(texts) if not t]
+    out: dict[str, Any] = {}
+    for key in dict.fromkeys([*names, *LEDGER_METRICS]):
+        column = out[key] = np.full(len(texts), np.nan)
+        if key in stored:
+            column[have] = stored[key]
+        if key in LEDGER_METRICS:
+            own = _column(chunk, key)
+            column[lacking] = [as_float(own[i]) for i in lacking]
+    return out, shapes
+
+
+def _per_row_metrics(chunk: Chunk, texts: Sequence[str | None]) -> tuple[dict[str, Any], list[tuple[str, ...]]]:
+    """:func:`_metric_columns` typed as a record a row would type them (a metric that is not a number)."""
+    own = list(zip(*(_column(chunk, k) for k in LEDGER_METRICS)))
+    per_row = [
+        dict(zip(LEDGER_METRICS, map(as_float, own[i])))
+        if m is None
+        else {k: np.nan if v is None else v for k, v in m.items()}  # null: undefined (older ledgers: NaN)
+        for i, m in enumerate(parsed(texts))
+    ]
+    shapes = [tuple(m) for m in per_row]
+    return {k: [m.get(k, np.nan) for m in per_row] for k in dict.fromkeys(itertools.chain(*shapes))}, shapes
+
+
+def _column(chunk: Chunk, name: str) -> Sequence[Any]:
+    """A column of the chunk, None in every row where the ledger has no such column (an older one)."""
+    values = chunk.get(name)
+    return values if values is not None else [None] * len(chunk["seq"])
+
+
+def chunk_frame(chunk: Chunk) -> tuple[pd.DataFrame, list[int]]:
+    """One chunk of ledger rows as the table's columns (see the module): ids, outcome and its
+    details, parameters (scalars), metrics, a real rig's timing counts; and the positions of
+    finished rows whose ledger holds no full metrics (their logs must be read)."""
+    n = len(chunk["seq"])
+    outcomes = [o or {} for o in _distinct_parsed(chunk["outcome_json"])]
+    texts = _column(chunk, "metrics_json")
+    missing = [i for i, (t, p) in enumerate(zip(texts, chunk["log_path"])) if not t and p]
+    params = _arrow_parameters(chunk["parameters"]) or [
+        {k: v for k, v in p.items() if isinstance(v, _SCALARS)} for p in parsed(chunk["parameters"])
+    ]
+    timing = [timing_counts(o.get("diagnostics")) if "diagnostics" in o else {} for o in outcomes]
+    aborted = [o == "aborted" for o in chunk["outcome"]]
+    columns: dict[str, Any] = {
+        "seq": chunk["seq"],
+        "id": chunk["id"],
+        "outcome": [o or s for o, s in zip(chunk["outcome"], chunk["state"])],
+        "monitor": [o.get("monitor") for o in outcomes],
+        "abort_time": [as_float(o.get("time")) if a else np.nan for o, a in zip(outcomes, aborted)],
+        "abort_value": [as_float(o.get("value")) if a else np.nan for o, a in zip(outcomes, aborted)],
+        "attempts": chunk["attempts"],
+        "log_path": chunk["log_path"],
+        "torn": [False] * n,
+        "law_check": [flag_of(o) if "diagnostics" in o else "" for o in outcomes],
+    }
+    metrics, shapes = _metric_columns(chunk, texts) or _per_row_metrics(chunk, texts)
+    # the other columns in the order their names first appear in the rows' parameters, metrics and
+    # timing counts (as a frame of per-row records orders them; distinct shapes of rows are few)
+    timed = dict.fromkeys(itertools.chain(*dict.fromkeys(map(tuple, timing))))
+    order = dict.fromkeys(zip(map(tuple, params), shapes, map(tuple, timing)))
+    for key in dict.fromkeys(itertools.chain.from_iterable(itertools.chain(*shape) for shape in order)):
+        if key in metrics:
+            columns[key] = metrics[key]
+        else:
+            columns[key] = [d.get(key, np.nan) for d in (timing if key in timed else params)]
+    return pd.DataFrame(columns), missing
