@@ -1,5 +1,5 @@
 """Conformance vectors (docs/control-laws.md): ``labrunner vectors`` regenerates the shipped set
-byte for byte, and an implementation written from the document alone (tests/law_reference.py,
+byte for byte, and an implementation written from the document alone (labrunner/rigs/device/doclaw.py,
 plain per-sample Python, none of labrunner's control code) reproduces every vector."""
 
 from __future__ import annotations
@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from labrunner.rigs.device import description
+from labrunner.rigs.device import description, doclaw
 from labrunner.rigs.device.vectors import CASES
-from tests import law_reference
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "docs" / "vectors"
@@ -48,7 +47,7 @@ def test_an_implementation_from_the_document_reproduces_the_vector(case):
     expected = np.loadtxt(folder / "vector.csv", delimiter=",", skiprows=1, ndmin=2)[:, 1:]
     inputs, outputs = header[: d.n_inputs], header[d.n_inputs : d.n_inputs + d.n_outputs]
     np.testing.assert_array_equal(expected[:, d.n_inputs : d.n_inputs + d.n_outputs], d.sensor_table[: len(expected)])
-    rows, verdict = law_reference.run(d, inputs, outputs)
+    rows, verdict = doclaw.run(d, inputs, outputs)
     assert rows.shape == expected.shape
     scale = np.nanmax(np.abs(expected), axis=0) + 1e-300
     for j, name in enumerate(header):

@@ -1,0 +1,189 @@
+"""An a-priori bound on what float32 arithmetic changes in a device's logged columns (pure).
+
+Running error analysis (Wilkinson; Higham, *Accuracy and Stability of Numerical Algorithms*,
+§3.3): every number of the law is a :class:`Bounded` — its float64 value and a bound on how far a
+float32 implementation's value can be from it. Each operation propagates the bounds of its
+operands through its condition (first order) and adds its own rounding, u = 2⁻²⁴ of its result
+(IEEE 754 single precision, round to nearest: fl(a ∘ b) = (a ∘ b)(1 + δ), |δ| ≤ u); every
+constant of the description is rounded once (u of its value). A dot product of L terms — a FIR
+estimate — gets γ_L = Lu/(1 − Lu) of Σ|w_j x_j|, which holds in any summation order. The
+:mod:`~labrunner.rigs.device.doclaw` law run on these numbers (``dtype=Bounded``) gives every
+logged column's bound at every tick: docs/control-laws.md, "float32 devices", derives it law by
+law and says what it assumes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+U = 2.0**-24  #: float32's unit roundoff
+
+
+def gamma(n: int) -> float:
+    """γ_n = nu / (1 − nu): the relative error bound of n roundings."""
+    return n * U / (1.0 - n * U)
+
+
+def _v(x) -> float:
+    return x.v if isinstance(x, Bounded) else float(x)
+
+
+def _e(x) -> float:
+    return x.e if isinstance(x, Bounded) else 0.0  # a Python int or float operand is exact (small integers)
+
+
+class Bounded:
+    """A float64 value ``v`` and a bound ``e`` on a float32 computation's distance from it."""
+
+    __slots__ = ("v", "e")
+
+    def __init__(self, v, e: float | None = None) -> None:
+        if isinstance(v, Bounded):
+            self.v, self.e = v.v, v.e if e is None else e
+        else:
+            self.v = float(v)
+            self.e = U * abs(self.v) if e is None else e  # a constant rounded to float32 once
+
+    def __repr__(self) -> str:
+        return f"Bounded({self.v!r} ± {self.e:.3g})"
+
+    def _out(self, v: float, e: float) -> Bounded:
+        return Bounded(v, e + U * abs(v))  # the operation's own rounding
+
+    def __add__(self, o) -> Bounded:
+        if isinstance(o, np.ndarray):
+            return NotImplemented  # numpy applies it element-wise
+        return self._out(self.v + _v(o), self.e + _e(o))
+
+    __radd__ = __add__
+
+    def __sub__(self, o) -> Bounded:
+        if isinstance(o, np.ndarray):
+            return NotImplemented  # numpy applies it element-wise
+        return self._out(self.v - _v(o), self.e + _e(o))
+
+    def __rsub__(self, o) -> Bounded:
+        if isinstance(o, np.ndarray):
+            return NotImplemented  # numpy applies it element-wise
+        return self._out(_v(o) - self.v, self.e + _e(o))
+
+    def __mul__(self, o) -> Bounded:
+        if isinstance(o, np.ndarray):
+            return NotImplemented  # numpy applies it element-wise
+        a, b = self.v, _v(o)
+        return self._out(a * b, abs(a) * _e(o) + abs(b) * self.e + self.e * _e(o))
+
+    __rmul__ = __mul__
+
+    def __truediv__(self, o) -> Bounded:
+        if isinstance(o, np.ndarray):
+            return NotImplemented  # numpy applies it element-wise
+        return _div(self.v, self.e, _v(o), _e(o))
+
+    def __rtruediv__(self, o) -> Bounded:
+        if isinstance(o, np.ndarray):
+            return NotImplemented  # numpy applies it element-wise
+        return _div(_v(o), _e(o), self.v, self.e)
+
+    def __pow__(self, n: int) -> Bounded:
+        if n == 0:
+            return Bounded(1.0, 0.0)
+        v = self.v**n  # n − 1 multiplications
+        return Bounded(v, n * abs(self.v) ** (n - 1) * self.e + gamma(n - 1) * abs(v))
+
+    def __neg__(self) -> Bounded:
+        return Bounded(-self.v, self.e)
+
+    def __abs__(self) -> Bounded:
+        return Bounded(abs(self.v), self.e)
+
+    def sqrt(self) -> Bounded:
+        v = math.sqrt(max(self.v, 0.0))
+        low = max(self.v - self.e, 0.0)  # |√a' − √a| ≤ e / (√a + √(a − e)), or √(a + e) near 0
+        e = self.e / (v + math.sqrt(low)) if low > 0 else math.sqrt(self.v + self.e)
+        return Bounded(v, e + U * v)
+
+    def sin(self) -> Bounded:  # |sin'| ≤ 1; a libm sinf within 1 ulp: 2u of 1 at most
+        return Bounded(math.sin(self.v), self.e + 2 * U)
+
+    def cos(self) -> Bounded:
+        return Bounded(math.cos(self.v), self.e + 2 * U)
+
+    def __lt__(self, o) -> bool:  # the float64 law's branch (docs: the bound assumes the same branch)
+        return self.v < _v(o)
+
+    def __le__(self, o) -> bool:
+        return self.v <= _v(o)
+
+    def __gt__(self, o) -> bool:
+        return self.v > _v(o)
+
+    def __ge__(self, o) -> bool:
+        return self.v >= _v(o)
+
+    def __float__(self) -> float:
+        return self.v
+
+    def __int__(self) -> int:
+        return int(self.v)
+
+    def __bool__(self) -> bool:
+        return self.v != 0.0
+
+
+def _div(a: float, ea: float, b: float, eb: float) -> Bounded:
+    v = a / b
+    return Bounded(v, (ea + abs(v) * eb) / abs(b) + U * abs(v))
+
+
+def dot(w: np.ndarray, h: np.ndarray) -> Bounded:
+    """Σ w_j h_j of L terms in any order: the operands' bounds through it, plus γ_L Σ|w_j h_j|."""
+    wv, we = values(w), errors(w)
+    hv, he = values(h), errors(h)
+    terms = np.abs(wv * hv)
+    e = float(np.sum(np.abs(wv) * he + np.abs(hv) * we + we * he) + gamma(len(wv) + 1) * np.sum(terms))
+    return Bounded(float(np.dot(wv, hv)), e)
+
+
+def clip(x: Bounded, lo: Bounded, hi: Bounded) -> Bounded:
+    """min(max(x, lo), hi): clamping is 1-Lipschitz; a value clamped by more than its bound is clamped on the device too."""
+    v = min(max(x.v, lo.v), hi.v)
+    if x.v - x.e > hi.v:
+        return Bounded(v, hi.e)
+    if x.v + x.e < lo.v:
+        return Bounded(v, lo.e)
+    return Bounded(v, max(x.e, lo.e if v == lo.v else 0.0, hi.e if v == hi.v else 0.0))
+
+
+def values(a) -> np.ndarray:
+    return np.array([_v(x) for x in np.ravel(a)], float).reshape(np.shape(a))
+
+
+def errors(a) -> np.ndarray:
+    return np.array([_e(x) for x in np.ravel(a)], float).reshape(np.shape(a))
+
+
+def solve_steady(A: np.ndarray, B: np.ndarray, w0: np.ndarray) -> np.ndarray:
+    """x = (I − A)⁻¹ B w0 for a filter's state before tick 0, each entry bounded by a solve's
+    backward error (Higham Thm 9.4: relative γ_{3n} of |(I − A)⁻¹| |L̂||Û| |x|, here
+    κ∞(I − A) γ_{3n} ‖x‖∞ plus B w0's own bound carried through (I − A)⁻¹)."""
+    n = A.shape[0]
+    M = np.eye(n) - values(A)
+    inv = np.linalg.inv(M)
+    rhs = values(B) @ values(w0)
+    x = inv @ rhs
+    rhs_e = np.abs(values(B)) @ errors(w0) + gamma(len(w0)) * (np.abs(values(B)) @ np.abs(values(w0)))
+    e = np.abs(inv) @ rhs_e + np.linalg.cond(M, np.inf) * gamma(3 * n) * np.max(np.abs(x), initial=0.0)
+    out = np.empty(n, object)
+    for i in range(n):
+        out[i] = Bounded(float(x[i]), float(e[i]))
+    return out
+
+
+def relu(x: Bounded) -> Bounded:
+    """max(x, 0), 1-Lipschitz: 0 exactly where x is negative by more than its bound."""
+    if x.v + x.e < 0:
+        return Bounded(0.0, 0.0)
+    return Bounded(max(x.v, 0.0), x.e)

@@ -1,0 +1,86 @@
+"""float32 devices (docs/control-laws.md, "float32 devices"): the law computed in single precision
+(labrunner/rigs/device/doclaw.py with dtype float32, every operation on float32 values) passes
+the law check under the a-priori float32 tolerance on every conformance vector, while γ off by
+1 % in float32 still fails it; the bound itself holds against exact float32 arithmetic."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from labrunner.rigs.device import description, doclaw, f32bound, lawcheck, vectors
+from labrunner.rigs.device.f32bound import Bounded
+from labrunner.rigs.registry import load_rig
+
+
+def _law_check(name: str, dtype, arithmetic: str, gamma: float = 1.0) -> lawcheck.LawCheck:
+    """The float32 (``dtype``) document law on vector ``name``'s table, checked as conform checks it."""
+    case = vectors.CASES[name]
+    vector = vectors.build(case)
+    info = load_rig(case.rig).info
+    d = description.decode(vector.data)
+    if "gamma" in d.law:
+        d.law["gamma"] = d.law["gamma"] * gamma
+    rows, verdict = doclaw.run(d, [s.name for s in info.inputs], [s.name for s in info.outputs], dtype=dtype)
+    rows = rows.astype(np.float32).astype(float)  # as logged
+    from labrunner.rigs.device.host import to_result
+
+    outcome = to_result(case.point, info, case.fs, _verdict(verdict, len(rows)), rows, {}).outcome
+    y = vector.rows[:, [vector.columns.index(s.name) for s in info.outputs]]
+    return lawcheck.check(
+        case.point, info, rows, outcome, fs=case.fs, duration=case.duration, seed=case.seed,
+        rig_safety=vectors.rig_safety(case), measured=y, arithmetic=arithmetic,
+    )  # fmt: skip
+
+
+def _verdict(v: dict, n: int):
+    from labrunner.rigs.device import blocks
+
+    return blocks.Verdict(
+        v["status"], n, n, 0, str(v.get("monitor", "")),
+        *(float(v.get(k, float("nan"))) for k in ("time", "value", "threshold")),
+    )  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(vectors.CASES))
+def test_a_float32_device_passes_every_vector_under_the_float32_tolerance(name):
+    law = _law_check(name, np.float32, lawcheck.FLOAT32)
+    assert law.ok, law.detail
+    assert law.arithmetic == "float32"
+    assert law.worst_ratio < 1.0
+
+
+@pytest.mark.parametrize("name", ["mfc1-motor-velocity", "mfc2-motor-angle", "mfc1-valve-i_min"])
+def test_gamma_one_percent_off_in_float32_still_fails(name):
+    law = _law_check(name, np.float32, lawcheck.FLOAT32, gamma=1.01)
+    assert law.flag.startswith("diverged@tick"), law.detail
+    assert "(float32)" in law.detail
+
+
+def test_the_float64_tolerance_does_not_cover_a_float32_device():
+    """Why the arithmetic must be announced: the float64 check flags a correct float32 law."""
+    assert not _law_check("mfc1-motor-velocity", np.float32, lawcheck.FLOAT64).ok
+    assert _law_check("mfc1-motor-velocity", np.float64, lawcheck.FLOAT64).ok
+
+
+def test_a_dot_products_bound_holds_for_float32_sums_in_any_order():
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        w, x = rng.normal(size=200) * 10.0 ** rng.integers(-3, 4), rng.normal(size=200)
+        w32, x32 = w.astype(np.float32), x.astype(np.float32)
+        bound = f32bound.dot(np.array([Bounded(v) for v in w]), np.array([Bounded(v) for v in x]))
+        exact = float(np.dot(w, x))
+        assert bound.v == pytest.approx(exact)
+        for order in (np.arange(200), np.arange(200)[::-1], rng.permutation(200)):
+            s = np.float32(0)
+            for j in order:
+                s = np.float32(s + w32[j] * x32[j])
+            assert abs(float(s) - exact) <= bound.e
+        assert bound.e < 1e-3 * np.sum(np.abs(w * x))  # and it is not vacuous
+
+
+def test_sqrt_near_zero_is_bounded_by_the_square_root_of_the_error():
+    q = Bounded(1e-12, 1e-10)  # the float32 value may be anything in [0, 1.01e-10]
+    assert q.sqrt().e >= np.sqrt(1.01e-10) - 1e-6
+    assert Bounded(4.0, 0.0).sqrt().e == pytest.approx(2.0 * f32bound.U)
