@@ -141,16 +141,17 @@ class Filter:
 
     def __init__(self, M: np.ndarray, n: int, p: int, w0: np.ndarray, ar: _Arith) -> None:
         self.M, self.n, self.p = ar.a(M), n, p
-        A, B = self.M[:n, p:].T, self.M[n:, p:].T
-        if ar.bounded:
-            self.x = f32bound.solve_steady(A, B, w0)
-        else:
-            self.x = np.linalg.solve(np.eye(n, dtype=ar.F) - A, B @ w0) if n else np.zeros(0, ar.F)
+        A, B = M[:n, p:].T, M[n:, p:].T  # the steady state in float64 (I − A is ill-conditioned), rounded once
+        self.x = ar.a(np.linalg.solve(np.eye(n) - A, B @ w0.astype(float)) if n else np.zeros(0))
 
     def step(self, w: np.ndarray) -> np.ndarray:
         out = np.concatenate([self.x, w]) @ self.M
         self.x = out[self.p :]
         return out[: self.p]
+
+
+def _filter(M: np.ndarray, n: int, p: int, w0: np.ndarray, ar: _Arith) -> Filter | f32bound.FilterBound:
+    return f32bound.FilterBound(ar.a(M), n, p, w0) if ar.bounded else Filter(M, n, p, w0, ar)
 
 
 def _filter_shape(d: Description, name: str) -> tuple[np.ndarray, int, int]:
@@ -241,10 +242,10 @@ def _start(d: Description, law: dict, c: dict, w: list[np.ndarray], y0: np.ndarr
             state["est"] = [Estimator(w, 2, g_s, fe, y0[j], ar) for j in range(3)]
             if "_notch" in d.filters:
                 M, ns, p = _filter_shape(d, "_notch")
-                state["notch"] = [Filter(M, ns, p, y0[j : j + 1], ar) for j in range(3)]
+                state["notch"] = [_filter(M, ns, p, y0[j : j + 1], ar) for j in range(3)]
         else:
             M, ns, p = _filter_shape(d, "_chain")
-            state["chain"] = [Filter(M, ns, p, ar.a([y0[j], c["g"]]), ar) for j in range(3)]
+            state["chain"] = [_filter(M, ns, p, ar.a([y0[j], c["g"]]), ar) for j in range(3)]
     return state
 
 

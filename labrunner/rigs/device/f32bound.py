@@ -165,21 +165,42 @@ def errors(a) -> np.ndarray:
     return np.array([_e(x) for x in np.ravel(a)], float).reshape(np.shape(a))
 
 
-def solve_steady(A: np.ndarray, B: np.ndarray, w0: np.ndarray) -> np.ndarray:
-    """x = (I − A)⁻¹ B w0 for a filter's state before tick 0, each entry bounded by a solve's
-    backward error (Higham Thm 9.4: relative γ_{3n} of |(I − A)⁻¹| |L̂||Û| |x|, here
-    κ∞(I − A) γ_{3n} ‖x‖∞ plus B w0's own bound carried through (I − A)⁻¹)."""
-    n = A.shape[0]
-    M = np.eye(n) - values(A)
-    inv = np.linalg.inv(M)
-    rhs = values(B) @ values(w0)
-    x = inv @ rhs
-    rhs_e = np.abs(values(B)) @ errors(w0) + gamma(len(w0)) * (np.abs(values(B)) @ np.abs(values(w0)))
-    e = np.abs(inv) @ rhs_e + np.linalg.cond(M, np.inf) * gamma(3 * n) * np.max(np.abs(x), initial=0.0)
-    out = np.empty(n, object)
-    for i in range(n):
-        out[i] = Bounded(float(x[i]), float(e[i]))
-    return out
+class FilterBound:
+    """One channel of a FILTER record, [out, x⁺] = [x, w] · M, in Bounded arithmetic. A linear
+    recursion's rounding is bounded through its impulse response, not operation by operation
+    (|A|ᵏ grows where a resonant A's powers decay): the state error that tick j's rounding η_j
+    leaves at tick k is A^(k−1−j) η_j, so |e_out[k]| ≤ Σ_j |C A^(k−1−j)| η_j + |C Aᵏ| e_x0 + the
+    output's own rounding. The state before tick 0, x0 = (I − A)⁻¹ B w0, is computed in float64
+    and rounded once (docs/control-laws.md: (I − A) is ill-conditioned, so a device solves it in
+    double precision)."""
+
+    def __init__(self, M: np.ndarray, n: int, p: int, w0: np.ndarray) -> None:
+        Mv = values(M)
+        self.A, self.B = Mv[:n, p:].T, Mv[n:, p:].T
+        self.C, self.D = Mv[:n, :p].T, Mv[n:, :p].T
+        self.g = gamma(n + len(self.B.T) + 1)  # a sum of n + m products, M rounded once
+        steady = np.linalg.solve(np.eye(n) - self.A, self.B) if n else np.zeros((0, len(self.B.T)))
+        self.x = steady @ values(w0)
+        self.e_x0 = U * np.abs(self.x) + np.abs(steady) @ errors(w0)
+        self.power = self.C.copy()  # C A^k for the initial state's error at tick k
+        self.kernel: list[np.ndarray] = []  # |C A^i|, i = 0, 1, …
+        self.eta: list[np.ndarray] = []  # each tick's local state error
+
+    def step(self, w: np.ndarray) -> np.ndarray:
+        wv, we = values(w), errors(w)
+        x = self.x
+        out = self.C @ x + self.D @ wv
+        e = self.g * (np.abs(self.C) @ np.abs(x) + np.abs(self.D) @ np.abs(wv)) + np.abs(self.D) @ we
+        e = e + np.abs(self.power) @ self.e_x0
+        if self.eta:
+            e = e + np.einsum("ipn,in->p", np.array(self.kernel), np.array(self.eta[::-1]))
+        self.kernel.append(np.abs(self.power))
+        self.eta.append(self.g * (np.abs(self.A) @ np.abs(x) + np.abs(self.B) @ np.abs(wv)) + np.abs(self.B) @ we)
+        self.power = self.power @ self.A
+        self.x = self.A @ x + self.B @ wv
+        result = np.empty(len(out), object)
+        result[:] = [Bounded(float(v), float(b) + U * abs(float(v))) for v, b in zip(out, e)]
+        return result
 
 
 def relu(x: Bounded) -> Bounded:
