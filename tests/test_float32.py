@@ -89,3 +89,34 @@ def test_sqrt_near_zero_is_bounded_by_the_square_root_of_the_error():
     q = Bounded(1e-12, 1e-10)  # the float32 value may be anything in [0, 1.01e-10]
     assert q.sqrt().e >= np.sqrt(1.01e-10) - 1e-6
     assert Bounded(4.0, 0.0).sqrt().e == pytest.approx(2.0 * f32bound.U)
+
+
+@pytest.mark.slow
+def test_conform_checks_an_emulated_float32_device_under_the_float32_tolerance(tmp_path):
+    from tests.test_conform import MOTOR_CASES, _conform
+    from tests.test_deviceloop_link import emulator_process, rig_file
+
+    with emulator_process(rig_file("motor-mfc1", "canfd"), ("--float32",)) as config:
+        code, report = _conform(tmp_path, config, "--no-protocol")
+    assert code == 0, [c for c in report["checks"] if not c["passed"]]
+    checks = {c["name"]: c["detail"] for c in report["checks"]}
+    assert "laws in float32" in checks["handshake"]
+    for case in MOTOR_CASES:
+        assert "of the float32 tolerance" in checks[f"vector {case}"]
+    with emulator_process(rig_file("motor-mfc1", "canfd"), ("--float32", "--fault-law", "gamma=1.01")) as config:
+        code, report = _conform(tmp_path, config, "--no-protocol")
+    failed = {c["name"] for c in report["checks"] if not c["passed"]}
+    assert code == 1 and failed == {f"vector {c}" for c in MOTOR_CASES if not c.startswith("open-loop")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["motor-mfc2", "valve-mfc1"])
+def test_a_plant_run_on_a_float32_device_passes_its_float32_law_check(name):
+    """The closed loop with the twin, the law in float32: the run's law check is ok and says float32."""
+    from tests.test_deviceloop_link import device_run, emulator_process, rig_file
+
+    with emulator_process(rig_file(name, "can"), ("--float32",)) as config:
+        result = device_run(name, config)
+    law = result.diagnostics["law_check"]
+    assert law["flag"] == "ok" and law["arithmetic"] == "float32", law
+    assert result.outcome.status in ("completed", "aborted")
