@@ -66,6 +66,8 @@ def test_a_dead_device_fails_the_run_within_a_second_keeps_its_samples_and_is_no
     assert partial.outcome.status == "failed" and "dead or hung" in partial.outcome.message
     assert 0 < partial.n_samples < LONG * 200  # the streamed samples up to the death are kept
     assert partial.diagnostics["loop"] == "device" and partial.diagnostics["device_loop"]["columns"] == 6
+    law = partial.diagnostics["law_check"]  # checked up to its last sample, never null (docs/control-laws.md)
+    assert law["flag"] == "ok" and law["arithmetic"] == "float64", law
 
 
 def test_a_device_that_was_silent_for_a_while_answers_a_fresh_handshake_and_runs_the_next_point():

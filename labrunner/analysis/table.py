@@ -46,7 +46,7 @@ from labrunner.analysis.log_checks import (
 from labrunner.campaign.rig_timing import timing_counts
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
-from labrunner.rigs.device.lawflag import flag_of
+from labrunner.rigs.device.lawflag import arithmetic_of, flag_of
 
 #: Columns that identify a point and its run, in this order at the left of the table.
 ID_COLUMNS = (
@@ -61,6 +61,7 @@ ID_COLUMNS = (
     "torn",
     "log_state",
     "law_check",
+    "law_arithmetic",
 )
 #: Suffix of the columns that hold an aborted run's metrics (over the run up to its abort).
 UNTIL_ABORT = "_until_abort"
@@ -267,6 +268,7 @@ def _chunk_frame(rows: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, list[
                 "log_path": r["log_path"],
                 "torn": False,
                 "law_check": flag_of(outcome),  # a device-loop run's reference-law check, "" for others
+                "law_arithmetic": arithmetic_of(outcome),  # its tolerance's arithmetic (float64, float32)
                 **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
                 **metrics,
                 **timing_counts(outcome.get("diagnostics")),

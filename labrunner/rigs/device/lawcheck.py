@@ -40,14 +40,13 @@ from labrunner.rigs.base import RigInfo
 from labrunner.rigs.device import description, doclaw
 from labrunner.rigs.device.columns import column_names
 from labrunner.rigs.device.f32bound import Bounded
-from labrunner.rigs.device.lawflag import DIVERGED, NOT_CHECKED, OK
+from labrunner.rigs.device.lawflag import DIVERGED, FLOAT32, FLOAT64, NOT_CHECKED, OK
 from labrunner.rigs.device.replay import replay, stack_signals
 from labrunner.rigs.transports.messages import Capability
 from labrunner.safety import MONITORS
 
 #: tolerance = this × the spread the float32 rounding of y causes, + 2 ulp (module docstring)
 TOLERANCE_FACTOR = 4.0
-FLOAT64, FLOAT32 = "float64", "float32"  #: the arithmetic a device announces (IDENTITY capability FLOAT32)
 F64_ULPS = 16.0  #: dither of an exact (float64) measurement: a device's own rounding in another order
 BLOCK = 64  #: ticks per block of the spread's envelope (:func:`_envelope`)
 
