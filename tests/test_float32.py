@@ -51,7 +51,10 @@ def test_a_float32_device_passes_every_vector_under_the_float32_tolerance(name):
     assert law.worst_ratio < 1.0
 
 
-_OFF = [(n, "gamma") for n, c in vectors.CASES.items() if "gamma" in c.point["controller"]] + [("plate-mbc", "c_p")]
+_OFF = [  # the law vectors (a safety vector may trip before the gain shows)
+    (n, "gamma") for n, c in vectors.CASES.items() if "gamma" in c.point["controller"] and "safety" not in c.point
+    and c.nan_at is None
+] + [("plate-mbc", "c_p")]  # fmt: skip
 
 
 @pytest.mark.slow

@@ -126,8 +126,11 @@ def check(
     error = np.abs(rows[:n] - expected)
     both_nan = np.isnan(rows[:n]) & np.isnan(expected)
     bad = ~both_nan & ~(error <= tolerance)  # NaN on one side only counts as a divergence
+    if (outcome.monitor or "") in NON_FINITE and rows.shape[0] <= n:
+        bad[rows.shape[0] - 1, free_at_fault(names, info)] = False  # docs/control-laws.md, "A non-finite measurement"
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(bad | both_nan, 0.0, error / np.where(tolerance > 0, tolerance, np.inf))
+    ratio[~np.isfinite(ratio)] = 0.0  # a tick whose estimates may be NaN (above)
     worst = float(np.max(ratio, initial=0.0))
     at = np.unravel_index(int(np.argmax(ratio)), ratio.shape) if ratio.size else (0, 0)
     where = f"{names[at[1]]} at tick {int(at[0])}" if worst > 0 else ""
@@ -191,6 +194,17 @@ def float32_bound(
     if len(bounds) < len(y):
         bounds = np.concatenate([bounds, np.repeat(bounds[-1:], len(y) - len(bounds), axis=0)])
     return bounds
+
+
+NON_FINITE = ("non_finite_input", "non_finite_output")
+
+
+def free_at_fault(names: list[str], info: RigInfo) -> list[int]:
+    """The columns a tick with a non-finite measurement may log as NaN or as a number: the
+    estimates and the controlled outputs not measured (a FIR may or may not multiply x[k] by a
+    zero weight); its inputs, measured outputs and references are checked."""
+    fixed = {s.name for s in (*info.inputs, *info.outputs)}
+    return [j for j, name in enumerate(names) if name not in fixed and not name.startswith("ref_")]
 
 
 def arithmetic_of(capabilities: int) -> str:
