@@ -244,3 +244,22 @@ def test_late_ticks_and_overruns_show_in_status_analyse_metrics_csv_and_the_repo
     assert dict(zip(table["id"], table["late_ticks"])) == late and dict(zip(table["id"], table["overruns"])) == over
     report = (directory / "report" / "index.html").read_text()
     assert f"{sum(late.values())} late tick(s) in 2 run(s)" in report
+
+
+def test_a_device_of_another_kind_is_reported_as_such_not_as_dead():
+    """It answered: 'dead or hung, may not be in its safe state' would send the user to the wrong place."""
+    motor = _virtual(rig_file("motor-mfc1", "can"))
+    valve = {**rig_file("valve-mfc1", "can"), "parameters": {**motor["parameters"], "device": "valve"}}
+    emulator = _serve(valve)
+    try:
+        rig = load_rig(config_from_dict(motor))
+        with rig:
+            with pytest.raises(RigError, match=r"device kind 2 \(expected 1\)"):
+                rig.handshake()
+            with pytest.raises(RigError) as caught:
+                rig.recover()
+    finally:
+        emulator.stop()
+    message = str(caught.value)
+    assert "answers the handshake but is not the rig file's device" in message
+    assert "dead or hung" not in message and "may not be in its safe state" not in message

@@ -146,6 +146,11 @@ CASES: dict[str, Case] = {
     "open-loop-motor-non_finite_output": Case(_open_loop(_MOTOR_SINE), "dcmotor-sim", 200.0, 1.0, nan_at=(50, 0)),
     "open-loop-motor-run_time": Case(_open_loop(_MOTOR_SINE, max_duration=0.5), "dcmotor-sim", 200.0, 1.0),
     "open-loop-motor-no-motion-level": Case(_open_loop(_MOTOR_SINE, motion_min_level=100.0), "dcmotor-sim", 200.0, 1.0),
+    "valve-ffc-saturation": Case(
+        {"controller": dict(_VALVE_FFC),
+         "reference": {"kind": "setpoints", "levels": [1.0, 30.0, 1.0], "transition": 0.1, "hold": 0.05}},
+        "valve-sim", 4000.0, 0.35,
+    ),
     "valve-ffc-output_high": Case(_valve_ffc(output_bounds={"q": [-1.0, 4.0]}), "valve-sim", 4000.0, 0.35),
     "valve-ffc-output_low": Case(_valve_ffc(output_bounds={"q": [0.5, 100.0]}), "valve-sim", 4000.0, 0.35),
     "valve-ffc-input_high": Case(_valve_ffc(input_bounds={"i": [0.0, 0.6]}), "valve-sim", 4000.0, 0.35),
