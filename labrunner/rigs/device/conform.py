@@ -122,7 +122,7 @@ def _vector(rig, name: str, arithmetic: str = lawcheck.FLOAT64) -> Check:
     problems = []
     y = [vector.columns.index(s.name) for s in info.outputs]
     n = min(len(rows), len(vector.rows))
-    if not np.array_equal(rows[:n, y], vector.rows[:n, y].astype(np.float32)):
+    if not np.array_equal(rows[:n, y], vector.rows[:n, y].astype(np.float32), equal_nan=True):
         problems.append("the logged y is not the sensor table (does the device read SENSOR_TABLE?)")
     law = lawcheck.check(
         case.point, info, rows, outcome, fs=case.fs, duration=case.duration, seed=case.seed,
