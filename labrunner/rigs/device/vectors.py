@@ -173,10 +173,8 @@ CASES: dict[str, Case] = {
     ),
     "plate-mfc-output_low": Case(_plate_mfc("v", 1.0, output_bounds={"y2": [5.3e-3, 1.0]}), "plate-sim", 32000.0, 0.01),
     "plate-mfc-output_high": Case(_plate_mfc("v", 1.0, output_bounds={"y3": [0.0, 5.5e-3]}), "plate-sim", 32000.0, 0.01),
-    "plate-mbc-input_high": Case(
-        {"controller": {"kind": "plate-mbc"}, "reference": dict(_PLATE_REF),
-         "safety": {"input_bounds": {f"i{j}": [0.0, 6.0] for j in range(1, 5)}}},
-        "plate-sim", 32000.0, 0.01,
+    "plate-mfc-input_high": Case(
+        _plate_mfc("v", 1.0, input_bounds={f"i{j}": [0.0, 6.0] for j in range(1, 5)}), "plate-sim", 32000.0, 0.01
     ),
     "plate-mbc-input_low": Case(
         {"controller": {"kind": "plate-mbc"}, "reference": dict(_PLATE_REF),
