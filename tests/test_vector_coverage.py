@@ -56,9 +56,10 @@ def rig_kind(folder: Path) -> str:
 def documented() -> dict[str, dict[str, set[str] | None]]:
     """The coverage table of docs/control-laws.md: feature → rig kind → vectors (None: n/a)."""
     text = (ROOT / "docs" / "control-laws.md").read_text()
-    table = text.split("<!-- coverage -->")[1]
+    lines = text.split("<!-- coverage -->")[1].strip().splitlines()
+    table = lines[: next((i for i, line in enumerate(lines) if not line.startswith("|")), len(lines))]
     out: dict[str, dict[str, set[str] | None]] = {}
-    for line in table.strip().splitlines()[2:]:
+    for line in table[2:]:
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         out[cells[0].strip("`")] = {
             kind: None if cell.startswith("n/a") else set(re.findall(r"`([^`]+)`", cell))
