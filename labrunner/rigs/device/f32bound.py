@@ -15,6 +15,7 @@ law and says what it assumes.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -172,7 +173,12 @@ class FilterBound:
     leaves at tick k is A^(k−1−j) η_j, so |e_out[k]| ≤ Σ_j |C A^(k−1−j)| η_j + |C Aᵏ| e_x0 + the
     output's own rounding. The state before tick 0, x0 = (I − A)⁻¹ B w0, is computed in float64
     and rounded once (docs/control-laws.md: (I − A) is ill-conditioned, so a device solves it in
-    double precision)."""
+    double precision).
+
+    The sum keeps its first N terms, N the first power with q = ‖A^N‖∞ ≤ 1/2; the older ticks'
+    share is at most T · max ‖η_j‖∞ per output, T = q R / (1 − q), R the first N terms' row sums
+    of |C Aⁱ| (row(C A^(N+m)) = row(C A^m) A^N, so the tail is at most q times the whole sum):
+    the cost per tick stays N, not k."""
 
     def __init__(self, M: np.ndarray, n: int, p: int, w0: np.ndarray) -> None:
         Mv = values(M)
@@ -183,8 +189,11 @@ class FilterBound:
         self.x = steady @ values(w0)
         self.e_x0 = U * np.abs(self.x) + np.abs(steady) @ errors(w0)
         self.power = self.C.copy()  # C A^k for the initial state's error at tick k
-        self.kernel: list[np.ndarray] = []  # |C A^i|, i = 0, 1, …
-        self.eta: list[np.ndarray] = []  # each tick's local state error
+        self.apow = np.eye(n)  # A^i, i = len(kernel)
+        self.kernel: list[np.ndarray] | np.ndarray = []  # |C A^i|, i = 0, 1, …, N − 1
+        self.eta: deque[np.ndarray] = deque()  # the last ticks' local state errors, oldest first
+        self.tail: np.ndarray | None = None  # T per output, once N is found
+        self.dropped = 0.0  # the largest ‖η_j‖∞ of the ticks older than N
 
     def step(self, w: np.ndarray) -> np.ndarray:
         wv, we = values(w), errors(w)
@@ -193,8 +202,19 @@ class FilterBound:
         e = self.g * (np.abs(self.C) @ np.abs(x) + np.abs(self.D) @ np.abs(wv)) + np.abs(self.D) @ we
         e = e + np.abs(self.power) @ self.e_x0
         if self.eta:
-            e = e + np.einsum("ipn,in->p", np.array(self.kernel), np.array(self.eta[::-1]))
-        self.kernel.append(np.abs(self.power))
+            e = e + np.einsum("ipn,in->p", np.array(self.kernel[: len(self.eta)]), np.array(self.eta)[::-1])
+        if self.tail is not None:
+            e = e + self.tail * self.dropped
+        if self.tail is None:
+            self.kernel.append(np.abs(self.power))  # type: ignore[union-attr]  # a list until N is found
+            self.apow = self.apow @ self.A
+            q = float(np.abs(self.apow).sum(axis=1).max(initial=0.0))
+            if q <= 0.5:
+                self.kernel = np.array(self.kernel)  # one array from now on
+                self.tail = q * self.kernel.sum(axis=(0, 2)) / (1.0 - q)
+                self.eta = deque(self.eta, maxlen=len(self.kernel))
+        if self.eta.maxlen is not None and len(self.eta) == self.eta.maxlen:
+            self.dropped = max(self.dropped, float(self.eta[0].max(initial=0.0)))
         self.eta.append(self.g * (np.abs(self.A) @ np.abs(x) + np.abs(self.B) @ np.abs(wv)) + np.abs(self.B) @ we)
         self.power = self.power @ self.A
         self.x = self.A @ x + self.B @ wv
