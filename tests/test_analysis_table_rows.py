@@ -19,7 +19,7 @@ from test_campaign_support import MOTOR_RIG, campaign_text, cli, write
 import labrunner
 from labrunner.analysis import table, table_rows
 from labrunner.campaign.rig_timing import timing_counts
-from labrunner.rigs.device.lawflag import flag_of
+from labrunner.rigs.device.lawflag import arithmetic_of, flag_of
 
 LEGACY = ("rms_error", "input_energy", "max_abs_input")
 
@@ -53,6 +53,7 @@ def _per_row_frame(rows):
                 "log_path": r["log_path"],
                 "torn": False,
                 "law_check": flag_of(outcome),
+                "law_arithmetic": arithmetic_of(outcome),
                 **{k: v for k, v in params.items() if isinstance(v, (int, float, str, bool))},
                 **metrics,
                 **timing_counts(outcome.get("diagnostics")),
@@ -78,7 +79,12 @@ def _device_rows():
     diagnostics, an integer count absent from some rows, a parameter that is a list (left out)."""
     rows = _rows(12)
     for i, r in enumerate(rows[:9]):
-        diagnostics = {"law_check": {"flag": ("ok", "diverged at 12", "not-checked")[i % 3]}}
+        diagnostics = {
+            "law_check": {
+                "flag": ("ok", "diverged at 12", "not-checked")[i % 3],
+                "arithmetic": ("float64", "float32")[i % 2],
+            }
+        }
         if i % 2:
             diagnostics["device_loop"] = {"overruns": i}
         else:

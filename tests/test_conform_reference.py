@@ -1,5 +1,5 @@
 """The done-criterion of docs/control-laws.md: a device whose law is written from the documents
-alone — tests/law_reference.py in the emulator's place of the reference executor — passes
+alone — labrunner/rigs/device/doclaw.py in the emulator's place of the reference executor — passes
 ``labrunner conform``'s vectors, across the link, for every rig kind; with one constant of its
 law wrong it fails them."""
 
@@ -10,14 +10,13 @@ import threading
 import pytest
 
 from labrunner.rigs.config import config_from_dict
-from labrunner.rigs.device import blocks, conform, description, executor
+from labrunner.rigs.device import blocks, conform, description, doclaw, executor
 from labrunner.rigs.device.description import DescriptionError
 from labrunner.rigs.transports.emulator import Emulator, device_link, twin_for
-from tests import law_reference
 from tests.test_deviceloop_link import rig_file
 
 
-def _document_device(emulator: Emulator, law=law_reference.run):
+def _document_device(emulator: Emulator, law=doclaw.run):
     """Replace the emulated device's executor by the document's law (sensor-table runs only)."""
     info = emulator.rig.info
 
@@ -70,7 +69,7 @@ def test_the_same_device_with_its_gain_off_by_one_percent_fails():
     def off(d, inputs, outputs):
         if "gamma" in d.law:
             d.law["gamma"] = d.law["gamma"] * 1.01
-        return law_reference.run(d, inputs, outputs)
+        return doclaw.run(d, inputs, outputs)
 
     _document_device(emulator, off)
     emulator.start()

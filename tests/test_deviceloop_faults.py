@@ -66,6 +66,8 @@ def test_a_dead_device_fails_the_run_within_a_second_keeps_its_samples_and_is_no
     assert partial.outcome.status == "failed" and "dead or hung" in partial.outcome.message
     assert 0 < partial.n_samples < LONG * 200  # the streamed samples up to the death are kept
     assert partial.diagnostics["loop"] == "device" and partial.diagnostics["device_loop"]["columns"] == 6
+    law = partial.diagnostics["law_check"]  # checked up to its last sample, never null (docs/control-laws.md)
+    assert law["flag"] == "ok" and law["arithmetic"] == "float64", law
 
 
 def test_a_device_that_was_silent_for_a_while_answers_a_fresh_handshake_and_runs_the_next_point():
@@ -242,3 +244,22 @@ def test_late_ticks_and_overruns_show_in_status_analyse_metrics_csv_and_the_repo
     assert dict(zip(table["id"], table["late_ticks"])) == late and dict(zip(table["id"], table["overruns"])) == over
     report = (directory / "report" / "index.html").read_text()
     assert f"{sum(late.values())} late tick(s) in 2 run(s)" in report
+
+
+def test_a_device_of_another_kind_is_reported_as_such_not_as_dead():
+    """It answered: 'dead or hung, may not be in its safe state' would send the user to the wrong place."""
+    motor = _virtual(rig_file("motor-mfc1", "can"))
+    valve = {**rig_file("valve-mfc1", "can"), "parameters": {**motor["parameters"], "device": "valve"}}
+    emulator = _serve(valve)
+    try:
+        rig = load_rig(config_from_dict(motor))
+        with rig:
+            with pytest.raises(RigError, match=r"device kind 2 \(expected 1\)"):
+                rig.handshake()
+            with pytest.raises(RigError) as caught:
+                rig.recover()
+    finally:
+        emulator.stop()
+    message = str(caught.value)
+    assert "answers the handshake but is not the rig file's device" in message
+    assert "dead or hung" not in message and "may not be in its safe state" not in message

@@ -146,8 +146,12 @@ _run = functools.partial(cli, cwd=ROOT, timeout=600)  # the real command, from t
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("faults, flag", [((), "ok"), (("--fault-law", "gamma=1.02"), "diverged")])
-def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults, flag):
+@pytest.mark.parametrize(
+    "faults, flag, arithmetic",
+    [((), "ok", "float64"), (("--fault-law", "gamma=1.02"), "diverged", "float64"), (("--float32",), "ok", "float32")],
+)
+def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults, flag, arithmetic):
+    """… with the arithmetic each run was checked under (a FLOAT32 device: the float32 tolerance)."""
     with emulator_process(rig_file("motor-mfc1", "can"), faults) as config:
         (tmp_path / "motor-can.toml").write_text(rig_toml(config))
         (tmp_path / "campaign.toml").write_text(CAMPAIGN)
@@ -157,17 +161,21 @@ def test_the_flag_reaches_status_analyse_and_metrics_csv(tmp_path: Path, faults,
     assert f"law check (device loop): {2 if flag == 'ok' else 0} ok, {2 if flag != 'ok' else 0} diverged" in said
     status = json.loads(_run("status", str(tmp_path / "out"), "--json").stdout)["law_check"]
     assert status[flag] == 2 and sum(status[k] for k in ("ok", "diverged", "not-checked")) == 2
+    assert status["arithmetic"] == {arithmetic: 2}
     text = _run("status", str(tmp_path / "out")).stdout
     assert f"law check (device loop): {2 if flag == 'ok' else 0} ok, {2 if flag != 'ok' else 0} diverged" in text
+    assert f"(checked under {arithmetic}: 2)" in text
     analysed = _run("analyse", str(tmp_path / "out"), "--json")
     assert analysed.returncode == 0, analysed.stderr
     summary = json.loads(analysed.stdout)
-    assert summary["law_check"][flag] == 2
+    assert summary["law_check"][flag] == 2 and summary["law_check"]["arithmetic"] == {arithmetic: 2}
     table = pd.read_csv(Path(summary["metrics"][0]))
     assert all(str(f).startswith(flag) for f in table["law_check"])
+    assert list(table["law_arithmetic"]) == [arithmetic] * 2
+    report = Path(summary["report"]).read_text()
+    assert f"checked under {arithmetic}: 2" in report and "<th>law_arithmetic</th>" in report
     if flag == "diverged":
         assert status["first_diverged"]["flag"].startswith("diverged@tick ")
-        report = Path(summary["report"]).read_text()
         assert "the device did not run the law" in report and "diverged@tick" in report
     # the log's outcome record has the twin's shape (the check is in its diagnostics record), and a
     # ledger rebuilt from the logs alone still knows every run's check

@@ -1,5 +1,5 @@
 """Conformance vectors (docs/control-laws.md): ``labrunner vectors`` regenerates the shipped set
-byte for byte, and an implementation written from the document alone (tests/law_reference.py,
+byte for byte, and an implementation written from the document alone (labrunner/rigs/device/doclaw.py,
 plain per-sample Python, none of labrunner's control code) reproduces every vector."""
 
 from __future__ import annotations
@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from labrunner.rigs.device import description, vectors
+from labrunner.rigs.device import description, doclaw, f32bound, lawcheck, vectors
+from labrunner.rigs.device.f32bound import Bounded
 from labrunner.rigs.device.vectors import CASES
-from tests import law_reference
+from labrunner.rigs.registry import load_rig
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "docs" / "vectors"
@@ -88,17 +89,27 @@ def test_an_implementation_from_the_document_reproduces_the_vector(case):
     expected = np.loadtxt(folder / "vector.csv", delimiter=",", skiprows=1, ndmin=2)[:, 1:]
     inputs, outputs = header[: d.n_inputs], header[d.n_inputs : d.n_inputs + d.n_outputs]
     np.testing.assert_array_equal(expected[:, d.n_inputs : d.n_inputs + d.n_outputs], d.sensor_table[: len(expected)])
-    rows, verdict = law_reference.run(d, inputs, outputs)
+    rows, verdict = doclaw.run(d, inputs, outputs)
     assert rows.shape == expected.shape
-    scale = np.nanmax(np.abs(expected), axis=0) + 1e-300
-    for j, name in enumerate(header):
-        np.testing.assert_allclose(rows[:, j], expected[:, j], rtol=1e-9, atol=1e-9 * scale[j], err_msg=name)
     want = _verdict(folder / "verdict.txt")
+    if want["monitor"] in lawcheck.NON_FINITE:  # the estimates of the faulty tick: NaN or a number
+        free = lawcheck.free_at_fault(header, load_rig(CASES[case].rig).info)
+        rows[-1, free] = expected[-1, free]
+    scale = np.nanmax(np.abs(expected), axis=0) + 1e-300
+    close = np.isclose(rows, expected, rtol=1e-9, atol=1e-9 * scale, equal_nan=True)
+    if not close.all():  # a cancellation (f̂ = D_n x − γ Σ ŵ_0 v, the MBC's η̂ + g): 1e-9 of the magnitude of the
+        _, bounded = doclaw.run(d, inputs, outputs, dtype=Bounded)  # terms it is computed from (bound / u)
+        close |= np.abs(rows - expected) <= 1e-9 * bounded["bounds"] / f32bound.U
+    for j, name in enumerate(header):
+        assert close[:, j].all(), f"{name}: doc law {rows[~close[:, j], j]}, vector {expected[~close[:, j], j]}"
     assert verdict["status"] == want["status"] and int(want["samples"]) == len(rows)
     if want["status"] == "aborted":
         assert verdict["monitor"] == want["monitor"]
         for key in ("time", "value", "threshold"):
-            assert verdict[key] == pytest.approx(float(want[key]), rel=1e-9), key
+            if math.isnan(float(want[key])):
+                assert math.isnan(verdict[key]), key
+            else:
+                assert verdict[key] == pytest.approx(float(want[key]), rel=1e-9), key
     else:
         assert want["monitor"] == "nan" and math.isnan(float(want["time"]))
 

@@ -203,7 +203,11 @@ def _analyse(
         "problems": problems,
         "metrics": [str(csv), str(parquet)],
         "logs_read": built.n_read,
-        "law_check": lawflag.summary(zip(frame["id"], frame["law_check"])) if "law_check" in frame else None,
+        "law_check": (
+            lawflag.summary(zip(frame["id"], frame["law_check"], frame.get("law_arithmetic", [""] * len(frame))))
+            if "law_check" in frame
+            else None
+        ),
     }
     if guided is not None:
         summary["guided"] = guided

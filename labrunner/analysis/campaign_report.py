@@ -243,7 +243,9 @@ def runs_table(frame: pd.DataFrame, ctx, params: Sequence[str], plots: Mapping[s
         c + UNTIL_ABORT for c in metrics if c + UNTIL_ABORT in frame.columns and frame[c + UNTIL_ABORT].notna().any()
     ]
     abort = [c for c in ("monitor", "abort_time") if c in frame.columns and frame[c].notna().any()]
-    abort += [c for c in ("law_check",) if c in frame.columns and frame[c].fillna("").astype(bool).any()]
+    abort += [
+        c for c in ("law_check", "law_arithmetic") if c in frame.columns and frame[c].fillna("").astype(bool).any()
+    ]
     columns = ["seq", "id", "outcome", *params, *metrics, *until, *abort, "n_samples"]
     columns = [c for c in columns if c in frame.columns]
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)  # the names of metrics.csv and the API

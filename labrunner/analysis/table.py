@@ -58,6 +58,7 @@ ID_COLUMNS = (
     "torn",
     "log_state",
     "law_check",
+    "law_arithmetic",
 )
 #: Suffix of the columns that hold an aborted run's metrics (over the run up to its abort).
 UNTIL_ABORT = "_until_abort"

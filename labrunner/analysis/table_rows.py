@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from labrunner.campaign.rig_timing import timing_counts
-from labrunner.rigs.device.lawflag import flag_of
+from labrunner.rigs.device.lawflag import arithmetic_of, flag_of
 from labrunner.run_identity import FINGERPRINT_COLUMNS
 
 #: The ledger's own metric columns (older ledgers hold only these, no ``metrics_json``).
@@ -221,6 +221,7 @@ def chunk_frame(chunk: Chunk) -> tuple[pd.DataFrame, list[int]]:
         "log_path": chunk["log_path"],
         "torn": [False] * n,
         "law_check": [flag_of(o) if "diagnostics" in o else "" for o in outcomes],
+        "law_arithmetic": [arithmetic_of(o) if "diagnostics" in o else "" for o in outcomes],
     }
     metrics, shapes = _metric_columns(chunk, texts) or _per_row_metrics(chunk, texts)
     # the other columns in the order their names first appear in the rows' parameters, metrics and

@@ -94,7 +94,8 @@ def _law_check(ledger: Ledger) -> dict[str, Any] | None:
     """The device-loop runs' reference-law check (:mod:`labrunner.rigs.device.lawflag`)."""
     return lawflag.summary(
         ledger.db.execute(
-            "SELECT id, json_extract(outcome_json, '$.diagnostics.law_check.flag') FROM points "
+            "SELECT id, json_extract(outcome_json, '$.diagnostics.law_check.flag'), "
+            "json_extract(outcome_json, '$.diagnostics.law_check.arithmetic') FROM points "
             "WHERE json_valid(outcome_json) AND json_extract(outcome_json, '$.diagnostics.law_check.flag') "
             "IS NOT NULL ORDER BY seq"
         )

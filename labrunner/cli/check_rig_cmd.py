@@ -14,7 +14,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Open a can or serial rig file's link, handshake with the device (protocol version, device kind, "
         "channels, max f_s, capabilities, firmware id), time N HEARTBEAT round trips, and report the "
         "error counters, the link load of both loop placements and the highest f_s the host loop "
-        "sustains with margin. Nothing moves: no run is set up.",
+        "sustains with margin. Nothing moves (no run is set up) unless --dead-time asks for a small input step.",
     )
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
     p.add_argument("--pings", type=positive_int, default=200, metavar="N", help="round trips to time (default 200)")
@@ -23,6 +23,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--campaign",
         metavar="C.toml",
         help="count the device loop's stream for this campaign's first point (every logged column, at its f_s)",
+    )
+    p.add_argument(
+        "--dead-time",
+        action="store_true",
+        help="MOVES THE RIG: a small open-loop input step under the rig file's safety routine; compares the delay "
+        "from input to measured motion with the twin's and the rig file's declared delay",
+    )
+    p.add_argument(
+        "--step",
+        type=float,
+        default=None,
+        metavar="U",
+        help="the dead-time step's input level (default: 10%% of the input range above the safe input)",
     )
     p.set_defaults(func=main)
 
@@ -37,6 +50,8 @@ def main(args: argparse.Namespace) -> int:
     config = load_rig_config(args.rig)
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"check-rig checks can or serial rig files, got {config.kind!r}")
-    report = check_rig(config, args.pings, args.campaign)
+    if args.step is not None and not args.dead_time:
+        raise InvalidParameter("--step", "sets the --dead-time step; give --dead-time too")
+    report = check_rig(config, args.pings, args.campaign, args.dead_time, args.step)
     print(json.dumps(report, sort_keys=True) if args.json else "\n".join(describe(report)))
-    return 0
+    return 1 if report.get("dead_time", {}).get("verdict") in ("late", "early") else 0

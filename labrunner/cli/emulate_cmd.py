@@ -75,6 +75,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="a device-loop protocol fault (for testing `labrunner conform`): run descriptions with a bad CRC-32 "
         "or another version, go on after SAFE/STOP, or have no host-silence watchdog",
     )
+    p.add_argument(
+        "--float32",
+        action="store_true",
+        help="compute the device loop's laws in IEEE single precision (as a Cortex-M4F firmware would) and "
+        "announce FLOAT32 in IDENTITY: the host checks the runs with the float32 tolerance",
+    )
+    p.add_argument(
+        "--input-delay",
+        type=numeric(int, ">= 0"),
+        default=0,
+        metavar="N",
+        help="apply each input N ticks late (both loops; the law's u is still what is logged): a fault the law "
+        "check and conform cannot see, which check-rig's dead-time test catches",
+    )
     p.add_argument("--seed", type=numeric(int, ">= 0"), default=0, help="seed of the fault injection")
     p.add_argument(
         "--realtime",
@@ -103,8 +117,9 @@ def main(args: argparse.Namespace) -> int:
 
     from labrunner.errors import InvalidParameter
     from labrunner.rigs.config import load_rig_config
+    from labrunner.rigs.device.emulated import use_float32
     from labrunner.rigs.transports.emulator import Emulator, device_link, pty_link, twin_for
-    from labrunner.rigs.transports.faults import LinkFaults
+    from labrunner.rigs.transports.faults import LateInputRig, LinkFaults
 
     for name in ("drop", "garbage", "duplicate", "stale", "spoof", "error_frames"):
         if not 0.0 <= getattr(args, name) <= 1.0:
@@ -133,7 +148,12 @@ def main(args: argparse.Namespace) -> int:
         print(f"port {port}", flush=True)
     else:
         link = device_link(config)
-    emulator = Emulator(twin_for(config), link, paced=not args.free_run, faults=faults, realtime=args.realtime)
+    twin = twin_for(config)
+    if args.input_delay:
+        twin = LateInputRig(twin, args.input_delay)
+    emulator = Emulator(twin, link, paced=not args.free_run, faults=faults, realtime=args.realtime)
+    if args.float32:
+        use_float32(emulator)
     emulator.device_loop.law_fault = dict(args.fault_law)
     emulator.device_loop.protocol_faults = set(args.fault_protocol)
     emulator.start()

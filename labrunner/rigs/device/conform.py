@@ -3,6 +3,8 @@
 Checks, each passed or failed with a one-line detail (docs/control-laws.md, docs/device-loop.md):
 
 * ``handshake``: IDENTITY answers HELLO and announces DEVICE_LOOP;
+* ``handshake`` also says which arithmetic the device announces (FLOAT32: float32, else float64);
+  the vectors' law check uses that arithmetic's tolerance;
 * ``vector <case>``: every conformance vector of the device's rig kind, run in the sensor-table
   mode (the device reads y[k] from the description, nothing moves): the device must log the
   table's y, the host's law check must pass on its rows — recomputed from the exact float64
@@ -72,13 +74,17 @@ def conform(config: RigConfig, cases: Sequence[str] | None = None, protocol: boo
         except RigError as exc:
             return [Check("handshake", False, str(exc))]
         loop = bool(ident.capabilities & m.Capability.DEVICE_LOOP)
+        arithmetic = lawcheck.arithmetic_of(ident.capabilities)
         checks = [
-            Check("handshake", loop, f"firmware {ident.firmware_id:#010x}, DEVICE_LOOP {'yes' if loop else 'no'}")
-        ]
+            Check(
+                "handshake", loop,
+                f"firmware {ident.firmware_id:#010x}, DEVICE_LOOP {'yes' if loop else 'no'}, laws in {arithmetic}",
+            )
+        ]  # fmt: skip
         if not loop:
             return checks
         names = list(cases) if cases is not None else cases_for(rig.info.kind)
-        checks += [_vector(rig, name) for name in names]
+        checks += [_vector(rig, name, arithmetic) for name in names]
         if protocol and names:
             base = vectors.build(vectors.CASES[names[0]])
             checks += [_reject(rig, what, bad, base.data) for what, bad in _broken(base.data)]
@@ -104,7 +110,7 @@ def _run(rig, data: bytes, send_hook=None, recv_hook=None, like: bytes | None = 
     return verdict, rows
 
 
-def _vector(rig, name: str) -> Check:
+def _vector(rig, name: str, arithmetic: str = lawcheck.FLOAT64) -> Check:
     case = vectors.CASES[name]
     vector = vectors.build(case)
     info = load_rig(case.rig).info
@@ -116,11 +122,11 @@ def _vector(rig, name: str) -> Check:
     problems = []
     y = [vector.columns.index(s.name) for s in info.outputs]
     n = min(len(rows), len(vector.rows))
-    if not np.array_equal(rows[:n, y], vector.rows[:n, y].astype(np.float32)):
+    if not np.array_equal(rows[:n, y], vector.rows[:n, y].astype(np.float32), equal_nan=True):
         problems.append("the logged y is not the sensor table (does the device read SENSOR_TABLE?)")
     law = lawcheck.check(
         case.point, info, rows, outcome, fs=case.fs, duration=case.duration, seed=case.seed,
-        rig_safety=vectors.rig_safety(case), measured=vector.rows[:, y],
+        rig_safety=vectors.rig_safety(case), measured=vector.rows[:, y], arithmetic=arithmetic,
     )  # fmt: skip
     if not law.ok:
         problems.append(f"law {law.flag}: {law.detail}")
@@ -128,7 +134,10 @@ def _vector(rig, name: str) -> Check:
     got = (verdict.status, verdict.monitor, verdict.n_samples)
     if got != want:
         problems.append(f"verdict {got}, the vector's {want}")
-    detail = "; ".join(problems) or f"{n} ticks, {verdict.status}, law within {law.worst_ratio:.2f} of its tolerance"
+    margin = f"worst |device − law| {law.worst_ratio:.3g} of the {arithmetic} tolerance" + (
+        f" ({law.worst_at})" if law.worst_at else ""
+    )
+    detail = "; ".join(problems) or f"{n} ticks, {verdict.status}, {margin}"
     return Check(f"vector {name}", not problems, detail)
 
 

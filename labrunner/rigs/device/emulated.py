@@ -34,6 +34,8 @@ class DeviceLoop:
         #: protocol faults a broken firmware might have (``labrunner emulate --fault-protocol``:
         #: no-crc-check, any-version, ignore-stop, no-watchdog)
         self.protocol_faults: set[str] = set()
+        #: the law in IEEE single precision (``labrunner emulate --float32``; announced as FLOAT32)
+        self.float32 = False
         self.session = session.DeviceSession(self._send, self._recv, emulator.link.max_payload, self._execute)
 
     def on_frame(self, frame: Frame) -> None:
@@ -69,7 +71,8 @@ class DeviceLoop:
 
         data = self._broken(data)
         try:
-            return executor.execute(data, emulator.rig, hook, accepted, tick, self.law_fault)
+            run = executor.execute_document if self.float32 else executor.execute
+            return run(data, emulator.rig, hook, accepted, tick, self.law_fault)
         finally:
             emulator.state = m.DeviceState.IDLE
 
@@ -91,3 +94,9 @@ def install(emulator) -> DeviceLoop:
     emulator.capabilities |= m.Capability.DEVICE_LOOP
     emulator.device_loop = service
     return service
+
+
+def use_float32(emulator) -> None:
+    """Run the device loop's laws in float32 and say so in IDENTITY (capabilities bit FLOAT32)."""
+    emulator.device_loop.float32 = True
+    emulator.capabilities |= m.Capability.FLOAT32

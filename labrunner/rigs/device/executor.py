@@ -25,7 +25,7 @@ from labrunner import engine
 from labrunner.control import factory
 from labrunner.control.trajectories import Reference
 from labrunner.rigs.base import Rig
-from labrunner.rigs.device import blocks, lawrecords
+from labrunner.rigs.device import blocks, doclaw, lawrecords
 from labrunner.rigs.device.columns import column_names, to_columns
 from labrunner.rigs.device.description import (
     DEVICE_KINDS,
@@ -196,3 +196,52 @@ def execute(
         message=o.message, device_us=blocks.tick_us(n, description.fs), compute_ns=compute_ns,
     )  # fmt: skip
     return DeviceRun(to_columns(result.signals, channels), verdict, channels)
+
+
+def execute_document(
+    data: bytes,
+    rig: Rig,
+    hook: Hook | None = None,
+    on_accept: Callable[[Description], None] | None = None,
+    tick: Tick | None = None,
+    law_fault: Mapping[str, float] | None = None,
+    dtype: type = np.float32,
+) -> DeviceRun:
+    """:func:`execute` with the law of :mod:`~labrunner.rigs.device.doclaw` computed in ``dtype``
+    (``labrunner emulate --float32``: a single-precision firmware) instead of the engine's loop.
+    The same checks first; ``law_fault`` multiplies the LAW record of each key; the samples go to
+    ``hook`` once the run has ended (in blocks of 1024 ticks)."""
+    description = decode(data)
+    channels, _ = _check(description, rig)
+    for key, factor in (law_fault or {}).items():
+        if key in description.law:
+            description.law[key] = description.law[key] * factor
+    if on_accept is not None:
+        on_accept(description)
+    measure = None
+    if description.sensor_table is None:
+
+        def measure(k: int, u: np.ndarray) -> np.ndarray:
+            if k == 0:
+                return rig.reset(1, [description.seed], description.fs)[0]
+            return rig.step(u[None])[0]
+
+    t0 = time.perf_counter_ns()
+    names = ([s.name for s in rig.info.inputs], [s.name for s in rig.info.outputs])
+    try:
+        rows, v = doclaw.run(description, *names, dtype=dtype, measure=measure, tick=tick)
+    finally:
+        if description.sensor_table is None:
+            rig.safe_state()
+    compute_ns = time.perf_counter_ns() - t0
+    columns = rows.astype(np.float32)
+    n = len(columns)
+    if hook is not None:
+        for first in range(0, n, 1024):
+            hook(first, columns[first : first + 1024])
+    verdict = blocks.Verdict(
+        v["status"], n, n, 0, str(v.get("monitor", "")),
+        *(float(v.get(key, float("nan"))) for key in ("time", "value", "threshold")),
+        message=str(v.get("message", "")), device_us=blocks.tick_us(n, description.fs), compute_ns=compute_ns,
+    )  # fmt: skip
+    return DeviceRun(columns, verdict, channels)

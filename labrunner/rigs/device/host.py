@@ -108,13 +108,16 @@ def run(
     link: linkload.LinkSpec | None = None,
     dead_s: float = session.DEAD_S,
     reference_table: bool = False,
+    arithmetic: str = lawcheck.FLOAT64,
 ) -> list[engine.RunResult]:
     """Run ``points`` on the device one after the other; one RunResult each.
 
     A run the host gives up on (:class:`~labrunner.rigs.device.session.RunFailed`) stops the
     batch: the RigError is re-raised with ``results``, the finished runs and the failed one as a
     ``failed`` RunResult of the rows that had arrived (its partial log, the reason as its message),
-    as :func:`labrunner.engine.run_batch` hands over a host-loop run's."""
+    as :func:`labrunner.engine.run_batch` hands over a host-loop run's. Every run, the failed one
+    too (up to its last row), carries its law check, with the tolerance of ``arithmetic`` (the
+    device's: float64, or float32 where it announces FLOAT32)."""
     descriptions = plan(
         points,
         rig_info,
@@ -138,6 +141,11 @@ def run(
             failed = blocks.Verdict("failed", len(exc.rows), len(exc.rows), 0, message=f"RigError: {exc}")
             partial = to_result(point, rig_info, fs, failed, exc.rows, diagnostics)
             partial.device_clock = exc.clock
+            law = lawcheck.check(
+                point, rig_info, exc.rows, partial.outcome, fs=fs, duration=duration, seed=seed,
+                rig_safety=rig_safety, arithmetic=arithmetic,
+            )  # fmt: skip
+            partial.diagnostics["law_check"] = law.as_dict()
             exc.results = [*results, partial]
             raise
         diagnostics.update(
@@ -150,8 +158,9 @@ def run(
         result = to_result(point, rig_info, fs, verdict, rows, diagnostics)
         result.device_clock = clock
         law = lawcheck.check(
-            point, rig_info, rows, result.outcome, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety
-        )
+            point, rig_info, rows, result.outcome, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety,
+            arithmetic=arithmetic,
+        )  # fmt: skip
         result.diagnostics["law_check"] = law.as_dict()
         results.append(result)
     return results

@@ -21,6 +21,10 @@ another order is 8.9e−16). Columns the measurement does not reach (references,
 input) keep the 2 ulp. A firmware that
 computes the law in float64, as the documents ask (docs/control-laws.md), passes with margin; a
 law that differs by more than the rounding's effect is caught at its first tick.
+
+**float32 devices** (IDENTITY capability FLOAT32): the law's own rounding in single precision is
+added, bounded a priori by :mod:`~labrunner.rigs.device.f32bound` (the law of
+:mod:`~labrunner.rigs.device.doclaw` run on numbers that carry their float32 error bound).
 """
 
 from __future__ import annotations
@@ -33,9 +37,12 @@ import numpy as np
 from labrunner import engine
 from labrunner.control import factory
 from labrunner.rigs.base import RigInfo
+from labrunner.rigs.device import description, doclaw
 from labrunner.rigs.device.columns import column_names
-from labrunner.rigs.device.lawflag import DIVERGED, NOT_CHECKED, OK
+from labrunner.rigs.device.f32bound import Bounded
+from labrunner.rigs.device.lawflag import DIVERGED, FLOAT32, FLOAT64, NOT_CHECKED, OK
 from labrunner.rigs.device.replay import replay, stack_signals
+from labrunner.rigs.transports.messages import Capability
 from labrunner.safety import MONITORS
 
 #: tolerance = this × the spread the float32 rounding of y causes, + 2 ulp (module docstring)
@@ -56,6 +63,8 @@ class LawCheck:
     tolerance: float | None = None
     detail: str = ""
     worst_ratio: float = 0.0  # the largest |device − law| / tolerance over the checked ticks
+    worst_at: str = ""  # its column and tick
+    arithmetic: str = FLOAT64  # the tolerance's: float64, or float32 (the law's rounding bounded a priori)
 
     def as_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -82,19 +91,19 @@ def check(
     seed: int = 0,
     rig_safety: Mapping[str, object] | None = None,
     measured: np.ndarray | None = None,
+    arithmetic: str = FLOAT64,
 ) -> LawCheck:
     """Check a device run of ``point``: its (n, columns) logged ``rows`` in block order and its
     ``outcome`` against the law recomputed from the rows' measurements — or, given the float64
     ``measured`` y the device read (a conformance vector's sensor table), from those: then the
-    dithers are ±:data:`F64_ULPS` float64 ulp (another summation order's rounding), not float32's."""
+    dithers are ±:data:`F64_ULPS` float64 ulp (another summation order's rounding), not float32's.
+    ``arithmetic`` float32: the tolerance adds the a-priori bound of the law's float32 rounding."""
     rows = np.asarray(rows, float)
     if rows.ndim != 2 or rows.shape[0] == 0:
-        return LawCheck(NOT_CHECKED, detail="the device logged no samples")
-    controller, _ = factory.build([point], info, fs)
-    channels = engine.channel_names(info, controller)
-    names = column_names(channels)
+        return LawCheck(NOT_CHECKED, detail="the device logged no samples", arithmetic=arithmetic)
+    names = column_names_of(point, info, fs)
     if measured is None:
-        y = rows[:, [names.index(s) for s in channels["outputs"]]]  # type: ignore[union-attr]
+        y = rows[:, [names.index(s.name) for s in info.outputs]]
         ulp = _ulp32(y)
     else:
         y = np.asarray(measured, float)
@@ -112,26 +121,41 @@ def check(
     expected = law[0][:n]
     scale = np.maximum.accumulate(np.fmax(np.abs(expected), np.abs(rows[:n])), axis=0)  # a value near 0 is a
     tolerance = TOLERANCE_FACTOR * spread + 2.0 * _ulp32(scale)  # cancellation of terms of the column's size
+    if arithmetic == FLOAT32:
+        tolerance += float32_bound(point, info, y, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety)[:n]
     error = np.abs(rows[:n] - expected)
     both_nan = np.isnan(rows[:n]) & np.isnan(expected)
     bad = ~both_nan & ~(error <= tolerance)  # NaN on one side only counts as a divergence
+    if (outcome.monitor or "") in NON_FINITE and rows.shape[0] <= n:
+        bad[rows.shape[0] - 1, free_at_fault(names, info)] = False  # docs/control-laws.md, "A non-finite measurement"
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(bad | both_nan, 0.0, error / np.where(tolerance > 0, tolerance, np.inf))
+    ratio[~np.isfinite(ratio)] = 0.0  # a tick whose estimates may be NaN (above)
     worst = float(np.max(ratio, initial=0.0))
+    at = np.unravel_index(int(np.argmax(ratio)), ratio.shape) if ratio.size else (0, 0)
+    where = f"{names[at[1]]} at tick {int(at[0])}" if worst > 0 else ""
     if bad.any():
         k, c = np.argwhere(bad)[0]
         return LawCheck(
             f"{DIVERGED}@tick {int(k)}", int(k), names[c], float(rows[k, c]), float(expected[k, c]),
             float(tolerance[k, c]),
             f"{names[c]} at tick {int(k)} (t = {k / fs:.6g} s): device {rows[k, c]:.9g}, law {expected[k, c]:.9g}, "
-            f"tolerance {tolerance[k, c]:.3g}",
-            worst,
+            f"tolerance {tolerance[k, c]:.3g} ({arithmetic})",
+            worst, where, arithmetic,
         )  # fmt: skip
     base = (outcome.monitor or "").partition(":")[0]
     if outcome.status == "aborted" and base not in MONITORS:
         k = rows.shape[0] - 1
         detail = f"the device's monitor {outcome.monitor!r} is none of the safety routine's ({', '.join(MONITORS)})"
-        return LawCheck(f"{DIVERGED}@tick {k}", k, "verdict", detail=detail, worst_ratio=worst)
+        return LawCheck(
+            f"{DIVERGED}@tick {k}",
+            k,
+            "verdict",
+            detail=detail,
+            worst_ratio=worst,
+            worst_at=where,
+            arithmetic=arithmetic,
+        )
     if outcome.status != "failed":  # a failed run (stopped, a link fault) has no verdict of the law's to match
         mine = (outcome.status, outcome.monitor or None, rows.shape[0])
         theirs = [(r.outcome.status, r.outcome.monitor, r.n_samples) for r in runs]
@@ -142,9 +166,56 @@ def check(
                 f"{DIVERGED}@tick {k}", k, "verdict", detail=(
                     f"the device ended {outcome.status}{_on(outcome.monitor)} after {rows.shape[0]} ticks, "
                     f"the law {status}{_on(monitor)} after {m}"
-                ), worst_ratio=worst,
+                ), worst_ratio=worst, worst_at=where, arithmetic=arithmetic,
             )  # fmt: skip
-    return LawCheck(OK, detail=f"{n} ticks × {len(names)} columns within tolerance", worst_ratio=worst)
+    detail = f"{n} ticks × {len(names)} columns within the {arithmetic} tolerance"
+    return LawCheck(OK, detail=detail, worst_ratio=worst, worst_at=where, arithmetic=arithmetic)
+
+
+def float32_bound(
+    point: Mapping[str, object],
+    info: RigInfo,
+    y: np.ndarray,
+    *,
+    fs: float,
+    duration: float,
+    seed: int = 0,
+    rig_safety: Mapping[str, object] | None = None,
+) -> np.ndarray:
+    """(ticks, columns): per tick and logged column, how far a float32 computation of the law on
+    the measurements ``y`` can be from the float64 law (docs/control-laws.md, "float32 devices");
+    past the bounded run's end, its last row."""
+    data = description.build(point, info, fs=fs, duration=duration, seed=seed, rig_safety=rig_safety, sensor_table=y)
+    names = ([s.name for s in info.inputs], [s.name for s in info.outputs])
+    _, verdict = doclaw.run(description.decode(data), *names, dtype=Bounded)
+    bounds = np.asarray(verdict["bounds"], float).reshape(-1, len(column_names_of(point, info, fs)))
+    if len(bounds) == 0:
+        return np.zeros((len(y), bounds.shape[1]))
+    if len(bounds) < len(y):
+        bounds = np.concatenate([bounds, np.repeat(bounds[-1:], len(y) - len(bounds), axis=0)])
+    return bounds
+
+
+NON_FINITE = ("non_finite_input", "non_finite_output")
+
+
+def free_at_fault(names: list[str], info: RigInfo) -> list[int]:
+    """The columns a tick with a non-finite measurement may log as NaN or as a number: the
+    estimates and the controlled outputs not measured (a FIR may or may not multiply x[k] by a
+    zero weight); its inputs, measured outputs and references are checked."""
+    fixed = {s.name for s in (*info.inputs, *info.outputs)}
+    return [j for j, name in enumerate(names) if name not in fixed and not name.startswith("ref_")]
+
+
+def arithmetic_of(capabilities: int) -> str:
+    """The arithmetic a device computes its laws in, from its IDENTITY capabilities (bit FLOAT32)."""
+    return FLOAT32 if capabilities & Capability.FLOAT32 else FLOAT64
+
+
+def column_names_of(point: Mapping[str, object], info: RigInfo, fs: float) -> list[str]:
+    """The logged columns of ``point``'s device run (SAMPLES order)."""
+    controller, _ = factory.build([point], info, fs)
+    return column_names(engine.channel_names(info, controller))
 
 
 def _envelope(spread: np.ndarray) -> np.ndarray:

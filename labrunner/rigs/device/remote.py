@@ -18,7 +18,7 @@ from typing import Any
 
 from labrunner.engine import RunResult
 from labrunner.errors import RigError
-from labrunner.rigs.device import host, session
+from labrunner.rigs.device import host, lawcheck, session
 from labrunner.rigs.transports import linkload, messages as m
 from labrunner.rigs.transports.protocol import Frame, Kind
 
@@ -86,6 +86,7 @@ def run_on_device(
     send, recv = adapters(rig)
     spec = linkload.from_rig(rig.KIND, rig.parameters)
     wd = watchdog_s(rig.parameters, fs)
+    arithmetic = lawcheck.arithmetic_of(rig.identity.capabilities)
     results: list[RunResult] = []
     for point, seed in zip(points, seeds):
         rig._drain()
@@ -116,6 +117,7 @@ def run_on_device(
                 watchdog_s=wd,
                 link=spec,
                 reference_table=bool(rig.parameters["reference_table"]),
+                arithmetic=arithmetic,
             )
         except RigError as exc:  # the run failed on the host: SAFE ends it on the device (best effort)
             with contextlib.suppress(RigError):

@@ -32,11 +32,33 @@ _PLATE_REF = {"kind": "lift", "lift": 0.004, "settle": 0.001, "transition": 0.00
 _VALVE_REF = {"kind": "setpoints", "levels": [1.0, 5.0, 0.0], "transition": 0.1, "hold": 0.05}
 
 
-def _plate_mfc(input: str, gamma: float) -> dict[str, object]:
+_MOTOR_SINE = {"kind": "sine", "amplitude": 6.0, "frequency": 1.0, "duration": 1.0}
+_VALVE_FFC = {"kind": "valve-ffc", "dp": 3.0e5}
+
+
+def _plate_mfc(input: str, gamma: float, **safety: object) -> dict[str, object]:
     return {
         "controller": {"kind": "plate-mfc", "input": input, "gamma": gamma, "k_p": 5000.0, "k_d": 195.0},
         "differentiator": dict(_PLATE_DIFF),
         "reference": dict(_PLATE_REF),
+        **({"safety": safety} if safety else {}),
+    }
+
+
+def _open_loop(reference: Mapping[str, object], **safety: object) -> dict[str, object]:
+    return {"controller": {"kind": "open-loop"}, "reference": dict(reference), **({"safety": safety} if safety else {})}
+
+
+def _valve_ffc(**safety: object) -> dict[str, object]:
+    return {"controller": dict(_VALVE_FFC), "reference": dict(_VALVE_REF), **({"safety": safety} if safety else {})}
+
+
+def _mfc1_motor(**safety: object) -> dict[str, object]:
+    return {
+        "controller": {"kind": "mfc1", "output": "velocity", "gamma": 108.55, "k_p": 30.0},
+        "differentiator": dict(_MOTOR_DIFF),
+        "reference": dict(_MOTOR_REF),
+        **({"safety": safety} if safety else {}),
     }
 
 
@@ -49,6 +71,7 @@ class Case:
     fs: float
     duration: float
     seed: int = 1
+    nan_at: tuple[int, int] | None = None  #: (tick, output): the sensor reads NaN there (a sensor fault)
 
 
 #: name → case (the shipped set, docs/vectors/)
@@ -99,6 +122,77 @@ CASES: dict[str, Case] = {
     "plate-mfc-u": Case(_plate_mfc("u", 1.6e-5), "plate-sim", 32000.0, 0.01),
     "plate-mfc-current": Case(_plate_mfc("current", 0.04), "plate-sim", 32000.0, 0.01),
     "plate-mbc": Case({"controller": {"kind": "plate-mbc"}, "reference": dict(_PLATE_REF)}, "plate-sim", 32000.0, 0.01),
+    # every law feature and safety monitor for every rig kind (docs/control-laws.md, "Coverage")
+    "mfc1-motor-saturation": Case(
+        {"controller": {"kind": "mfc1", "output": "velocity", "gamma": 40.0, "k_p": 60.0, "u_min": -2.0, "u_max": 9.0},
+         "differentiator": dict(_MOTOR_DIFF),
+         "reference": {"kind": "setpoints", "levels": [0.0, 60.0, 0.0], "transition": 0.15, "hold": 0.25},
+         "safety": {"max_du_dt": 1.0e6}},
+        "dcmotor-sim", 200.0, 1.0,
+    ),
+    "open-loop-motor-steps": Case(
+        _open_loop({"kind": "steps", "levels": [1.0, 3.0, 2.0], "durations": [0.3, 0.3, 0.4]}, max_du_dt=1.0e6),
+        "dcmotor-sim", 200.0, 1.0,
+    ),
+    "open-loop-motor-input_high": Case(_open_loop(_MOTOR_SINE, input_bounds={"u": [-12.0, 4.0]}), "dcmotor-sim", 200.0, 1.0),
+    "open-loop-motor-input_low": Case(_open_loop(_MOTOR_SINE, input_bounds={"u": [-4.0, 12.0]}), "dcmotor-sim", 200.0, 1.0),
+    "open-loop-motor-output_low": Case(
+        _open_loop({"kind": "steps", "levels": [0.0, -6.0], "durations": [0.1, 0.9]}, output_bounds={"theta": [-0.5, 100.0]},
+                   max_du_dt=1.0e6),
+        "dcmotor-sim", 200.0, 1.0,
+    ),
+    "mfc1-motor-output_high": Case(_mfc1_motor(output_bounds={"theta": [-100.0, 1.0]}), "dcmotor-sim", 200.0, 1.0),
+    "mfc1-motor-non_finite_input": Case(_mfc1_motor(), "dcmotor-sim", 200.0, 1.0, nan_at=(50, 0)),
+    "open-loop-motor-non_finite_output": Case(_open_loop(_MOTOR_SINE), "dcmotor-sim", 200.0, 1.0, nan_at=(50, 0)),
+    "open-loop-motor-run_time": Case(_open_loop(_MOTOR_SINE, max_duration=0.5), "dcmotor-sim", 200.0, 1.0),
+    "open-loop-motor-no-motion-level": Case(_open_loop(_MOTOR_SINE, motion_min_level=100.0), "dcmotor-sim", 200.0, 1.0),
+    "valve-ffc-saturation": Case(
+        {"controller": dict(_VALVE_FFC),
+         "reference": {"kind": "setpoints", "levels": [1.0, 30.0, 1.0], "transition": 0.1, "hold": 0.05}},
+        "valve-sim", 4000.0, 0.35,
+    ),
+    "valve-ffc-output_high": Case(_valve_ffc(output_bounds={"q": [-1.0, 4.0]}), "valve-sim", 4000.0, 0.35),
+    "valve-ffc-output_low": Case(_valve_ffc(output_bounds={"q": [0.5, 100.0]}), "valve-sim", 4000.0, 0.35),
+    "valve-ffc-input_high": Case(_valve_ffc(input_bounds={"i": [0.0, 0.6]}), "valve-sim", 4000.0, 0.35),
+    "valve-ffc-input_low": Case(_valve_ffc(input_bounds={"i": [0.54, 1.01]}), "valve-sim", 4000.0, 0.35),
+    "valve-ffc-du_dt": Case(_valve_ffc(max_du_dt=5.0), "valve-sim", 4000.0, 0.35),
+    "mfc1-valve-non_finite_input": Case({
+        "controller": {"kind": "mfc1", "output": "flow", "gamma": 0.4, "k_p": 30.0, "i_min": 0.5},
+        "differentiator": {"alpha": 2, "beta": 2, "N": 0, "omega_c": 250.0, "method": "midpoint"},
+        "reference": dict(_VALVE_REF)}, "valve-sim", 4000.0, 0.35, nan_at=(600, 0)),
+    "valve-ffc-non_finite_output": Case(_valve_ffc(), "valve-sim", 4000.0, 0.35, nan_at=(600, 0)),
+    "valve-ffc-run_time": Case(_valve_ffc(max_duration=0.2), "valve-sim", 4000.0, 0.35),
+    "open-loop-valve-no-motion": Case(
+        _open_loop({"kind": "steps", "levels": [0.2, 0.3], "durations": [0.1, 0.25]}), "valve-sim", 4000.0, 0.35
+    ),
+    "plate-mfc-derived-output_low": Case(
+        _plate_mfc("v", 1.0, output_bounds={f"h{j}": [5.3e-3, 5.6e-3] for j in range(1, 5)}), "plate-sim", 32000.0, 0.01
+    ),
+    "plate-mfc-derived-output_high": Case(
+        _plate_mfc("v", 1.0, output_bounds={f"h{j}": [0.8e-3, 5.5e-3] for j in range(1, 5)}), "plate-sim", 32000.0, 0.01
+    ),
+    "plate-mfc-output_low": Case(_plate_mfc("v", 1.0, output_bounds={"y2": [5.3e-3, 1.0]}), "plate-sim", 32000.0, 0.01),
+    "plate-mfc-output_high": Case(_plate_mfc("v", 1.0, output_bounds={"y3": [0.0, 5.5e-3]}), "plate-sim", 32000.0, 0.01),
+    "plate-mfc-input_high": Case(
+        _plate_mfc("v", 1.0, input_bounds={f"i{j}": [0.0, 6.0] for j in range(1, 5)}), "plate-sim", 32000.0, 0.01
+    ),
+    "plate-mbc-input_low": Case(
+        {"controller": {"kind": "plate-mbc"}, "reference": dict(_PLATE_REF),
+         "safety": {"input_bounds": {f"i{j}": [0.1, 8.0] for j in range(1, 5)}}},
+        "plate-sim", 32000.0, 0.01,
+    ),
+    "plate-mfc-du_dt": Case(_plate_mfc("force", 1.0, max_du_dt=2.0e3, du_dt_omega_c=8000.0), "plate-sim", 32000.0, 0.01),
+    "plate-mfc-non_finite_input": Case(_plate_mfc("v", 1.0), "plate-sim", 32000.0, 0.01, nan_at=(100, 1)),
+    "plate-mfc-non_finite_output": Case(_plate_mfc("v", 1.0), "plate-sim", 32000.0, 0.01, nan_at=(100, 3)),
+    "plate-mfc-run_time": Case(_plate_mfc("v", 1.0, max_duration=0.005), "plate-sim", 32000.0, 0.01),
+    "plate-mbc-no-motion": Case(
+        {"controller": {"kind": "plate-mbc"}, "reference": dict(_PLATE_REF), "safety": {"motion_min_change": 1.0}},
+        "plate-sim", 32000.0, 0.01,
+    ),
+    "plate-mbc-no-motion-level": Case(
+        {"controller": {"kind": "plate-mbc"}, "reference": dict(_PLATE_REF), "safety": {"motion_min_level": 1.0}},
+        "plate-sim", 32000.0, 0.01,
+    ),
 }  # fmt: skip
 
 
@@ -124,6 +218,8 @@ def build(case: Case) -> Vector:
     point = dict(case.point)
     twin = engine.run_batch([point], rig, fs=case.fs, duration=case.duration, seeds=[case.seed], rig_safety=safety)[0]
     y = np.stack([twin.signals[s.name] for s in rig.info.outputs], axis=1)
+    if case.nan_at is not None:
+        y[case.nan_at] = np.nan
     data = description.build(
         point, rig.info, fs=case.fs, duration=case.duration, seed=case.seed, rig_safety=safety, sensor_table=y
     )

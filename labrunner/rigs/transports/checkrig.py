@@ -73,9 +73,16 @@ def _link_load(config: RigConfig, stream: dict[str, Any], n_in: int, n_out: int,
     }
 
 
-def check_rig(config: RigConfig, pings: int = 200, campaign: str | None = None) -> dict[str, Any]:
+def check_rig(
+    config: RigConfig,
+    pings: int = 200,
+    campaign: str | None = None,
+    dead_time: bool = False,
+    step: float | None = None,
+) -> dict[str, Any]:
     """Open the rig, handshake, ping it ``pings`` times; the report as a JSON-friendly dict
-    (the device loop's stream counted for ``campaign``'s first point, see :func:`streamed_columns`)."""
+    (the device loop's stream counted for ``campaign``'s first point, see :func:`streamed_columns`).
+    ``dead_time``: also run the dead-time step (:mod:`.deadtime`; it moves the rig) of ``step``."""
     stream = streamed_columns(config, campaign)  # a bad campaign is refused before the rig opens
     from labrunner.rigs.registry import load_rig
 
@@ -89,6 +96,10 @@ def check_rig(config: RigConfig, pings: int = 200, campaign: str | None = None) 
             "rejected": rig.device.rejected,
             "last_error": m.ErrorCode(rig.device.last_error).name,
         }
+        if dead_time:
+            from labrunner.rigs.transports.deadtime import dead_time as measure
+
+            delay = measure(config, rig, step)
     finally:
         rig.close()
     p = config.parameters
@@ -127,6 +138,8 @@ def check_rig(config: RigConfig, pings: int = 200, campaign: str | None = None) 
     load = _link_load(config, stream, ident.n_inputs, ident.n_outputs, float(bitrate))
     report["link_load"] = load
     report["max_host_fs"] = min(RTT_MARGIN / float(np.percentile(rtt, 99)), load["max_host_fs_by_load"], ident.max_fs)
+    if dead_time:
+        report["dead_time"] = delay
     return report
 
 
@@ -156,4 +169,12 @@ def describe(report: dict[str, Any]) -> list[str]:
         f"{'' if ld['device_streams'] else ' (sent after the run)'}"
     )
     lines.append(f"  the host loop sustains up to {report['max_host_fs']:.0f} Hz with margin")
+    if "dead_time" in report:
+        d = report["dead_time"]
+        after = ", ".join(
+            f"{who} moves {d[key] * 1e3:.3g} ms after it" if d[key] is not None else f"{who} does not move"
+            for who, key in (("the rig", "rig_motion_after_s"), ("the twin", "twin_motion_after_s"))
+        )
+        lines.append(f"  dead time ({d['output']}, a step of the input to {d['step']:g}): {after}")
+        lines.append(f"  dead time: {d['verdict'].upper()} — {d['detail']}")
     return lines

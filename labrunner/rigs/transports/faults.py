@@ -131,3 +131,26 @@ class FaultyLink:
 
     def _can_send(self, arbitration_id: int, data: bytes) -> None:
         self.inner.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+
+
+class LateInputRig:
+    """``rig`` applying each input ``ticks`` ticks late (the safe input before then): a device
+    whose actuator path lags its law (``labrunner emulate --input-delay N``). The law's u is what
+    the device logs and y is measured, so the law check and ``conform`` cannot see it; ``check-rig``'s
+    dead-time test can (docs/control-laws.md, "What the checks do not cover")."""
+
+    def __init__(self, rig, ticks: int) -> None:
+        self._rig, self.ticks = rig, int(ticks)
+        self._queue: list = []
+
+    def __getattr__(self, name: str):
+        return getattr(self._rig, name)
+
+    def reset(self, batch, seeds, fs, overrides=None):
+        y = self._rig.reset(batch, seeds, fs, overrides)
+        self._queue = [self._rig.applied_input.copy() for _ in range(self.ticks)]
+        return y
+
+    def step(self, u):
+        self._queue.append(u)
+        return self._rig.step(self._queue.pop(0))

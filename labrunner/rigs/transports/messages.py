@@ -52,6 +52,7 @@ class Capability(IntFlag):
     HOST_LOOP = 0x01  # serves SETUP/INPUT/MEASUREMENT ticks
     DEVICE_LOOP = 0x02  # runs a run description on board (docs/device-loop.md)
     CAN_FD = 0x04  # accepts CAN FD frames (64-byte bulk payloads)
+    FLOAT32 = 0x08  # computes its control laws in float32 (docs/control-laws.md tolerance)
 
 
 FLAG_COMMIT = 0x01  # INPUT: last channel of this tick: the inputs take effect

@@ -73,6 +73,10 @@ COMMON = {
 }
 
 
+class WrongDevice(RigError):
+    """The device answered the handshake but is not the rig file's (protocol version, kind, channels)."""
+
+
 class RemoteRig(Rig):
     """Host side of the rig protocol over any :class:`Link`; subclasses open the link from a rig file."""
 
@@ -165,7 +169,8 @@ class RemoteRig(Rig):
             if got != want
         ]
         if wrong:
-            self._fail("the device reports " + ", ".join(wrong))
+            self.safe_state()
+            raise WrongDevice(f"rig {self.info.name!r}: the device reports " + ", ".join(wrong))
         self.identity = ident
         return ident
 
@@ -241,6 +246,11 @@ class RemoteRig(Rig):
                 except RigError:
                     if attempt == 2:
                         raise
+        except WrongDevice as exc:  # it answered: alive, but not the device the rig file describes
+            raise RigError(
+                f"{exc}; after the failure the device answers the handshake but is not the rig file's device "
+                "(check the rig file, the node id and the wiring)"
+            ) from None
         except RigError as exc:
             raise RigError(
                 f"{exc}; after the failure the device does not answer a fresh handshake: it may be dead or "

@@ -1,0 +1,159 @@
+"""float32 devices (docs/control-laws.md, "float32 devices"): the law computed in single precision
+(labrunner/rigs/device/doclaw.py with dtype float32, every operation on float32 values) passes
+the law check under the a-priori float32 tolerance on every conformance vector, while γ off by
+1 % in float32 still fails it; the bound itself holds against exact float32 arithmetic."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from labrunner.rigs.device import description, doclaw, f32bound, lawcheck, vectors
+from labrunner.rigs.device.f32bound import Bounded
+from labrunner.rigs.registry import load_rig
+
+
+def _law_check(name: str, dtype, arithmetic: str, key: str = "gamma", factor: float = 1.0) -> lawcheck.LawCheck:
+    """The float32 (``dtype``) document law on vector ``name``'s table, checked as conform checks it."""
+    case = vectors.CASES[name]
+    vector = vectors.build(case)
+    info = load_rig(case.rig).info
+    d = description.decode(vector.data)
+    if key in d.law:
+        d.law[key] = d.law[key] * factor
+    rows, verdict = doclaw.run(d, [s.name for s in info.inputs], [s.name for s in info.outputs], dtype=dtype)
+    rows = rows.astype(np.float32).astype(float)  # as logged
+    from labrunner.rigs.device.host import to_result
+
+    outcome = to_result(case.point, info, case.fs, _verdict(verdict, len(rows)), rows, {}).outcome
+    y = vector.rows[:, [vector.columns.index(s.name) for s in info.outputs]]
+    return lawcheck.check(
+        case.point, info, rows, outcome, fs=case.fs, duration=case.duration, seed=case.seed,
+        rig_safety=vectors.rig_safety(case), measured=y, arithmetic=arithmetic,
+    )  # fmt: skip
+
+
+def _verdict(v: dict, n: int):
+    from labrunner.rigs.device import blocks
+
+    return blocks.Verdict(
+        v["status"], n, n, 0, str(v.get("monitor", "")),
+        *(float(v.get(k, float("nan"))) for k in ("time", "value", "threshold")),
+    )  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(vectors.CASES))
+def test_a_float32_device_passes_every_vector_under_the_float32_tolerance(name):
+    law = _law_check(name, np.float32, lawcheck.FLOAT32)
+    assert law.ok, law.detail
+    assert law.arithmetic == "float32"
+    assert law.worst_ratio < 1.0
+
+
+_OFF = [  # the law vectors (a safety vector may trip before the gain shows)
+    (n, "gamma") for n, c in vectors.CASES.items() if "gamma" in c.point["controller"] and "safety" not in c.point
+    and c.nan_at is None
+] + [("plate-mbc", "c_p")]  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, key", _OFF)
+def test_a_gain_one_percent_off_in_float32_still_fails(name, key):
+    """γ (c_p for the plate's model-based law, which has no γ) × 1.01 in a float32 law."""
+    law = _law_check(name, np.float32, lawcheck.FLOAT32, key, 1.01)
+    assert law.flag.startswith("diverged@tick"), law.detail
+    assert "(float32)" in law.detail
+
+
+def test_the_float64_tolerance_does_not_cover_a_float32_device():
+    """Why the arithmetic must be announced: the float64 check flags a correct float32 law."""
+    assert not _law_check("mfc1-motor-velocity", np.float32, lawcheck.FLOAT64).ok
+    assert _law_check("mfc1-motor-velocity", np.float64, lawcheck.FLOAT64).ok
+
+
+def test_a_dot_products_bound_holds_for_float32_sums_in_any_order():
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        w, x = rng.normal(size=200) * 10.0 ** rng.integers(-3, 4), rng.normal(size=200)
+        w32, x32 = w.astype(np.float32), x.astype(np.float32)
+        bound = f32bound.dot(np.array([Bounded(v) for v in w]), np.array([Bounded(v) for v in x]))
+        exact = float(np.dot(w, x))
+        assert bound.v == pytest.approx(exact)
+        for order in (np.arange(200), np.arange(200)[::-1], rng.permutation(200)):
+            s = np.float32(0)
+            for j in order:
+                s = np.float32(s + w32[j] * x32[j])
+            assert abs(float(s) - exact) <= bound.e
+        assert bound.e < 1e-3 * np.sum(np.abs(w * x))  # and it is not vacuous
+
+
+def test_sqrt_near_zero_is_bounded_by_the_square_root_of_the_error():
+    q = Bounded(1e-12, 1e-10)  # the float32 value may be anything in [0, 1.01e-10]
+    assert q.sqrt().e >= np.sqrt(1.01e-10) - 1e-6
+    assert Bounded(4.0, 0.0).sqrt().e == pytest.approx(2.0 * f32bound.U)
+
+
+@pytest.mark.slow
+def test_conform_checks_an_emulated_float32_device_under_the_float32_tolerance(tmp_path):
+    from tests.test_conform import MOTOR_CASES, _conform
+    from tests.test_deviceloop_link import emulator_process, rig_file
+
+    with emulator_process(rig_file("motor-mfc1", "canfd"), ("--float32",)) as config:
+        code, report = _conform(tmp_path, config, "--no-protocol")
+    assert code == 0, [c for c in report["checks"] if not c["passed"]]
+    checks = {c["name"]: c["detail"] for c in report["checks"]}
+    assert "laws in float32" in checks["handshake"]
+    for case in MOTOR_CASES:
+        assert "of the float32 tolerance" in checks[f"vector {case}"]
+    with emulator_process(rig_file("motor-mfc1", "canfd"), ("--float32", "--fault-law", "gamma=1.01")) as config:
+        code, report = _conform(tmp_path, config, "--no-protocol")
+    failed = {c["name"] for c in report["checks"] if not c["passed"]}
+    assert code == 1 and failed == {f"vector {c}" for c in MOTOR_CASES if not c.startswith("open-loop")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["motor-mfc2", "valve-mfc1"])
+def test_a_plant_run_on_a_float32_device_passes_its_float32_law_check(name):
+    """The closed loop with the twin, the law in float32: the run's law check is ok and says float32."""
+    from tests.test_deviceloop_link import device_run, emulator_process, rig_file
+
+    with emulator_process(rig_file(name, "can"), ("--float32",)) as config:
+        result = device_run(name, config)
+    law = result.diagnostics["law_check"]
+    assert law["flag"] == "ok" and law["arithmetic"] == "float32", law
+    assert result.outcome.status in ("completed", "aborted")
+
+
+def test_a_filters_bound_with_its_tail_folded_in_still_bounds_the_full_sum():
+    """The FILTER bound keeps N terms of its impulse response and bounds the rest by a geometric
+    tail: it must stay above the full sum Σ_j |C A^(k−1−j)| η_j (computed here directly) and not
+    far above it."""
+    rng = np.random.default_rng(5)
+    n, p, m = 3, 1, 1
+    Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
+    A = Q @ np.diag([0.95, -0.9, 0.8]) @ Q.T  # stable, |A| with a spectral radius above 1
+    B, C, D = rng.normal(size=(n, m)), rng.normal(size=(p, n)), rng.normal(size=(p, m))
+    M = np.zeros((n + m, p + n))
+    M[:n, p:], M[n:, p:], M[:n, :p], M[n:, :p] = A.T, B.T, C.T, D.T
+    w = rng.normal(size=400)
+    filt = f32bound.FilterBound(np.array([[Bounded(v) for v in row] for row in M]), n, p, np.array([Bounded(w[0])]))
+    got = [filt.step(np.array([Bounded(v)]))[0].e for v in w]
+    assert filt.tail is not None and len(filt.kernel) < 100  # the tail was folded in
+    g = f32bound.gamma(n + m + 1)
+    steady = np.linalg.solve(np.eye(n) - A, B)
+    x = steady @ w[:1]
+    e_x0 = f32bound.U * np.abs(x) + np.abs(steady) @ (f32bound.U * np.abs(w[:1]))
+    etas, full = [], []
+    for k, v in enumerate(w):
+        e_w = f32bound.U * abs(v)
+        e = g * (np.abs(C) @ np.abs(x) + np.abs(D) @ [abs(v)]) + np.abs(D) @ [e_w]
+        e += np.abs(C @ np.linalg.matrix_power(A, k)) @ e_x0
+        e += sum(np.abs(C @ np.linalg.matrix_power(A, k - 1 - j)) @ eta for j, eta in enumerate(etas))
+        full.append(float(e[0]) + f32bound.U * abs(float((C @ x + D @ [v])[0])))
+        etas.append(g * (np.abs(A) @ np.abs(x) + np.abs(B) @ [abs(v)]) + np.abs(B) @ [e_w])
+        x = A @ x + B @ [v]
+    assert all(a >= b * (1 - 1e-12) for a, b in zip(got, full))
+    assert (
+        max(a / b for a, b in zip(got, full)) < 5.0
+    )  # measured: at most 3.3 (the tail takes max ‖η‖ of all old ticks)
