@@ -19,6 +19,16 @@ Slots are the runner's: the scheduler reserves one for a batch when it submits i
 when the batch's result (or its abandonment) is in; a slot holds :data:`QUEUED` until a worker
 takes the batch, then the ticks done. A real rig runs in the runner's own process, one run per
 batch, and is counted per run (no channel).
+
+The pool's array also carries one word the other way, the runner's *stop level*
+(:meth:`LiveTicks.stop`), read by the worker at each report: :data:`START_NOTHING` — a batch
+that a worker takes from now on returns unrun (:class:`Stopped`) instead of starting;
+:data:`STOP_RUNNING` — running batches stop too, at their next report (≤ 1 % of their ticks),
+the rig put in its safe state by the engine, nothing published. This is how one Ctrl-C stops a
+campaign within a second, rather than after every batch already handed to the pool has run (a
+queued future of a process pool cannot be cancelled safely: killing the pool later makes its
+manager thread fail on it with ``InvalidStateError``). Dask workers share no memory with the
+runner: there the level is not seen and running batches finish.
 """
 
 from __future__ import annotations
@@ -30,8 +40,17 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from labrunner.errors import LabrunnerError
+
 QUEUED = -1  # a slot's value while its batch waits for a worker
+START_NOTHING = 1  # stop level: batches not yet taken by a worker return unrun
+STOP_RUNNING = 2  # stop level: running batches stop at their next report too
 _channel: Any = None  # in a pool worker: the shared array (install)
+
+
+class Stopped(LabrunnerError):
+    """Raised by a report (:func:`hook`) when the runner's stop level says this batch must end
+    now; the worker returns the batch unrun (its points go back to planned)."""
 
 
 @dataclass(frozen=True)
@@ -45,11 +64,11 @@ class Address:
 
 
 class LiveTicks:
-    """``slots`` counters of ticks done, one per batch in flight (module docstring); shared
-    memory when ``context`` (a multiprocessing context) starts the workers."""
+    """``slots`` counters of ticks done, one per batch in flight, and the stop level after them
+    (module docstring); shared memory when ``context`` (a multiprocessing context) starts the workers."""
 
     def __init__(self, slots: int, context: Any = None, *, topic: str | None = None) -> None:
-        self.array = (context or multiprocessing).RawArray("q", slots)
+        self.array = (context or multiprocessing).RawArray("q", slots + 1)
         self.topic = topic
         self._serials = [0] * slots
         self._free = list(range(slots - 1, -1, -1))
@@ -74,6 +93,10 @@ class LiveTicks:
         """Ticks done by the batch at ``address`` (QUEUED before a worker took it and without an address)."""
         return QUEUED if address is None else int(self.array[address.slot])
 
+    def stop(self, level: int) -> None:
+        """Raise the stop level the pool's workers read (:data:`START_NOTHING`, :data:`STOP_RUNNING`)."""
+        self.array[-1] = max(int(self.array[-1]), level)
+
     def receive(self, event: tuple[float, Any]) -> None:
         """A Dask event ``(time, [slot, serial, ticks])`` from a worker's report (:func:`hook`)."""
         slot, serial, ticks = event[1]
@@ -89,8 +112,10 @@ def install(array: Any) -> None:
 
 
 def hook(address: Address | None) -> Callable[[int], None] | None:
-    """What the worker hands the engine for the batch at ``address``: passes the ticks done on.
-    None without an address (a real rig) or a channel (a pool worker without :func:`install`)."""
+    """What the worker hands the engine for the batch at ``address``: passes the ticks done on
+    and, in a pool worker, raises :class:`Stopped` when the runner's stop level asks (0 ticks:
+    the batch is being taken). None without an address (a real rig) or a channel (a pool worker
+    without :func:`install`)."""
     if address is None:
         return None
     if address.topic is not None:
@@ -108,6 +133,9 @@ def hook(address: Address | None) -> Callable[[int], None] | None:
         return None
 
     def write(ticks: int) -> None:
+        level = array[len(array) - 1]
+        if level >= STOP_RUNNING or (level and ticks == 0):
+            raise Stopped("stopped by the runner")
         array[address.slot] = ticks
 
     return write

@@ -72,6 +72,7 @@ class BatchResult:
 
     records: list[RunRecord] = field(default_factory=list)
     stop: str = ""  # non-empty: the reason to stop the campaign
+    unrun: bool = False  # the runner's stop level ended the batch before it ran to the end: nothing published
     failure_limit: int = 0  # the rig's max_consecutive_failures: points in a row failed that stop it (0: none)
 
 
@@ -146,13 +147,30 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     its safe state, else the parent stops (architecture: "stop-campaign"). ``failure_limit`` tells
     the parent the rig's ``max_consecutive_failures``. Any other exception marks the batch's
     points failed with the message (they have no log) and the campaign goes on. The ticks done go
-    to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass.
+    to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass; when the runner
+    stops (Ctrl-C) the batch ends there unrun (``unrun``: nothing published, the rig in its safe state).
     """
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
     report = live.hook(task.live_at)
-    if report is not None:
-        report(0)  # taken: no longer queued
+    try:
+        if report is not None:
+            report(0)  # taken: no longer queued
+        return _execute(task, out, report, run_batch, host, pid)
+    except live.Stopped:
+        out.records, out.unrun = [], True
+        return out
+
+
+def _execute(
+    task: BatchTask,
+    out: BatchResult,
+    report: Callable[[int], None] | None,
+    run_batch: Callable[..., Sequence[Any]] | None,
+    host: str,
+    pid: int,
+) -> BatchResult:
+    """:func:`execute_batch` once the batch is taken: load the rig, run, publish."""
     t0, start_time = time.perf_counter(), time.time()
     try:
         rig, rig_record = _load_rig(task)
@@ -177,6 +195,8 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
             except RigError as exc:
                 exc.after = _recover(rig)
                 raise
+    except live.Stopped:
+        raise
     except RigError as exc:  # the engine hands over the failed runs' logs up to the failure when it has them
         after = getattr(exc, "after", "")  # None: the device is back in its safe state, the campaign goes on
         if after is not None:

@@ -61,7 +61,14 @@ def report(outcome, directory: str, command: str) -> int:
         )
         raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`{retry}")
     if outcome.interrupted:
-        print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
+        if outcome.complete:
+            print(f"labrunner {command}: interrupted after the last run: the campaign is complete", file=sys.stderr)
+            return 0
+        left = outcome.counts.get("planned", 0) + outcome.counts.get("claimed", 0)
+        what = f"{left} of {sum(outcome.counts.values())} points left" if left else "its procedure has not finished"
+        print(
+            f"labrunner {command}: interrupted; {what}; continue with `labrunner resume {directory}`", file=sys.stderr
+        )
         return 130
     return 0
 
