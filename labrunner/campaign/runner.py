@@ -3,13 +3,15 @@
 ``start`` validates the whole campaign (every point) before it creates anything, refuses a
 directory that already holds a campaign, creates the directory, takes its lock, writes the
 ledger atomically and runs. ``resume`` takes the lock (a dead runner's lock is taken over),
-refuses a campaign whose file changed what would run, settles what a crash left behind
+runs the campaign's own stored copy (an edited original is only noted), refuses a campaign
+whose rig file or planning code changed what would run, settles what a crash left behind
 (:mod:`labrunner.campaign.recovery`) and runs what is left. ``status`` only reads.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import socket
 import sqlite3
@@ -115,6 +117,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
                 "created_at": repr(time.time()),
                 "created_by": f"labrunner {__version__} on {socket.gethostname()}",
                 **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
+                **({"metadata": json.dumps(campaign.metadata)} if campaign.metadata else {}),
             }
             points_rows = ((p.seq, p.id, p.parameters, p.batch_key) for p in points)
             ledger = Ledger.create(directory, meta=meta, points=points_rows)
@@ -153,7 +156,7 @@ def _early_pool(
 
 
 def _check_unchanged(ledger: Ledger) -> spec.Campaign:
-    """The stored campaign; refuse if it, or its original file, plans differently.
+    """The stored campaign; refuse if it plans differently now (its rig file or labrunner changed).
 
     When the plan's inputs (file, rig file, planning code: :mod:`.plan_inputs`) are those stored,
     the plan is the stored one and the ledger's ids were checked against their creation checksum
@@ -170,20 +173,24 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
         if "ids_checksum" in meta:
             for key, value in plan_inputs.stamp(campaign).items():
                 ledger.set_meta(key, value)
-    if source_path.is_file():
-        text = source_path.read_text(encoding="utf-8")
-        if text != meta["campaign_file"]:
-            try:
-                edited = spec.from_text(text, source_path=source_path)
-                same = plan_inputs.unchanged(edited, ledger.meta()) or spec.plan(edited)[1] == meta["plan_checksum"]
-            except Exception:  # an edit that no longer even validates is an edit
-                same = False
-            if not same:
-                raise CampaignError(
-                    f"{source_path} was edited since this campaign was planned (its grid or run settings differ); "
-                    f"restore it to resume, or run the edited file as a new campaign with --out"
-                )
     return campaign
+
+
+def _edited_note(ledger: Ledger) -> str:
+    """One line when the campaign's original file differs from the copy the campaign keeps: resume
+    runs the copy (editing a file to make a variant is the normal workflow), and says so."""
+    meta = ledger.meta()
+    source_path = Path(meta["campaign_path"])
+    try:
+        edited = source_path.read_text(encoding="utf-8") != meta["campaign_file"]
+    except (OSError, UnicodeDecodeError):  # moved, deleted or unreadable: the copy is all there is
+        edited = False
+    if not edited:
+        return ""
+    return (
+        f"note: {source_path} changed since this campaign began; resuming from its own copy, "
+        f"{ledger.directory / CAMPAIGN_COPY} (run the edited file as a new campaign with --out DIR)"
+    )
 
 
 def _check_replanned(ledger: Ledger, campaign: spec.Campaign, checksum: str) -> None:
@@ -226,6 +233,9 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
         campaign = _check_unchanged(ledger)
+        note = _edited_note(ledger)
+        if note:
+            print(note, file=stream)
         idle = not (counts.get("planned", 0) or counts.get("claimed", 0) or (retry_failed and counts.get("failed", 0)))
         # a finished campaign needs no workers: forking a pool only to wait for its shutdown cost ~1 s
         early = contextlib.nullcontext() if idle and campaign.guided is None else _early_pool(campaign, opts, lock.fd)
