@@ -214,6 +214,7 @@ class Scheduler:
             runs=tuple(runs),
             samples_hz=c.logging.get("samples_hz"),
             precision=c.logging.get("precision", "float64"),
+            metadata=c.metadata,
         )
 
     def _submit(self, key: str, seqs: Sequence[int], signals: StopSignals, out: Outcome) -> None:

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from labrunner import inputfile
-from labrunner.campaign import expressions, grid as gridmod
+from labrunner.campaign import expressions, grid as gridmod, metadata as metadata_mod
 from labrunner.campaign.checks import MAX_SEED, StaticChecker, batch_key
 from labrunner.campaign.config_tree import NameView, copy_tree, dotted_keys, set_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
@@ -34,7 +34,7 @@ SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_paramete
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
 OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
-TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived", "logging")
+TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived", "logging", "metadata")
 LOGGING_KEYS = ("samples_hz", "precision")  # [logging]: how the run logs are written
 PRECISIONS = ("float64", "float32")  # [logging] precision: how the logs store each sample's values
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
@@ -73,6 +73,7 @@ class Campaign:
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
     guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
     logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz], precision
+    metadata: Mapping[str, Any] = field(default_factory=dict)  # [metadata]: the user's own fields (.metadata)
 
     @property
     def rig_ref(self) -> str:
@@ -169,7 +170,9 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         raise InvalidParameter("campaign", "section is missing (needs at least name and rig)")
     bad = sorted(set(head) - set(CAMPAIGN_KEYS))
     if bad:
-        raise InvalidParameter(f"campaign.{bad[0]}", f"unknown key; allowed: {', '.join(CAMPAIGN_KEYS)}")
+        raise InvalidParameter(
+            f"campaign.{bad[0]}", f"unknown key; allowed: {', '.join(CAMPAIGN_KEYS)}; {metadata_mod.HINT}"
+        )
     for key in ("name", "rig"):
         if key not in head:
             raise InvalidParameter(f"campaign.{key}", "is required")
@@ -245,6 +248,7 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         rig_safety=dict(rig_config.safety),
         rig_config=rig_config,
         logging=_logging(doc.get("logging", {})),
+        metadata=metadata_mod.parse(doc.get("metadata", {})),
     )
     if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
         from labrunner.campaign import procedures

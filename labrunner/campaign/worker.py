@@ -64,6 +64,7 @@ class BatchTask:
     samples_hz: float | None = None  # [logging] samples_hz: thin the logs' per-sample channel (None: full rate)
     precision: str = "float64"  # [logging] precision: "float32" rounds every logged signal to float32
     live_at: live.Address | None = None  # where the worker reports the ticks done (labrunner.campaign.live)
+    metadata: Mapping[str, Any] = field(default_factory=dict)  # the campaign's [metadata]: each log's record
 
 
 @dataclass
@@ -132,6 +133,7 @@ def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> di
         },
         "config": dict(run.config),
         "parameters": dict(run.parameters),
+        **({"metadata": dict(task.metadata)} if task.metadata else {}),
     }
 
 

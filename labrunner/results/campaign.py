@@ -49,6 +49,11 @@ class CampaignResults:
     def __repr__(self) -> str:
         return f"CampaignResults({str(self.directory)!r})"
 
+    @property
+    def metadata(self) -> dict[str, Any]:
+        """The campaign file's ``[metadata]`` (operator, sample, notes, tags, …; {} without one)."""
+        return dict(json.loads(self.meta.get("metadata") or "{}"))
+
     def refresh(self) -> None:
         """Forget the table read so far (a running campaign has moved on)."""
         self.__dict__.pop("_built", None)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -50,6 +51,16 @@ class Catalog:
             raise InvalidParameter(
                 "campaign", f"{name!r} is not in the catalog; it holds {list(self.campaigns)}"
             ) from None
+
+    def search(self, text: str | None = None, /, **fields: Any) -> Catalog:
+        """The campaigns whose ``[metadata]`` has every field as given (equal, or among a list's
+        items such as tags; strings without case) and, with ``text``, holds it in some value:
+        ``catalog.search(operator="ana", tags="friction")``, ``catalog.search("batch 7")``."""
+        from labrunner.campaign.metadata import matches
+
+        found = Catalog([])
+        found.campaigns = {n: c for n, c in self.campaigns.items() if matches(c.metadata, text, **fields)}
+        return found
 
     def table(self) -> pd.DataFrame:
         """Every campaign's table, one below the other, with a first column ``campaign``; a

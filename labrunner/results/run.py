@@ -95,6 +95,11 @@ class RunResults:
         return dict(self.metadata.get("metrics") or {})
 
     @property
+    def campaign_metadata(self) -> dict[str, Any]:
+        """Its campaign's ``[metadata]`` as the log keeps it (operator, sample, notes, tags, …; {} without)."""
+        return dict(self.metadata.get("metadata") or {})
+
+    @property
     def diagnostics(self) -> dict[str, Any]:
         """A real rig's or device loop's record of the run (timing, link counters); {} for a twin."""
         return dict(self.metadata.get("diagnostics") or {})
