@@ -123,10 +123,13 @@ def counts(frame: pd.DataFrame) -> dict[str, Any]:
 
 def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
     """Best and worst completed run (by RMS of e) and the first aborted run (in grid order); found
-    from the columns they need, so that no subset of the table's rows is copied."""
+    from the columns they need, so that no subset of the table's rows is copied. A completed run
+    the oscillation detector flags is observed unstable (:mod:`.agreement`): never "best" nor
+    "worst completed", whose captions call them completed."""
     outcome = frame["outcome"]
     rms = frame["rms_error"].to_numpy(dtype=float)
-    done = np.flatnonzero((outcome == "completed").to_numpy(dtype=bool) & np.isfinite(rms))
+    steady = (agreement_mod.observed_outcome(frame) == "completed").to_numpy(dtype=bool)
+    done = np.flatnonzero(steady & np.isfinite(rms))
     out: dict[str, pd.Series] = {}
     if done.size:
         out["best"] = frame.iloc[done[np.argmin(rms[done])]]
