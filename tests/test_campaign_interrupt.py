@@ -65,7 +65,9 @@ def test_a_second_ctrl_c_abandons_at_once_with_one_line_and_no_traceback(project
                 os.killpg(proc.pid, signal.SIGINT)
             time.sleep(gap_s)
         _, err = proc.communicate(timeout=60)
-        assert proc.returncode == 130, err
+        # 130, or killed by SIGINT (-2, which a shell reports as 130 too) when the second press came
+        # after the first had stopped everything and the runner was exiting
+        assert proc.returncode in (130, -signal.SIGINT), err
         assert "Traceback" not in err and "InvalidStateError" not in err, err  # the pool's manager thread
         assert err.count("interrupted again") <= 1, err  # one line; none if the first press had stopped it all
         rows = ledger_rows(directory)
