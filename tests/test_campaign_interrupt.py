@@ -9,6 +9,7 @@ stop (:mod:`labrunner.campaign.live`) and the last line's truth when nothing is 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import signal
@@ -16,7 +17,7 @@ import time
 
 import numpy as np
 import pytest
-from test_campaign_support import campaign_text, ledger_rows, spawn, wait_for, write
+from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_for, write
 
 from labrunner import engine
 from labrunner.campaign import live
@@ -128,3 +129,25 @@ def test_the_last_line_says_a_campaign_is_complete_when_the_press_came_after_its
     cut = Outcome(interrupted=True, counts={"completed": 3, "claimed": 2, "planned": 5})
     assert report(cut, "data/x", "run") == 130
     assert "interrupted; 7 of 10 points left; continue with `labrunner resume data/x`" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_status_from_another_terminal_gives_the_rate_and_eta_the_runner_shows(project):
+    """Issue 36: `status` said "no rate yet" while the runner showed 74 % and an ETA (its rate counts
+    the runs in flight; the ledger has none committed until a lockstep batch returns)."""
+    proc, directory = _start(project, "watched")
+    try:
+        time.sleep(2.0)  # past the runner's first publication (every second)
+        st = json.loads(cli("status", str(directory), "--json", cwd=project).stdout)
+        assert sum(st["outcomes"][w] for w in ("completed", "no-motion", "aborted", "failed")) == 0  # none committed
+        assert st["running"]["pid"] == proc.pid
+        assert st["rate_per_s"] > 0 and st["estimate_s"] > 0
+        text = cli("status", str(directory), cwd=project).stdout
+        assert "no rate yet" not in text and "runs/s" in text
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    # the runner's own last line before the press, and status, computed the same way: rate within 2×
+    shown = [float(m) for m in re.findall(r"(\d+(?:\.\d+)?) runs/s", err)]
+    assert shown and max(shown) > 0 and 0.5 < st["rate_per_s"] / max(shown) < 2.0, (st, err)
+    assert json.loads(cli("status", str(directory), "--json", cwd=project).stdout)["running"] is None

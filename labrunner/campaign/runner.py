@@ -290,7 +290,9 @@ def _execute(
     ledger.start_session(command)
     c, counts = census or ledger.census()
     total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
-    progress = Progress(campaign.name, total, counts, stream=opts.stream, interval_s=opts.progress_interval_s)
+    progress = Progress(
+        campaign.name, total, counts, stream=opts.stream, interval_s=opts.progress_interval_s, publish=lock.publish
+    )
     real = not campaign.rig_info.simulated
     out = Outcome()
     reason = "error"
