@@ -140,6 +140,20 @@ def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
     return out
 
 
+def with_procedure_choice(
+    frame: pd.DataFrame, chosen: dict[str, pd.Series], campaign: Any, rows: Sequence[Mapping[str, Any]]
+) -> dict[str, pd.Series]:
+    """A guided campaign's :func:`chosen_runs`: the run its procedure chose first ("chosen", the one
+    ``status`` names), and its "best" renamed "lowest RMS" — the lowest RMS of all its runs is not
+    the procedure's answer, and one question gets one answer."""
+    from labrunner.campaign import guided_run
+
+    pick = guided_run.summary(campaign, rows).get("chosen")
+    at = np.flatnonzero((frame["id"] == pick["id"]).to_numpy(dtype=bool)) if pick else []
+    out = {"chosen": frame.iloc[at[0]]} if len(at) else {}
+    return {**out, **{("lowest RMS" if label == "best" else label): row for label, row in chosen.items()}}
+
+
 def plot_selection(frame: pd.DataFrame, plot: Sequence[str]) -> list[str]:
     """Point ids the ``--plot`` words choose: ``all``, an outcome word (``aborted``, ...) or ids."""
     ids: list[str] = []
