@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from labrunner.cli.argtypes import positive_int
+from labrunner.cli.argtypes import add_link_options, link_options, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -17,6 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "sustains with margin. Nothing moves: no run is set up.",
     )
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
+    add_link_options(p)
     p.add_argument("--pings", type=positive_int, default=200, metavar="N", help="round trips to time (default 200)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
@@ -34,7 +35,7 @@ def main(args: argparse.Namespace) -> int:
     from labrunner.rigs.config import load_rig_config
     from labrunner.rigs.transports.checkrig import check_rig, describe
 
-    config = load_rig_config(args.rig)
+    config = load_rig_config(args.rig, link=link_options(args))
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"check-rig checks can or serial rig files, got {config.kind!r}")
     report = check_rig(config, args.pings, args.campaign)

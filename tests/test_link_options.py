@@ -1,0 +1,65 @@
+"""``check-rig`` and ``conform`` take the link on the command line (issue 36: ``emulate`` printed a
+pty while ``check-rig`` opened the rig file's /dev/ttyACM0, and a user had to copy and edit the file)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from labrunner.errors import InvalidParameter
+from labrunner.rigs.config import load_rig_config
+
+ROOT = Path(__file__).resolve().parents[1]
+SERIAL = ROOT / "rigs" / "dcmotor-serial.toml"
+CAN = ROOT / "rigs" / "dcmotor-can.toml"
+
+
+def test_the_link_options_replace_the_files_and_are_validated_like_it():
+    assert load_rig_config(SERIAL).parameters["port"] == "/dev/ttyACM0"
+    assert load_rig_config(SERIAL, link={"port": "/dev/pts/7", "interface": None}).parameters["port"] == "/dev/pts/7"
+    can = load_rig_config(CAN, link={"interface": "udp_multicast", "channel": "239.74.163.2"})
+    assert (can.parameters["interface"], can.parameters["channel"]) == ("udp_multicast", "239.74.163.2")
+    with pytest.raises(InvalidParameter, match=r"--channel: applies to a can rig; .* is a 'serial' rig"):
+        load_rig_config(SERIAL, link={"channel": "can0"})
+    with pytest.raises(InvalidParameter, match=r"--port: applies to a serial rig; .* is a 'can' rig"):
+        load_rig_config(CAN, link={"port": "/dev/pts/7"})
+
+
+def test_check_rig_reaches_the_emulators_pty_given_on_the_command_line():
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "labrunner", "emulate", str(SERIAL)], stdout=subprocess.PIPE, text=True, cwd=ROOT
+    )
+    try:
+        first = emulator.stdout.readline().split()
+        assert first[0] == "port", first
+        port = first[1]
+        cmd = [sys.executable, "-m", "labrunner", "check-rig", str(SERIAL), "--port", port, "--pings", "20", "--json"]
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert out.returncode == 0, out.stderr
+        assert json.loads(out.stdout)  # a handshake and round trips with the emulator on its pty
+        without = subprocess.run(cmd[:5] + cmd[7:], capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert without.returncode != 0 and "/dev/ttyACM0" in without.stderr  # the file's port: no board here
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=10)
+
+
+def test_emulate_and_check_rig_share_a_can_channel_given_on_the_command_line():
+    link = ["--interface", "udp_multicast", "--channel", "239.74.163.77"]
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "labrunner", "emulate", str(CAN), *link], stdout=subprocess.PIPE, text=True, cwd=ROOT
+    )
+    try:
+        assert emulator.stdout.readline().startswith("serving")
+        cmd = [sys.executable, "-m", "labrunner", "check-rig", str(CAN), *link, "--pings", "20", "--json"]
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert out.returncode == 0, out.stderr
+        assert json.loads(out.stdout)
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=10)
