@@ -37,6 +37,8 @@ def test_import_labrunner_is_light_and_its_results_api_is_lazy():
     asked for (module ``__getattr__``), and an unknown name is an AttributeError."""
     assert _loaded("import labrunner\nassert labrunner.__version__") == []
     assert _loaded("import labrunner\nlabrunner.open_campaign", ("pandas",)) == ["pandas"]
+    listed = "import labrunner\nassert {'open_campaign', 'Catalog', 'open_run'} <= set(dir(labrunner))"
+    assert _loaded(listed, ("pandas",)) == []  # listed (tab completion) before any is imported
     code = "import labrunner\ntry:\n    labrunner.nope\nexcept AttributeError as e:\n    print(e)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "module 'labrunner' has no attribute 'nope'"
