@@ -22,7 +22,7 @@ from typing import Any
 
 from labrunner import inputfile
 from labrunner.campaign import expressions, grid as gridmod, metadata as metadata_mod
-from labrunner.campaign.checks import MAX_SEED, StaticChecker, batch_key
+from labrunner.campaign.checks import MAX_SEED, StaticChecker, batch_key, batch_key_of, lookup_point
 from labrunner.campaign.config_tree import NameView, copy_tree, dotted_keys, set_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
 from labrunner.errors import InvalidParameter, check_finite, check_number, check_positive
@@ -339,12 +339,12 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     accept(checker.flush())
     checked.sort(key=lambda c: c[0])
     points: list[PlannedPoint] = []
+    base = campaign.resolve({})
     for seq, params, duration, _ in checked:  # batch keys once every batch-common key is known
-        config = campaign.resolve(params)
-        config["campaign"]["duration"] = duration
-        points.append(
-            PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split))
-        )
+        found = checker.choices(params, lambda p=params: campaign.resolve(p))  # known by now: not resolved
+        values = [lookup_point(params, base, k) for k in checker.split]
+        key = batch_key_of(campaign.rig, params.get("campaign.fs", campaign.fs), duration, found, values)
+        points.append(PlannedPoint(seq, point_id(campaign.name, params), params, key))
     gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
     from labrunner.rigs.device.plan import check_placement
 
