@@ -4,6 +4,7 @@ pty while ``check-rig`` opened the rig file's /dev/ttyACM0, and a user had to co
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -30,19 +31,23 @@ def test_the_link_options_replace_the_files_and_are_validated_like_it():
         load_rig_config(CAN, link={"port": "/dev/pts/7"})
 
 
-def test_check_rig_reaches_the_emulators_pty_given_on_the_command_line():
+def test_check_rig_reaches_the_emulators_pty_given_on_the_command_line(tmp_path):
     emulator = subprocess.Popen(
         [sys.executable, "-m", "labrunner", "emulate", str(SERIAL)], stdout=subprocess.PIPE, text=True, cwd=ROOT
     )
+    env = {**os.environ, "LABRUNNER_CACHE": str(tmp_path)}
     try:
         first = emulator.stdout.readline().split()
         assert first[0] == "port", first
         port = first[1]
         cmd = [sys.executable, "-m", "labrunner", "check-rig", str(SERIAL), "--port", port, "--pings", "20", "--json"]
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
         assert out.returncode == 0, out.stderr
-        assert json.loads(out.stdout)  # a handshake and round trips with the emulator on its pty
-        without = subprocess.run(cmd[:5] + cmd[7:], capture_output=True, text=True, timeout=120, cwd=ROOT)
+        report = json.loads(out.stdout)  # a handshake and round trips with the emulator on its pty
+        kept = json.loads((tmp_path / "check-rig.json").read_text())  # what run will compare f_s with
+        [(key, entry)] = kept.items()
+        assert json.loads(key) == [str(SERIAL), {"port": port}] and entry["max_host_fs"] == report["max_host_fs"]
+        without = subprocess.run(cmd[:5] + cmd[7:], capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
         assert without.returncode != 0 and "/dev/ttyACM0" in without.stderr  # the file's port: no board here
     finally:
         emulator.send_signal(signal.SIGINT)
@@ -63,3 +68,30 @@ def test_emulate_and_check_rig_share_a_can_channel_given_on_the_command_line():
     finally:
         emulator.send_signal(signal.SIGINT)
         emulator.wait(timeout=10)
+
+
+def test_run_warns_before_a_campaign_faster_than_check_rig_last_measured(project, monkeypatch, capsys):
+    from test_campaign_support import campaign_text, write
+
+    from labrunner.cli import main
+    from labrunner.rigs.transports import link_record
+
+    monkeypatch.setenv("LABRUNNER_CACHE", str(project / "cache"))
+    rig = write(project / "rigs" / "bench.toml", SERIAL.read_text())
+    campaign = write(project / "c.toml", campaign_text(name="c", rig="rigs/bench.toml"))  # f_s = 200 Hz
+    config = load_rig_config(rig)
+    key = link_record.link_key(rig, config.kind, config.parameters)
+    assert link_record.last(key) is None
+    (project / "cache").mkdir()
+    link_record.record_path().write_text("{not json")  # a damaged record is no record
+    assert link_record.last(key) is None and link_record.warning(key, 200.0) == ""
+    link_record.remember(key, 86.0)
+    assert link_record.last(key)["max_host_fs"] == 86.0
+    other = link_record.link_key(rig, config.kind, {**config.parameters, "port": "/dev/pts/9"})
+    assert link_record.last(other) is None  # another link, another measurement
+    capsys.readouterr()
+    assert main(["run", str(campaign), "--dry-run"]) == 0
+    assert "warning: f_s = 200 Hz exceeds the 86 Hz the host loop sustained on this link" in capsys.readouterr().out
+    link_record.remember(key, 500.0)
+    assert main(["run", str(campaign), "--dry-run"]) == 0
+    assert "warning" not in capsys.readouterr().out

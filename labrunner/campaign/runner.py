@@ -101,6 +101,9 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     with _early_pool(campaign, opts) as pool:
         points, checksum = spec.plan(campaign)
         _check_new_directory(directory, campaign.name, checksum)
+        warned = link_warning(campaign, points)
+        if warned:
+            print(warned, file=opts.stream or sys.stderr)
         check_executor_url(opts.executor)  # reached before the directory exists
         directory.mkdir(parents=True, exist_ok=True)
         with DirectoryLock(directory, "run") as lock:
@@ -140,7 +143,22 @@ def _dry_run(campaign: spec.Campaign, directory: Path, opts: Options) -> str:
         _check_new_directory(directory, campaign.name, checksum)
     except CampaignError as exc:
         text += f"\nnote: `labrunner run` would refuse: {exc}"
-    return text
+    warned = link_warning(campaign, points)
+    return f"{text}\n{warned}" if warned else text
+
+
+def link_warning(campaign: spec.Campaign, points: list[spec.PlannedPoint]) -> str:
+    """A real rig's host loop asked for a higher f_s than ``check-rig`` last measured its link to
+    sustain (:mod:`labrunner.rigs.transports.link_record`): one line, else ""."""
+    config = campaign.rig_config
+    if campaign.rig_info.simulated or config.parameters.get("loop", "host") != "host":
+        return ""
+    from labrunner.rigs.config import resolve_rig_file
+    from labrunner.rigs.transports import link_record
+
+    rig_file = campaign.rig_path or resolve_rig_file(campaign.rig, campaign.rig_search)
+    fs = max((float(p.parameters.get("campaign.fs", campaign.fs)) for p in points), default=campaign.fs)
+    return link_record.warning(link_record.link_key(rig_file, config.kind, config.parameters), fs)
 
 
 def _early_pool(

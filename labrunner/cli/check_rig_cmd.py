@@ -40,4 +40,18 @@ def main(args: argparse.Namespace) -> int:
         raise InvalidParameter("rig.kind", f"check-rig checks can or serial rig files, got {config.kind!r}")
     report = check_rig(config, args.pings, args.campaign)
     print(json.dumps(report, sort_keys=True) if args.json else "\n".join(describe(report)))
+    _remember(args.rig, config, report["max_host_fs"])
     return 0
+
+
+def _remember(rig: str, config, max_host_fs: float) -> None:
+    """Keep what the link sustains, for `run` to warn before a faster campaign (link_record)."""
+    import sys
+
+    from labrunner.rigs.config import resolve_rig_file
+    from labrunner.rigs.transports import link_record
+
+    try:
+        link_record.remember(link_record.link_key(resolve_rig_file(rig), config.kind, config.parameters), max_host_fs)
+    except OSError as exc:
+        print(f"note: could not keep the measurement in {link_record.record_path()}: {exc.strerror}", file=sys.stderr)
