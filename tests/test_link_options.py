@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 from pathlib import Path
@@ -95,3 +96,34 @@ def test_run_warns_before_a_campaign_faster_than_check_rig_last_measured(project
     link_record.remember(key, 500.0)
     assert main(["run", str(campaign), "--dry-run"]) == 0
     assert "warning" not in capsys.readouterr().out
+
+
+def test_run_takes_the_port_on_the_command_line_and_keeps_it_for_resume(project):
+    from test_campaign_support import campaign_text, cli, ledger_rows, write
+
+    write(project / "rigs" / "bench.toml", SERIAL.read_text())
+    grid = '"controller.k_p" = { values = [10.0, 20.0] }'
+    write(project / "c.toml", campaign_text(name="c", rig="rigs/bench.toml", duration=0.5, grid=grid))
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "labrunner", "emulate", str(project / "rigs" / "bench.toml")],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=project,
+    )
+    try:
+        port = emulator.stdout.readline().split()[1]
+        out = cli("run", "c.toml", "--port", port, cwd=project)
+        assert out.returncode == 0, out.stderr
+        rows = ledger_rows(project / "data" / "c")
+        # reached the device: a rig that cannot be opened stops the campaign (exit 1, points claimed);
+        # a run that then fails on a loaded machine (late frames: the emulator is not paced here) is terminal
+        assert len(rows) == 2 and {r["state"] for r in rows} <= {"done", "aborted", "failed"}
+        with sqlite3.connect(project / "data" / "c" / "ledger.sqlite") as db:
+            kept = db.execute("SELECT value FROM meta WHERE key = 'rig_link'").fetchone()[0]
+        assert json.loads(kept) == {"port": port}  # resume reaches the same device without --port
+        assert cli("resume", "data/c", cwd=project).returncode == 0
+        without = cli("run", "c.toml", "--out", "data/d", cwd=project)  # the rig file's /dev/ttyACM0: no board
+        assert without.returncode == 1 and "/dev/ttyACM0" in without.stderr, without.stderr
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=10)

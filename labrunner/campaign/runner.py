@@ -17,6 +17,7 @@ import socket
 import sqlite3
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
@@ -33,6 +34,7 @@ from labrunner.errors import CampaignError, InvalidParameter, LabrunnerError
 from labrunner.version import __version__
 
 CAMPAIGN_COPY = "campaign.toml"
+RIG_LINK = "rig_link"  # ledger meta: the --port / --interface / --channel a real rig's campaign was run with
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,7 @@ class Options:
     batch_size: int | None = None
     stream: TextIO | None = None
     progress_interval_s: float = 5.0
+    link: Mapping[str, str | None] | None = None  # a real rig's --port, --interface, --channel (stored for resume)
 
 
 def default_directory(campaign: spec.Campaign) -> Path:
@@ -92,7 +95,7 @@ def _write_copy(directory: Path, text: str) -> None:
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
     check_executor_url(opts.executor, reach=False)
-    campaign = spec.load(file)
+    campaign = spec.load(file, link=opts.link)
     if out is not None and not str(out).strip():
         raise InvalidParameter("--out", f"must be a path, got {str(out)!r}")
     directory = Path(out) if out is not None else default_directory(campaign)
@@ -121,6 +124,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
                 "created_by": f"labrunner {__version__} on {socket.gethostname()}",
                 **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
                 **({"metadata": json.dumps(campaign.metadata)} if campaign.metadata else {}),
+                **({RIG_LINK: json.dumps(campaign.rig_link)} if campaign.rig_link else {}),
             }
             points_rows = ((p.seq, p.id, p.parameters, p.batch_key) for p in points)
             ledger = Ledger.create(directory, meta=meta, points=points_rows)
@@ -173,7 +177,7 @@ def _early_pool(
     return open_executor(real_rig=False, workers=opts.workers, url=None, lock_fd=lock_fd)
 
 
-def _check_unchanged(ledger: Ledger) -> spec.Campaign:
+def _check_unchanged(ledger: Ledger, link: Mapping[str, str | None] | None = None) -> spec.Campaign:
     """The stored campaign; refuse if it plans differently now (its rig file or labrunner changed).
 
     When the plan's inputs (file, rig file, planning code: :mod:`.plan_inputs`) are those stored,
@@ -185,7 +189,12 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     if lacking:
         raise integrity.damaged(ledger.directory / LEDGER_NAME, f"keeps no {', '.join(lacking)} to resume from")
     source_path = Path(meta["campaign_path"])
-    campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
+    given = {k: v for k, v in (link or {}).items() if v is not None}
+    if given and given != json.loads(meta.get(RIG_LINK, "{}")):
+        ledger.set_meta(RIG_LINK, json.dumps(given))  # the device moved (another pty): kept for the next resume
+    campaign = spec.from_text(
+        meta["campaign_file"], source_path=source_path, link=given or json.loads(meta.get(RIG_LINK, "{}"))
+    )
     if "ids_checksum" not in meta or not plan_inputs.unchanged(campaign, meta):
         _check_replanned(ledger, campaign, meta["plan_checksum"])
         if "ids_checksum" in meta:
@@ -250,7 +259,7 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         trust, (counts, words) = _trusted(ledger, checked)
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
-        campaign = _check_unchanged(ledger)
+        campaign = _check_unchanged(ledger, opts.link)
         note = _edited_note(ledger)
         if note:
             print(note, file=stream)

@@ -215,6 +215,7 @@ class Scheduler:
             samples_hz=c.logging.get("samples_hz"),
             precision=c.logging.get("precision", "float64"),
             metadata=c.metadata,
+            rig_link=c.rig_link,
         )
 
     def _submit(self, key: str, seqs: Sequence[int], signals: StopSignals, out: Outcome) -> None:

@@ -74,6 +74,7 @@ class Campaign:
     guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
     logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz], precision
     metadata: Mapping[str, Any] = field(default_factory=dict)  # [metadata]: the user's own fields (.metadata)
+    rig_link: Mapping[str, str] = field(default_factory=dict)  # the command line's --port etc. (rigconfig.LINK_KEYS)
 
     @property
     def rig_ref(self) -> str:
@@ -155,8 +156,11 @@ def _resolve_rig(value: Any, source_path: Path | None, root: Path) -> tuple[str,
     return value, path
 
 
-def from_text(text: str, *, source_path: Path | None = None, root: Path | None = None) -> Campaign:
-    """Parse and validate a campaign (structure, keys, grid, derived, rig); no per-point checks."""
+def from_text(
+    text: str, *, source_path: Path | None = None, root: Path | None = None, link: Mapping[str, str] | None = None
+) -> Campaign:
+    """Parse and validate a campaign (structure, keys, grid, derived, rig); no per-point checks.
+    ``link``: a real rig's port or CAN interface and channel instead of its rig file's."""
     root = (root or (project_root(source_path) if source_path else Path.cwd())).resolve()
     doc = parse(text, source_path=source_path)
     unknown = sorted(set(doc) - set(TOP_LEVEL))
@@ -181,7 +185,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         raise InvalidParameter("campaign.name", f"must match [a-z0-9_-]+ (at most 64 characters), got {name!r}")
     description = _require("campaign.description", head.get("description", ""), str, "a string")
     rig, rig_path = _resolve_rig(head["rig"], source_path, root)
-    rig_config = load_rig_file(rig_path or rig, root)
+    link = {k: v for k, v in (link or {}).items() if v is not None}
+    rig_config = load_rig_file(rig_path or rig, root, link)
     info = rigconfig.rig_info(rig_config)
     rig_params = tuple(rig_class(rig_config.kind).overridable())
     fs = check_positive("campaign.fs", head["fs"], strict=True) if "fs" in head else float(info.fs_default)
@@ -249,6 +254,7 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         rig_config=rig_config,
         logging=_logging(doc.get("logging", {})),
         metadata=metadata_mod.parse(doc.get("metadata", {})),
+        rig_link=link,
     )
     if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
         from labrunner.campaign import procedures
@@ -298,24 +304,24 @@ def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple
             yield path, value
 
 
-def load_rig_file(ref: str | Path, root: Path) -> RigConfig:
-    """The campaign's rig file, validated, without opening the rig.
+def load_rig_file(ref: str | Path, root: Path, link: Mapping[str, str] | None = None) -> RigConfig:
+    """The campaign's rig file, validated, without opening the rig (``link``: see :func:`from_text`).
 
     Its errors keep the loader's own field (``rigs/bad.toml: parameters.a``); only a rig file that
     cannot be found is reported as ``campaign.rig``.
     """
     try:
-        return rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root))
+        return rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root), link=link)
     except InvalidParameter as exc:
         if exc.field == "rig":
             raise InvalidParameter("campaign.rig", exc.message) from None
         raise
 
 
-def load(path: str | Path, *, root: Path | None = None) -> Campaign:
+def load(path: str | Path, *, root: Path | None = None, link: Mapping[str, str] | None = None) -> Campaign:
     """Read and validate a campaign file (structure only; see :func:`plan` for the per-point checks)."""
     path = Path(path)
-    return from_text(inputfile.read_text(path, "FILE", "campaign file"), source_path=path, root=root)
+    return from_text(inputfile.read_text(path, "FILE", "campaign file"), source_path=path, root=root, link=link)
 
 
 def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:

@@ -65,6 +65,7 @@ class BatchTask:
     precision: str = "float64"  # [logging] precision: "float32" rounds every logged signal to float32
     live_at: live.Address | None = None  # where the worker reports the ticks done (labrunner.campaign.live)
     metadata: Mapping[str, Any] = field(default_factory=dict)  # the campaign's [metadata]: each log's record
+    rig_link: Mapping[str, str] = field(default_factory=dict)  # --port etc. instead of the rig file's (run, resume)
 
 
 @dataclass
@@ -87,7 +88,7 @@ def _load_rig(task: BatchTask):
     from labrunner.rigs import registry
     from labrunner.rigs.config import load_rig_config
 
-    config = load_rig_config(task.rig, search=task.rig_search)
+    config = load_rig_config(task.rig, search=task.rig_search, link=task.rig_link)
     return registry.load_rig(config), config.to_dict()
 
 

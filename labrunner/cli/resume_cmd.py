@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from labrunner.cli.argtypes import path_text
+from labrunner.cli.argtypes import link_options, path_text
 from labrunner.cli.run_cmd import add_execution_options, one_blas_thread, report
 
 
@@ -31,6 +31,6 @@ def run(args: argparse.Namespace) -> int:
     one_blas_thread()
     from labrunner.campaign.runner import Options, resume
 
-    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)
+    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size, link=link_options(args))
     outcome, directory = resume(args.directory, opts, retry_failed=args.retry_failed)
     return report(outcome, directory, "resume")

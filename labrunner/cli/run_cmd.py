@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from labrunner.cli.argtypes import path_text, positive_int
+from labrunner.cli.argtypes import add_link_options, link_options, path_text, positive_int
 from labrunner.errors import CampaignError
 
 
@@ -19,6 +19,7 @@ def add_execution_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--batch-size", type=positive_int, metavar="N", help="runs per lockstep batch (default: automatic)"
     )
+    add_link_options(parser)  # a real rig's link instead of its rig file's (kept for resume)
 
 
 def one_blas_thread() -> None:
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     one_blas_thread()
     from labrunner.campaign.runner import Options, start
 
-    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size)
+    opts = Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size, link=link_options(args))
     outcome, text = start(args.file, args.out, opts, dry=args.dry_run)
     if outcome is None:
         print(text)
