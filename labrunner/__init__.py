@@ -36,3 +36,8 @@ def __getattr__(name: str) -> Any:
 
         return getattr(results, name)
     raise AttributeError(f"module 'labrunner' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and the results API's, not yet imported (tab completion, ``dir``)."""
+    return sorted({*globals(), *__all__})

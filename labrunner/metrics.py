@@ -6,8 +6,10 @@ the RMS of the delayed, filtered error ê. These functions are pure: they take t
 as arrays and the names of the channels that play each role. The engine computes them for the
 ledger's summary as each run ends, and the analysis recomputes them from the logs, with one code.
 
-The engine ends an aborted run's signals at its abort sample, so the metrics of an aborted run
-cover the run up to the abort.
+The engine ends an aborted run's signals at its abort sample (a failed one's where it failed), so
+the metrics of a run cut short cover only its part: wherever they are shown (the table, a run's
+``metrics`` in the results API, ``inspect``) they carry the suffix :data:`UNTIL_ABORT`
+(``rms_error_until_abort``, :func:`as_reported`), so that only whole runs rank by ``rms_error``.
 
 Named windows (a campaign's ``[metrics]`` section, e.g. ``fault = [2.0, 2.5]`` in seconds) give the
 same metrics over samples t0 ≤ k/fs < t1 as ``<metric>@<name>`` columns, so a fault's effect or
@@ -31,6 +33,24 @@ DEFAULT_DETECTOR = Detector()  # the thresholds of labrunner.oscillation
 
 #: Metric columns every run gets (NaN where a run has no such channel).
 BASE_METRICS = ("rms_error", "rms_error_hat", "input_energy", "max_abs_input", "max_current", "n_samples")
+UNTIL_ABORT = "_until_abort"  # the suffix of a cut-short run's metrics
+CUT_SHORT = ("aborted", "failed")  # outcomes whose run ended before its duration (the engine's words)
+_RANKED_PREFIXES = ("rms_", "energy_", "max_")
+
+
+def ranked(name: str) -> bool:
+    """Whether metric ``name`` (``<metric>`` or ``<metric>@<window>``) describes how well a run
+    went — the ones a run cut short must not offer for ranking; sample counts do not."""
+    base = name.split("@", 1)[0]
+    return (base in BASE_METRICS or base.startswith(_RANKED_PREFIXES)) and base != "n_samples"
+
+
+def as_reported(metrics: Mapping[str, object], status: str | None) -> dict[str, object]:
+    """A run's metrics under the names every view uses: a run cut short (:data:`CUT_SHORT`)
+    has its :func:`ranked` metrics as ``<metric>_until_abort``."""
+    if status not in CUT_SHORT:
+        return dict(metrics)
+    return {(k + UNTIL_ABORT if ranked(k) else k): v for k, v in metrics.items()}
 
 
 @dataclass(frozen=True)

@@ -116,9 +116,14 @@ def test_log_states_of_problem_paths(tmp_path):
 def _random_table(n: int, seed: int) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     outcome = rng.choice(["completed", "aborted", "failed", "no-motion", "planned"], n)
-    rms = np.round(rng.random(n), 1)  # ties
+    rms = np.round(rng.random(n), 1) + 0.05  # ties
     rms[rng.random(n) < 0.2] = np.nan
-    frame = pd.DataFrame({"seq": np.arange(n), "id": [f"p{i}" for i in range(n)], "rms_error": rms})
+    oscillating = (rng.random(n) < 0.3).astype(float)  # the detector's flag (issue 36: one was named "best")
+    first = int(np.flatnonzero(outcome == "completed")[0])
+    rms[first], oscillating[first] = 0.01, 1.0  # the lowest RMS of all, but oscillating
+    frame = pd.DataFrame(
+        {"seq": np.arange(n), "id": [f"p{i}" for i in range(n)], "rms_error": rms, "oscillating": oscillating}
+    )
     frame["outcome"] = pd.Categorical(outcome)
     return frame.sample(frac=1.0, random_state=seed).reset_index(drop=True)  # seq not in row order
 
@@ -135,7 +140,8 @@ def test_report_rows_and_chosen_runs_equal_the_plain_selections(monkeypatch, see
     trouble = rest[rest["outcome"].isin(["aborted", "failed"])].head(10)
     others = rest.drop(index=trouble.index).head(40 - len(best) - len(trouble))
     pd.testing.assert_frame_equal(campaign_report._table_rows(frame), pd.concat([best, trouble, others]))
-    done = frame[(frame["outcome"] == "completed") & np.isfinite(frame["rms_error"])]
+    done = frame[(frame["outcome"] == "completed") & np.isfinite(frame["rms_error"]) & (frame["oscillating"] == 0)]
+    assert frame["rms_error"].min() < done["rms_error"].min()  # an oscillating run has the lowest RMS
     aborted = frame[frame["outcome"] == "aborted"]
     expected = {
         "best": done.loc[done["rms_error"].idxmin()],

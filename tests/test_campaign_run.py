@@ -83,16 +83,24 @@ def test_existing_campaign_directory_is_refused_with_a_resume_hint(project, caps
     assert "not an empty campaign directory" in capsys.readouterr().err
 
 
-def test_resume_refuses_an_edited_campaign_file_but_not_a_comment(project, capsys):
-    path = write(project / "tiny.toml", campaign_text(grid='"controller.k_p" = { values = [10.0, 20.0] }'))
-    assert main(["run", str(path)]) == 0
-    path.write_text("# only a comment\n" + path.read_text())
-    assert main(["resume", "data/tiny"]) == 0
-    path.write_text(path.read_text().replace("values = [10.0, 20.0]", "values = [10.0, 30.0]"))
+def test_resume_runs_the_campaigns_own_copy_and_says_the_file_was_edited(project, capsys):
+    grid = '"controller.k_p" = { values = [10.0, 20.0, 40.0] }'
+    path = write(project / "tiny.toml", campaign_text(grid=grid))
+    assert main(["run", str(path), "--workers", "1"]) == 0
+    (project / "data" / "tiny" / ledger_rows(project / "data" / "tiny")[2]["log_path"]).unlink()  # runs again
+    path.write_text(path.read_text().replace("values = [10.0, 20.0, 40.0]", "values = [10.0, 30.0]"))  # a variant
     capsys.readouterr()
-    assert main(["resume", "data/tiny"]) == 1
+    assert main(["resume", "data/tiny", "--workers", "1"]) == 0
     err = capsys.readouterr().err
-    assert "was edited since this campaign was planned" in err and err.count("\n") == 1
+    assert f"note: {path} changed since this campaign began; resuming from its own copy, data/tiny/campaign.toml" in err
+    rows = ledger_rows(project / "data" / "tiny")
+    assert [json.loads(r["parameters"])["controller.k_p"] for r in rows] == [10.0, 20.0, 40.0]  # the stored grid
+    assert {r["state"] for r in rows} <= set(TERMINAL) and [r["attempts"] for r in rows] == [1, 1, 2]
+    assert read_run(project / "data" / "tiny" / rows[2]["log_path"]).metadata["config"]["controller"]["k_p"] == 40.0
+    path.write_text((project / "data" / "tiny" / "campaign.toml").read_text())
+    capsys.readouterr()
+    assert main(["resume", "data/tiny"]) == 0
+    assert "note:" not in capsys.readouterr().err  # the same text again: nothing to say
 
 
 def test_resume_trusts_the_stored_plan_only_while_its_inputs_are_unchanged(project, capsys, monkeypatch):

@@ -293,7 +293,10 @@ def test_dry_run_prints_points_batches_estimate_and_creates_nothing(project, cap
     # one batch per worker → batches of ⌈9/2⌉ = 5
     assert out.startswith("campaign tiny: 9 points on rig 'rigs/motor.toml', 2 batches\n"), out
     assert "9 points × 2 s at 200 Hz (mfc1): 2 batches of ≤ 5" in out
-    estimate = re.search(r"estimated time ≈ (\d+) s on 2 worker\(s\) \(18 s of simulated time\)", out)
+    estimate = re.search(
+        r"estimated time ≈ (\d+) s on 2 worker\(s\) at this machine.s present load \(timed now; 18 s of simulated time\)",
+        out,
+    )
     assert estimate and 0 <= int(estimate[1]) < 60, out
     assert not (project / "data").exists()
 

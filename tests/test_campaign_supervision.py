@@ -127,10 +127,10 @@ def test_one_ctrl_c_waits_a_stated_bound_then_abandons_stalled_batches(project, 
 def _short_bound(stopping):
     """_stopping with batches of zero expected duration, so the bound is GRACE_S alone."""
 
-    def short(self, out, pending, why):
+    def short(self, out, pending, why, **kw):
         for batch in self.inflight.values():
             batch.duration, batch.ticks = 0.0, 0
-        return stopping(self, out, pending, why)
+        return stopping(self, out, pending, why, **kw)
 
     return short
 

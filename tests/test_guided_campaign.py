@@ -233,3 +233,18 @@ def test_the_thesis_step_counts_on_the_motor_twin():
     assert result["polack"]["runs"] == pytest.approx(107, rel=0.1)
     assert result["polack"]["feed_forward"] == pytest.approx(66, rel=0.1)
     assert 1.7 <= result["ratio"] <= 2.3
+
+
+def test_status_and_analyse_give_the_same_chosen_point(tmp_path):
+    """Issue 36: `status` said the procedure chose one γ and `analyse` called another "best"."""
+    path = write_campaign(tmp_path, POLACK, name="pol")
+    _, directory = runner.start(path, tmp_path / "run", quiet())
+    chosen = runner.status(directory)["guided"]["chosen"]
+    out = cli("analyse", directory, "--workers", "1", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    gamma = chosen["params"]["controller.gamma"]
+    line = f"chosen by the procedure (step {chosen['step']}): RMS(e) = {chosen['rms_error']:.4g} at "
+    assert line + f"controller.gamma = {gamma:.4g}" in out.stdout
+    assert not any(s.startswith("best:") for s in out.stdout.splitlines())  # no second answer
+    html = (Path(directory) / "report" / "index.html").read_text()
+    assert f"chosen: point {chosen['id']}" in html

@@ -37,6 +37,8 @@ def test_import_labrunner_is_light_and_its_results_api_is_lazy():
     asked for (module ``__getattr__``), and an unknown name is an AttributeError."""
     assert _loaded("import labrunner\nassert labrunner.__version__") == []
     assert _loaded("import labrunner\nlabrunner.open_campaign", ("pandas",)) == ["pandas"]
+    listed = "import labrunner\nassert {'open_campaign', 'Catalog', 'open_run'} <= set(dir(labrunner))"
+    assert _loaded(listed, ("pandas",)) == []  # listed (tab completion) before any is imported
     code = "import labrunner\ntry:\n    labrunner.nope\nexcept AttributeError as e:\n    print(e)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "module 'labrunner' has no attribute 'nope'"
@@ -152,3 +154,21 @@ def test_with_two_workers_the_analysis_never_loads_matplotlib_and_its_drawing_ch
     )
     assert _loaded(code) == ["matplotlib"]
     assert len(drawn) == 2 and {path: path.read_bytes() for path in drawn} == drawn
+
+
+def test_the_light_commands_load_no_numpy(project):
+    """``--version``, ``--help`` and ``status`` (a grid's, a real rig's with its law check) only
+    read text and SQLite: numpy (~0.1–0.3 s, through ``labrunner.rigs``' Rig interface) stays out
+    (issue 36: ``status`` had become ~6.5× a bare Python start)."""
+    from test_campaign_support import MOTOR_RIG, campaign_text, write
+
+    from labrunner.cli import main
+    from labrunner.rigs.registry import register_rig
+
+    register_rig("inprocess-motor", "test_campaign_support:InProcessMotor")  # a real rig: status checks its laws
+    write(project / "rigs" / "bench.toml", MOTOR_RIG.replace('kind = "dcmotor"', 'kind = "inprocess-motor"'))
+    for name, rig in (("twin", "rigs/motor.toml"), ("real", "rigs/bench.toml")):
+        assert main(["run", str(write(project / f"{name}.toml", campaign_text(name=name, rig=rig, duration=0.5)))]) == 0
+    for argv in (["--version"], ["--help"], ["status", "data/twin"], ["status", "data/real", "--json"]):
+        code = f"import os\nos.chdir({str(project)!r})\nfrom labrunner.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass"
+        assert _loaded(code, ("numpy",)) == [], argv

@@ -139,6 +139,8 @@ def _analyse(
             raise InvalidParameter("error", "e_hat: the runs of this campaign log no ê (e_hat_<output>)")
         frame = frame.assign(rms_error=frame["rms_error_hat"])
     chosen = selection.chosen_runs(frame)
+    if guided_rows:  # the procedure's answer leads, as `status` gives it; the lowest RMS is named as such
+        chosen = selection.with_procedure_choice(frame, chosen, campaign, guided_rows)
     extra = selection.plot_selection(frame, plot)
     ids = list(dict.fromkeys([*(row["id"] for row in chosen.values()), *extra]))
     chosen_logs = frame.loc[frame["id"].isin(ids), ["id", "log_path"]]  # not a dict of every run's

@@ -23,9 +23,10 @@ from labrunner.analysis.context import parameter_records
 from labrunner.analysis.figures import common_theory
 from labrunner.analysis.overlays import EQUATIONS
 from labrunner.analysis.report import Image, Section, write_report
-from labrunner.analysis.table import FOREIGN, UNTIL_ABORT
+from labrunner.analysis.table import FOREIGN
 from labrunner.campaign.progress import format_counts
 from labrunner.campaign.rig_timing import timing_line
+from labrunner.metrics import CUT_SHORT, UNTIL_ABORT
 from labrunner.rigs.device import lawflag
 
 #: Metric columns of the table of all runs (the ones ranked by, then those of aborted runs).
@@ -326,7 +327,8 @@ def campaign_report(
             "All runs" if shown is frame else "Runs",
             paragraphs=[
                 f"{which}; click a column's name to sort by it. rms_error, input_energy, … describe whole runs; "
-                f"an aborted run's metrics cover the run up to its abort and are in the columns ending in {UNTIL_ABORT}. "
+                f"an aborted (or failed) run's metrics cover the run up to its abort (or failure) and are in the columns "
+                f"ending in {UNTIL_ABORT}. "
                 f"Plot any run with `labrunner analyse {ctx.directory} --plot ID` (or --plot aborted, --plot all), which "
                 f"adds it here, or with `labrunner plot {ctx.directory}/runs/ID.mcap`."
             ],
@@ -355,7 +357,7 @@ def campaign_report(
             "Files",
             html=(
                 f"<p>{files[0]} and {files[1]} hold one row per grid point: parameters, outcome, every metric of its run "
-                "(aborted runs' in the _until_abort columns) and the path of its log relative to the table; the logs "
+                "(aborted and failed runs' in the _until_abort columns) and the path of its log relative to the table; the logs "
                 f"are MCAP files (Foxglove plots /run/samples.&lt;signal&gt;__&lt;unit&gt;). Campaign file: "
                 f"{_link(ctx.out, ctx.directory / 'campaign.toml', 'campaign.toml')}; ledger: "
                 f"{_link(ctx.out, ctx.directory / 'ledger.sqlite', 'ledger.sqlite')}.</p>"
@@ -376,13 +378,11 @@ def _run_caption(row: pd.Series, params: Sequence[str], error: str) -> str:
     """Point, parameters, outcome and metrics of a plotted run."""
     values = ", ".join(f"{k.split('.')[-1]} = {_value(row[k])}" for k in params if pd.notna(row.get(k)))
     text = f"Point {row['seq']} ({row['id']}): {values}; {row['outcome']}"
-    suffix = ""
-    if row["outcome"] == "aborted":
-        if pd.notna(row.get("abort_time")):
-            text += f" by {row.get('monitor')} at t = {float(row['abort_time']):.3f} s"
-        suffix = UNTIL_ABORT
+    suffix = UNTIL_ABORT if row["outcome"] in CUT_SHORT else ""
+    if row["outcome"] == "aborted" and pd.notna(row.get("abort_time")):
+        text += f" by {row.get('monitor')} at t = {float(row['abort_time']):.3f} s"
     rms, energy = row.get("rms_error" + suffix), row.get("input_energy" + suffix)
-    scope = " up to the abort" if suffix else ""
+    scope = f" up to the {'abort' if row['outcome'] == 'aborted' else 'failure'}" if suffix else ""
     if rms is None or pd.isna(rms):
         return f"{text}."
     return f"{text}; RMS({error}) = {float(rms):.4g}, E(u) = {float(energy):.4g}{scope}."

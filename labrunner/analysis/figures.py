@@ -178,6 +178,35 @@ def figure_name(ctx: Context) -> str:
     return (ctx.campaign.description.strip().splitlines() or [ctx.campaign.name])[0]
 
 
+def _along_sweep(frame: pd.DataFrame, key: str, fixed: Mapping[str, float]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The other gains that vary along a 1-D sweep of ``key`` (a derived ``k_p = γ/4``): gain →
+    (swept values, sorted; its values there); a gain equal in every row is not listed (``fixed``)."""
+    out = {}
+    for column, gain in GAINS.items():
+        if column == key or gain not in fixed or column not in frame.columns:
+            continue
+        pairs = frame[[key, column]].apply(pd.to_numeric, errors="coerce").dropna().groupby(key)[column].mean()
+        if pairs.nunique() > 1:
+            out[gain] = (pairs.index.to_numpy(float), pairs.to_numpy(float))
+    return out
+
+
+def _interpolated(along: Mapping[str, tuple[np.ndarray, np.ndarray]], log: bool):
+    """The gains of ``along`` at a swept value, interpolated between the runs (in log10 on a log axis)."""
+    if not along:
+        return None
+    scale = np.log10 if log else np.asarray
+    return lambda v: {g: float(np.interp(scale(v), scale(xs), ys)) for g, (xs, ys) in along.items()}
+
+
+def _gain_text(gain: str, value: float, along: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> str:
+    """``k_p = 50`` for a fixed gain; its range for one that varies along the sweep."""
+    if gain not in along:
+        return f"{_SYMBOLS[gain]} = {value:.5g}"
+    values = along[gain][1]
+    return f"{_SYMBOLS[gain]} = {values.min():.4g} … {values.max():.4g} along the sweep"
+
+
 def map_jobs(
     frame: pd.DataFrame, ctx: Context, theories: Theories, style: FigureStyle | None = None
 ) -> list[FigureJob]:
@@ -196,8 +225,14 @@ def map_jobs(
         theory = common_theory(frame, theories) if key in GAINS and theories.campaign is not None else None
         if theory is not None:
             fixed = theories.gains(frame.iloc[0])
-            lines = sweep_lines(theory, GAINS[key], dense_axis(x.values, x.log, 400), fixed)
-            others = ", ".join(f"{_SYMBOLS[k]} = {v:.5g}" for k, v in fixed.items() if k != GAINS[key])
+            along = _along_sweep(frame, key, fixed)
+            dense = dense_axis(x.values, x.log, 400)
+            lines = [
+                line  # only what the plot shows (ρ beyond the swept range would stretch the axis or list an unseen line)
+                for line in sweep_lines(theory, GAINS[key], dense, fixed, _interpolated(along, x.log))
+                if dense[0] <= float(line.x) <= dense[-1]  # type: ignore[arg-type]
+            ]
+            others = ", ".join(_gain_text(k, v, along) for k, v in fixed.items() if k != GAINS[key])
             note = f"\n{theory.delay_note()}" + (f", {others}" if others else "")
         columns = [(c, _with_unit(label, units.get(c, ""))) for c, _, label in map_metrics(ctx.error)]
         title = f"{name}: RMS of {ctx.error} and input energy over {x.label}{note}"

@@ -251,12 +251,24 @@ def transitions(values: np.ndarray, stable: Callable[[float], bool | None]) -> l
     ]
 
 
-def sweep_lines(theory: Theory, key: str, dense: np.ndarray, fixed: Mapping[str, float]) -> list[OverlayLine]:
-    """Vertical lines at the predicted stability limits along a 1-D sweep of ``key`` (γ, k_p or k_d)."""
+def sweep_lines(
+    theory: Theory,
+    key: str,
+    dense: np.ndarray,
+    fixed: Mapping[str, float],
+    along: Callable[[float], Mapping[str, float]] | None = None,
+) -> list[OverlayLine]:
+    """Vertical lines at the predicted stability limits along a 1-D sweep of ``key`` (γ, k_p or k_d).
+    The other gains are ``fixed``, except those ``along`` gives at a swept value (a derived gain
+    that varies with the swept one: predicted where the runs were)."""
+
+    def gains(v: float) -> dict[str, float]:
+        return {**fixed, **(along(v) if along is not None else {}), key: v}
+
     lines = []
     for case in theory.cases():
         colour = _COLOURS[_family(case)]
-        found = transitions(dense, lambda v: (p := theory.predict(case, {**fixed, key: v})) and p[0])
+        found = transitions(dense, lambda v: (p := theory.predict(case, gains(v))) and p[0])
         lines += [
             OverlayLine(
                 bound_label(case, f"{'γ' if key == 'gamma' else key} limit") if i == 0 else "_",

@@ -139,10 +139,13 @@ def counts(frame: pd.DataFrame) -> dict[str, Any]:
 
 def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
     """Best and worst completed run (by RMS of e) and the first aborted run (in grid order); found
-    from the columns they need, so that no subset of the table's rows is copied."""
+    from the columns they need, so that no subset of the table's rows is copied. A completed run
+    the oscillation detector flags is observed unstable (:mod:`.agreement`): never "best" nor
+    "worst completed", whose captions call them completed."""
     outcome = frame["outcome"]
     rms = frame["rms_error"].to_numpy(dtype=float)
-    done = np.flatnonzero((outcome == "completed").to_numpy(dtype=bool) & np.isfinite(rms))
+    steady = (agreement_mod.observed_outcome(frame) == "completed").to_numpy(dtype=bool)
+    done = np.flatnonzero(steady & np.isfinite(rms))
     out: dict[str, pd.Series] = {}
     if done.size:
         out["best"] = frame.iloc[done[np.argmin(rms[done])]]
@@ -151,6 +154,20 @@ def chosen_runs(frame: pd.DataFrame) -> dict[str, pd.Series]:
     if aborted.size:
         out["first aborted"] = frame.iloc[aborted[np.argmin(frame["seq"].to_numpy(dtype=float)[aborted])]]
     return out
+
+
+def with_procedure_choice(
+    frame: pd.DataFrame, chosen: dict[str, pd.Series], campaign: Any, rows: Sequence[Mapping[str, Any]]
+) -> dict[str, pd.Series]:
+    """A guided campaign's :func:`chosen_runs`: the run its procedure chose first ("chosen", the one
+    ``status`` names), and its "best" renamed "lowest RMS" — the lowest RMS of all its runs is not
+    the procedure's answer, and one question gets one answer."""
+    from labrunner.campaign import guided_run
+
+    pick = guided_run.summary(campaign, rows).get("chosen")
+    at = np.flatnonzero((frame["id"] == pick["id"]).to_numpy(dtype=bool)) if pick else []
+    out = {"chosen": frame.iloc[at[0]]} if len(at) else {}
+    return {**out, **{("lowest RMS" if label == "best" else label): row for label, row in chosen.items()}}
 
 
 def plot_selection(frame: pd.DataFrame, plot: Sequence[str]) -> list[str]:

@@ -7,8 +7,9 @@ they were committed) or when asked to recompute; such rows are cached in ``metri
 and reused while their log keeps its size and modification time.
 
 Columns a user ranks by describe whole runs only: an aborted run's metrics cover the run up to
-its abort, so they are moved to ``<metric>_until_abort`` columns (``rms_error_until_abort``) and
-its ``rms_error`` etc. stay empty. ``outcome`` is one word per point: completed, no-motion,
+its abort (a failed one's up to its failure), so they are moved to ``<metric>_until_abort`` columns
+(``rms_error_until_abort``, the name :func:`labrunner.metrics.as_reported` gives them everywhere)
+and its ``rms_error`` etc. stay empty. ``outcome`` is one word per point: completed, no-motion,
 aborted, failed, or the ledger's planned / claimed for points without a run. In the written
 files ``log_path`` is relative to the file that holds it (``../runs/<id>.mcap`` from
 ``report/metrics.csv``); counts are integers.
@@ -43,7 +44,7 @@ from labrunner.analysis.log_checks import (
 )
 from labrunner.analysis.table_rows import Chunk, chunk_frame
 from labrunner.errors import LabrunnerError
-from labrunner.metrics import BASE_METRICS, Roles, parse_windows, run_metrics
+from labrunner.metrics import BASE_METRICS, CUT_SHORT, UNTIL_ABORT, Roles, parse_windows, ranked, run_metrics
 
 #: Columns that identify a point and its run, in this order at the left of the table.
 ID_COLUMNS = (
@@ -60,16 +61,14 @@ ID_COLUMNS = (
     "law_check",
     "law_arithmetic",
 )
-#: Suffix of the columns that hold an aborted run's metrics (over the run up to its abort).
-UNTIL_ABORT = "_until_abort"
 #: A real rig's timing counts per run (:mod:`labrunner.campaign.rig_timing`; absent for a twin).
 TIMING_COLUMNS = ("late_ticks", "overruns")
 #: Integer columns (nullable where a point has no run).
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS, *TIMING_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
 METRICS_VERSION = (
-    5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
-    # columns; 5: the detector's sustained-oscillation rule (periodicity)
+    6  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
+    # columns; 5: the detector's sustained-oscillation rule (periodicity); 6: failed runs' in _until_abort too
 )
 
 
@@ -224,25 +223,14 @@ def _one_chunk(text: pd.Series) -> pd.Series:
 
 def metric_columns(frame: pd.DataFrame) -> list[str]:
     """The columns holding a run's metrics, of the whole run or of a window (``<metric>@<name>``),
-    other than its sample counts."""
-    prefixes = ("rms_", "energy_", "max_")
-
-    def base(column: str) -> str:
-        return column.split("@", 1)[0]
-
-    return [
-        c
-        for c in frame.columns
-        if (base(c) in BASE_METRICS or base(c).startswith(prefixes))
-        and base(c) != "n_samples"
-        and not c.endswith(UNTIL_ABORT)
-    ]
+    other than its sample counts (:func:`labrunner.metrics.ranked`)."""
+    return [c for c in frame.columns if ranked(c) and not c.endswith(UNTIL_ABORT)]
 
 
 def split_aborted(frame: pd.DataFrame) -> None:
-    """Move the metrics of aborted runs to ``<metric>_until_abort`` columns (see the module), in
-    place: a column at a time, never a second copy of the table's metrics."""
-    aborted = (frame["outcome"] == "aborted").to_numpy(dtype=bool)
+    """Move the metrics of runs cut short (aborted or failed) to ``<metric>_until_abort`` columns
+    (see the module), in place: a column at a time, never a second copy of the table's metrics."""
+    aborted = frame["outcome"].isin(CUT_SHORT).to_numpy(dtype=bool)
     for col in metric_columns(frame):
         values = frame[col].to_numpy(dtype=float)
         frame[col + UNTIL_ABORT] = np.where(aborted, values, np.nan)

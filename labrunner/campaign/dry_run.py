@@ -31,7 +31,10 @@ def grid_text(campaign: Campaign, points: list[PlannedPoint], slots: int, batch_
         total_s += sum(sizes) * duration
     if campaign.rig_info.simulated:
         est = simulated_time(campaign, points, slots, max(groups[next(iter(groups))]))
-        lines.append(f"  estimated time ≈ {est:.0f} s on {slots} worker(s) ({total_s:g} s of simulated time)")
+        lines.append(
+            f"  estimated time ≈ {est:.0f} s on {slots} worker(s) at this machine's present load "
+            f"(timed now; {total_s:g} s of simulated time)"
+        )
     else:
         from labrunner.rigs.device.plan import upload_s
 

@@ -7,7 +7,9 @@ that adds the two things supervision needs beyond ``submit``:
   lost; a process pool reports a dead worker itself, as ``BrokenProcessPool`` on every future);
 - ``abandon()`` — give up on running batches at once: pool workers are killed with SIGKILL (they
   ignore SIGINT/SIGTERM, so ``ProcessPoolExecutor``'s own clean-up, which sends SIGTERM and then
-  joins them, would wait forever), Dask futures are cancelled on the cluster.
+  joins them, would wait forever), Dask futures are cancelled on the cluster;
+- ``stop(level)`` — a pool's workers leave queued batches unrun, and with ``STOP_RUNNING`` stop
+  running ones too (:mod:`labrunner.campaign.live`); None where workers cannot see it (Dask, in-process).
 
 Executors:
 
@@ -108,6 +110,7 @@ class ExecutorHandle:
     probe: Callable[[], str] = field(default=lambda: "")
     abandon: Callable[[], None] = field(default=lambda: None)
     live: live.LiveTicks | None = None
+    stop: Callable[[int], None] | None = None  # raise the workers' stop level (live.LiveTicks.stop); None: unseen
 
     @property
     def max_inflight(self) -> int:
@@ -215,7 +218,7 @@ def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
     try:
         with _stop_signals_held():
             pool.submit(_started)
-        yield ExecutorHandle(pool, n, abandon=abandon, live=ticks)
+        yield ExecutorHandle(pool, n, abandon=abandon, live=ticks, stop=ticks.stop)
     finally:
         with _stop_signals_held():
             if abandoned or getattr(pool, "_broken", False):  # a broken pool SIGTERMs its workers: they ignore it

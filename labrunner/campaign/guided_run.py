@@ -67,6 +67,7 @@ def _rounds(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome]
         rows = ledger.rows()
         state = replay(campaign, rows)
         if state.result is not None:
+            total.complete = True
             break
         present = {r["id"] for r in rows}
         new = [p for p in state.next if point_id(campaign.name, p) not in present]
@@ -84,6 +85,8 @@ def _rounds(campaign: Campaign, ledger: Ledger, run_round: Callable[[], Outcome]
             total.stop_reason = f"round of {len(state.next)} point(s) ran nothing; resume to settle them"
             break
     total.interrupted |= bool(signals.count)
+    if total.interrupted and not total.complete:  # stopped after the round that finished the procedure?
+        total.complete = replay(campaign, ledger.rows()).result is not None
 
 
 def summary(campaign: Campaign, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

@@ -342,7 +342,8 @@ class Ledger:
             self._moved({"planned": -len(ids), "claimed": len(ids)})
 
     def unclaim(self, ids: Sequence[str]) -> None:
-        """claimed → planned for batches that never started (attempts − 1): nothing ran."""
+        """claimed → planned for batches that never started or were stopped before they published
+        anything (attempts − 1): nothing of theirs is recorded."""
         with self._txn():
             cur = self.db.executemany(
                 "UPDATE points SET state = 'planned', attempts = attempts - 1, claimed_at = NULL"

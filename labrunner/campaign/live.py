@@ -29,6 +29,16 @@ grid, so that point lies mid-grid, where the first would always be the grid's fi
 before them, so that the runner never reads a sample not yet written (on a machine that keeps
 stores in order, as x86 does; elsewhere a frame may show a stale sample). Dask workers send no
 signals (the view shows each run's from its log once its batch is in).
+
+The pool's array also carries one word the other way, the runner's *stop level*
+(:meth:`LiveTicks.stop`), read by the worker at each report: :data:`START_NOTHING` — a batch
+that a worker takes from now on returns unrun (:class:`Stopped`) instead of starting;
+:data:`STOP_RUNNING` — running batches stop too, at their next report (≤ 1 % of their ticks),
+the rig put in its safe state by the engine, nothing published. This is how one Ctrl-C stops a
+campaign within a second, rather than after every batch already handed to the pool has run (a
+queued future of a process pool cannot be cancelled safely: killing the pool later makes its
+manager thread fail on it with ``InvalidStateError``). Dask workers share no memory with the
+runner: there the level is not seen and running batches finish.
 """
 
 from __future__ import annotations
@@ -43,11 +53,20 @@ from typing import Any
 
 import numpy as np
 
+from labrunner.errors import LabrunnerError
+
 QUEUED = -1  # a slot's value while its batch waits for a worker
+START_NOTHING = 1  # stop level: batches not yet taken by a worker return unrun
+STOP_RUNNING = 2  # stop level: running batches stop at their next report too
 ROLES = ("output", "reference", "error", "input")  # the signals of a slot's run, in this order
 SIGNAL_SAMPLES = 2000  # samples per signal a slot holds; a longer run is kept every n-th sample
 _NAMES_BYTES = 1024  # a slot's JSON of the signals' names, units and sampling rate
 _channel: Any = None  # in a pool worker: the shared arrays (install)
+
+
+class Stopped(LabrunnerError):
+    """Raised by a report (:func:`hook`) when the runner's stop level says this batch must end
+    now; the worker returns the batch unrun (its points go back to planned)."""
 
 
 @dataclass(frozen=True)
@@ -72,13 +91,13 @@ class RunSignals:
 
 
 class LiveTicks:
-    """``slots`` counters of ticks done, one per batch in flight (module docstring); shared
-    memory when ``context`` (a multiprocessing context) starts the workers, with each slot's
-    run signals (``signals``: only for a pool, whose workers can share them)."""
+    """``slots`` counters of ticks done, one per batch in flight, and the stop level after them
+    (module docstring); shared memory when ``context`` (a multiprocessing context) starts the
+    workers, with each slot's run signals (``signals``: only for a pool, whose workers can share them)."""
 
     def __init__(self, slots: int, context: Any = None, *, topic: str | None = None, signals: bool = False) -> None:
         ctx = context or multiprocessing
-        self.array = ctx.RawArray("q", slots)
+        self.array = ctx.RawArray("q", slots + 1)
         # per slot: serial of the batch writing, samples written, step; values; names (JSON)
         self.shared: tuple[Any, ...] = (self.array,)
         if signals:
@@ -126,6 +145,10 @@ class LiveTicks:
         rows = np.frombuffer(values, dtype=np.float64).reshape(-1, len(ROLES), SIGNAL_SAMPLES)[address.slot]
         return RunSignals(about["names"], about["units"], about["fs"], int(header[base + 2]), rows[:, :n].copy())
 
+    def stop(self, level: int) -> None:
+        """Raise the stop level the pool's workers read (:data:`START_NOTHING`, :data:`STOP_RUNNING`)."""
+        self.array[-1] = max(int(self.array[-1]), level)
+
     def receive(self, event: tuple[float, Any]) -> None:
         """A Dask event ``(time, [slot, serial, ticks])`` from a worker's report (:func:`hook`)."""
         slot, serial, ticks = event[1]
@@ -146,8 +169,10 @@ def install(*shared: Any) -> None:
 
 
 def hook(address: Address | None) -> Callable[[int], None] | None:
-    """What the worker hands the engine for the batch at ``address``: passes the ticks done on.
-    None without an address (a real rig) or a channel (a pool worker without :func:`install`)."""
+    """What the worker hands the engine for the batch at ``address``: passes the ticks done on
+    and, in a pool worker, raises :class:`Stopped` when the runner's stop level asks (0 ticks:
+    the batch is being taken). None without an address (a real rig) or a channel (a pool worker
+    without :func:`install`)."""
     if address is None:
         return None
     if address.topic is not None:
@@ -165,6 +190,9 @@ def hook(address: Address | None) -> Callable[[int], None] | None:
     array = _channel[0]
 
     def write(ticks: int) -> None:
+        level = array[len(array) - 1]
+        if level >= STOP_RUNNING or (level and ticks == 0):
+            raise Stopped("stopped by the runner")
         array[address.slot] = ticks
 
     return write

@@ -2,7 +2,8 @@
 
 The kernel drops an ``flock`` when its holder dies, however it dies (SIGKILL included), so a
 lock left by a dead runner is stale by construction and the next runner takes it over; the file's
-content (host, PID, start time) only serves the messages. While a live runner holds it, a second
+content (host, PID, start time, and the runner's latest progress: :meth:`DirectoryLock.publish`)
+only serves the messages and ``status``. While a live runner holds it, a second
 one is refused with the holder's host and PID. A holder recorded on another host cannot be
 checked by PID, but ``flock`` is authoritative on local disks and NFSv4 alike, so the record is
 only reported, never trusted over the lock itself.
@@ -30,6 +31,7 @@ class Holder:
     pid: int
     started_at: float
     command: str = ""
+    progress: dict | None = None  # the runner's rate and ETA as it last showed them (DirectoryLock.publish)
 
     def describe(self) -> str:
         when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.started_at))
@@ -41,8 +43,15 @@ def _read(fd: int) -> Holder | None:
     raw = os.read(fd, 4096)
     try:
         d = json.loads(raw)
-        return Holder(str(d["host"]), int(d["pid"]), float(d["started_at"]), str(d.get("command", "")))
-    except (ValueError, KeyError, TypeError):
+        progress = d.get("progress")
+        return Holder(
+            str(d["host"]),
+            int(d["pid"]),
+            float(d["started_at"]),
+            str(d.get("command", "")),
+            progress if isinstance(progress, dict) else None,
+        )
+    except (ValueError, KeyError, TypeError, AttributeError):
         return None
 
 
@@ -78,8 +87,18 @@ class DirectoryLock:
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps(me.__dict__).encode(), 0)
         os.fsync(fd)
-        self.fd = fd
+        self.fd, self._me = fd, me
         return self
+
+    def publish(self, progress: dict) -> None:
+        """Add the runner's progress (rate, ETA, …) to the holder record, for ``status`` from another
+        terminal: written in place (no new file), not fsynced (it is advice, renewed every second or
+        so); a reader that catches it half-written sees no JSON and falls back to the ledger."""
+        if self.fd is None:
+            return
+        data = json.dumps({**self._me.__dict__, "progress": progress}).encode()
+        os.pwrite(self.fd, data, 0)
+        os.ftruncate(self.fd, len(data))
 
     def release(self) -> None:
         """Clear the holder record and drop the lock (the file stays: unlinking it would race)."""

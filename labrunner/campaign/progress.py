@@ -13,21 +13,25 @@ batch jobs stay readable.
 A campaign's counts are whole runs with a finished outcome; the runs in flight are shown apart,
 with the share of their ticks done (``12/320 (… ; 32 running, 31 % through, 32 waiting)``, from
 :mod:`labrunner.campaign.live`). The bar's position, the rate and the ETA count those
-run-equivalents too, so they are right before the first lockstep batch ends.
+run-equivalents too, so they are right before the first lockstep batch ends. The runner also
+writes them into its lock record every second (:meth:`labrunner.campaign.lock.DirectoryLock.publish`),
+so that ``status`` from another terminal gives the rate and ETA the runner shows.
 """
 
 from __future__ import annotations
 
 import abc
+import math
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TextIO
 
 #: A point's outcome, in the order counts are given everywhere.
 OUTCOMES = ("completed", "no-motion", "aborted", "failed", "claimed", "planned")
 #: Outcomes of a finished run.
 FINISHED = OUTCOMES[:4]
+PUBLISH_S = 1.0  # at most this often the rate and ETA go to ``publish`` (the runner's lock record) [s]
 
 
 def format_counts(counts: Mapping[str, int]) -> str:
@@ -59,6 +63,8 @@ class _Reporter(abc.ABC):
         self.label, self.total, self.initial = label, total, initial
         self.stream = stream or sys.stderr
         self.interval_s = interval_s
+        self.publish: Callable[[dict], None] | None = None  # where the rate and ETA also go (Progress)
+        self._published = float("-inf")
         self.started = time.monotonic()
         self._last_line, self._last_text = self.started, ""
         self._bar = None
@@ -107,14 +113,18 @@ class _Reporter(abc.ABC):
         return (self.position - self.initial) / elapsed if elapsed > 0 else 0.0
 
     def line(self) -> str:
-        rate = self.rate()
-        left = self.total - self.position
-        eta = 0.0 if left <= 0 else left / rate if rate > 0 else float("nan")  # nothing left: no "?"
+        rate, eta = self.estimate()
         detail = f" ({self.detail()})" if self.detail() else ""
         return (
             f"{self.label}: {self.finished}/{self.total}{detail} {_rate(rate)} {self.unit}s/s, "
             f"elapsed {_clock(time.monotonic() - self.started)}, ETA {_clock(eta)}"
         )
+
+    def estimate(self) -> tuple[float, float]:
+        """(items per second, seconds left: NaN while unknown) as :meth:`line` shows them."""
+        rate = self.rate()
+        left = self.total - self.position
+        return rate, 0.0 if left <= 0 else left / rate if rate > 0 else float("nan")  # nothing left: no "?"
 
     def _moved(self) -> None:
         if self._bar is not None:  # the words first: update() draws them with the position
@@ -122,6 +132,24 @@ class _Reporter(abc.ABC):
             self._bar.update(self.position - self._bar.n)
         elif time.monotonic() - self._last_line >= self.interval_s:
             self.write(self.line())
+        self._publish()
+
+    def _publish(self) -> None:
+        """Hand the rate and ETA to ``publish`` (at most every :data:`PUBLISH_S`), for ``status``."""
+        now = time.monotonic()
+        if self.publish is None or now - self._published < PUBLISH_S:
+            return
+        self._published = now
+        rate, eta = self.estimate()
+        self.publish(
+            {
+                "at": time.time(),
+                "position": round(self.position, 3),
+                "total": self.total,
+                "rate_per_s": round(rate, 4),
+                "estimate_s": None if math.isnan(eta) else round(eta, 1),
+            }
+        )
 
     def tick(self) -> None:
         """Called while waiting: a plain line every ``interval_s`` even when nothing finished."""
@@ -159,12 +187,14 @@ class Progress(_Reporter):
         stream: TextIO | None = None,
         interval_s: float = 5.0,
         bar: bool | None = None,
+        publish: Callable[[dict], None] | None = None,
     ) -> None:
         self.counts = {w: int((counts or {}).get(w, 0)) for w in FINISHED}
         self.running = 0  # runs handed to the executor and not yet counted
         self.taken: int | None = None  # of those, the runs a worker has taken (None: not known)
         self.in_flight = 0.0  # run-equivalents the started runs have done (their batches' share of ticks)
         super().__init__(label, total, sum(self.counts.values()), stream=stream, interval_s=interval_s, bar=bar)
+        self.publish = publish  # the runner's lock record: `status` from another terminal shows this rate and ETA
 
     @property
     def finished(self) -> int:

@@ -3,18 +3,21 @@
 ``start`` validates the whole campaign (every point) before it creates anything, refuses a
 directory that already holds a campaign, creates the directory, takes its lock, writes the
 ledger atomically and runs. ``resume`` takes the lock (a dead runner's lock is taken over),
-refuses a campaign whose file changed what would run, settles what a crash left behind
+runs the campaign's own stored copy (an edited original is only noted), refuses a campaign
+whose rig file or planning code changed what would run, settles what a crash left behind
 (:mod:`labrunner.campaign.recovery`) and runs what is left. ``status`` only reads.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import socket
 import sqlite3
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
@@ -31,6 +34,7 @@ from labrunner.errors import CampaignError, InvalidParameter, LabrunnerError
 from labrunner.version import __version__
 
 CAMPAIGN_COPY = "campaign.toml"
+RIG_LINK = "rig_link"  # ledger meta: the --port / --interface / --channel a real rig's campaign was run with
 
 
 @dataclass(frozen=True)
@@ -44,6 +48,7 @@ class Options:
     stream: TextIO | None = None
     progress_interval_s: float = 5.0
     live: live_view.Address | None = None
+    link: Mapping[str, str | None] | None = None  # a real rig's --port, --interface, --channel (stored for resume)
 
 
 def default_directory(campaign: spec.Campaign) -> Path:
@@ -92,7 +97,7 @@ def _write_copy(directory: Path, text: str) -> None:
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
     """``labrunner run``: validate everything, then create the campaign directory and run it."""
     check_executor_url(opts.executor, reach=False)
-    campaign = spec.load(file)
+    campaign = spec.load(file, link=opts.link)
     if out is not None and not str(out).strip():
         raise InvalidParameter("--out", f"must be a path, got {str(out)!r}")
     directory = Path(out) if out is not None else default_directory(campaign)
@@ -102,6 +107,9 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     with _early_pool(campaign, opts) as pool, live_view.serve(opts.live, campaign.name, opts.stream) as view:
         points, checksum = spec.plan(campaign)
         _check_new_directory(directory, campaign.name, checksum)
+        warned = link_warning(campaign, points)
+        if warned:
+            print(warned, file=opts.stream or sys.stderr)
         check_executor_url(opts.executor)  # reached before the directory exists
         directory.mkdir(parents=True, exist_ok=True)
         with DirectoryLock(directory, "run") as lock:
@@ -118,6 +126,8 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
                 "created_at": repr(time.time()),
                 "created_by": f"labrunner {__version__} on {socket.gethostname()}",
                 **({"guided": campaign.guided.name} if campaign.guided is not None else {}),
+                **({"metadata": json.dumps(campaign.metadata)} if campaign.metadata else {}),
+                **({RIG_LINK: json.dumps(campaign.rig_link)} if campaign.rig_link else {}),
             }
             points_rows = ((p.seq, p.id, p.parameters, p.batch_key) for p in points)
             ledger = Ledger.create(directory, meta=meta, points=points_rows)
@@ -140,7 +150,22 @@ def _dry_run(campaign: spec.Campaign, directory: Path, opts: Options) -> str:
         _check_new_directory(directory, campaign.name, checksum)
     except CampaignError as exc:
         text += f"\nnote: `labrunner run` would refuse: {exc}"
-    return text
+    warned = link_warning(campaign, points)
+    return f"{text}\n{warned}" if warned else text
+
+
+def link_warning(campaign: spec.Campaign, points: list[spec.PlannedPoint]) -> str:
+    """A real rig's host loop asked for a higher f_s than ``check-rig`` last measured its link to
+    sustain (:mod:`labrunner.rigs.transports.link_record`): one line, else ""."""
+    config = campaign.rig_config
+    if campaign.rig_info.simulated or config.parameters.get("loop", "host") != "host":
+        return ""
+    from labrunner.rigs.config import resolve_rig_file
+    from labrunner.rigs.transports import link_record
+
+    rig_file = campaign.rig_path or resolve_rig_file(campaign.rig, campaign.rig_search)
+    fs = max((float(p.parameters.get("campaign.fs", campaign.fs)) for p in points), default=campaign.fs)
+    return link_record.warning(link_record.link_key(rig_file, config.kind, config.parameters), fs)
 
 
 def _early_pool(
@@ -155,8 +180,8 @@ def _early_pool(
     return open_executor(real_rig=False, workers=opts.workers, url=None, lock_fd=lock_fd)
 
 
-def _check_unchanged(ledger: Ledger) -> spec.Campaign:
-    """The stored campaign; refuse if it, or its original file, plans differently.
+def _check_unchanged(ledger: Ledger, link: Mapping[str, str | None] | None = None) -> spec.Campaign:
+    """The stored campaign; refuse if it plans differently now (its rig file or labrunner changed).
 
     When the plan's inputs (file, rig file, planning code: :mod:`.plan_inputs`) are those stored,
     the plan is the stored one and the ledger's ids were checked against their creation checksum
@@ -167,26 +192,35 @@ def _check_unchanged(ledger: Ledger) -> spec.Campaign:
     if lacking:
         raise integrity.damaged(ledger.directory / LEDGER_NAME, f"keeps no {', '.join(lacking)} to resume from")
     source_path = Path(meta["campaign_path"])
-    campaign = spec.from_text(meta["campaign_file"], source_path=source_path)
+    given = {k: v for k, v in (link or {}).items() if v is not None}
+    if given and given != json.loads(meta.get(RIG_LINK, "{}")):
+        ledger.set_meta(RIG_LINK, json.dumps(given))  # the device moved (another pty): kept for the next resume
+    campaign = spec.from_text(
+        meta["campaign_file"], source_path=source_path, link=given or json.loads(meta.get(RIG_LINK, "{}"))
+    )
     if "ids_checksum" not in meta or not plan_inputs.unchanged(campaign, meta):
         _check_replanned(ledger, campaign, meta["plan_checksum"])
         if "ids_checksum" in meta:
             for key, value in plan_inputs.stamp(campaign).items():
                 ledger.set_meta(key, value)
-    if source_path.is_file():
-        text = source_path.read_text(encoding="utf-8")
-        if text != meta["campaign_file"]:
-            try:
-                edited = spec.from_text(text, source_path=source_path)
-                same = plan_inputs.unchanged(edited, ledger.meta()) or spec.plan(edited)[1] == meta["plan_checksum"]
-            except Exception:  # an edit that no longer even validates is an edit
-                same = False
-            if not same:
-                raise CampaignError(
-                    f"{source_path} was edited since this campaign was planned (its grid or run settings differ); "
-                    f"restore it to resume, or run the edited file as a new campaign with --out"
-                )
     return campaign
+
+
+def _edited_note(ledger: Ledger) -> str:
+    """One line when the campaign's original file differs from the copy the campaign keeps: resume
+    runs the copy (editing a file to make a variant is the normal workflow), and says so."""
+    meta = ledger.meta()
+    source_path = Path(meta["campaign_path"])
+    try:
+        edited = source_path.read_text(encoding="utf-8") != meta["campaign_file"]
+    except (OSError, UnicodeDecodeError):  # moved, deleted or unreadable: the copy is all there is
+        edited = False
+    if not edited:
+        return ""
+    return (
+        f"note: {source_path} changed since this campaign began; resuming from its own copy, "
+        f"{ledger.directory / CAMPAIGN_COPY} (run the edited file as a new campaign with --out DIR)"
+    )
 
 
 def _check_replanned(ledger: Ledger, campaign: spec.Campaign, checksum: str) -> None:
@@ -228,7 +262,10 @@ def resume(directory: str | Path, opts: Options, *, retry_failed: bool = False) 
         trust, (counts, words) = _trusted(ledger, checked)
         if lock.took_over:
             print(f"took over the stale lock of {lock.took_over.describe()}", file=stream)
-        campaign = _check_unchanged(ledger)
+        campaign = _check_unchanged(ledger, opts.link)
+        note = _edited_note(ledger)
+        if note:
+            print(note, file=stream)
         idle = not (counts.get("planned", 0) or counts.get("claimed", 0) or (retry_failed and counts.get("failed", 0)))
         # a finished campaign needs no workers: forking a pool only to wait for its shutdown cost ~1 s
         early = contextlib.nullcontext() if idle and campaign.guided is None else _early_pool(campaign, opts, lock.fd)
@@ -285,7 +322,9 @@ def _execute(
     ledger.start_session(command)
     c, counts = census or ledger.census()
     total = sum(c.values()) if campaign.guided is None else max(sum(c.values()), campaign.guided.max_runs())
-    progress = Progress(campaign.name, total, counts, stream=opts.stream, interval_s=opts.progress_interval_s)
+    progress = Progress(
+        campaign.name, total, counts, stream=opts.stream, interval_s=opts.progress_interval_s, publish=lock.publish
+    )
     real = not campaign.rig_info.simulated
     out = Outcome()
     reason = "error"

@@ -12,13 +12,19 @@ run-equivalents in flight, so its rate and ETA hold from the first second.
 
 Supervision — the loop never blocks longer than :data:`POLL_S` and never hangs:
 
-- Ctrl-C (or SIGTERM) once: no new batches, batches not yet started are unclaimed, running ones
-  finish and are committed — within a bound it prints (twice their expected time + :data:`GRACE_S`),
-  after which they are abandoned. Twice: running batches are abandoned at once. The signal
-  handler only counts; nothing is raised into a lock or a transaction.
+- Ctrl-C (or SIGTERM) once: no new batches; on a process pool every batch handed to it stops
+  (queued ones before they start, running ones at their next progress report, ≤ 1 % of their
+  ticks: :mod:`labrunner.campaign.live`), the rig put in its safe state, nothing published, and
+  their points go back to ``planned`` — a second or so, whatever the batch size. On Dask
+  (whose workers cannot see the stop) queued batches are cancelled and running ones finish and
+  are committed, as does a real rig's one run; all within a bound the runner prints (twice
+  their expected time + :data:`GRACE_S`), after which they are abandoned. Twice: whatever still
+  runs is abandoned at once. The signal handler only counts; nothing is raised into a lock or
+  a transaction.
 - A dead worker (``BrokenProcessPool``), a lost Dask worker or scheduler, a worker that cannot
-  publish: stop submitting, the same bounded wait (a dead pool worker takes every running batch
-  with it: abandoned at once), then the session ends with the reason.
+  publish: stop submitting (queued batches are not started), the same bounded wait for the
+  running ones (a dead pool worker takes every running batch with it: abandoned at once), then
+  the session ends with the reason.
 
 Abandoned batches' points stay claimed; ``resume`` settles them (a log published before the
 abandonment is accepted). Either way the ledger is consistent and the rig is left in its safe state.
@@ -39,7 +45,7 @@ from typing import Any, TypeVar
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
-from labrunner.campaign.live import QUEUED, RunSignals, representative
+from labrunner.campaign.live import QUEUED, START_NOTHING, STOP_RUNNING, RunSignals, representative
 from labrunner.campaign.live_view import LiveView
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
@@ -76,6 +82,7 @@ class Outcome:
     elapsed_s: float = 0.0
     counts: dict[str, int] = field(default_factory=dict)
     signals: int = 0  # Ctrl-C/SIGTERM received, also one after the last batch began (a guided campaign stops on it)
+    complete: bool = False  # nothing is left to run (every point terminal; a guided procedure finished)
 
 
 def batch_size(group_points: int, slots: int, samples: int, requested: int | None = None) -> int:
@@ -210,6 +217,8 @@ class Scheduler:
             runs=tuple(runs),
             samples_hz=c.logging.get("samples_hz"),
             precision=c.logging.get("precision", "float64"),
+            metadata=c.metadata,
+            rig_link=c.rig_link,
         )
 
     def _submit(self, key: str, seqs: Sequence[int], signals: StopSignals, out: Outcome) -> None:
@@ -290,6 +299,9 @@ class Scheduler:
                 out.stop_reason = out.stop_reason or f"a worker failed: {type(exc).__name__}: {exc}"
                 return
             result: BatchResult = future.result()
+            if result.unrun:  # stopped by the runner (Ctrl-C) before it ran to the end: nothing published
+                self.ledger.unclaim(batch.ids)
+                return
             self.ledger.commit(*result.records)
             if self.view:
                 self.view.finished(result.records, dict(zip(batch.ids, batch.parameters)), self.ledger.directory)
@@ -330,9 +342,8 @@ class Scheduler:
     def _abandon(self, out: Outcome) -> None:
         """Give up on every running batch now: their points stay claimed for ``resume``."""
         if self.inflight:
-            self.handle.abandon()
-            for future, batch in self.inflight.items():
-                future.cancel()
+            self.handle.abandon()  # not future.cancel(): a pool then fails on a cancelled future it still held
+            for batch in self.inflight.values():
                 self._release(batch.slot)
                 if self.progress:
                     self.progress.returned(len(batch.ids))
@@ -340,20 +351,41 @@ class Scheduler:
             self.live()
             out.abandoned = True
 
-    def _stopping(self, out: Outcome, pending: deque, why: str) -> None:
-        """Stop submitting: drop pending batches, unclaim queued ones, give running ones a deadline."""
+    def _stopping(self, out: Outcome, pending: deque, why: str, *, interrupted: bool = False) -> None:
+        """Stop submitting: drop pending batches; queued ones are not started (a pool's stop level,
+        else cancelled), running ones stop now when ``interrupted`` on a pool, else finish; all
+        within a deadline."""
         pending.clear()
-        for future in list(self.inflight):
-            if future.cancel():
-                self._collect(future, out)
+        running = sum(len(b.ids) for b in self.inflight.values() if self._started(b))
+        queued = sum(len(b.ids) for b in self.inflight.values()) - running
+        stop = self.handle.stop
+        if stop is not None:
+            stop(STOP_RUNNING if interrupted else START_NOTHING)
+        else:
+            for future in list(self.inflight):
+                if future.cancel():
+                    self._collect(future, out)
         expected = max([self.longest_s, *(b.expected_s for b in self.inflight.values())], default=0.0)
         self.bound_s = math.ceil(2.0 * expected + GRACE_S)  # a batch may wait behind one running on its slot
         self.deadline = time.monotonic() + self.bound_s
-        if self.inflight:
+        if not self.inflight:
+            return
+        again = "Ctrl-C again to abandon them now"
+        if stop is not None and interrupted:
             self._say(
-                f"{why}: finishing {len(self.inflight)} running batch(es), at most {self.bound_s:.0f} s"
-                " (Ctrl-C again to abandon them now)"
+                f"{why}: stopping the {running} run(s) in flight now (rig left safe, nothing logged); they and "
+                f"{queued} queued stay planned for resume ({again})"
             )
+        else:
+            self._say(
+                f"{why}: finishing the {running} run(s) in flight, at most {self.bound_s:.0f} s; {queued} queued "
+                f"stay planned ({again})"
+            )
+
+    def _started(self, batch: _Batch) -> bool:
+        """Whether a worker has taken ``batch`` (without a live channel: assumed so)."""
+        live = self.handle.live
+        return live is None or live.ticks(batch.slot) != QUEUED
 
     def _supervise(self, signals: StopSignals, out: Outcome, pending: deque) -> None:
         """Ctrl-C, a failure, a lost worker or a passed deadline: what the loop does next."""
@@ -365,11 +397,11 @@ class Scheduler:
                 out.stop_reason = out.stop_reason or reason
         if signals.count >= 2 and self.inflight:
             out.interrupted = True
-            self._say("interrupted again: abandoning the running batches (their points stay claimed for resume)")
+            self._say("interrupted again: abandoning the running runs now (resume settles them)")
             self._abandon(out)
         elif signals.count and not out.interrupted:
             out.interrupted = True
-            self._stopping(out, pending, "interrupted")
+            self._stopping(out, pending, "interrupted", interrupted=True)
         elif out.stop_reason and self.deadline is None:
             self._stopping(out, pending, "stopping")
         if self.deadline is not None and now > self.deadline and self.inflight:
@@ -415,6 +447,7 @@ class Scheduler:
             out.signals = signals.count
         out.elapsed_s = time.monotonic() - t0
         out.counts = self.ledger.by_outcome()
+        out.complete = not (out.counts.get("planned", 0) or out.counts.get("claimed", 0))
         return out
 
     def _say(self, message: str) -> None:

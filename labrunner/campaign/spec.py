@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from labrunner import inputfile
-from labrunner.campaign import expressions, grid as gridmod
-from labrunner.campaign.checks import MAX_SEED, StaticChecker, batch_key
+from labrunner.campaign import expressions, grid as gridmod, metadata as metadata_mod
+from labrunner.campaign.checks import MAX_SEED, StaticChecker, batch_key, batch_key_of, lookup_point
 from labrunner.campaign.config_tree import NameView, copy_tree, dotted_keys, set_key
 from labrunner.campaign.grid import Grid, canonical_json, point_id
 from labrunner.errors import InvalidParameter, check_finite, check_number, check_positive
@@ -34,7 +34,7 @@ SECTIONS = ("controller", "differentiator", "reference", "safety", "rig_paramete
 CAMPAIGN_KEYS = ("name", "description", "rig", "fs", "duration", "seed")
 GRID_CAMPAIGN_KEYS = ("fs", "duration", "seed")  # campaign keys a grid may vary
 OPTIONAL_SECTIONS = ("metrics",)  # in a run's configuration only where the file has them
-TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived", "logging")
+TOP_LEVEL = ("campaign", *SECTIONS, *OPTIONAL_SECTIONS, "grid", "guided", "derived", "logging", "metadata")
 LOGGING_KEYS = ("samples_hz", "precision")  # [logging]: how the run logs are written
 PRECISIONS = ("float64", "float32")  # [logging] precision: how the logs store each sample's values
 NAME_RE = re.compile(r"[a-z0-9_-]{1,64}")
@@ -73,6 +73,8 @@ class Campaign:
     rig_safety: Mapping[str, Any] = field(default_factory=dict, repr=False)
     guided: Any = None  # a labrunner.campaign.guided.Procedure for a guided campaign ([guided] instead of [grid])
     logging: Mapping[str, Any] = field(default_factory=dict)  # [logging], validated: samples_hz [Hz], precision
+    metadata: Mapping[str, Any] = field(default_factory=dict)  # [metadata]: the user's own fields (.metadata)
+    rig_link: Mapping[str, str] = field(default_factory=dict)  # the command line's --port etc. (rigconfig.LINK_KEYS)
 
     @property
     def rig_ref(self) -> str:
@@ -154,8 +156,11 @@ def _resolve_rig(value: Any, source_path: Path | None, root: Path) -> tuple[str,
     return value, path
 
 
-def from_text(text: str, *, source_path: Path | None = None, root: Path | None = None) -> Campaign:
-    """Parse and validate a campaign (structure, keys, grid, derived, rig); no per-point checks."""
+def from_text(
+    text: str, *, source_path: Path | None = None, root: Path | None = None, link: Mapping[str, str] | None = None
+) -> Campaign:
+    """Parse and validate a campaign (structure, keys, grid, derived, rig); no per-point checks.
+    ``link``: a real rig's port or CAN interface and channel instead of its rig file's."""
     root = (root or (project_root(source_path) if source_path else Path.cwd())).resolve()
     doc = parse(text, source_path=source_path)
     unknown = sorted(set(doc) - set(TOP_LEVEL))
@@ -169,7 +174,9 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         raise InvalidParameter("campaign", "section is missing (needs at least name and rig)")
     bad = sorted(set(head) - set(CAMPAIGN_KEYS))
     if bad:
-        raise InvalidParameter(f"campaign.{bad[0]}", f"unknown key; allowed: {', '.join(CAMPAIGN_KEYS)}")
+        raise InvalidParameter(
+            f"campaign.{bad[0]}", f"unknown key; allowed: {', '.join(CAMPAIGN_KEYS)}; {metadata_mod.HINT}"
+        )
     for key in ("name", "rig"):
         if key not in head:
             raise InvalidParameter(f"campaign.{key}", "is required")
@@ -178,7 +185,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         raise InvalidParameter("campaign.name", f"must match [a-z0-9_-]+ (at most 64 characters), got {name!r}")
     description = _require("campaign.description", head.get("description", ""), str, "a string")
     rig, rig_path = _resolve_rig(head["rig"], source_path, root)
-    rig_config = load_rig_file(rig_path or rig, root)
+    link = {k: v for k, v in (link or {}).items() if v is not None}
+    rig_config = load_rig_file(rig_path or rig, root, link)
     info = rigconfig.rig_info(rig_config)
     rig_params = tuple(rig_class(rig_config.kind).overridable())
     fs = check_positive("campaign.fs", head["fs"], strict=True) if "fs" in head else float(info.fs_default)
@@ -245,6 +253,8 @@ def from_text(text: str, *, source_path: Path | None = None, root: Path | None =
         rig_safety=dict(rig_config.safety),
         rig_config=rig_config,
         logging=_logging(doc.get("logging", {})),
+        metadata=metadata_mod.parse(doc.get("metadata", {})),
+        rig_link=link,
     )
     if "guided" in doc:  # the procedure's axes stand in for a grid (analysis maps, derived keys)
         from labrunner.campaign import procedures
@@ -294,24 +304,24 @@ def _derived_items(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple
             yield path, value
 
 
-def load_rig_file(ref: str | Path, root: Path) -> RigConfig:
-    """The campaign's rig file, validated, without opening the rig.
+def load_rig_file(ref: str | Path, root: Path, link: Mapping[str, str] | None = None) -> RigConfig:
+    """The campaign's rig file, validated, without opening the rig (``link``: see :func:`from_text`).
 
     Its errors keep the loader's own field (``rigs/bad.toml: parameters.a``); only a rig file that
     cannot be found is reported as ``campaign.rig``.
     """
     try:
-        return rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root))
+        return rigconfig.load_rig_config(str(ref), search=rigconfig.default_search(root), link=link)
     except InvalidParameter as exc:
         if exc.field == "rig":
             raise InvalidParameter("campaign.rig", exc.message) from None
         raise
 
 
-def load(path: str | Path, *, root: Path | None = None) -> Campaign:
+def load(path: str | Path, *, root: Path | None = None, link: Mapping[str, str] | None = None) -> Campaign:
     """Read and validate a campaign file (structure only; see :func:`plan` for the per-point checks)."""
     path = Path(path)
-    return from_text(inputfile.read_text(path, "FILE", "campaign file"), source_path=path, root=root)
+    return from_text(inputfile.read_text(path, "FILE", "campaign file"), source_path=path, root=root, link=link)
 
 
 def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
@@ -335,12 +345,12 @@ def plan(campaign: Campaign) -> tuple[list[PlannedPoint], str]:
     accept(checker.flush())
     checked.sort(key=lambda c: c[0])
     points: list[PlannedPoint] = []
+    base = campaign.resolve({})
     for seq, params, duration, _ in checked:  # batch keys once every batch-common key is known
-        config = campaign.resolve(params)
-        config["campaign"]["duration"] = duration
-        points.append(
-            PlannedPoint(seq, point_id(campaign.name, params), params, batch_key(campaign.rig, config, checker.split))
-        )
+        found = checker.choices(params, lambda p=params: campaign.resolve(p))  # known by now: not resolved
+        values = [lookup_point(params, base, k) for k in checker.split]
+        key = batch_key_of(campaign.rig, params.get("campaign.fs", campaign.fs), duration, found, values)
+        points.append(PlannedPoint(seq, point_id(campaign.name, params), params, key))
     gridmod.check_unique([p.id for p in points], [p.parameters for p in points])
     from labrunner.rigs.device.plan import check_placement
 

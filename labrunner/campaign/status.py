@@ -1,6 +1,8 @@
 """``labrunner status``: where a campaign stands, from its ledger and lock alone (reads only; safe
-while it runs). Kept apart from :mod:`labrunner.campaign.runner` so that the command loads no
-campaign validation, controllers or numerics (start-up ≤ 0.2 s, issue 14)."""
+while it runs); while a runner runs, its rate and ETA are those it shows (from its lock record),
+which count the runs in flight, not only the committed ones. Kept apart from
+:mod:`labrunner.campaign.runner` so that the command loads no campaign validation, controllers or
+numerics (start-up ≤ 0.2 s, issue 14)."""
 
 from __future__ import annotations
 
@@ -24,6 +26,10 @@ FULL_CHECK_POINTS = 20_000
 #: ``diagnostics`` record, a device loop's law check and the rig's timing) or a twin ("0": they keep
 #: none, so status need not search every outcome for them: ~3 s at 10^6 points).
 REAL_RIG = "real_rig"
+
+#: A running runner's own rate and ETA (its lock record, renewed every second: :mod:`.progress`) are
+#: shown while younger than this [s]; else the ledger's committed runs over the elapsed time.
+FRESH_S = 30.0
 
 
 def status(directory: str | Path) -> dict[str, Any]:
@@ -51,6 +57,10 @@ def status(directory: str | Path) -> dict[str, Any]:
     total = sum(outcomes.values())
     remaining = outcomes.get("planned", 0) + outcomes.get("claimed", 0)
     rate = finished / elapsed if elapsed > 0 and finished else None
+    estimate = round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None)
+    shown = running.progress if running is not None else None
+    if shown and now - float(shown.get("at", 0.0)) < FRESH_S:  # what the runner itself shows (runs in flight too)
+        rate, estimate = shown.get("rate_per_s") or None, shown.get("estimate_s")
     return {
         "campaign": meta.get("campaign"),
         "directory": str(directory),
@@ -59,7 +69,7 @@ def status(directory: str | Path) -> dict[str, Any]:
         "quarantined": quarantined,
         "elapsed_s": round(elapsed, 3),
         "rate_per_s": round(rate, 3) if rate else None,
-        "estimate_s": round(remaining / rate, 1) if rate else (0.0 if remaining == 0 else None),
+        "estimate_s": estimate,
         "running": None if running is None else {"host": running.host, "pid": running.pid},
         "sessions": len(sessions),
         **({"timing": timing} if timing else {}),

@@ -64,6 +64,8 @@ class BatchTask:
     samples_hz: float | None = None  # [logging] samples_hz: thin the logs' per-sample channel (None: full rate)
     precision: str = "float64"  # [logging] precision: "float32" rounds every logged signal to float32
     live_at: live.Address | None = None  # where the worker reports the ticks done (labrunner.campaign.live)
+    metadata: Mapping[str, Any] = field(default_factory=dict)  # the campaign's [metadata]: each log's record
+    rig_link: Mapping[str, str] = field(default_factory=dict)  # --port etc. instead of the rig file's (run, resume)
 
 
 @dataclass
@@ -72,6 +74,7 @@ class BatchResult:
 
     records: list[RunRecord] = field(default_factory=list)
     stop: str = ""  # non-empty: the reason to stop the campaign
+    unrun: bool = False  # the runner's stop level ended the batch before it ran to the end: nothing published
     failure_limit: int = 0  # the rig's max_consecutive_failures: points in a row failed that stop it (0: none)
 
 
@@ -85,7 +88,7 @@ def _load_rig(task: BatchTask):
     from labrunner.rigs import registry
     from labrunner.rigs.config import load_rig_config
 
-    config = load_rig_config(task.rig, search=task.rig_search)
+    config = load_rig_config(task.rig, search=task.rig_search, link=task.rig_link)
     return registry.load_rig(config), config.to_dict()
 
 
@@ -131,6 +134,7 @@ def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> di
         },
         "config": dict(run.config),
         "parameters": dict(run.parameters),
+        **({"metadata": dict(task.metadata)} if task.metadata else {}),
     }
 
 
@@ -146,14 +150,31 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
     its safe state, else the parent stops (architecture: "stop-campaign"). ``failure_limit`` tells
     the parent the rig's ``max_consecutive_failures``. Any other exception marks the batch's
     points failed with the message (they have no log) and the campaign goes on. The ticks done go
-    to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass.
+    to the runner's live channel (:mod:`labrunner.campaign.live`) as they pass; when the runner
+    stops (Ctrl-C) the batch ends there unrun (``unrun``: nothing published, the rig in its safe state).
     """
     host, pid = socket.gethostname(), os.getpid()
     out = BatchResult()
     report = live.hook(task.live_at)
+    try:
+        if report is not None:
+            report(0)  # taken: no longer queued
+        return _execute(task, out, report, run_batch, host, pid)
+    except live.Stopped:
+        out.records, out.unrun = [], True
+        return out
+
+
+def _execute(
+    task: BatchTask,
+    out: BatchResult,
+    report: Callable[[int], None] | None,
+    run_batch: Callable[..., Sequence[Any]] | None,
+    host: str,
+    pid: int,
+) -> BatchResult:
+    """:func:`execute_batch` once the batch is taken: load the rig, run, publish."""
     ticks = round(task.fs * task.duration)
-    if report is not None:
-        report(0)  # taken: no longer queued
     t0, start_time = time.perf_counter(), time.time()
     try:
         rig, rig_record = _load_rig(task)
@@ -181,6 +202,8 @@ def execute_batch(task: BatchTask, run_batch: Callable[..., Sequence[Any]] | Non
             except RigError as exc:
                 exc.after = _recover(rig)
                 raise
+    except live.Stopped:
+        raise
     except RigError as exc:  # the engine hands over the failed runs' logs up to the failure when it has them
         after = getattr(exc, "after", "")  # None: the device is back in its safe state, the campaign goes on
         if after is not None:

@@ -92,6 +92,10 @@ def _strict(value: Any) -> Any:
     return value
 
 
+def _params(run: dict) -> str:
+    return ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in run["params"].items())
+
+
 def run(args: argparse.Namespace) -> int:
     from labrunner.analysis.analyse import analyse
     from labrunner.errors import InvalidParameter
@@ -131,12 +135,13 @@ def run(args: argparse.Namespace) -> int:
         f"{summary['runs']} runs of {summary['points']} points: {format_counts(summary['outcomes'])}"
         + (f" ({summary['oscillating']} of the completed oscillating)" if summary.get("oscillating") else "")
     )
-    best = summary["best"]
-    if best:
-        params = ", ".join(
-            f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in best["params"].items()
-        )
-        print(f"best: RMS({'ê' if args.error == 'e_hat' else 'e'}) = {best['rms']:.4g} at {params}")
+    best, pick = summary["best"], (summary.get("guided") or {}).get("chosen")
+    error = "ê" if args.error == "e_hat" else "e"
+    if pick:  # a guided campaign's answer is its procedure's choice, as `status` says
+        print(f"chosen by the procedure (step {pick['step']}): RMS(e) = {pick['rms_error']:.4g} at {_params(pick)}")
+    if best and not (pick and best["id"] == pick["id"]):
+        what = "lowest RMS of its runs (not the procedure's choice)" if pick else "best"
+        print(f"{what}: RMS({error}) = {best['rms']:.4g} at {_params(best)}")
     if agree.get("share") is not None:
         print(
             f"theory ({agree['case']}) agrees on {agree['share']:.1%} of {agree['n_compared']} points "

@@ -43,3 +43,16 @@ def path_text(text: str) -> str:
     if not text.strip():
         raise argparse.ArgumentTypeError(f"must be a path, got {text!r}")
     return text
+
+
+def add_link_options(parser: argparse.ArgumentParser) -> None:
+    """``--port`` (serial) and ``--interface`` / ``--channel`` (CAN): the link a real rig file
+    names, given here instead (``labrunner emulate`` prints the pty or the CAN channel)."""
+    parser.add_argument("--port", metavar="DEV", help="serial port instead of the rig file's, e.g. /dev/pts/3")
+    parser.add_argument("--interface", metavar="NAME", help="python-can interface instead of the rig file's")
+    parser.add_argument("--channel", metavar="NAME", help="CAN channel instead of the rig file's")
+
+
+def link_options(args: argparse.Namespace) -> dict[str, str | None]:
+    """What :func:`add_link_options` parsed, for :func:`labrunner.rigs.config.load_rig_config`."""
+    return {"port": args.port, "interface": args.interface, "channel": args.channel}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from labrunner.cli.argtypes import positive_int
+from labrunner.cli.argtypes import add_link_options, link_options, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -17,6 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "sustains with margin. Nothing moves (no run is set up) unless --dead-time asks for a small input step.",
     )
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
+    add_link_options(p)
     p.add_argument("--pings", type=positive_int, default=200, metavar="N", help="round trips to time (default 200)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
@@ -47,11 +48,25 @@ def main(args: argparse.Namespace) -> int:
     from labrunner.rigs.config import load_rig_config
     from labrunner.rigs.transports.checkrig import check_rig, describe
 
-    config = load_rig_config(args.rig)
+    config = load_rig_config(args.rig, link=link_options(args))
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"check-rig checks can or serial rig files, got {config.kind!r}")
     if args.step is not None and not args.dead_time:
         raise InvalidParameter("--step", "sets the --dead-time step; give --dead-time too")
     report = check_rig(config, args.pings, args.campaign, args.dead_time, args.step)
     print(json.dumps(report, sort_keys=True) if args.json else "\n".join(describe(report)))
+    _remember(args.rig, config, report["max_host_fs"])
     return 1 if report.get("dead_time", {}).get("verdict") in ("late", "early") else 0
+
+
+def _remember(rig: str, config, max_host_fs: float) -> None:
+    """Keep what the link sustains, for `run` to warn before a faster campaign (link_record)."""
+    import sys
+
+    from labrunner.rigs.config import resolve_rig_file
+    from labrunner.rigs.transports import link_record
+
+    try:
+        link_record.remember(link_record.link_key(resolve_rig_file(rig), config.kind, config.parameters), max_host_fs)
+    except OSError as exc:
+        print(f"note: could not keep the measurement in {link_record.record_path()}: {exc.strerror}", file=sys.stderr)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from labrunner.cli.argtypes import add_link_options, link_options
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -17,6 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "host-silence watchdog. Prints a pass/fail table; exit status 1 when a check fails.",
     )
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
+    add_link_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--case", action="append", default=None, metavar="NAME", help="only this vector (repeatable)")
     p.add_argument("--no-protocol", action="store_true", help="run the vectors only")
@@ -30,7 +33,7 @@ def main(args: argparse.Namespace) -> int:
     from labrunner.rigs.config import load_rig_config
     from labrunner.rigs.device.conform import cases_for, conform, table
 
-    config = load_rig_config(args.rig)
+    config = load_rig_config(args.rig, link=link_options(args))
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"conform checks can or serial rig files, got {config.kind!r}")
     known = cases_for(config.info.kind)

@@ -29,6 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(docs/protocol.md): on the rig's CAN bus, or on a new pty whose name it prints. Ctrl-C stops.",
     )
     p.add_argument("rig", metavar="RIG.toml", help="a can or serial rig file")
+    p.add_argument("--interface", metavar="NAME", help="a CAN rig's python-can interface instead of the file's")
+    p.add_argument("--channel", metavar="NAME", help="a CAN rig's channel instead of the file's")
     p.add_argument(
         "--free-run", action="store_true", help="tick as soon as the host commits an input (no real-time pacing)"
     )
@@ -129,7 +131,7 @@ def main(args: argparse.Namespace) -> int:
             raise InvalidParameter(f"--{name.replace('_', '-')}", f"must be >= 0, got {getattr(args, name)!r}")
     if args.realtime and args.free_run:
         raise InvalidParameter("--realtime", "paces the device's clock; it cannot be used with --free-run")
-    config = load_rig_config(args.rig)
+    config = load_rig_config(args.rig, link={"interface": args.interface, "channel": args.channel})
     if config.kind not in ("can", "serial"):
         raise InvalidParameter("rig.kind", f"emulate serves can or serial rig files, got {config.kind!r}")
     faults = LinkFaults(

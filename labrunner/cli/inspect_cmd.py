@@ -62,7 +62,11 @@ def format_summary(summary: dict[str, Any], path: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from labrunner.logs import read_run
+    from labrunner.metrics import as_reported
 
     summary = read_run(args.path).summary()
+    metadata = summary["metadata"]
+    if "metrics" in metadata:  # a run cut short: rms_error_until_abort, ..., as the table and the results API
+        metadata["metrics"] = as_reported(metadata["metrics"], (summary["outcome"] or {}).get("status"))
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary, args.path))
     return 0

@@ -14,8 +14,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="continue a campaign after a crash or Ctrl-C",
         description=(
             "Continue the campaign in DIR: terminal points are skipped, torn logs of interrupted runs are "
-            "moved to DIR/quarantine/ and their points run again. Refused while another runner holds DIR "
-            "or when the campaign file was edited."
+            "moved to DIR/quarantine/ and their points run again. Runs the campaign's own copy "
+            "(DIR/campaign.toml), not the file it was started from. Refused while another runner holds DIR "
+            "or when its rig file changed what would run."
         ),
     )
     p.add_argument(

@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from labrunner.cli.argtypes import path_text, positive_int
+from labrunner.cli.argtypes import add_link_options, link_options, path_text, positive_int
 from labrunner.errors import CampaignError, InvalidParameter
 
 
@@ -19,6 +19,7 @@ def add_execution_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--batch-size", type=positive_int, metavar="N", help="runs per lockstep batch (default: automatic)"
     )
+    add_link_options(parser)  # a real rig's link instead of its rig file's (kept for resume)
     parser.add_argument(
         "--live",
         nargs="?",
@@ -55,7 +56,9 @@ def execution_options(args: argparse.Namespace):
     if args.live_expose and args.live is None:
         raise InvalidParameter("--live-expose", "needs --live HOST:PORT")
     live = parse_address(args.live, expose=args.live_expose) if args.live is not None else None
-    return Options(workers=args.workers, executor=args.executor, batch_size=args.batch_size, live=live)
+    return Options(
+        workers=args.workers, executor=args.executor, batch_size=args.batch_size, live=live, link=link_options(args)
+    )
 
 
 def one_blas_thread() -> None:
@@ -98,7 +101,14 @@ def report(outcome, directory: str, command: str) -> int:
         )
         raise CampaignError(f"stopped: {outcome.stop_reason}; continue with `labrunner resume {directory}`{retry}")
     if outcome.interrupted:
-        print(f"labrunner {command}: interrupted; continue with `labrunner resume {directory}`", file=sys.stderr)
+        if outcome.complete:
+            print(f"labrunner {command}: interrupted after the last run: the campaign is complete", file=sys.stderr)
+            return 0
+        left = outcome.counts.get("planned", 0) + outcome.counts.get("claimed", 0)
+        what = f"{left} of {sum(outcome.counts.values())} points left" if left else "its procedure has not finished"
+        print(
+            f"labrunner {command}: interrupted; {what}; continue with `labrunner resume {directory}`", file=sys.stderr
+        )
         return 130
     return 0
 

@@ -61,6 +61,11 @@ class CampaignResults:
 
         return describe.html_table("CampaignResults", describe.campaign_facts(self))
 
+    @property
+    def metadata(self) -> dict[str, Any]:
+        """The campaign file's ``[metadata]`` (operator, sample, notes, tags, …; {} without one)."""
+        return dict(json.loads(self.meta.get("metadata") or "{}"))
+
     def refresh(self) -> None:
         """Forget the table read so far (a running campaign has moved on)."""
         self.__dict__.pop("_built", None)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -67,6 +68,16 @@ class Catalog:
         if not self.campaigns:
             raise InvalidParameter("catalog", "holds no campaign")
         return max(self.campaigns.values(), key=lambda c: _created(c) or 0.0)
+
+    def search(self, text: str | None = None, /, **fields: Any) -> Catalog:
+        """The campaigns whose ``[metadata]`` has every field as given (equal, or among a list's
+        items such as tags; strings without case) and, with ``text``, holds it in some value:
+        ``catalog.search(operator="ana", tags="friction")``, ``catalog.search("batch 7")``."""
+        from labrunner.campaign.metadata import matches
+
+        found = Catalog([])
+        found.campaigns = {n: c for n, c in self.campaigns.items() if matches(c.metadata, text, **fields)}
+        return found
 
     def table(self) -> pd.DataFrame:
         """Every campaign's table, one below the other, with first columns ``campaign``, ``rig``,

@@ -99,8 +99,16 @@ class RunResults:
 
     @property
     def metrics(self) -> dict[str, Any]:
-        """The metrics committed with the run (whole run and named windows)."""
-        return dict(self.metadata.get("metrics") or {})
+        """The metrics committed with the run (whole run and named windows), named as in the
+        table: a run cut short (aborted, failed) has ``rms_error_until_abort`` etc., not ``rms_error``."""
+        from labrunner.metrics import as_reported
+
+        return as_reported(self.metadata.get("metrics") or {}, (self.log.outcome or {}).get("status"))
+
+    @property
+    def campaign_metadata(self) -> dict[str, Any]:
+        """Its campaign's ``[metadata]`` as the log keeps it (operator, sample, notes, tags, …; {} without)."""
+        return dict(self.metadata.get("metadata") or {})
 
     @property
     def diagnostics(self) -> dict[str, Any]:

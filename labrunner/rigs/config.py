@@ -178,12 +178,39 @@ def resolve_rig_file(name_or_path: str | os.PathLike, search: Iterable[str | os.
     raise InvalidParameter("rig", f"no rig file {text}.toml in {[str(d) for d in dirs]}")
 
 
-def load_rig_config(name_or_path: str | os.PathLike, search: Iterable[str | os.PathLike] | None = ()) -> RigConfig:
-    """Find, parse and validate a rig file (see :func:`resolve_rig_file` for the lookup)."""
+#: The link keys of a real rig's ``[parameters]`` a command line may set instead of the file
+#: (``check-rig``, ``conform``: ``--port /dev/pts/3``; ``--interface udp_multicast --channel …``).
+LINK_KEYS = {"serial": ("port",), "can": ("interface", "channel")}
+
+
+def load_rig_config(
+    name_or_path: str | os.PathLike,
+    search: Iterable[str | os.PathLike] | None = (),
+    *,
+    link: Mapping[str, str | None] | None = None,
+) -> RigConfig:
+    """Find, parse and validate a rig file (see :func:`resolve_rig_file` for the lookup); ``link``
+    (:data:`LINK_KEYS`; None values ignored) replaces the file's port or CAN interface and channel,
+    validated as if the file said so (the emulator's pty without editing a copy of the file)."""
     path = resolve_rig_file(name_or_path, search)
     source = _display(path)
     data = inputfile.loads_toml(inputfile.read_text(path, source, "rig file"), source, f"{source}: ")
+    given = {k: v for k, v in (link or {}).items() if v is not None}
+    if given:
+        data = _with_link(data, given, source)
     return config_from_dict(data, source=source, default_name=path.stem)
+
+
+def _with_link(data: Mapping[str, Any], link: Mapping[str, str], source: str) -> dict[str, Any]:
+    """``data`` with ``link`` set in its ``[parameters]``; a key its kind has no use for is refused."""
+    rig = data.get("rig")
+    kind = rig.get("kind") if isinstance(rig, Mapping) else None
+    for key in link:
+        if key not in LINK_KEYS.get(kind, ()):  # type: ignore[arg-type]
+            takes = [k for k, keys in LINK_KEYS.items() if key in keys]
+            raise InvalidParameter(f"--{key}", f"applies to a {' or '.join(takes)} rig; {source} is a {kind!r} rig")
+    parameters = data.get("parameters")
+    return {**data, "parameters": {**(parameters if isinstance(parameters, Mapping) else {}), **link}}
 
 
 def config_from_dict(data: Mapping[str, Any], *, source: str = "<dict>", default_name: str | None = None) -> RigConfig:
