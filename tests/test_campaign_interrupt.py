@@ -98,7 +98,7 @@ def _point():
 
 def test_a_stop_level_ends_the_engine_loop_with_the_rig_safe(monkeypatch):
     ticks = live.LiveTicks(2)
-    monkeypatch.setattr(live, "_channel", ticks.array)  # as a pool worker's initializer installs it
+    monkeypatch.setattr(live, "_channel", ticks.shared)  # as a pool worker's initializer installs it
     running, queued = ticks.reserve(), ticks.reserve()
     write_running, write_queued = live.hook(running), live.hook(queued)
     write_running(0)  # taken before any stop: it runs
@@ -144,10 +144,12 @@ def test_status_from_another_terminal_gives_the_rate_and_eta_the_runner_shows(pr
         assert st["rate_per_s"] > 0 and st["estimate_s"] > 0
         text = cli("status", str(directory), cwd=project).stdout
         assert "no rate yet" not in text and "runs/s" in text
+        time.sleep(6.0)  # the runner writes a plain line every 5 s: one with a rate before the press
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     # the runner's own last line before the press, and status, computed the same way: rate within 2×
-    shown = [float(m) for m in re.findall(r"(\d+(?:\.\d+)?) runs/s", err)]
+    before = err.split("interrupted:", 1)[0]  # the line after the press counts no run in flight
+    shown = [float(m) for m in re.findall(r"(\d+(?:\.\d+)?) runs/s", before)]
     assert shown and max(shown) > 0 and 0.5 < st["rate_per_s"] / max(shown) < 2.0, (st, err)
     assert json.loads(cli("status", str(directory), "--json", cwd=project).stdout)["running"] is None
