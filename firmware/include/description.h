@@ -37,7 +37,7 @@ typedef struct {
     lab_real fir[4][LAB_MAX_FIR];        /* [order] for purpose 0, [3] the |du/dt| estimator */
     int have_sat;
     lab_real u_min[LAB_MAX_IO], u_max[LAB_MAX_IO];
-    uint8_t bounds_have;                 /* bit per kind 0 inputs, 1 outputs, 2 derived */
+    uint8_t bounds_have, bounds_n[3];    /* bit per kind 0 inputs, 1 outputs, 2 derived; signals each */
     lab_real lo[3][LAB_MAX_IO], hi[3][LAB_MAX_IO];
     uint8_t n_derived;
     lab_real derived[LAB_MAX_IO][LAB_MAX_IO];

@@ -205,8 +205,7 @@ static int record(lab_desc *d, uint16_t type, const uint8_t *v, uint32_t size, i
     case R_BOUNDS:
         if (size < 2 || v[0] > 2 || v[1] > LAB_MAX_IO || size != 2u + 16u * v[1])
             return fail(w, "malformed BOUNDS record");
-        if (v[1] != (v[0] == 0 ? d->n_in : v[0] == 1 ? d->n_out : d->n_derived))
-            return fail(w, "BOUNDS of kind %d for the wrong number of signals", v[0]);
+        d->bounds_n[v[0]] = v[1];
         reals(d->lo[v[0]], v + 2, v[1]);
         reals(d->hi[v[0]], v + 2 + 8 * v[1], v[1]);
         d->bounds_have |= (uint8_t)(1u << v[0]);
@@ -324,8 +323,9 @@ static int consistent(const lab_desc *d, uint8_t device_kind, double max_fs, why
         return fail(w, "%s needs one TRAJECTORY per controlled output, got %d", KINDS[d->kind], d->n_traj);
     if (!d->have_motion)
         return fail(w, "MOTION record missing");
-    if ((d->bounds_have & 4u) && !d->n_derived)
-        return fail(w, "BOUNDS of derived outputs without DERIVED");
+    for (unsigned kind = 0; kind < 3; kind++)
+        if ((d->bounds_have & (1u << kind)) && d->bounds_n[kind] != (kind == 0 ? d->n_in : kind == 1 ? d->n_out : d->n_derived))
+            return fail(w, "BOUNDS of kind %u for the wrong number of signals", kind);
     if (d->n_columns != lab_desc_columns(d) || d->n_columns > LAB_MAX_COLUMNS)
         return fail(w, "description asks for %d columns, the run logs %u", d->n_columns, lab_desc_columns(d));
     return 0;
