@@ -1,0 +1,111 @@
+"""The reference firmware in firmware/ (C99), host build: its vector replay (float64 as tight as the
+Python reference, float32 measured) and ``labrunner conform`` against ``labdevice --pty`` for the
+motor, the valve and the plate; a deliberately wrong law (γ × 1.01) fails the MFC vectors.
+
+Built with make into a temporary directory; a missing C compiler or make skips, except under
+LABRUNNER_CI=1, where it fails."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+VECTORS = ROOT / "docs" / "vectors"
+CASES = sorted(p.name for p in VECTORS.iterdir())
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory) -> Path:
+    missing = [tool for tool in ("make", "cc") if shutil.which(tool) is None]
+    if missing:
+        if os.environ.get("LABRUNNER_CI") == "1":
+            pytest.fail(f"the firmware tests need {', '.join(missing)} (LABRUNNER_CI=1: no skipping)")
+        pytest.skip(f"no {', '.join(missing)}")
+    out = tmp_path_factory.mktemp("firmware")
+    done = subprocess.run(
+        ["make", "-C", str(ROOT / "firmware"), "host", f"BUILD={out}"], capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return out / "host"
+
+
+def test_the_float64_core_replays_every_vector_as_tightly_as_the_python_reference(build):
+    done = subprocess.run([build / "vectors", VECTORS, "1e-9", *CASES], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0] == "arithmetic: float64" and len(lines) == 1 + len(CASES)
+    assert all(" ok " in line for line in lines[1:]), done.stdout
+
+
+def test_the_float32_core_keeps_every_verdict_and_its_measured_error(build):
+    """The float32 build's verdicts are the vectors'; its largest normalised error (measured 5.4e-4,
+    the plate's square roots at tick 0) stays below 1e-3 — until the host side's float32 tolerance exists."""
+    done = subprocess.run([build / "vectors32", VECTORS, "1e-3", *CASES], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.splitlines()[0] == "arithmetic: float32"
+
+
+def test_a_broken_vector_fails_the_replay(build, tmp_path):
+    case = "mfc1-motor-velocity"
+    shutil.copytree(VECTORS / case, tmp_path / case)
+    lines = (tmp_path / case / "vector.csv").read_text().splitlines()
+    fields = lines[50].split(",")
+    fields[1] = repr(float(fields[1]) * (1 + 1e-6))  # u at tick 49, one part in a million off
+    lines[50] = ",".join(fields)
+    (tmp_path / case / "vector.csv").write_text("\n".join(lines) + "\n")
+    done = subprocess.run([build / "vectors", tmp_path, "1e-9", case], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1 and "FAIL" in done.stdout and "tick 49" in done.stdout
+
+
+def _conform(build: Path, tmp_path: Path, kind: str, rig: str, *args: str, device: tuple[str, ...] = ()) -> dict:
+    """``labrunner conform --json`` against ``labdevice --kind KIND --pty`` on a copy of rigs/RIG."""
+    node = {"dcmotor": 1, "valve": 2, "plate": 3}[kind]
+    proc = subprocess.Popen(
+        [build / "labdevice", "--kind", kind, "--pty", "--node", str(node), *device], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        line = proc.stdout.readline().strip()
+        assert line.startswith("pty /dev/"), line
+        text = (ROOT / "rigs" / rig).read_text().splitlines()
+        text = [f'port = "{line[4:]}"' if t.startswith("port =") else t for t in text]
+        text = ['loop = "device"' if t.startswith("loop =") else t for t in text]
+        path = tmp_path / rig
+        path.write_text("\n".join(text) + "\n")
+        done = subprocess.run(
+            [sys.executable, "-m", "labrunner", "conform", str(path), "--json", *args],
+            capture_output=True, text=True, cwd=ROOT, timeout=600,
+        )  # fmt: skip
+        report = json.loads(done.stdout)
+        report["code"] = done.returncode
+        return report
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("kind", "rig", "count"),
+    [("dcmotor", "dcmotor-serial.toml", 18), ("valve", "valve-serial.toml", 14), ("plate", "plate-serial.toml", 17)],
+)
+def test_conform_passes_every_check_against_the_host_build(build, tmp_path, kind, rig, count):
+    report = _conform(build, tmp_path, kind, rig)
+    failed = [c for c in report["checks"] if not c["passed"]]
+    assert report["code"] == 0 and not failed and len(report["checks"]) == count, failed
+
+
+def test_conform_fails_the_host_build_with_gamma_one_percent_off(build, tmp_path):
+    report = _conform(
+        build, tmp_path, "dcmotor", "dcmotor-serial.toml", "--case", "mfc1-motor-velocity", "--case",
+        "open-loop-motor-sine", "--no-protocol", device=("--fault-law", "gamma=1.01"),
+    )  # fmt: skip
+    passed = {c["name"]: c["passed"] for c in report["checks"]}
+    assert report["code"] == 1
+    assert passed == {"handshake": True, "vector mfc1-motor-velocity": False, "vector open-loop-motor-sine": True}
