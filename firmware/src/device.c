@@ -395,8 +395,9 @@ static void run_ticks(lab_device *dev, lab_verdict *v)
             return;
         }
         if ((double)(now - dev->last_rx_us) > d->watchdog_s * 1e6) {
-            snprintf(v->message, sizeof v->message, "watchdog: no message from the host for %.3g s",
-                     (double)(now - dev->last_rx_us) * 1e-6);
+            unsigned long ms = (unsigned long)((now - dev->last_rx_us) / 1000u); /* no float printf: none on a board */
+            snprintf(v->message, sizeof v->message, "watchdog: no message from the host for %lu.%03lu s", ms / 1000,
+                     ms % 1000);
             v->status = 3;
             return;
         }
@@ -481,7 +482,8 @@ static void run_description(lab_device *dev)
         snprintf(reason, sizeof reason, "description of %lu bytes is larger than this device's %lu",
                  (unsigned long)dev->desc_len, (unsigned long)sizeof dev->desc_buf);
     if (ok && dev->desc.fs < dev->min_fs) {
-        snprintf(reason, sizeof reason, "f_s of %g Hz is below this device's %g Hz", dev->desc.fs, dev->min_fs);
+        snprintf(reason, sizeof reason, "f_s of %lu Hz is below this device's %lu Hz", (unsigned long)dev->desc.fs,
+                 (unsigned long)dev->min_fs);
         ok = 0;
     }
     if (ok && dev->fault_name[0] && lab_desc_fault(&dev->desc, dev->fault_name, dev->fault_factor) != 0) {
