@@ -109,3 +109,78 @@ def test_conform_fails_the_host_build_with_gamma_one_percent_off(build, tmp_path
     passed = {c["name"]: c["passed"] for c in report["checks"]}
     assert report["code"] == 1
     assert passed == {"handshake": True, "vector mfc1-motor-velocity": False, "vector open-loop-motor-sine": True}
+
+
+MOTOR_CAMPAIGN = """
+[campaign]
+name = "motor-on-the-c-device"
+rig = "motor.toml"
+fs = 200.0
+duration = 1.5
+seed = 3
+
+[controller]
+kind = "mfc1"
+output = "velocity"
+gamma = 108.55
+k_p = 30.0
+
+[differentiator]
+alpha = 4
+beta = 4
+N = 0
+omega_c = 150.0
+method = "midpoint"
+
+[reference]
+kind = "setpoints"
+levels = [0.0, 20.0, 0.0]
+transition = 0.5
+hold = 0.25
+
+[grid]
+"controller.gamma" = { values = [3.0, 108.55, 3000.0] }
+"controller.k_p" = { values = [1.0, 30.0, 300.0] }
+"""
+
+
+@pytest.mark.slow
+def test_a_3x3_campaign_on_the_host_build_with_its_motor_twin_has_the_python_twins_outcomes(build, tmp_path):
+    """Every run's law check is ok, and each point ends as the Python twin's run of it does."""
+    from labrunner import engine
+    from labrunner.logs import read_run
+    from labrunner.rigs.registry import load_rig
+
+    proc = subprocess.Popen(
+        [build / "labdevice", "--kind", "dcmotor", "--pty", "--plant"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        pty = proc.stdout.readline().strip().removeprefix("pty ")
+        text = (ROOT / "rigs" / "dcmotor-serial.toml").read_text().splitlines()
+        text = [f'port = "{pty}"' if t.startswith("port =") else t for t in text]
+        (tmp_path / "motor.toml").write_text(
+            "\n".join('loop = "device"' if t.startswith("loop =") else t for t in text)
+        )
+        (tmp_path / "campaign.toml").write_text(MOTOR_CAMPAIGN)
+        done = subprocess.run(
+            [sys.executable, "-m", "labrunner", "run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out")],
+            capture_output=True, text=True, cwd=ROOT, timeout=600,
+        )  # fmt: skip
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    assert done.returncode == 0, done.stderr
+    logs = sorted((tmp_path / "out" / "runs").glob("*.mcap"))
+    assert len(logs) == 9
+    twin = load_rig("dcmotor-sim")
+    safety = {"max_du_dt": 120.0, "input_bounds": {"u": [-12.0, 12.0]}, "max_duration": 60.0, "motion_output": "theta"}
+    seen = []
+    for path in logs:
+        log = read_run(str(path))
+        point = log.metadata["config"]
+        [mine] = engine.run_batch([point], twin, fs=200.0, duration=1.5, seeds=[3], rig_safety=safety)
+        assert log.metadata["diagnostics"]["law_check"]["flag"] == "ok", path.name
+        got = (log.outcome["status"], log.outcome.get("monitor"))
+        assert got == (mine.outcome.status, mine.outcome.monitor), (point["controller"], got)
+        seen.append(got[0])
+    assert "completed" in seen and "aborted" in seen  # the grid has both outcomes: the comparison can fail
