@@ -184,3 +184,93 @@ def test_a_3x3_campaign_on_the_host_build_with_its_motor_twin_has_the_python_twi
         assert got == (mine.outcome.status, mine.outcome.monitor), (point["controller"], got)
         seen.append(got[0])
     assert "completed" in seen and "aborted" in seen  # the grid has both outcomes: the comparison can fail
+
+
+def _golden(build: Path, lines: list[str]) -> list[str]:
+    done = subprocess.run(
+        [build / "golden"], input="\n".join(lines) + "\n", capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.splitlines()
+
+
+def test_frames_written_by_the_python_side_decode_identically_in_c_and_back(build):
+    import random
+
+    from labrunner.rigs.transports import messages as m
+    from labrunner.rigs.transports.framing import encode_frame
+    from labrunner.rigs.transports.protocol import Kind
+
+    rng = random.Random(7)
+    frames = [
+        m.pack(m.Input(7, 0, m.FLAG_COMMIT, 1.5)),
+        m.pack(m.TickEnd(65535, m.TICK_CHANNEL, m.FLAG_LATE | m.FLAG_OVERRUN, 2**32 - 1)),
+        m.pack(m.Status(2, 6, 65535, 0, 513)),
+        m.pack(m.Error(int(m.ErrorCode.WATCHDOG), 9, -0.0)),
+        m.pack(m.Hello(1)),
+        *m.setup_frames(200.0, 0.05, 2**32 - 1),
+        *m.identity_frames(m.Identity(1, 3, 4, 4, 0x0F, 32000.0, 0xDEADBEEF)),
+    ]
+    cases = [(node, f.kind, f.payload) for node, f in zip(range(1, 128, 9), frames)]
+    cases += [(127, Kind.BULK_TO_HOST, bytes(rng.choice((0, 0, 255, 1, 7)) for _ in range(n))) for n in (1, 2, 63, 64)]
+    wires = [encode_frame(node, int(kind), payload) for node, kind, payload in cases]
+    out = _golden(build, [f"frame {w.hex()}" for w in wires])
+    assert out == [
+        f"frame {node} {int(kind)} {payload.hex()} {w.hex()}" for (node, kind, payload), w in zip(cases, wires)
+    ]
+    # the worked example of docs/protocol.md, and a frame with one bit off in its CRC (dropped, counted)
+    example = bytes.fromhex("00 04 01 03 07 01 02 01 01 05 c0 3f 99 1f 00")
+    assert _golden(build, [f"frame {example.hex()}", f"frame {wires[0][:-2].hex()}{wires[0][-2] ^ 1:02x}00"]) == [
+        f"frame 1 3 {bytes.fromhex('07 00 00 01 00 00 c0 3f').hex()} {example.hex()}",
+        "frame none 0 1",
+    ]
+
+
+def test_blocks_written_by_the_python_side_decode_identically_in_c_and_back(build):
+    import numpy as np
+
+    from labrunner.rigs.device import blocks
+    from labrunner.rigs.transports.bulk import FLAG_LAST, Block
+
+    bodies = [
+        (blocks.ACCEPT, 0, blocks.ACCEPT_BODY.pack(200, 6)),
+        (blocks.PROGRESS, 0, blocks.PROGRESS_BODY.pack(96, 480000)),
+        (blocks.SAMPLES, 0, blocks.encode_samples(32, np.arange(60, dtype=float).reshape(10, 6) / 7, 160000)),
+        (blocks.VERDICT, FLAG_LAST, blocks.Verdict("aborted", 57, 57, 1, "du_dt", 0.28, 208.7, 120.0).encode()),
+        (blocks.REJECT, FLAG_LAST, b"description CRC-32 mismatch"),
+        (blocks.DESCRIPTION, FLAG_LAST, (VECTORS / "mfc2-motor-angle" / "description.bin").read_bytes()[:400]),
+    ]
+    lines, want = [], []
+    for max_payload in (8, 64):
+        for kind, flags, body in bodies:
+            frames = Block(0, 40000 + kind, kind, flags, body).frames(max_payload)
+            lines.append(f"block {max_payload} " + ",".join(f.hex() for f in frames))
+            want.append(f"block 0 {40000 + kind} {kind} {flags} {body.hex()} " + ",".join(f.hex() for f in frames))
+    assert _golden(build, lines) == want
+
+
+def test_descriptions_written_by_the_python_side_decode_identically_in_c(build):
+    from labrunner.rigs.device import conform, description
+
+    kinds = {"plate": (3, 4), "valve": (2, 1)}
+    lines, want = [], []
+    order = ["", "mfc1", "mfc1-ff", "mfc2", "plate-mfc", "plate-mbc", "open-loop", "valve-ffc"]
+    for case in CASES:
+        kind, io = next((v for k, v in kinds.items() if k in case), (1, 1))
+        data = (VECTORS / case / "description.bin").read_bytes()
+        d = description.decode(data)
+        lines.append(f"desc {kind} {io} {io} {data.hex()}")
+        fields = (
+            order.index(d.kind), repr(d.fs), repr(d.duration), d.ticks, d.seed, repr(d.watchdog_s), d.n_columns,
+            int(d.stream), len(d.trajectories), len(d.fir.get((0, 0), ())), len(d.fir.get((1, 1), ())),
+            len(d.sensor_table), int(d.rate is not None), d.filters["_notch"].shape[1] - 1 if "_notch" in d.filters else 0,
+            d.filters["_chain"].shape[1] - 3 if "_chain" in d.filters else 0, d.motion[0],
+        )  # fmt: skip
+        want.append("desc ok " + " ".join(str(f) for f in fields))
+    out = _golden(build, lines)
+    assert [line.split()[:2] for line in out] == [["desc", "ok"]] * len(CASES)
+    for got, expected in zip(out, want):
+        assert [float(x) for x in got.split()[2:]] == [float(x) for x in expected.split()[2:]]
+    good = (VECTORS / "mfc1-motor-velocity" / "description.bin").read_bytes()
+    refused = _golden(build, [f"desc 1 1 1 {bad.hex()}" for _, bad in conform._broken(good)])
+    assert all(line.startswith("desc reject ") for line in refused), refused
