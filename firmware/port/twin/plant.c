@@ -1,7 +1,12 @@
-/* The DC motor twin of labrunner/rigs/sim/dcmotor.py (thesis Sec. 2.4.1): the linear part
- * (theta_m, Omega, v) by its exact ZOH transition per sub-step, Coulomb and static friction,
- * backlash at the load, an encoder of 2048 counts and white input noise. Its defaults are the
- * Python twin's; its noise comes from its own generator (the same statistics, not the same numbers). */
+/* Twins of the rigs for the host and M4 builds' --plant, ported from labrunner/rigs/sim/ with the
+ * Python twins' default parameters; the noise comes from their own generator (the same statistics,
+ * not the same numbers).
+ * - the DC motor (dcmotor.py, thesis Sec. 2.4.1): the linear part (theta_m, Omega, v) by its exact
+ *   ZOH transition per sub-step, Coulomb and static friction, backlash, a 2048-count encoder and
+ *   white input noise;
+ * - the valve (valve.py, paper 1 Sec. 3.3): current controller lag, magnetic hysteresis, pilot and
+ *   main spool with friction and end stops, orifice and return-path flow, the sensor's delay, lag,
+ *   under-reading below its range and noise. */
 #include <math.h>
 #define PI 3.14159265358979323846
 #include <string.h>
@@ -63,17 +68,84 @@ static double gauss(uint64_t *s) /* xorshift64* and Box-Muller */
     return sqrt(-2.0 * log(u[0] + 1e-300)) * cos(2.0 * PI * u[1]);
 }
 
+/* the valve's defaults (labrunner/rigs/sim/valve.py) */
+static const double I_MAX = 1.01, CURRENT_TAU = 1.5e-3, HYSTERESIS = 0.02, PILOT_TAU = 3e-3, PILOT_TH = 0.5,
+                    MAIN_TAU = 0.015, MAIN_FS = 0.006, MAIN_FC = 0.004, MAIN_G = 12.0, PILOT_G = 0.02, DOWN_G = 6.0,
+                    SUPPLY_BAR = 30.0, PUMP_LPM = 21.9, SENSOR_DELAY = 0.05, SENSOR_TAU = 5e-3, SENSOR_MIN = 1.2,
+                    SENSOR_MAX = 20.0, VALVE_SUBSTEP = 1.25e-4, NOISE_LPM = 0.03;
+
 int lab_plant_init(lab_plant *p, uint8_t kind)
 {
     memset(p, 0, sizeof *p);
     p->kind = kind;
-    return kind == 1 ? 0 : -1;
+    return kind == 1 || kind == 2 ? 0 : -1;
+}
+
+static double decay(double tau, double h) { return tau > 0 ? exp(-h / tau) : 0; }
+
+static void valve_reset(lab_plant *p, double fs)
+{
+    p->n_sub = (int)ceil(1.0 / fs / VALVE_SUBSTEP - 1e-9);
+    p->n_sub = p->n_sub < 1 ? 1 : p->n_sub;
+    double h = 1.0 / (fs * p->n_sub);
+    p->e_i = decay(CURRENT_TAU, h);
+    p->e_p = decay(PILOT_TAU, h);
+    p->e_m = decay(MAIN_TAU, h);
+    p->e_s = decay(SENSOR_TAU, 1.0 / fs);
+    p->i_c = p->i_m = p->x_p = p->x_m = p->q = p->q_sensor = 0;
+    p->moving = 0;
+    p->delay = (int)lround(SENSOR_DELAY * fs);
+    p->delay = p->delay > 1024 ? 1024 : p->delay;
+    p->at = 0;
+    memset(p->line, 0, sizeof p->line);
+}
+
+static double valve_flow(double x_m, double x_p)
+{
+    double g = MAIN_G * x_m + PILOT_G * x_p, q = g * DOWN_G / sqrt(g * g + DOWN_G * DOWN_G) * sqrt(SUPPLY_BAR);
+    return fmin(q, PUMP_LPM);
+}
+
+static double clip(double v, double lo, double hi) { return fmin(fmax(v, lo), hi); }
+
+static void valve_step(lab_plant *p)
+{
+    double i = p->u[0];
+    for (int k = 0; k < p->n_sub; k++) {
+        p->i_c = i + (p->i_c - i) * p->e_i;
+        p->i_m = fmin(fmax(p->i_m, p->i_c - HYSTERESIS / 2), p->i_c + HYSTERESIS / 2); /* magnetic hysteresis */
+        double target = clip(p->i_m / I_MAX, 0, 1);
+        p->x_p = target + (p->x_p - target) * p->e_p;
+        double x_t = (p->x_p - PILOT_TH) / (1 - PILOT_TH), e = x_t - p->x_m;
+        p->moving = fabs(e) > (p->moving ? MAIN_FC : MAIN_FS);
+        double x_eq = x_t - MAIN_FC * ((e > 0) - (e < 0));
+        p->x_m = clip(p->moving ? x_eq + (p->x_m - x_eq) * p->e_m : p->x_m, 0, 1);
+    }
+    p->q = valve_flow(p->x_m, p->x_p);
+    int n = p->delay + 1;
+    p->at = (p->at + 1) % n;
+    p->line[p->at] = p->q;
+    double delayed = p->line[(p->at - p->delay + n) % n];
+    p->q_sensor = delayed + (p->q_sensor - delayed) * p->e_s;
+}
+
+static double valve_read(lab_plant *p)
+{
+    double q = p->q_sensor, reading = q < SENSOR_MIN ? q * q / SENSOR_MIN : q;
+    return clip(reading + NOISE_LPM * gauss(&p->rng), 0, SENSOR_MAX);
 }
 
 void lab_plant_reset(lab_plant *p, uint32_t seed, double fs)
 {
     double h, m[5][5] = {{0}}, e[5][5];
     p->fs = fs;
+    p->rng = 0x9E3779B97F4A7C15ULL ^ ((uint64_t)seed << 1 | 1u);
+    p->started = 0;
+    memset(p->u, 0, sizeof p->u);
+    if (p->kind == 2) {
+        valve_reset(p, fs);
+        return;
+    }
     p->n_sub = (int)ceil(1.0 / fs / MAX_SUBSTEP - 1e-9);
     p->n_sub = p->n_sub < 1 ? 1 : p->n_sub;
     h = 1.0 / (fs * p->n_sub);
@@ -88,10 +160,7 @@ void lab_plant_reset(lab_plant *p, uint32_t seed, double fs)
         for (int j = 0; j < 5; j++)
             p->M[i][j] = e[i][j];
     memset(p->z, 0, sizeof p->z);
-    memset(p->u, 0, sizeof p->u);
     p->theta = 0;
-    p->rng = 0x9E3779B97F4A7C15ULL ^ ((uint64_t)seed << 1 | 1u);
-    p->started = 0;
 }
 
 static double sign(double v) { return (v > 0) - (v < 0); }
@@ -122,6 +191,13 @@ static void substep(lab_plant *p)
 
 void lab_plant_measure(lab_plant *p, lab_real *y)
 {
+    if (p->kind == 2) {
+        if (p->started)
+            valve_step(p);
+        p->started = 1;
+        y[0] = (lab_real)valve_read(p);
+        return;
+    }
     if (p->started) {
         double v = p->u[0] + NOISE_V * gauss(&p->rng);
         p->z[3] = fmin(fmax(v, -U_MAX), U_MAX);

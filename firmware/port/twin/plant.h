@@ -12,9 +12,13 @@ typedef struct {
     int n_sub;
     double M[3][5];              /* the motor: [Phi | Gamma] of one sub-step */
     double z[5], theta;          /* theta_m, Omega, v, v_cmd, F; the load angle behind the backlash */
+    /* the valve: coil current, magnetising current, pilot and main stroke, sticking, flow, sensor */
+    double i_c, i_m, x_p, x_m, q, q_sensor, e_i, e_p, e_m, e_s;
+    int moving, delay, at;
+    double line[1025];           /* the flow sensor's delay: 50 ms at up to 20 kHz */
 } lab_plant;
 
-/* 0 if the twin of this device kind is built in. */
+/* 0 if the twin of this device kind is built in (the DC motor and the valve). */
 int lab_plant_init(lab_plant *p, uint8_t kind);
 void lab_plant_reset(lab_plant *p, uint32_t seed, double fs);
 /* The first call after a reset: the initial measurement; each later one integrates one period with the applied u. */
