@@ -6,7 +6,10 @@
  *   white input noise;
  * - the valve (valve.py, paper 1 Sec. 3.3): current controller lag, magnetic hysteresis, pilot and
  *   main spool with friction and end stops, orifice and return-path flow, the sensor's delay, lag,
- *   under-reading below its range and noise. */
+ *   under-reading below its range and noise;
+ * - the plate (plate.py, paper 2): a rigid body in (z, phi_x, phi_y) and one plate mode, four
+ *   magnets F = i^2 / d(h)^2 saturated, screws below and a stop above as stiff one-sided
+ *   spring-dampers, current ripple and sensor noise, drift-kick-drift sub-steps. */
 #include <math.h>
 #define PI 3.14159265358979323846
 #include <string.h>
@@ -78,7 +81,7 @@ int lab_plant_init(lab_plant *p, uint8_t kind)
 {
     memset(p, 0, sizeof *p);
     p->kind = kind;
-    return kind == 1 || kind == 2 ? 0 : -1;
+    return kind >= 1 && kind <= 3 ? 0 : -1;
 }
 
 static double decay(double tau, double h) { return tau > 0 ? exp(-h / tau) : 0; }
@@ -135,6 +138,143 @@ static double valve_read(lab_plant *p)
     return clip(reading + NOISE_LPM * gauss(&p->rng), 0, SENSOR_MAX);
 }
 
+/* the plate's defaults (labrunner/rigs/sim/plate.py, labrunner/plate_geometry.py) */
+static const double P_M = 4.69, P_G = 9.81, P_JX = 5.13e-2, P_JY = 8.19e-2, P_LDX = 0.135, P_LDY = 0.144,
+                    P_LFX = 0.1825, P_LFY = 0.117, P_LAM = 250.0, P_FMAX = 300.0, P_SCREW = 5.5e-3, P_TOP = 0.5e-3,
+                    P_CONTACT_W = 1e4, P_CONTACT_Z = 0.5, P_MODE_W = 942.0, P_MODE_Z = 0.02, P_MODE_M = 4.0,
+                    P_MODE_SHAPE = 0.8, P_SUBSTEP = 32e-6, P_SENSOR_STD = 0.5e-6, P_CURRENT_STD = 0.02;
+static const double CORNERS[4][2] = {{-1, 1}, {-1, -1}, {1, 1}, {1, -1}};
+
+/* x A = b for a 4 x 4 system in place (Gaussian elimination with partial pivoting) */
+static void solve4(double a[4][4], double b[4], double x[4])
+{
+    for (int c = 0; c < 4; c++) {
+        int best = c;
+        for (int r = c + 1; r < 4; r++)
+            best = fabs(a[r][c]) > fabs(a[best][c]) ? r : best;
+        for (int j = 0; j < 4; j++) {
+            double t = a[c][j];
+            a[c][j] = a[best][j];
+            a[best][j] = t;
+        }
+        double t = b[c];
+        b[c] = b[best];
+        b[best] = t;
+        for (int r = c + 1; r < 4; r++) {
+            double q = a[r][c] / a[c][c];
+            for (int j = c; j < 4; j++)
+                a[r][j] -= q * a[c][j];
+            b[r] -= q * b[c];
+        }
+    }
+    for (int i = 3; i >= 0; i--) {
+        double s = b[i];
+        for (int j = i + 1; j < 4; j++)
+            s -= a[i][j] * x[j];
+        x[i] = s / a[i][i];
+    }
+}
+
+static void plate_reset(lab_plant *p, double fs)
+{
+    double inertia[4] = {P_M, P_JX, P_JY, P_MODE_M}, m[4][4], load[4], w[4] = {1, 1, 1, 1};
+    for (int j = 0; j < 4; j++) { /* gaps h = x G at the magnets, sensor readings x S */
+        double mx = CORNERS[j][0] * P_LFX, my = CORNERS[j][1] * P_LFY, sx = CORNERS[j][0] * P_LDX, sy = CORNERS[j][1] * P_LDY;
+        p->G[0][j] = 1, p->G[1][j] = -my, p->G[2][j] = mx, p->G[3][j] = 1;
+        p->S[0][j] = 1, p->S[1][j] = -sy, p->S[2][j] = sx, p->S[3][j] = P_MODE_SHAPE;
+    }
+    for (int a = 0; a < 4; a++)
+        p->inv_mass[a] = 1 / inertia[a];
+    for (int i = 0; i < 4; i++) /* G^T M^-1 G, its largest eigenvalue by power iteration */
+        for (int j = 0; j < 4; j++) {
+            m[i][j] = 0;
+            for (int a = 0; a < 4; a++)
+                m[i][j] += p->G[a][i] * p->inv_mass[a] * p->G[a][j];
+        }
+    double lambda = 0;
+    for (int it = 0; it < 200; it++) {
+        double next[4], norm = 0;
+        for (int i = 0; i < 4; i++) {
+            next[i] = 0;
+            for (int j = 0; j < 4; j++)
+                next[i] += m[i][j] * w[j];
+            norm = fmax(norm, fabs(next[i]));
+        }
+        for (int i = 0; i < 4; i++)
+            w[i] = next[i] / norm;
+        lambda = norm;
+    }
+    double corner_mass = 1 / lambda;
+    p->k_c = corner_mass * P_CONTACT_W * P_CONTACT_W;
+    p->c_c = 2 * P_CONTACT_Z * corner_mass * P_CONTACT_W;
+    p->n_sub = (int)ceil(1.0 / fs / P_SUBSTEP - 1e-9);
+    p->n_sub = p->n_sub < 1 ? 1 : p->n_sub;
+    for (int a = 0; a < 4; a++) { /* at rest on the screws: (k G G^T + S) x = M g + k G 1 screw_gap */
+        for (int b = 0; b < 4; b++) {
+            m[a][b] = 0;
+            for (int j = 0; j < 4; j++)
+                m[a][b] += p->k_c * p->G[a][j] * p->G[b][j];
+        }
+        m[a][a] += a == 3 ? P_MODE_W * P_MODE_W * inertia[3] : 0;
+        load[a] = (a == 0 ? P_G * inertia[0] : 0) + p->k_c * P_SCREW * (p->G[a][0] + p->G[a][1] + p->G[a][2] + p->G[a][3]);
+    }
+    solve4(m, load, p->x);
+    memset(p->v, 0, sizeof p->v);
+}
+
+/* x-double-dot at the current x for squared currents cs and velocity v (plate.py's _acceleration) */
+static void plate_acceleration(const lab_plant *p, const double cs[4], const double v[4], double acc[4])
+{
+    double f[4], gen[4] = {0};
+    for (int j = 0; j < 4; j++) {
+        double gap = 0, rate = 0;
+        for (int a = 0; a < 4; a++) {
+            gap += p->x[a] * p->G[a][j];
+            rate += v[a] * p->G[a][j];
+        }
+        double d = P_LAM * fmax(gap, 1e-6), pen = gap - clip(gap, P_TOP, P_SCREW);
+        f[j] = fmin(cs[j] / (d * d), P_FMAX);
+        if (pen != 0) { /* a screw or the stop: a one-sided spring-damper */
+            double s = (pen > 0) - (pen < 0);
+            f[j] += s * fmax(s * (p->k_c * pen + p->c_c * rate), 0);
+        }
+        for (int a = 0; a < 4; a++)
+            gen[a] += f[j] * p->G[a][j];
+    }
+    for (int a = 0; a < 4; a++) {
+        double lin = (a == 0 ? P_G : 0) - (a == 3 ? P_MODE_W * P_MODE_W : 0) * p->x[a];
+        acc[a] = lin - gen[a] * p->inv_mass[a] - (a == 3 ? 2 * P_MODE_Z * P_MODE_W : 0) * v[a];
+    }
+}
+
+static void plate_step(lab_plant *p)
+{
+    double cs[4], acc[4], h = 1.0 / (p->fs * p->n_sub);
+    for (int j = 0; j < 4; j++) {
+        double i = fmax(p->u[j] + P_CURRENT_STD * gauss(&p->rng), 0);
+        cs[j] = i * i;
+    }
+    for (int k = 0; k < p->n_sub; k++) { /* drift-kick-drift (position Verlet) */
+        for (int a = 0; a < 4; a++)
+            p->x[a] += 0.5 * h * p->v[a];
+        plate_acceleration(p, cs, p->v, acc);
+        for (int a = 0; a < 4; a++) {
+            p->v[a] += h * acc[a];
+            p->x[a] += 0.5 * h * p->v[a];
+        }
+    }
+}
+
+static void plate_read(lab_plant *p, lab_real *y)
+{
+    for (int j = 0; j < 4; j++) {
+        double s = 0;
+        for (int a = 0; a < 4; a++)
+            s += p->x[a] * p->S[a][j];
+        y[j] = (lab_real)(s + P_SENSOR_STD * gauss(&p->rng));
+    }
+}
+
 void lab_plant_reset(lab_plant *p, uint32_t seed, double fs)
 {
     double h, m[5][5] = {{0}}, e[5][5];
@@ -142,8 +282,11 @@ void lab_plant_reset(lab_plant *p, uint32_t seed, double fs)
     p->rng = 0x9E3779B97F4A7C15ULL ^ ((uint64_t)seed << 1 | 1u);
     p->started = 0;
     memset(p->u, 0, sizeof p->u);
-    if (p->kind == 2) {
-        valve_reset(p, fs);
+    if (p->kind == 2 || p->kind == 3) {
+        if (p->kind == 2)
+            valve_reset(p, fs);
+        else
+            plate_reset(p, fs);
         return;
     }
     p->n_sub = (int)ceil(1.0 / fs / MAX_SUBSTEP - 1e-9);
@@ -191,11 +334,14 @@ static void substep(lab_plant *p)
 
 void lab_plant_measure(lab_plant *p, lab_real *y)
 {
-    if (p->kind == 2) {
+    if (p->kind == 2 || p->kind == 3) {
         if (p->started)
-            valve_step(p);
+            p->kind == 2 ? valve_step(p) : plate_step(p);
         p->started = 1;
-        y[0] = (lab_real)valve_read(p);
+        if (p->kind == 2)
+            y[0] = (lab_real)valve_read(p);
+        else
+            plate_read(p, y);
         return;
     }
     if (p->started) {
@@ -209,6 +355,10 @@ void lab_plant_measure(lab_plant *p, lab_real *y)
     y[0] = (lab_real)(round(p->theta / d) * d);
 }
 
-void lab_plant_apply(lab_plant *p, const lab_real *u) { p->u[0] = u[0]; }
+void lab_plant_apply(lab_plant *p, const lab_real *u)
+{
+    for (int j = 0; j < (p->kind == 3 ? 4 : 1); j++)
+        p->u[j] = u[j];
+}
 
-void lab_plant_safe(lab_plant *p) { p->u[0] = 0; }
+void lab_plant_safe(lab_plant *p) { memset(p->u, 0, sizeof p->u); }

@@ -16,9 +16,11 @@ typedef struct {
     double i_c, i_m, x_p, x_m, q, q_sensor, e_i, e_p, e_m, e_s;
     int moving, delay, at;
     double line[1025];           /* the flow sensor's delay: 50 ms at up to 20 kHz */
+    /* the plate: coordinates (z, phi_x, phi_y, mode q), velocities, the maps to the magnet gaps and sensors */
+    double x[4], v[4], G[4][4], S[4][4], inv_mass[4], k_c, c_c;
 } lab_plant;
 
-/* 0 if the twin of this device kind is built in (the DC motor and the valve). */
+/* 0 if the twin of this device kind is built in (1 the DC motor, 2 the valve, 3 the plate). */
 int lab_plant_init(lab_plant *p, uint8_t kind);
 void lab_plant_reset(lab_plant *p, uint32_t seed, double fs);
 /* The first call after a reset: the initial measurement; each later one integrates one period with the applied u. */
