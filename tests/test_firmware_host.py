@@ -300,3 +300,44 @@ def test_the_host_builds_twin_tracks_as_the_python_twin(build, name, kind):
     assert mine.outcome.status == twin.outcome.status == "completed"
     assert mine.diagnostics["law_check"]["flag"] == "ok"
     assert mine.metrics["rms_error"] == pytest.approx(twin.metrics["rms_error"], rel=0.05)
+
+
+@pytest.mark.slow
+def test_the_host_loop_on_the_host_build_runs_a_campaign(build, tmp_path):
+    """``loop = "host"`` (SETUP, INPUT, MEASUREMENT ticks paced at 200 Hz) against ``--plant
+    dcmotor``: no run fails, and each point ends as the Python twin's run of it does."""
+    from labrunner import engine
+    from labrunner.logs import read_run
+    from labrunner.rigs.registry import load_rig
+
+    proc = subprocess.Popen(
+        [build / "labdevice", "--kind", "dcmotor", "--pty", "--plant"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        pty = proc.stdout.readline().strip().removeprefix("pty ")
+        text = (ROOT / "rigs" / "dcmotor-serial.toml").read_text().splitlines()
+        (tmp_path / "motor.toml").write_text(
+            "\n".join(f'port = "{pty}"' if t.startswith("port =") else t for t in text)
+        )
+        campaign = MOTOR_CAMPAIGN.replace("[3.0, 108.55, 3000.0]", "[108.55]").replace(
+            "[1.0, 30.0, 300.0]", "[30.0, 300.0]"
+        )
+        (tmp_path / "campaign.toml").write_text(campaign)
+        done = subprocess.run(
+            [sys.executable, "-m", "labrunner", "run", str(tmp_path / "campaign.toml"), "--out", str(tmp_path / "out")],
+            capture_output=True, text=True, cwd=ROOT, timeout=600,
+        )  # fmt: skip
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    assert done.returncode == 0, done.stderr
+    safety = {"max_du_dt": 120.0, "input_bounds": {"u": [-12.0, 12.0]}, "max_duration": 60.0, "motion_output": "theta"}
+    logs = sorted((tmp_path / "out" / "runs").glob("*.mcap"))
+    assert len(logs) == 2
+    for path in logs:
+        log = read_run(str(path))
+        assert log.metadata["diagnostics"]["loop"] == "host"
+        [twin] = engine.run_batch(
+            [log.metadata["config"]], load_rig("dcmotor-sim"), fs=200.0, duration=1.5, seeds=[3], rig_safety=safety
+        )
+        assert (log.outcome["status"], log.outcome.get("monitor")) == (twin.outcome.status, twin.outcome.monitor)

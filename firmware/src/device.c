@@ -555,9 +555,10 @@ void lab_device_poll(lab_device *dev)
         run_description(dev);
         return;
     }
+    now = lab_port_now_us(); /* the timers judge after every waiting frame was taken */
     lab_sender_pump(&dev->tx, now); /* a REJECT or results still unacknowledged */
-    uint64_t wake = now + 10000u;
-    double silent = (double)(now - dev->last_rx_us - dev->held_us) * 1e-6;
+    uint64_t wake = now + 10000u, heard = dev->last_rx_us + dev->held_us;
+    double silent = now > heard ? (double)(now - heard) * 1e-6 : 0; /* the loop's own hold-ups are no silence */
     if (dev->ticking && !dev->free_run) {
         if (now >= dev->next_tick_us) {
             host_tick(dev, now);
@@ -571,7 +572,7 @@ void lab_device_poll(lab_device *dev)
     if (dev->state == LAB_RUNNING) {
         if (silent > dev->watchdog_s)
             send_error(dev, LAB_E_WATCHDOG, (float)silent, 1);
-        else if (now - dev->last_status_us >= STATUS_PERIOD_US)
+        else if (now >= dev->last_status_us + STATUS_PERIOD_US)
             send_status(dev);
     }
     lab_port_wait_until(wake);
