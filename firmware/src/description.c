@@ -182,7 +182,7 @@ static int record(lab_desc *d, uint16_t type, const uint8_t *v, uint32_t size, i
         if (purpose > 1 || order > 2 || (purpose == 1 && order != 1))
             return fail(w, "FIR of purpose %d and order %d is not one this firmware uses", purpose, order);
         if (len == 0 || len > LAB_MAX_FIR)
-            return fail(w, "FIR of %ld taps: this device takes 1..LAB_MAX_FIR", (long)len);
+            return fail(w, "FIR of %ld taps: this device takes 1..%d", (long)len, LAB_MAX_FIR);
         if (size != 6 + 8 * len)
             return fail(w, "FIR record of %ld bytes disagrees with its length", (long)size);
         int slot = purpose ? 3 : order;

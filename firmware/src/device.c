@@ -288,6 +288,18 @@ static void queue_block(lab_device *dev, uint8_t kind, uint8_t flags, const uint
 
 static uint64_t tick_us(uint32_t k, double fs) { return (uint64_t)llround(k * 1e6 / fs); }
 
+/* Wait for t on the port's clock; time the loop was held up beyond that (it came back more than
+ * 1 ms later than it asked: a busy machine pausing an emulator, a flash write with interrupts off)
+ * is not the host's silence (docs/protocol.md § Host loop, the watchdog). */
+static void wait_for(lab_device *dev, uint64_t t)
+{
+    uint64_t before = lab_port_now_us();
+    lab_port_wait_until(t);
+    uint64_t after = lab_port_now_us(), asked = t > before ? t - before : 0;
+    if (after - before > asked + HELD_UP_US)
+        dev->held_us += after - before - asked;
+}
+
 /* SAMPLES blocks of the rows logged so far: full blocks, or every row left when final. 0 if the
  * sender had no room for a block that was due. */
 static int queue_samples(lab_device *dev, int final)
@@ -323,6 +335,7 @@ static void service(lab_device *dev)
     uint64_t now = lab_port_now_us();
     while (lab_port_recv(&f)) {
         dev->last_rx_us = now;
+        dev->held_us = 0;
         if (f.code == LAB_BULK_ACK_HOST)
             lab_sender_ack(&dev->tx, f.payload, f.len);
         else if (f.code == LAB_BULK_TO_DEVICE)
@@ -378,7 +391,7 @@ static void run_ticks(lab_device *dev, lab_verdict *v)
                 service(dev);
                 if (dev->stopped)
                     break;
-                lab_port_wait_until(due);
+                wait_for(dev, due);
             }
             uint64_t now = lab_port_now_us();
             if (now - due > period) { /* an overrun slips the clock */
@@ -394,8 +407,9 @@ static void run_ticks(lab_device *dev, lab_verdict *v)
             v->status = 3;
             return;
         }
-        if ((double)(now - dev->last_rx_us) > d->watchdog_s * 1e6) {
-            unsigned long ms = (unsigned long)((now - dev->last_rx_us) / 1000u); /* no float printf: none on a board */
+        uint64_t heard = dev->last_rx_us + dev->held_us;
+        if (now > heard && (double)(now - heard) > d->watchdog_s * 1e6) {
+            unsigned long ms = (unsigned long)((now - heard) / 1000u); /* no float printf: none on a board */
             snprintf(v->message, sizeof v->message, "watchdog: no message from the host for %lu.%03lu s", ms / 1000,
                      ms % 1000);
             v->status = 3;
@@ -504,6 +518,7 @@ static void run_description(lab_device *dev)
     lab_put16(accept + 4, dev->desc.n_columns);
     dev->state = LAB_RUNNING;
     dev->last_rx_us = lab_port_now_us();
+    dev->held_us = 0;
     queue_block(dev, LAB_B_ACCEPT, 0, accept, 6);
     run_ticks(dev, &v);
     lab_port_safe();

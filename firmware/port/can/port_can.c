@@ -79,7 +79,8 @@ void lab_port_safe(void)
 }
 
 /* Set up the device of kind (1 dcmotor, 2 valve, 3 plate) as node 1..127 on a classic (fd 0) or
- * CAN FD bus; plant: run on the built-in twin; fault: "KEY=FACTOR"-style law fault or NULL.
+ * CAN FD bus; plant: run on the built-in twin; fault_key, fault_factor: a deliberately wrong law
+ * (the LAW constant fault_key x fault_factor, as --fault-law KEY=FACTOR), or NULL.
  * Returns 0, or -1 for an argument out of range. */
 int lab_can_open(int kind, int node, int fd, int plant, const char *fault_key, double fault_factor,
                  lab_can_recv_fn recv, lab_can_send_fn send);

@@ -18,7 +18,16 @@ static int has_plant;
 
 uint64_t lab_port_now_us(void) { return board_ticks() / (BOARD_CLOCK_HZ / 1000000u); }
 
-void lab_port_wait_until(uint64_t t_us) { (void)t_us; /* busy-polls: the caller loops on the clock */ }
+/* Spin briefly without touching a peripheral, then return: the caller loops on the clock. Under
+ * QEMU every UART or timer access takes the emulator's global lock, which its I/O thread needs to
+ * hand the guest the next received byte, so a loop that polls without pause starves the link. A
+ * board would sleep in WFI until its timer or UART interrupt instead. */
+void lab_port_wait_until(uint64_t t_us)
+{
+    (void)t_us;
+    for (volatile uint32_t i = 0; i < 2000u; i++) {
+    }
+}
 
 int lab_port_recv(lab_frame *f)
 {
