@@ -60,7 +60,7 @@ def _bridge(lib: Path, tmp_path: Path, fd: bool, *args: str):
         assert proc.stdout.readline().strip() == "serving"
         yield path
     finally:
-        proc.terminate()
+        proc.kill()  # power off: a device busy with a run's upload hears no signal until it gives up (10 s)
         proc.wait(timeout=10)
 
 
