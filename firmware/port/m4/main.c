@@ -18,15 +18,14 @@ static int has_plant;
 
 uint64_t lab_port_now_us(void) { return board_ticks() / (BOARD_CLOCK_HZ / 1000000u); }
 
-/* Spin briefly without touching a peripheral, then return: the caller loops on the clock. Under
- * QEMU every UART or timer access takes the emulator's global lock, which its I/O thread needs to
- * hand the guest the next received byte, so a loop that polls without pause starves the link. A
- * board would sleep in WFI until its timer or UART interrupt instead. */
+/* Sleep in WFI until t, a received byte or 1 ms, whichever comes first (the caller loops on the
+ * clock). Under QEMU a guest that polls without pause also takes the CPU its I/O thread needs to
+ * hand it the next received byte. */
 void lab_port_wait_until(uint64_t t_us)
 {
-    (void)t_us;
-    for (volatile uint32_t i = 0; i < 2000u; i++) {
-    }
+    uint64_t now = lab_port_now_us();
+    if (t_us > now)
+        board_sleep(t_us - now < 1000u ? (uint32_t)(t_us - now) : 1000u);
 }
 
 int lab_port_recv(lab_frame *f)

@@ -11,8 +11,13 @@ static void hang(void)
     }
 }
 
-__attribute__((section(".vectors"), used)) static void (*const vectors[16])(void) = {
-    (void (*)(void))(&_stack_top), reset_handler, hang, hang, hang, hang, hang, 0, 0, 0, 0, hang, hang, 0, hang, hang};
+void board_systick_isr(void);
+void board_uart_rx_isr(void);
+
+/* the core's exceptions, SysTick (15) and the UART0 receive interrupt (IRQ 0 of the MPS2 AN386) */
+__attribute__((section(".vectors"), used)) static void (*const vectors[17])(void) = {
+    (void (*)(void))(&_stack_top), reset_handler, hang, hang, hang, hang, hang, 0, 0, 0, 0, hang, hang, 0, hang,
+    board_systick_isr, board_uart_rx_isr};
 
 void reset_handler(void)
 {
