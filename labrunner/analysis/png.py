@@ -7,6 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from labrunner import safefs
+
 DPI = 110
 #: zlib level of the PNGs: 3 encodes a map in ~20 instead of ~30 ms (level 6) for files within a few per cent.
 PNG_COMPRESSION = 3
@@ -14,9 +16,8 @@ PNG_COMPRESSION = 3
 
 def save(fig: Any, path: Path) -> Path:
     """Save atomically (temporary name, then rename): a killed analysis leaves no half a PNG."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, dpi=DPI, format="png", pil_kwargs={"compress_level": PNG_COMPRESSION})
-    tmp.replace(path)
+    with safefs.atomic_path(path) as tmp:  # an unpredictable name, never a planted link
+        fig.savefig(tmp, dpi=DPI, format="png", pil_kwargs={"compress_level": PNG_COMPRESSION})
     return path
 
 

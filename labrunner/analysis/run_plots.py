@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
+from labrunner import safefs
 from labrunner.analysis import png
 from labrunner.errors import LabrunnerError
 
@@ -68,7 +69,7 @@ def draw(plots: Sequence[Item], tick: Callable[[int], None] | None = None) -> di
 
                 run = read_run(log)
                 run_identity.check(run.metadata, point_id, log)  # a swapped log would plot another run
-                plot.parent.mkdir(parents=True, exist_ok=True)
+                safefs.mkdir(plot.parent, parents=True)
                 png.save(plot_run(run), plot)
             out[point_id] = plot
         except (LabrunnerError, OSError, ValueError, KeyError):

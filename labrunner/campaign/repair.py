@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import sqlite3
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from labrunner import safefs
 from labrunner.campaign import integrity, plan_inputs, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, RunRecord, fsync_dir
 from labrunner.campaign.lock import DirectoryLock
@@ -125,14 +125,14 @@ def _sound(path: Path) -> bool:
 def _quarantine(path: Path, directory: Path) -> str:
     """Move the old ledger and its -wal/-shm into quarantine/; return the ledger's new relative path."""
     qdir = directory / QUARANTINE_DIR
-    qdir.mkdir(exist_ok=True)
+    safefs.mkdir(qdir)
     stamp = time.time_ns()
     moved = ""
     for suffix in ("", "-wal", "-shm"):
         old = Path(f"{path}{suffix}")
         if old.exists():
             target = qdir / f"{LEDGER_NAME}{suffix}.{stamp}"
-            os.replace(old, target)
+            safefs.replace(old, target)
             moved = moved or str(target.relative_to(directory))
     fsync_dir(qdir)
     fsync_dir(directory)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
+from labrunner import safefs
 from labrunner.campaign import dry_run, guided_run, integrity, journal, plan_inputs, recovery, seal, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
@@ -79,12 +80,7 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
 
 
 def _write_copy(directory: Path, text: str) -> None:
-    tmp = directory / f".{CAMPAIGN_COPY}.tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, directory / CAMPAIGN_COPY)
+    safefs.write_atomic(directory / CAMPAIGN_COPY, text.encode("utf-8"))
 
 
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
@@ -120,7 +116,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             ledger = Ledger.create(directory, meta=meta, points=points_rows)
             del points, points_rows
             _write_copy(directory, campaign.source)  # the ledger exists first: it is what marks the campaign
-            (directory / RUNS_DIR).mkdir(exist_ok=True)
+            safefs.mkdir(directory / RUNS_DIR)
             with ledger:
                 return _execute(campaign, ledger, lock, opts, "run", pool), str(directory)
 

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from labrunner import safefs
 from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
 from labrunner.errors import CampaignError, RigError, os_reason
@@ -288,7 +289,7 @@ def _publish_all(
         for future in synced:
             future.result()
         for run, tmp, *_ in written:
-            os.replace(tmp, runs_dir / f"{run.point_id}.mcap")
+            safefs.replace(tmp, runs_dir / f"{run.point_id}.mcap")
     fsync_dir(runs_dir)  # every rename durable before any row is committed
     # each log as published (after its rename, which sets its ctime): analyse needs not read it to know it
     fingerprints = [fingerprint(runs_dir / f"{run.point_id}.mcap") for run, *_ in written]
