@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -24,6 +23,7 @@ import pandas as pd
 
 from labrunner.campaign.ledger import Ledger
 from labrunner.errors import InvalidParameter
+from labrunner.results import conditions as conditions_mod
 from labrunner.results.run import RunResults, require_xarray
 
 if TYPE_CHECKING:
@@ -96,16 +96,22 @@ class CampaignResults:
     def select(self, where: Mapping[str, Any] | None = None, /, **by_name: Any) -> pd.DataFrame:
         """The table's rows matching every condition. Keys are column names (``"controller.k_p"``,
         ``"outcome"``) or, as keywords, a parameter's last part when unique (``k_p=10``). A value
-        is matched exactly, a float to within 1e-9 relative (grid values are computed); a list or
-        tuple matches any of its values, a ``slice(lo, hi)`` the closed range [lo, hi] (either end
-        None: open), a callable gets the column and returns a boolean mask."""
+        is matched exactly, a float to within 1e-9 relative (grid values are computed), and a
+        number on no grid value of a parameter is refused naming the closest; ``near(x)`` (or
+        ``near(x, tolerance)``) matches the grid value nearest x; a list, tuple, set, range, numpy
+        array or generator matches any of its values, a ``slice(lo, hi)`` the closed range [lo, hi]
+        (either end None: open), a callable gets the column and returns a boolean mask. See
+        :mod:`labrunner.results.conditions`."""
+        if where is not None and not isinstance(where, Mapping):
+            raise InvalidParameter("where", f"must map column names to conditions, got {type(where).__name__}")
         conditions = {**(where or {}), **{self._column(k): v for k, v in by_name.items()}}
         frame = self._built[0]
+        parameters = set(self.parameters)
         mask = np.ones(len(frame), dtype=bool)
         for column, wanted in conditions.items():
             if column not in frame.columns:
                 raise InvalidParameter(column, f"is no column of the table; parameters: {self.parameters}")
-            mask &= _matches(frame[column], wanted)
+            mask &= conditions_mod.mask(column, frame[column], wanted, grid=column in parameters)
         return frame[mask].copy()
 
     def _column(self, key: str) -> str:
@@ -179,29 +185,6 @@ class CampaignResults:
             if column in by_id.columns:
                 coords[column] = ("point", by_id.loc[ids, column].to_numpy())
         return xr.Dataset(data, coords=coords, attrs={"campaign": self.name, "directory": str(self.directory)})
-
-
-def _matches(column: pd.Series, wanted: Any) -> np.ndarray:
-    """Boolean mask of ``column`` against one :meth:`CampaignResults.select` condition."""
-    if callable(wanted):
-        return np.asarray(wanted(column), dtype=bool)
-    if isinstance(wanted, slice):
-        values = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
-        lo = -math.inf if wanted.start is None else wanted.start
-        hi = math.inf if wanted.stop is None else wanted.stop
-        return (values >= lo) & (values <= hi)
-    options = list(wanted) if isinstance(wanted, (list, tuple, set, frozenset)) else [wanted]
-    mask = np.zeros(len(column), dtype=bool)
-    for option in options:
-        mask |= _equal(column, option)
-    return mask
-
-
-def _equal(column: pd.Series, value: Any) -> np.ndarray:
-    if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
-        numbers = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
-        return np.isclose(numbers, float(value), rtol=1e-9, atol=0.0)
-    return (column == value).fillna(False).to_numpy(dtype=bool)
 
 
 def open_campaign(directory: str | Path) -> CampaignResults:
