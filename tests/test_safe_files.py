@@ -6,9 +6,12 @@ victim file outside the campaign and checks the one-line refusal and the victim'
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -202,3 +205,41 @@ def test_a_directory_or_fifo_at_the_lock_is_refused(campaign, capsys):
     code = main(["resume", str(campaign)])
     err = capsys.readouterr().err
     assert code != 0 and ".lock is a FIFO" in err, err
+
+
+def _as_reader_without_write_access(args: list[str]) -> subprocess.CompletedProcess:
+    """Run ``python -m labrunner ARGS`` without the power to write where the mode bits forbid it:
+    as root (whom chmod does not stop), with the capabilities that override file modes dropped
+    from the bounding set (``setpriv``); as another user, as that user."""
+    command = [sys.executable, "-m", "labrunner", *args]
+    if os.geteuid() == 0:
+        setpriv = shutil.which("setpriv")
+        if setpriv is None:
+            if os.environ.get("LABRUNNER_CI") == "1":
+                pytest.fail("setpriv (util-linux) is needed to test a read-only campaign as root")
+            pytest.skip("setpriv (util-linux) not installed: cannot drop root's file-mode override")
+        command = [setpriv, "--bounding-set=-dac_override,-dac_read_search,-fowner", *command]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    return subprocess.run(command, capture_output=True, text=True, timeout=120, env=env)
+
+
+def test_a_read_only_copy_without_wal_and_shm_is_read_not_called_damaged(campaign, tmp_path):
+    for side in ("ledger.sqlite-wal", "ledger.sqlite-shm"):
+        (campaign / side).unlink(missing_ok=True)
+    for path in [campaign, *campaign.rglob("*")]:
+        path.chmod(path.stat().st_mode & ~0o222)
+    try:
+        probe = _as_reader_without_write_access(["status", "--json", str(campaign)])
+        assert probe.returncode == 0, probe.stderr
+        assert "damaged" not in probe.stderr and "repair" not in probe.stderr
+        assert json.loads(probe.stdout)["outcomes"]["completed"] == 2
+        written = _as_reader_without_write_access(["analyse", str(campaign)])  # its report cannot be written
+        assert written.returncode == 1, written.stderr
+        assert written.stderr.splitlines()[-1].endswith(f"{campaign / 'report'}: Permission denied")
+        assert "damaged" not in written.stderr
+        elsewhere = _as_reader_without_write_access(["analyse", str(campaign), "--out", str(tmp_path / "mine")])
+        assert elsewhere.returncode == 0, elsewhere.stderr
+        assert (tmp_path / "mine" / "metrics.csv").is_file()
+    finally:
+        for path in [campaign, *campaign.rglob("*")]:
+            path.chmod(path.stat().st_mode | 0o200)

@@ -103,7 +103,7 @@ def connect_readonly(path: Path) -> sqlite3.Connection:
     try:
         db.execute("SELECT count(*) FROM sqlite_master").fetchone()
         return db
-    except sqlite3.OperationalError as exc:
+    except sqlite3.DatabaseError as exc:  # garbage, a truncated file: the integrity checks say how
         readonly = "readonly" in str(exc) or "unable to open" in str(exc)
         if not readonly or os.access(path.parent, os.W_OK):
             return db  # another problem: the integrity checks report it
