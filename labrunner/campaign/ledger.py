@@ -171,6 +171,7 @@ class Ledger:
 
             db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows())
             db.execute("INSERT INTO meta (key, value) VALUES ('ids_checksum', ?)", (ids.hexdigest(),))
+            db.execute("INSERT INTO meta (key, value) VALUES ('points_checksum', ?)", (integrity.points_checksum(db),))
             if "points" not in meta:  # the planned count the integrity checks compare with
                 db.execute("INSERT INTO meta (key, value) SELECT 'points', COUNT(*) FROM points")
             db.execute("COMMIT")
@@ -439,6 +440,9 @@ class Ledger:
             # the planned count and ids the integrity checks compare with grow with the rounds
             self.db.execute("UPDATE meta SET value = (SELECT COUNT(*) FROM points) WHERE key = 'points'")
             self.db.execute("UPDATE meta SET value = ? WHERE key = 'ids_checksum'", (integrity.ids_checksum(self.db),))
+            self.db.execute(
+                "UPDATE meta SET value = ? WHERE key = 'points_checksum'", (integrity.points_checksum(self.db),)
+            )
         return len(rows)
 
     def _moved(self, delta: Mapping[str, int]) -> None:

@@ -123,9 +123,11 @@ class CampaignResults:
             raise InvalidParameter(key, why)
         return found[0]
 
-    def run(self, point: str | int) -> RunResults:
+    def run(self, point: str | int, *, check: bool = True) -> RunResults:
         """One run, by point id or by ``seq``; a point without a log (not run, or failed before
-        writing one) is refused, naming its outcome."""
+        writing one) is refused, naming its outcome. Its log is served only once it backs the
+        ledger row (its point, its data whole, its parameters and outcome the ledger's; see
+        :class:`RunResults`); ``check=False`` serves it anyway, ``run.problem`` saying why not."""
         frame = self._built[0]
         hit = frame[frame["seq"] == point] if isinstance(point, (int, np.integer)) else frame[frame["id"] == point]
         if hit.empty:
@@ -133,23 +135,51 @@ class CampaignResults:
         row = hit.iloc[0]
         if not isinstance(row["log_path"], str):
             raise InvalidParameter("point", f"{row['id']} has no run log (outcome {row['outcome']})")
-        return RunResults(row["log_path"], row["id"])
+        return self.runs(hit, check=check)[0]
 
-    def runs(self, rows: pd.DataFrame | None = None) -> list[RunResults]:
-        """The runs of ``rows`` (default: the whole table) that have a log, in table order."""
+    def runs(self, rows: pd.DataFrame | None = None, *, check: bool = True) -> list[RunResults]:
+        """The runs of ``rows`` (default: the whole table) that have a log, in table order (each
+        checked against its ledger row when read, unless ``check=False``: see :meth:`run`)."""
         rows = self._built[0] if rows is None else rows
-        return [RunResults(p, i) for i, p in zip(rows["id"], rows["log_path"]) if isinstance(p, str)]
+        ids = [i for i, p in zip(rows["id"], rows["log_path"]) if isinstance(p, str)]
+        ledger_rows = self._ledger_rows(ids)
+        return [
+            RunResults(p, i, row=ledger_rows.get(i), check=check)
+            for i, p in zip(rows["id"], rows["log_path"])
+            if isinstance(p, str)
+        ]
 
-    def signals(self, rows: pd.DataFrame | None = None, names: Iterable[str] | None = None) -> xr.Dataset:
+    def _ledger_rows(self, ids: list[str]) -> dict[str, dict[str, Any]]:
+        """The ledger's parameters, outcome and committed metrics of points ``ids`` (what their logs
+        must agree with), read now: a ledger edited since the table was built is compared as it is."""
+        out: dict[str, dict[str, Any]] = {}
+        with Ledger.open_readonly(self.directory, verify=False) as ledger:
+            for start in range(0, len(ids), 500):
+                part = ids[start : start + 500]
+                marks = ", ".join("?" * len(part))
+                query = f"SELECT id, parameters, outcome, metrics_json FROM points WHERE id IN ({marks})"
+                for r in ledger.db.execute(query, part):
+                    out[r["id"]] = {
+                        "parameters": json.loads(r["parameters"]),
+                        "outcome": r["outcome"],
+                        "metrics": json.loads(r["metrics_json"]) if r["metrics_json"] else None,
+                    }
+        return out
+
+    def signals(
+        self, rows: pd.DataFrame | None = None, names: Iterable[str] | None = None, *, check: bool = True
+    ) -> xr.Dataset:
         """The signals of ``rows``' runs (default: every run with a log) as one xarray Dataset over
         (``point``, ``time``): runs must share their rate and their signals; a run shorter than the
         longest (aborted, torn) is padded with NaN, and ``n_samples`` (per point) and ``valid``
         (point × time) say which samples were logged. ``names``: the signals to keep (default
-        all). The parameters and outcome are coordinates along ``point``. Loads every selected
-        run into memory: select first for large campaigns."""
+        all). The parameters and outcome are coordinates along ``point``. A log that does not back
+        its ledger row (another point's, damaged, disagreeing: see :meth:`run`) is refused, naming
+        it; with ``check=False`` it is kept and the ``problem`` coordinate says what is wrong.
+        Loads every selected run into memory: select first for large campaigns."""
         xr = require_xarray()
         rows = self._built[0] if rows is None else rows
-        runs = self.runs(rows)
+        runs = self.runs(rows, check=check)
         if not runs:
             raise InvalidParameter("rows", "select at least one point with a run log")
         logs = [r.log for r in runs]
@@ -181,6 +211,8 @@ class CampaignResults:
         by_id = rows.set_index("id")
         ids = [r.id for r in runs]
         coords: dict[str, Any] = {"point": ids, "time": ("time", time, {"units": "s"})}
+        if not check:
+            coords["problem"] = ("point", np.array([r.problem for r in runs], dtype=object))
         for column in ["outcome", *self.parameters]:
             if column in by_id.columns:
                 coords[column] = ("point", by_id.loc[ids, column].to_numpy())
