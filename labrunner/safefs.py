@@ -122,6 +122,18 @@ def temp_file(directory: Path, prefix: str, suffix: str = "") -> tuple[int, Path
     return fd, Path(name)
 
 
+@contextlib.contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """An OSError without a file name (a write or fsync of an open file: ENOSPC, EIO) gets
+    ``path``, so that the message says which file could not be written."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+        raise
+
+
 def replace(tmp: Path, final: Path) -> None:
     """Rename ``tmp`` over ``final``, which must be absent or a regular file."""
     check_regular(final)
@@ -137,7 +149,8 @@ def atomic_path(final: Path, *, prefix: str | None = None) -> Iterator[Path]:
     fd, tmp = temp_file(final.parent, prefix or f".{final.name}.", ".tmp")
     os.close(fd)
     try:
-        yield tmp
+        with naming(final):  # a full disk names the file it could not write
+            yield tmp
         check_regular(tmp)  # still the file made above, not a link put in its place
         replace(tmp, final)
     except BaseException:
@@ -151,7 +164,7 @@ def write_atomic(final: Path, data: bytes, *, durable: bool = True) -> None:
     check_regular(final)
     fd, tmp = temp_file(final.parent, f".{final.name}.", ".tmp")
     try:
-        with os.fdopen(fd, "wb") as fh:
+        with naming(final), os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             if durable:

@@ -55,10 +55,12 @@ def write_table(frame: pd.DataFrame, out: Path, directory: Path) -> tuple[Path, 
             with open(tmp_csv, "w", newline="", encoding="utf-8") as fh:
                 for start in range(0, max(len(frame), 1), ROWS_AT_A_TIME):
                     chunk = as_written(frame.iloc[start : start + ROWS_AT_A_TIME], directory, out)
-                    chunk.to_csv(fh, index=False, header=start == 0)
+                    with safefs.naming(csv):  # a full disk names the file it filled
+                        chunk.to_csv(fh, index=False, header=start == 0)
                     batch = pa.Table.from_pandas(chunk, preserve_index=False, schema=writer and writer.schema)
-                    writer = writer or pq.ParquetWriter(tmp_parquet, batch.schema)
-                    writer.write_table(batch)
+                    with safefs.naming(parquet):
+                        writer = writer or pq.ParquetWriter(tmp_parquet, batch.schema)
+                        writer.write_table(batch)
         finally:
             if writer is not None:
                 writer.close()

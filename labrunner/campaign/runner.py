@@ -90,6 +90,8 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     if out is not None and not str(out).strip():
         raise InvalidParameter("--out", f"must be a path, got {str(out)!r}")
     directory = Path(out) if out is not None else default_directory(campaign)
+    for path in (Path(file), directory):  # before anything is created: the ledger records them as UTF-8
+        str(path.resolve()).encode("utf-8")
     if dry:
         return None, _dry_run(campaign, directory, opts)
     with _early_pool(campaign, opts) as pool:

@@ -11,14 +11,13 @@ parent's memory does not grow with the number of runs.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
 import secrets
 import socket
 import time
 import traceback
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,20 +99,8 @@ def _fsync(path: Path) -> None:
 
 def _fsync_all(paths: list[Path]) -> None:
     for path in paths:
-        with naming(path):
+        with safefs.naming(path):
             _fsync(path)
-
-
-@contextlib.contextmanager
-def naming(path: Path) -> Iterator[None]:
-    """An OSError without a file name (a write or fsync of an open file: ENOSPC, EIO) gets
-    ``path``, so that the message says which file could not be written, not which batch."""
-    try:
-        yield
-    except OSError as exc:
-        if exc.filename is None:
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
-        raise
 
 
 def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> dict[str, dict[str, Any]]:
@@ -271,7 +258,7 @@ def _publish_all(
                 metadata["diagnostics"] = dict(record)
             signals, channels = with_device_clock(result)
             float32 = signals if task.precision == "float32" else getattr(result, "float32_signals", ())
-            with naming(tmp):
+            with safefs.naming(tmp):
                 write_run(
                     tmp,
                     metadata=metadata,
