@@ -82,3 +82,23 @@ def test_a_campaign_records_the_link_fault_as_failed_with_its_reason(project, fa
     failed = [json.loads(r["outcome_json"]) for r in rows if r["state"] == "failed"]
     assert failed and all("link fault" in f["message"] for f in failed), failed  # replay: the second run; reset: each
     assert not [r for r in rows if r["state"] == "aborted"]  # never a property of the gains
+
+
+def _samples(first: int, n: int, t_us: int):
+    from labrunner.rigs.device import blocks
+    from labrunner.rigs.transports.bulk import Block
+
+    return Block(first, 0, blocks.SAMPLES, 0, blocks.encode_samples(first, np.full((n, 1), float(first)), t_us))
+
+
+def test_device_loop_samples_whose_clock_goes_back_or_that_replay_are_link_faults():
+    from labrunner.rigs.device.session import _HostRun
+
+    run = _HostRun(lambda *a: None, lambda t: None, 64, 10, 1, 100.0, 1.0)
+    assert run._take(_samples(0, 4, 0), 0.0) is None
+    assert run._take(_samples(4, 2, 40_000), 0.0) is None  # 4 ticks at 100 Hz later: on time
+    np.testing.assert_allclose(run.clock[:6], np.arange(6) / 100.0)
+    with pytest.raises(RigError, match=r"link fault: the device clock went from 0\.050000 s to 0\.000000 s at tick 6"):
+        run._take(_samples(6, 2, 0), 0.0)  # the device's clock reset to 0
+    with pytest.raises(RigError, match=r"link fault: SAMPLES block for ticks 0\.\.3 after 6 ticks"):
+        run._take(_samples(0, 4, 0), 0.0)  # an old block replayed
