@@ -55,14 +55,14 @@ def disagreement(
     ``parameters``, its ``outcome``, and the ``metrics`` committed with it when given), else what
     differs: a parameter edited in the ledger, or a bit flipped in the log's metadata (whose
     records carry no checksum of their own: the ledger, written from the same run, is the check)."""
-    logged = metadata.get("parameters")
-    logged = dict(logged) if isinstance(logged, Mapping) else {}
-    if set(logged) != set(parameters):
-        return f"the log's parameters are {sorted(logged)}, the ledger's {sorted(parameters)}"
+    logged = metadata.get("parameters")  # absent from logs written without one (older, by hand): not compared
+    if logged is not None and (not isinstance(logged, Mapping) or set(logged) != set(parameters)):
+        shown = sorted(logged) if isinstance(logged, Mapping) else logged
+        return f"the log's parameters are {shown!r}, the ledger's {sorted(parameters)}"
     config = metadata.get("config")
     config = config if isinstance(config, Mapping) else {}
     for key, value in parameters.items():
-        if not _same(logged[key], value):
+        if logged is not None and not _same(logged[key], value):
             return f"{key} is {logged[key]!r} in the log, {value!r} in the ledger"
         section, _, name = key.rpartition(".")
         table = config.get(section) if section else config
