@@ -101,11 +101,16 @@ _OS_HINTS = {  # errno → (what it means here, what to do)
 }
 
 
-def os_reason(exc: OSError, *, advice: bool = True) -> str:
+def os_reason(exc: OSError, *, advice: bool = True, command: str = "") -> str:
     """Why an OS call failed, with what it means and (``advice``) what to do where that is clear:
-    "No space left on device (disk full …: free space, then …)"; the caller names the path."""
+    "No space left on device (disk full …: free space, then …)"; the caller names the path. A
+    full disk is continued by ``resume`` after a campaign's ``run`` or ``resume``; any other
+    ``command`` (``analyse``: its report) is run again."""
     reason = exc.strerror or str(exc) or type(exc).__name__
     hint = _OS_HINTS.get(exc.errno) if exc.errno is not None else None
     if hint is None:
         return reason
-    return f"{reason} ({hint[0]}: {hint[1]})" if advice else f"{reason} ({hint[0]})"
+    what, todo = hint
+    if hint is _FULL and command and command not in ("run", "resume"):
+        todo = f"free space, then run `labrunner {command}` again"
+    return f"{reason} ({what}: {todo})" if advice else f"{reason} ({what})"

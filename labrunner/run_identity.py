@@ -17,6 +17,7 @@ fingerprint that differs proves nothing either way; the log is then read as befo
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -37,6 +38,59 @@ def fingerprint(path: str | os.PathLike[str]) -> Fingerprint:
 
 class ForeignLog(LabrunnerError):
     """A log read for one point is another point's run (or names none)."""
+
+
+class UntrustedLog(LabrunnerError):
+    """A log that does not back its ledger row: damaged, or saying other than the ledger."""
+
+
+def disagreement(
+    metadata: Mapping[str, Any],
+    status: str | None,
+    parameters: Mapping[str, Any],
+    outcome: str | None,
+    metrics: Mapping[str, Any] | None = None,
+) -> str:
+    """ "" if a log's ``metadata`` and outcome ``status`` agree with its ledger row (the point's
+    ``parameters``, its ``outcome``, and the ``metrics`` committed with it when given), else what
+    differs: a parameter edited in the ledger, or a bit flipped in the log's metadata (whose
+    records carry no checksum of their own: the ledger, written from the same run, is the check)."""
+    logged = metadata.get("parameters")  # absent from logs written without one (older, by hand): not compared
+    if logged is not None and (not isinstance(logged, Mapping) or set(logged) != set(parameters)):
+        shown = sorted(logged) if isinstance(logged, Mapping) else logged
+        return f"the log's parameters are {shown!r}, the ledger's {sorted(parameters)}"
+    config = metadata.get("config")
+    config = config if isinstance(config, Mapping) else {}
+    for key, value in parameters.items():
+        if logged is not None and not _same(logged[key], value):
+            return f"{key} is {logged[key]!r} in the log, {value!r} in the ledger"
+        section, _, name = key.rpartition(".")
+        table = config.get(section) if section else config
+        if isinstance(table, Mapping) and name in table and not _same(table[name], value):
+            return f"{key} is {table[name]!r} in the log's config, {value!r} in the ledger"
+    if outcome is not None and status is not None and status != outcome:
+        return f"the log's outcome is {status!r}, the ledger's {outcome!r}"
+    logged_metrics = metadata.get("metrics")
+    if metrics and isinstance(logged_metrics, Mapping):
+        for key, value in metrics.items():
+            if key in logged_metrics and not _same(logged_metrics[key], value):
+                return f"metric {key} is {logged_metrics[key]!r} in the log, {value!r} in the ledger"
+    return ""
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal, numbers to 1e-12 relative (both written from one float), NaN and None alike."""
+    missing = (None, "nan", "NaN")
+    if isinstance(a, float) and math.isnan(a) or a in missing:
+        return isinstance(b, float) and math.isnan(b) or b in missing
+    if (
+        isinstance(a, (int, float))
+        and isinstance(b, (int, float))
+        and not isinstance(a, bool)
+        and not isinstance(b, bool)
+    ):
+        return math.isclose(a, b, rel_tol=1e-12, abs_tol=0.0)
+    return a == b
 
 
 def named_point(metadata: Mapping[str, Any]) -> str | None:

@@ -95,12 +95,14 @@ def _analyse(
 ) -> dict[str, Any]:
     import pandas as pd
 
+    from labrunner import safefs
     from labrunner.analysis import memory, selection, table as table_mod, table_files, table_rows
     from labrunner.campaign.ledger import Ledger
     from labrunner.campaign.progress import Steps
 
     memory.return_freed_memory()  # after the fork: this process's tables of 10^6 rows, not the drawing child's
     out = Path(out) if out is not None else directory / "report"
+    safefs.check_directory(out)  # never write through a link planted at report/ (labrunner.safefs)
     steps = Steps(f"analyse {directory}", 4, stream=stream) if progress else None
 
     def step(name: str, more: int = 0) -> None:

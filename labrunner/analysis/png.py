@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from labrunner import safefs
 from labrunner.errors import InvalidParameter
 
 DPI = 110
@@ -77,12 +78,11 @@ def save(fig: Any, path: Path, style: FigureStyle | None = None) -> Path:
     with style.drawing():
         for fmt in dict.fromkeys(["png", *style.formats]):
             target = path.with_suffix(f".{fmt}")
-            tmp = target.with_name(f".{target.name}.tmp")
             extra = (
                 {"pil_kwargs": {"compress_level": PNG_COMPRESSION}} if fmt == "png" else {"metadata": _metadata(fmt)}
             )
-            fig.savefig(tmp, dpi=style.dpi, format=fmt, **extra)
-            tmp.replace(target)
+            with safefs.atomic_path(target) as tmp:  # an unpredictable name, never a planted link
+                fig.savefig(tmp, dpi=style.dpi, format=fmt, **extra)
     return path
 
 

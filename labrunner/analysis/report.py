@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from labrunner import safefs
+
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1100px;
 color:#222;line-height:1.45;padding:0 1em}
@@ -134,8 +136,6 @@ def render_html(title: str, subtitle: str, sections: Sequence[Section]) -> str:
 def write_report(path: str | Path, title: str, subtitle: str, sections: Sequence[Section]) -> Path:
     """Write :func:`render_html` to ``path`` (atomically: temp file, then rename)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(render_html(title, subtitle, sections), encoding="utf-8")
-    tmp.replace(path)
+    safefs.mkdir(path.parent, parents=True)
+    safefs.write_atomic(path, render_html(title, subtitle, sections).encode("utf-8"), durable=False)
     return path

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
+from labrunner import safefs
 from labrunner.analysis import png
 from labrunner.errors import LabrunnerError
 
@@ -73,7 +74,7 @@ def draw(
 
                 run = read_run(log)
                 run_identity.check(run.metadata, point_id, log)  # a swapped log would plot another run
-                plot.parent.mkdir(parents=True, exist_ok=True)
+                safefs.mkdir(plot.parent, parents=True)
                 with style.drawing():
                     fig = plot_run(run, width=style.width)
                 png.save(fig, plot, style)

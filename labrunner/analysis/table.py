@@ -37,6 +37,8 @@ from labrunner.analysis.log_checks import (
     CACHE_COLUMNS,
     LogChecks,
     cached_rows,
+    disagrees,
+    identity,
     named_point,
     proved_by_cache,
     read_many,
@@ -118,7 +120,6 @@ def log_metrics(
 
     try:
         log = read_run(path)
-        named = run_identity.named_point(log.metadata)
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
         windows = parse_windows((log.metadata.get("config") or {}).get("metrics"))
@@ -128,7 +129,7 @@ def log_metrics(
     except (LabrunnerError, OSError, ValueError, KeyError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     out["torn"] = bool(log.torn)
-    out["log_point"] = named
+    out.update(identity(log))
     return out
 
 
@@ -296,15 +297,24 @@ def build_table(
     unread = sorted(i for i in unproved if not proved_by_cache(cached.get(ids.iat[i]), stat[i], LOG_OK))
     named = read_many(named_point, [str(directory / paths.iat[i]) for i in unread], workers)
     problems = checks.problems
-    foreign: set[int] = set()
+    foreign: set[int] = set()  # … and damaged: their metrics are another point's, or not all there
     for i, result in [*zip(read, results), *zip(unread, named)]:
         if "error" in result:
             problems.append({"path": paths.iat[i], "kind": "unreadable", "detail": result["error"]})
             continue
         problem = run_identity.describe(result.pop("log_point"), ids.iat[i])
+        damaged = result.pop("log_damaged", "")
+        differs = disagrees(result, checks.expected.get(i))
+        for key in ("log_metadata", "log_status"):
+            result.pop(key, None)
         if problem:
             problems.append({"path": paths.iat[i], "kind": FOREIGN, "detail": problem})
             foreign.add(i)
+        elif damaged:
+            problems.append({"path": paths.iat[i], "kind": DAMAGED, "detail": f"point {ids.iat[i]}: {damaged}"})
+            foreign.add(i)
+        elif differs:
+            problems.append({"path": paths.iat[i], "kind": DISAGREES, "detail": f"point {ids.iat[i]}: {differs}"})
     for i, result in zip(read, results):
         if "error" in result or i in foreign:  # a foreign log's metrics are another point's
             continue
@@ -345,12 +355,17 @@ def _overlaid(column: pd.Series | None, values: pd.Series, n: int) -> pd.Series:
 LOG_OK = "ok"
 #: ``log_state`` of a row whose log names another point (swapped or copied on disk).
 FOREIGN = "foreign"
-LOG_STATES = (LOG_OK, "missing", "unreadable", "torn", FOREIGN)
+#: ``log_state`` of a row whose log's summary is intact but some data is not (a chunk fails its CRC).
+DAMAGED = "damaged"
+#: ``log_state`` of a row whose log's parameters or outcome differ from the ledger's (either was edited).
+DISAGREES = "disagrees"
+LOG_STATES = (LOG_OK, "missing", "unreadable", "torn", FOREIGN, DAMAGED, DISAGREES)
 
 
 def log_states(log_paths: pd.Series, problems: Sequence[Mapping[str, str]]) -> pd.Series:
     """Per row: "ok", or what is wrong with its log ("missing", "unreadable", "torn", "foreign":
-    another point's run), or empty where the point has none (a failed run, an unfinished point)
+    another point's run, "damaged": data chunks unreadable, "disagrees": parameters or outcome
+    other than the ledger's), or empty where the point has none (a failed run, an unfinished point)
     — so that the table alone says which metrics a log no longer backs. Categorical, made from
     its codes (no text a row)."""
     kinds = {p["path"]: p["kind"] for p in problems if p["kind"] in LOG_STATES}

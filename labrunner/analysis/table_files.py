@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from labrunner import safefs
 from labrunner.analysis.table import METRICS_VERSION, ordered
 
 METRICS_CSV = "metrics.csv"
@@ -45,25 +46,22 @@ def write_table(frame: pd.DataFrame, out: Path, directory: Path) -> tuple[Path, 
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    out.mkdir(parents=True, exist_ok=True)
+    safefs.mkdir(out, parents=True)
     csv, parquet = out / METRICS_CSV, out / METRICS_PARQUET
-    tmp_csv, tmp_parquet = csv.with_name(f".{METRICS_CSV}.tmp"), parquet.with_name(f".{METRICS_PARQUET}.tmp")
-    writer = None
-    try:
-        with open(tmp_csv, "w", newline="", encoding="utf-8") as fh:
-            for start in range(0, max(len(frame), 1), ROWS_AT_A_TIME):
-                chunk = as_written(frame.iloc[start : start + ROWS_AT_A_TIME], directory, out)
-                chunk.to_csv(fh, index=False, header=start == 0)
-                batch = pa.Table.from_pandas(chunk, preserve_index=False, schema=writer and writer.schema)
-                writer = writer or pq.ParquetWriter(tmp_parquet, batch.schema)
-                writer.write_table(batch)
-    except BaseException:
-        if writer is not None:
-            writer.close()
-        tmp_csv.unlink(missing_ok=True)
-        tmp_parquet.unlink(missing_ok=True)
-        raise
-    writer.close()
-    tmp_csv.replace(csv)
-    tmp_parquet.replace(parquet)
+    # temporary files under unpredictable names (O_EXCL), renamed over regular files only (labrunner.safefs)
+    with safefs.atomic_path(csv) as tmp_csv, safefs.atomic_path(parquet) as tmp_parquet:
+        writer = None
+        try:
+            with open(tmp_csv, "w", newline="", encoding="utf-8") as fh:
+                for start in range(0, max(len(frame), 1), ROWS_AT_A_TIME):
+                    chunk = as_written(frame.iloc[start : start + ROWS_AT_A_TIME], directory, out)
+                    with safefs.naming(csv):  # a full disk names the file it filled
+                        chunk.to_csv(fh, index=False, header=start == 0)
+                    batch = pa.Table.from_pandas(chunk, preserve_index=False, schema=writer and writer.schema)
+                    with safefs.naming(parquet):
+                        writer = writer or pq.ParquetWriter(tmp_parquet, batch.schema)
+                        writer.write_table(batch)
+        finally:
+            if writer is not None:
+                writer.close()
     return csv, parquet

@@ -36,6 +36,7 @@ import os
 import pickle
 import signal
 import socket
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
@@ -48,6 +49,9 @@ from labrunner.errors import CampaignError, InvalidParameter
 
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 DASK_PORT = 8786  # the Dask scheduler's default port
+#: How long idle pool workers get to exit when a session ends; one still there then (stopped with
+#: SIGSTOP, hung) is killed, so that a stopped worker never hangs the runner.
+SHUTDOWN_S = 10.0
 CONNECT_TIMEOUT_S = 5.0  # reaching a Dask scheduler before anything is created
 _PR_SET_PDEATHSIG = 1
 QUEUE_DEPTH = 2  # batches in flight per slot
@@ -221,9 +225,16 @@ def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
         yield ExecutorHandle(pool, n, abandon=abandon, live=ticks, stop=ticks.stop)
     finally:
         with _stop_signals_held():
+            processes = dict(getattr(pool, "_processes", None) or {})
             if abandoned or getattr(pool, "_broken", False):  # a broken pool SIGTERMs its workers: they ignore it
-                _kill(getattr(pool, "_processes", None))
-            pool.shutdown(wait=True, cancel_futures=True)
+                _kill(processes)
+            pool.shutdown(wait=False, cancel_futures=True)
+            deadline = time.monotonic() + SHUTDOWN_S  # a worker stopped (SIGSTOP) or hung never reads its sentinel
+            for process in processes.values():
+                with contextlib.suppress(OSError, AttributeError, ValueError, AssertionError):
+                    process.join(max(0.0, deadline - time.monotonic()))
+            _kill(processes)
+            pool.shutdown(wait=True)
 
 
 def _workers(client: Any) -> int:
@@ -235,9 +246,33 @@ def _workers(client: Any) -> int:
     return len(client.nthreads())
 
 
+@contextlib.contextmanager
+def _dask_quiet() -> Iterator[None]:
+    """Distributed's own log records (a lost scheduler: ~30 lines of reconnection tracebacks on
+    stderr) held back meanwhile: the probe finds the loss and the campaign stops in one line."""
+    import logging
+
+    loggers = [logging.getLogger(n) for n in list(logging.root.manager.loggerDict) if n.split(".")[0] == "distributed"]
+    loggers.append(logging.getLogger("distributed"))
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
+
 def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
     check_executor_url(url, reach=False)
     from distributed import Client
+
+    with _dask_quiet():
+        yield from _dask_session(Client, url, workers)
+
+
+def _dask_session(Client: Any, url: str, workers: int | None) -> Iterator[ExecutorHandle]:  # noqa: N803 - the class
 
     try:
         client = Client(url, timeout=20)
@@ -253,7 +288,10 @@ def _dask(url: str, workers: int | None) -> Iterator[ExecutorHandle]:
         def probe() -> str:
             if client.status != "running":
                 return f"lost the connection to the Dask scheduler at {url} (client {client.status})"
-            now = _workers(client)
+            try:
+                now = _workers(client)
+            except Exception as exc:  # the scheduler went away between the status and the question
+                return f"lost the connection to the Dask scheduler at {url} ({type(exc).__name__})"
             return f"Dask worker(s) lost ({started} → {now})" if now < started else ""
 
         def abandon() -> None:

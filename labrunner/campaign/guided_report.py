@@ -18,6 +18,7 @@ from typing import Any, TextIO
 
 import pandas as pd
 
+from labrunner import safefs
 from labrunner.campaign.guided import Advance
 
 #: Thesis Sec. 3.5.3: Guideline 2 took 54 steps, Polack et al. 66 (feed-forward) + 41 (feedback) = 107.
@@ -106,7 +107,7 @@ def sections(campaign: Any, rows: list[dict[str, Any]], out: Path) -> tuple[list
 
     state, summary = guided_run.replay(campaign, rows), guided_run.summary(campaign, rows)
     table = walk_table(state)
-    table.to_csv(out / "walk.csv", index=False)
+    safefs.write_atomic(out / "walk.csv", table.to_csv(index=False).encode("utf-8"), durable=False)
     facts: dict[str, object] = {
         "procedure": campaign.guided.describe(),
         "runs": state.runs,
@@ -141,8 +142,8 @@ def sections(campaign: Any, rows: list[dict[str, Any]], out: Path) -> tuple[list
     if len(table) and "boundary_cells" not in detail:
         fig = walk_figure(table, f"{campaign.name}: the walk")
         buf = io.BytesIO()
-        fig.savefig(out / "walk.png", dpi=110)
         fig.savefig(buf, format="png", dpi=110)
+        safefs.write_atomic(out / "walk.png", buf.getvalue(), durable=False)  # never through a planted link
         images.append(Image("The walk", buf.getvalue(), "RMS(e) and the gains at each step; dashed: a new stage."))
     shown = table.drop(columns=["id"]).rename(columns=lambda c: c.split(".")[-1] if "." in c else c)
     tables = [("Walk", shown)] if len(table) <= 400 else [("Walk (first 400 steps; all in walk.csv)", shown.head(400))]

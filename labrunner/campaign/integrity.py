@@ -6,7 +6,8 @@
 - not a labrunner ledger (tables or columns missing, another schema version, meta keys missing);
 - point rows missing or added: the row count against the planned count kept in ``meta``, the grid
   order ``seq`` = 0…n−1, and the checksum of the point ids in grid order written at creation;
-- a row whose parameters are not a JSON object.
+- a row whose parameters are not a JSON object, or were changed since planned (the checksum of
+  every row's id and parameters written at creation, kept as a guided campaign adds rounds).
 
 The checks that read every row (``quick_check``, the ids' checksum, the parameters' JSON) take
 ~1 s per 10^5 points; ``status`` (reads only, and must answer in well under a second at 10^6
@@ -104,7 +105,20 @@ def _rows(db: sqlite3.Connection, meta: dict[str, str], thorough: bool) -> str:
     ).fetchone()
     if bad is not None:
         return f"has a point row (seq {bad[0]}) whose parameters are not a JSON object"
+    expected = meta.get("points_checksum")
+    if expected is not None and points_checksum(db) != expected:  # older ledgers keep none
+        return "has point rows whose parameters changed since they were planned (edited in the ledger?)"
     return ""
+
+
+def points_checksum(db: sqlite3.Connection) -> str:
+    """SHA-256 of every point's id and parameters (its JSON text) in grid order, one per line:
+    a parameter edited in the ledger no longer matches (its log, and its id, keep the old one)."""
+    digest = hashlib.sha256()
+    cursor = db.execute("SELECT id, parameters FROM points ORDER BY seq")
+    while rows := cursor.fetchmany(65536):
+        digest.update("".join(f"{pid}\t{parameters}\n" for pid, parameters in rows).encode())
+    return digest.hexdigest()
 
 
 def ids_checksum(db: sqlite3.Connection) -> str:

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from labrunner import jsontext
+from labrunner import jsontext, safefs
 from labrunner.campaign import integrity
 from labrunner.campaign.ledger_schema import INDEXES, PLANNED_INDEX, SCHEMA, migrate
 from labrunner.errors import CampaignError, InvalidParameter
@@ -64,13 +64,16 @@ class RunRecord:
 
 
 def ledger_path(directory: Path) -> Path:
-    """``DIR/ledger.sqlite``, or a one-line refusal (exit 2) when DIR is not a campaign directory."""
+    """``DIR/ledger.sqlite``, or a one-line refusal (exit 2) when DIR is not a campaign directory
+    (exit 1 when the ledger or a side file SQLite opens is a link: SQLite follows links, and a
+    planted one would make this another campaign's ledger, see :mod:`labrunner.safefs`)."""
     if not directory.is_dir():
         raise InvalidParameter(
             "DIR",
             f"{str(directory)!r} is not a directory" if directory.exists() else f"{str(directory)!r} does not exist",
         )
     path = directory / LEDGER_NAME
+    safefs.check_sqlite(path)
     if not path.is_file():
         raise InvalidParameter(
             "DIR",
@@ -85,6 +88,35 @@ def _connect(path: Path) -> sqlite3.Connection:
     db.row_factory = sqlite3.Row
     db.execute("PRAGMA busy_timeout = 30000")
     return db
+
+
+def connect_readonly(path: Path) -> sqlite3.Connection:
+    """A read-only connection to the ledger at ``path``, also from a read-only copy.
+
+    A ledger in WAL mode needs its ``-shm`` file even to be read; in a shared copy without
+    ``-wal``/``-shm`` and without write access to the directory, SQLite cannot create it and
+    answers "attempt to write a readonly database" — which is no damage. Such a copy is then
+    opened ``immutable`` (no locks, no ``-shm``): correct because without a ``-wal`` file every
+    committed transaction is in the database file, and nobody without write access changes it."""
+    uri = path.resolve().as_uri()
+    db = sqlite3.connect(f"{uri}?mode=ro", uri=True, isolation_level=None, timeout=30.0)
+    try:
+        db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        return db
+    except sqlite3.DatabaseError as exc:  # garbage, a truncated file: the integrity checks say how
+        readonly = "readonly" in str(exc) or "unable to open" in str(exc)
+        if not readonly or os.access(path.parent, os.W_OK):
+            return db  # another problem: the integrity checks report it
+        wal = path.with_name(path.name + "-wal")
+        if wal.exists() and wal.stat().st_size:
+            db.close()
+            raise CampaignError(
+                f"{path}: cannot be read without write access to {path.parent} (its {wal.name} holds "
+                f"transactions not yet in the ledger file, and SQLite must create {path.name}-shm to read "
+                f"them): read it where you can write, or copy the directory"
+            ) from None
+    db.close()
+    return sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, isolation_level=None, timeout=30.0)
 
 
 class Ledger:
@@ -112,11 +144,14 @@ class Ledger:
         The caller holds the directory's lock, so a temporary ledger found here is a leftover of a
         runner killed while it planned, and is removed."""
         final = directory / LEDGER_NAME
+        safefs.check_sqlite(final)
         if final.exists():
             raise CampaignError(f"{final} already exists")
         for stale in directory.glob(f".{LEDGER_NAME}.*.tmp"):  # a creation killed before its rename
             stale.unlink()
-        tmp = directory / f".{LEDGER_NAME}.{os.getpid()}.tmp"
+        fd, tmp = safefs.temp_file(directory, f".{LEDGER_NAME}.", ".tmp")  # unpredictable, O_EXCL
+        os.close(fd)
+        safefs.check_sqlite(tmp)
         db = _connect(tmp)
         try:
             db.executescript(SCHEMA)
@@ -136,6 +171,7 @@ class Ledger:
 
             db.executemany("INSERT INTO points (seq, id, parameters, batch_key) VALUES (?, ?, ?, ?)", rows())
             db.execute("INSERT INTO meta (key, value) VALUES ('ids_checksum', ?)", (ids.hexdigest(),))
+            db.execute("INSERT INTO meta (key, value) VALUES ('points_checksum', ?)", (integrity.points_checksum(db),))
             if "points" not in meta:  # the planned count the integrity checks compare with
                 db.execute("INSERT INTO meta (key, value) SELECT 'points', COUNT(*) FROM points")
             db.execute("COMMIT")
@@ -146,9 +182,12 @@ class Ledger:
                 raise LedgerWriteError(f"{final}: cannot write the ledger: {exc}") from None
             raise
         db.close()
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, final)
+        fd = safefs.open_fd(tmp, os.O_RDWR)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        safefs.replace(tmp, final)
         fsync_dir(directory)
         return cls.open(directory, verify=False)  # just written
 
@@ -176,7 +215,7 @@ class Ledger:
         """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written;
         ``thorough=False`` leaves out the checks that read every row (:mod:`.integrity`)."""
         path = ledger_path(directory)
-        db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None, timeout=30.0)
+        db = connect_readonly(path)
         db.row_factory = sqlite3.Row
         try:
             if verify:
@@ -417,6 +456,9 @@ class Ledger:
             # the planned count and ids the integrity checks compare with grow with the rounds
             self.db.execute("UPDATE meta SET value = (SELECT COUNT(*) FROM points) WHERE key = 'points'")
             self.db.execute("UPDATE meta SET value = ? WHERE key = 'ids_checksum'", (integrity.ids_checksum(self.db),))
+            self.db.execute(
+                "UPDATE meta SET value = ? WHERE key = 'points_checksum'", (integrity.points_checksum(self.db),)
+            )
         return len(rows)
 
     def _moved(self, delta: Mapping[str, int]) -> None:

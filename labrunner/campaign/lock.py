@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from labrunner import safefs
 from labrunner.errors import CampaignError
 
 LOCK_NAME = ".lock"
@@ -65,7 +66,7 @@ class DirectoryLock:
         self.took_over: Holder | None = None
 
     def acquire(self) -> DirectoryLock:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        fd = safefs.open_fd(self.path, os.O_RDWR | os.O_CREAT)  # never through a planted link
         for attempt in range(_TRIES):  # `status` holds a shared lock for a moment: retry briefly
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -119,7 +120,7 @@ def holder(directory: Path) -> Holder | None:
     """The live holder of ``directory``'s lock, or None if nobody runs it (reads only)."""
     path = directory / LOCK_NAME
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        fd = safefs.open_fd(path, os.O_RDONLY)
     except FileNotFoundError:
         return None
     try:

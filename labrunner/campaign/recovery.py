@@ -22,11 +22,11 @@ temporary logs to the end of the session (:func:`sweep`, before the directory is
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+from labrunner import safefs
 from labrunner.campaign import seal
 from labrunner.campaign.ledger import TERMINAL, Ledger, RunRecord, fsync_dir
 from labrunner.campaign.worker import RUNS_DIR, TMP_PREFIX, final_path, ledger_outcome
@@ -66,10 +66,10 @@ def quarantine(ledger: Ledger, path: Path, point_id: str | None, reason: str) ->
     """Move ``path`` into ``DIR/quarantine/`` (unique name), record it; return the new relative path."""
     directory = ledger.directory
     qdir = directory / QUARANTINE_DIR
-    qdir.mkdir(exist_ok=True)
+    safefs.mkdir(qdir)
     target = qdir / f"{path.name.lstrip('.')}.{time.time_ns()}"
     size = path.stat().st_size
-    os.replace(path, target)
+    safefs.replace(path, target)
     fsync_dir(qdir)
     fsync_dir(path.parent)
     moved = str(target.relative_to(directory))
@@ -125,7 +125,7 @@ def recover(ledger: Ledger) -> Recovery:
     """Bring the directory and the ledger into agreement (see the module docstring)."""
     directory = ledger.directory
     runs = directory / RUNS_DIR
-    runs.mkdir(exist_ok=True)
+    safefs.mkdir(runs)
     report = Recovery()
     # one listing of runs/ instead of a stat a point: ~1 s rather than ~10 s at 10^6 points
     listed, names = seal.listing(ledger)

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import sqlite3
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from labrunner import safefs
 from labrunner.campaign import integrity, plan_inputs, spec
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, RunRecord, fsync_dir
 from labrunner.campaign.lock import DirectoryLock
@@ -28,6 +28,7 @@ from labrunner.campaign.recovery import QUARANTINE_DIR, outcome_record, verify_l
 from labrunner.campaign.status import REAL_RIG
 from labrunner.campaign.worker import final_path
 from labrunner.errors import InvalidParameter
+from labrunner.run_identity import FINGERPRINT_COLUMNS, fingerprint
 
 COPY = "campaign.toml"
 
@@ -104,8 +105,11 @@ def _campaign(directory: Path, meta: dict[str, str], source: str | Path | None) 
 
 
 def _sound(path: Path) -> bool:
-    """Whether the ledger passes every integrity check and every log it names exists (then a
-    repair would only replace a good ledger by a copy of it)."""
+    """Whether the ledger passes every integrity check and every log it names is there, whole
+    and its own point's (then a repair would only replace a good ledger by a copy of it): a log
+    is proved by the fingerprint the ledger recorded (unchanged since), else read
+    (:func:`~labrunner.campaign.recovery.verify_log`: a truncated, zeroed, damaged or swapped
+    log fails it, and a repair is then what the directory needs)."""
     if not path.is_file():
         return False
     try:
@@ -116,23 +120,34 @@ def _sound(path: Path) -> bool:
         if integrity.problem(db):
             return False
         try:
-            logs = [r[0] for r in db.execute("SELECT log_path FROM points WHERE log_path IS NOT NULL")]
+            columns = {r[1] for r in db.execute("PRAGMA table_info(points)")}
+            recorded = ", ".join(c if c in columns else "NULL" for c in FINGERPRINT_COLUMNS)
+            logs = db.execute(f"SELECT id, log_path, {recorded} FROM points WHERE log_path IS NOT NULL").fetchall()
         except sqlite3.Error:
             return False
-    return all((path.parent / log).is_file() for log in logs)
+    for point_id, log, *stamp in logs:
+        where = path.parent / log
+        try:
+            if tuple(stamp) == fingerprint(where):
+                continue
+        except OSError:
+            return False
+        if verify_log(where, point_id)[0] is None:
+            return False
+    return True
 
 
 def _quarantine(path: Path, directory: Path) -> str:
     """Move the old ledger and its -wal/-shm into quarantine/; return the ledger's new relative path."""
     qdir = directory / QUARANTINE_DIR
-    qdir.mkdir(exist_ok=True)
+    safefs.mkdir(qdir)
     stamp = time.time_ns()
     moved = ""
     for suffix in ("", "-wal", "-shm"):
         old = Path(f"{path}{suffix}")
         if old.exists():
             target = qdir / f"{LEDGER_NAME}{suffix}.{stamp}"
-            os.replace(old, target)
+            safefs.replace(old, target)
             moved = moved or str(target.relative_to(directory))
     fsync_dir(qdir)
     fsync_dir(directory)
@@ -160,7 +175,8 @@ def repair(directory: str | Path, *, campaign_file: str | Path | None = None, fo
     if not force and _sound(path):  # before the lock: a refused repair touches nothing
         raise InvalidParameter(
             "DIR",
-            f"the ledger of {str(directory)!r} is sound (every integrity check passes, every run's log is there): "
+            f"the ledger of {str(directory)!r} is sound (every integrity check passes, every run's log is there, "
+            "whole and its own point's): "
             "nothing to repair; "
             f"`labrunner resume {directory}` continues it, `labrunner repair --force {directory}` rebuilds it anyway",
         )

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
+from labrunner import safefs
 from labrunner.campaign import dry_run, guided_run, integrity, journal, live_view, plan_inputs, recovery, seal, spec
 from labrunner.campaign.executors import ExecutorHandle, check_executor_url, open_executor
 from labrunner.campaign.ledger import LEDGER_NAME, Ledger, LedgerWriteError, fsync_dir
@@ -86,12 +87,7 @@ def _check_new_directory(directory: Path, name: str, checksum: str) -> None:
 
 
 def _write_copy(directory: Path, text: str) -> None:
-    tmp = directory / f".{CAMPAIGN_COPY}.tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, directory / CAMPAIGN_COPY)
+    safefs.write_atomic(directory / CAMPAIGN_COPY, text.encode("utf-8"))
 
 
 def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool = False) -> tuple[Outcome | None, str]:
@@ -101,6 +97,8 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
     if out is not None and not str(out).strip():
         raise InvalidParameter("--out", f"must be a path, got {str(out)!r}")
     directory = Path(out) if out is not None else default_directory(campaign)
+    for path in (Path(file), directory):  # before anything is created: the ledger records them as UTF-8
+        str(path.resolve()).encode("utf-8")
     if dry:
         return None, _dry_run(campaign, directory, opts)
     # the view's server threads start after the pool's workers are forked, and it listens before anything is created
@@ -133,7 +131,7 @@ def start(file: str | Path, out: str | Path | None, opts: Options, *, dry: bool 
             ledger = Ledger.create(directory, meta=meta, points=points_rows)
             del points, points_rows
             _write_copy(directory, campaign.source)  # the ledger exists first: it is what marks the campaign
-            (directory / RUNS_DIR).mkdir(exist_ok=True)
+            safefs.mkdir(directory / RUNS_DIR)
             with ledger:
                 return _execute(campaign, ledger, lock, opts, "run", pool, view=view), str(directory)
 

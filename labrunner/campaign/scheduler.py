@@ -24,7 +24,10 @@ Supervision — the loop never blocks longer than :data:`POLL_S` and never hangs
 - A dead worker (``BrokenProcessPool``), a lost Dask worker or scheduler, a worker that cannot
   publish: stop submitting (queued batches are not started), the same bounded wait for the
   running ones (a dead pool worker takes every running batch with it: abandoned at once), then
-  the session ends with the reason.
+  the session ends with the reason. A worker that is alive but
+  makes no progress (stopped with SIGSTOP, hung) is a dead one too: a started batch whose live
+  tick count has not moved for :func:`stall_limit_s` (at least :data:`STALL_S`) is reported and
+  the running batches abandoned at once (pool workers get SIGKILL, which also ends a stopped one).
 
 Abandoned batches' points stay claimed; ``resume`` settles them (a log published before the
 abandonment is accepted). Either way the ledger is consistent and the rig is left in its safe state.
@@ -56,6 +59,7 @@ _BYTES_PER_SAMPLE = 8 * 32  # float64 × (generous) number of logged traces per 
 POLL_S = 0.25  # how often the loop looks at signals, deadlines and results [s]
 PROBE_S = 2.0  # how often the executor's health is probed [s]
 GRACE_S = 10.0  # beyond the running batches' own duration, before they are abandoned [s]
+STALL_S = 30.0  # a started batch whose ticks do not move for this long (or its expected time) is stalled [s]
 # The engine's per-tick cost model, cost(B) ≈ TICK_OVERHEAD_S + B · RUN_TICK_S (motor velocity MFC
 # at 200 Hz, one CPU of a loaded 2-core machine: ~130 µs per tick plus ~0.5 µs per run and tick;
 # benchmarks/bench_engine.py). A batch is large enough once the fixed part is at most
@@ -83,6 +87,18 @@ class Outcome:
     counts: dict[str, int] = field(default_factory=dict)
     signals: int = 0  # Ctrl-C/SIGTERM received, also one after the last batch began (a guided campaign stops on it)
     complete: bool = False  # nothing is left to run (every point terminal; a guided procedure finished)
+
+
+def stall_limit_s(batch: _Batch, ticks: int) -> float:
+    """How long a started batch's live ticks may stand still at ``ticks`` before its worker counts
+    as dead [s]: :data:`STALL_S`, or ten times the cost model's time between two progress reports
+    if longer (the engine reports ``PROGRESS_CALLS`` times a batch); once its last tick is done,
+    four times that while its logs are written and fsynced (nothing reports progress then)."""
+    from labrunner.engine import PROGRESS_CALLS
+
+    between = 10.0 * batch.ticks * (TICK_OVERHEAD_S + len(batch.ids) * RUN_TICK_S) / PROGRESS_CALLS
+    limit = max(STALL_S, between)
+    return 4.0 * limit if ticks >= batch.ticks else limit
 
 
 def batch_size(group_points: int, slots: int, samples: int, requested: int | None = None) -> int:
@@ -387,14 +403,38 @@ class Scheduler:
         live = self.handle.live
         return live is None or live.ticks(batch.slot) != QUEUED
 
+    def _stalled(self, now: float) -> str:
+        """Why a started batch counts as dead: its live ticks have not moved for its
+        :func:`stall_limit_s` ("" if every batch moves, waits for a worker, or has no channel)."""
+        live = self.handle.live
+        if live is None:
+            return ""
+        for batch in self.inflight.values():
+            if batch.slot is None:
+                continue
+            ticks = live.ticks(batch.slot)
+            if ticks != batch.seen:
+                batch.seen, batch.seen_at = ticks, now
+            elif ticks != QUEUED and now - batch.seen_at > stall_limit_s(batch, ticks):
+                return (
+                    f"a worker made no progress for {now - batch.seen_at:.0f} s (at tick {ticks} of "
+                    f"{batch.ticks}; stopped with SIGSTOP, or hung?); the running batches were abandoned"
+                )
+        return ""
+
     def _supervise(self, signals: StopSignals, out: Outcome, pending: deque) -> None:
-        """Ctrl-C, a failure, a lost worker or a passed deadline: what the loop does next."""
+        """Ctrl-C, a failure, a lost or stalled worker or a passed deadline: what the loop does next."""
         now = time.monotonic()
         if now >= self._next_probe:
             self._next_probe = now + PROBE_S
             reason = self.handle.probe()
             if reason:
                 out.stop_reason = out.stop_reason or reason
+        stalled = self._stalled(now)
+        if stalled:  # as a dead worker: its batch will never return
+            out.stop_reason = out.stop_reason or stalled
+            self._abandon(out)
+            return
         if signals.count >= 2 and self.inflight:
             out.interrupted = True
             self._say("interrupted again: abandoning the running runs now (resume settles them)")
@@ -466,6 +506,8 @@ class _Batch:
     submitted: float
     slot: int | None = None
     parameters: list[Any] = field(default_factory=list)
+    seen: int = QUEUED  # the live ticks last read, and when they last changed (monotonic)
+    seen_at: float = 0.0
 
     @property
     def expected_s(self) -> float:

@@ -11,14 +11,13 @@ parent's memory does not grow with the number of runs.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
 import secrets
 import socket
 import time
 import traceback
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from labrunner import safefs
 from labrunner.campaign import live
 from labrunner.campaign.ledger import RunRecord, fsync_dir
 from labrunner.errors import CampaignError, RigError, os_reason
@@ -102,20 +102,8 @@ def _fsync(path: Path) -> None:
 
 def _fsync_all(paths: list[Path]) -> None:
     for path in paths:
-        with naming(path):
+        with safefs.naming(path):
             _fsync(path)
-
-
-@contextlib.contextmanager
-def naming(path: Path) -> Iterator[None]:
-    """An OSError without a file name (a write or fsync of an open file: ENOSPC, EIO) gets
-    ``path``, so that the message says which file could not be written, not which batch."""
-    try:
-        yield
-    except OSError as exc:
-        if exc.filename is None:
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
-        raise
 
 
 def _metadata(task: BatchTask, run: RunTask, host: str, start_time: float) -> dict[str, dict[str, Any]]:
@@ -300,7 +288,7 @@ def _publish_all(
                 metadata["diagnostics"] = dict(record)
             signals, channels = with_device_clock(result)
             float32 = signals if task.precision == "float32" else getattr(result, "float32_signals", ())
-            with naming(tmp):
+            with safefs.naming(tmp):
                 write_run(
                     tmp,
                     metadata=metadata,
@@ -318,7 +306,7 @@ def _publish_all(
         for future in synced:
             future.result()
         for run, tmp, *_ in written:
-            os.replace(tmp, runs_dir / f"{run.point_id}.mcap")
+            safefs.replace(tmp, runs_dir / f"{run.point_id}.mcap")
     fsync_dir(runs_dir)  # every rename durable before any row is committed
     # each log as published (after its rename, which sets its ctime): analyse needs not read it to know it
     fingerprints = [fingerprint(runs_dir / f"{run.point_id}.mcap") for run, *_ in written]

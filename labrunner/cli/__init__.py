@@ -118,6 +118,8 @@ def _main(argv: Sequence[str] | None) -> int:
         parser.print_help()
         return 2
     prefix = f"labrunner {args.command}: error:"
+    if sys.stdout is None:  # started with stdout closed (`>&-`): say so before anything runs, not at its end
+        return _say(f"{prefix} standard output is closed: run it with its output sent somewhere (> FILE)", 1)
     try:
         code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not as a traceback at interpreter exit
@@ -134,19 +136,53 @@ def _main(argv: Sequence[str] | None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no flush error at exit either
         return 141  # 128 + SIGPIPE, what a shell reports for a command killed by it
     except OSError as exc:
-        return _say(f"{prefix} {os_error(exc)}", 1)
+        return _say(f"{prefix} {_cwd_gone() or os_error(exc, args.command)}", 1)
+    except UnicodeError as exc:
+        if not _undecodable(exc):
+            return _internal(args.command, argv, exc)
+        return _say(f"{prefix} {_undecodable(exc)}", 2)
     except MemoryError:
         return _say(f"{prefix} out of memory", 1)
     except Exception as exc:  # a bug: one line here, the traceback in a file
-        where = _write_traceback(args.command, sys.argv[1:] if argv is None else list(argv))
-        return _say(
-            f"labrunner {args.command}: internal error: {_line(exc, type(exc).__name__)}; traceback in {where}", 1
-        )
+        return _internal(args.command, argv, exc)
 
 
-def os_error(exc: OSError) -> str:
-    """One line for an environment failure, naming the path: "PATH: No space left on device"."""
-    reason = os_reason(exc)
+def _internal(command: str, argv: Sequence[str] | None, exc: Exception) -> int:
+    where = _write_traceback(command, sys.argv[1:] if argv is None else list(argv))
+    return _say(f"labrunner {command}: internal error: {_line(exc, type(exc).__name__)}; traceback in {where}", 1)
+
+
+def _undecodable(exc: UnicodeError) -> str:
+    """The one line for a file or folder name that is not UTF-8 (Python carries its bytes as lone
+    surrogates, which the ledger's and the logs' UTF-8 text cannot hold); "" for another error."""
+    text = getattr(exc, "object", None)
+    if not isinstance(exc, UnicodeEncodeError) or not isinstance(text, str) or "surrogates" not in str(exc):
+        return ""
+    # the name holding the bad bytes: the run of text around them up to a quote, space or comma
+    start, end = exc.start, exc.end
+    while start > 0 and text[start - 1] not in "\"' ,:{}[]":
+        start -= 1
+    while end < len(text) and text[end] not in "\"' ,:{}[]":
+        end += 1
+    return (
+        f"the name {text[start:end]!r} is not valid UTF-8 (the ledger and the logs record names as UTF-8 "
+        "text): rename the file or folder"
+    )
+
+
+def _cwd_gone() -> str:
+    """The one line for a command run from a working directory deleted since; "" if it exists."""
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        return "the working directory no longer exists (deleted since this shell entered it): cd to an existing one"
+    return ""
+
+
+def os_error(exc: OSError, command: str = "") -> str:
+    """One line for an environment failure, naming the path: "PATH: No space left on device"
+    (the advice for ``command``, see :func:`~labrunner.errors.os_reason`)."""
+    reason = os_reason(exc, command=command)
     paths = [p for p in (exc.filename, exc.filename2) if p is not None]
     return ": ".join([*map(str, paths), reason]) if paths else reason
 
@@ -169,7 +205,8 @@ def _write_traceback(command: str, argv: list[str]) -> str:
     """Write the current exception's traceback to a fresh file; return its path (or why not)."""
     try:
         fd, path = tempfile.mkstemp(prefix=f"labrunner-{command}-", suffix=".traceback.txt")
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        # a name that is not UTF-8 is written as its escapes: this handler must not fail itself
+        with os.fdopen(fd, "w", encoding="utf-8", errors="backslashreplace") as fh:
             fh.write(f"labrunner {' '.join(argv)}\n\n{traceback.format_exc()}")
         return path
     except OSError as exc:

@@ -42,6 +42,12 @@ def path_text(text: str) -> str:
     default directory, or the working directory, without a word)."""
     if not text.strip():
         raise argparse.ArgumentTypeError(f"must be a path, got {text!r}")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:  # bytes that are not UTF-8, carried as lone surrogates
+        raise argparse.ArgumentTypeError(
+            f"must be a path of valid UTF-8 (the ledger and the logs record paths as UTF-8 text), got {text!r}"
+        ) from None
     return text
 
 

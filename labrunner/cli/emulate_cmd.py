@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from labrunner.cli.argtypes import numeric
+from labrunner.cli.argtypes import numeric, positive_int
 
 _probability = numeric(float, "in [0, 1]")
 _non_negative = numeric(float, ">= 0")
@@ -52,6 +52,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--error-frames", type=_probability, default=0.0, metavar="P", help="a CAN error frame with probability P"
+    )
+    p.add_argument(
+        "--replay",
+        action="store_true",
+        help="host loop: before each measurement, replay the previous run's frame of that tick and channel",
+    )
+    p.add_argument(
+        "--clock-reset-tick",
+        type=positive_int,
+        default=0,
+        metavar="K",
+        help="host loop: restart the device's clock at 0 from tick K of each run (a device reset)",
     )
     p.add_argument(
         "--die-after",
@@ -143,6 +155,8 @@ def main(args: argparse.Namespace) -> int:
         spoof=args.spoof,
         error_frame=args.error_frames,
         die_after_s=args.die_after,
+        replay=args.replay,
+        clock_reset_tick=args.clock_reset_tick,
         seed=args.seed,
     )
     if config.kind == "serial":

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from labrunner.cli.argtypes import path_text
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -14,7 +16,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "columns: the measured outputs are y[k], every other column the expected value) and verdict.txt. "
         "The cases cover every controller kind the device loop accepts (docs/control-laws.md).",
     )
-    p.add_argument("--out", required=True, metavar="DIR", help="directory to write the vectors into")
+    p.add_argument("--out", required=True, type=path_text, metavar="DIR", help="directory to write the vectors into")
     p.add_argument("--case", action="append", default=[], metavar="NAME", help="only this case (repeatable)")
     p.set_defaults(func=main)
 

@@ -49,6 +49,8 @@ _RECORD = struct.Struct("<BQ")
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, start and end time, size, CRC, compression length
 _CHANNEL_SEQUENCE = struct.Struct("<HI")
 _MESSAGE_HEADER = 22  # channel id, sequence, log time, publish time
+#: The records buffer's first size (it grows, doubling, as decompressed bytes arrive).
+_FIRST_RECORDS = 1 << 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,12 +258,17 @@ class _Frame:
 
 class _ChunkReader:
     """Decompresses the chunks of one file into two reused buffers (compressed and records):
-    fresh memory costs a page fault per 4 KiB, a third of the decompression time of a 32 kHz run."""
+    fresh memory costs a page fault per 4 KiB, a third of the decompression time of a 32 kHz run.
 
-    def __init__(self, f: BinaryIO, indexes: list[ChunkIndex]) -> None:
+    The sizes the chunk index states are the file's word, not believed before the data bear them
+    out: the compressed buffer is at most the file's size, and the records buffer grows only as
+    decompressed bytes arrive (a 41 kB file whose index claims 1.5 GB allocates what its chunks
+    really hold, then fails its size check)."""
+
+    def __init__(self, f: BinaryIO, indexes: list[ChunkIndex], file_size: int) -> None:
         self.f = f
-        self.raw = bytearray(max((c.chunk_length for c in indexes), default=0))
-        self.out = bytearray(max((c.uncompressed_size for c in indexes), default=0))
+        self.raw = bytearray(min(max((c.chunk_length for c in indexes), default=0), file_size))
+        self.out = bytearray(min(max((c.uncompressed_size for c in indexes), default=0), _FIRST_RECORDS))
         self.zstd = zstandard.ZstdDecompressor()
 
     def records(self, index: ChunkIndex) -> memoryview:
@@ -280,13 +287,21 @@ class _ChunkReader:
             stream, length = get_chunk_data_stream(Chunk.read(ReadDataStream(io.BytesIO(raw[_RECORD.size :]))))
             return memoryview(stream.read(length))
         (length,) = struct.unpack_from("<Q", raw, start - 8)
-        out = memoryview(self.out)[:size]
         with self.zstd.stream_reader(raw[start : start + length], read_across_frames=True) as source:
             done = 0
-            while done < size and (got := source.readinto(out[done:])):
+            while done < size:
+                if done == len(self.out):  # a new buffer, not a resize: the last chunk's view may live on
+                    grown = bytearray(min(size, 2 * len(self.out) or _FIRST_RECORDS))
+                    grown[:done] = self.out
+                    self.out = grown
+                with memoryview(self.out) as view:
+                    got = source.readinto(view[done : min(size, len(self.out))])
+                if not got:
+                    break
                 done += got
         if done != size:
             raise McapError(f"chunk at offset {index.chunk_start_offset} holds {done} bytes, not {size}")
+        out = memoryview(self.out)[:size]
         if crc and zlib.crc32(out) != crc:  # zstd without a frame checksum decodes damage silently
             raise McapError(f"chunk at offset {index.chunk_start_offset} fails its CRC")
         return out
@@ -310,13 +325,14 @@ def _read_finished(f: BinaryIO, reader: SeekingReader) -> tuple[dict, dict, _Fra
     # the outcome's sample count sizes the frame (which grows if it is wrong), bounded by what the
     # chunks can hold so that a damaged record cannot ask for more memory than the file implies
     hint = records.get("outcome", {}).get("n_samples", 0)
-    bound = sum(c.uncompressed_size for c in chunks) // (8 * max(1, len(names)))
+    file_size = f.seek(0, io.SEEK_END)
+    bound = min(sum(c.uncompressed_size for c in chunks) // 8, file_size) // max(1, len(names))
     frame = _Frame(names, min(hint, bound) if isinstance(hint, int) and hint > 0 else 0)
     layout: schema.Layout = ()
     if not blocks:
         frame.fs = float(records.get("run", {}).get("fs", math.nan))
         layout = _layout([summary.schemas.get(summary.channels[cid].schema_id) for cid in ids], len(names))
-    chunk_reader = _ChunkReader(f, chunks)
+    chunk_reader = _ChunkReader(f, chunks, file_size)
     bad = []
     for index in chunks:  # a damaged chunk is skipped: its samples stay NaN, the others are read
         try:
@@ -399,6 +415,9 @@ def read_run(path: str | os.PathLike[str]) -> RunLog:
     stated = records.get("run", {}).get("fs", math.nan)
     fs = frame.fs if math.isfinite(frame.fs) else float(stated)
     names = tuple(frame.rows)
+    counted = (outcome or {}).get("n_samples")
+    if not torn and not damaged and isinstance(counted, int) and frame.n < counted:
+        damaged = f"its data chunks hold {frame.n} of the {counted} samples its outcome counts"
     return RunLog(frame.samples(), names, records, outcome, torn, fs, records["channels"], attachments, damaged)
 
 

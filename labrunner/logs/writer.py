@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
+from labrunner import safefs
 from labrunner.errors import InvalidParameter, LabrunnerError, check_finite
 from labrunner.logs import schema
 from labrunner.logs.mcap_writer import BulkWriter, Prefix, message_row, repeat_row
@@ -271,7 +272,8 @@ class RunLogWriter:
         records = self._records(metadata)
         self.n_samples = 0
         self._finished = False
-        self._file = open(path, "wb")  # noqa: SIM115 - closed in finish()
+        # never through a planted link or FIFO (labrunner.safefs); closed in finish()
+        self._file = os.fdopen(safefs.open_fd(Path(path), os.O_WRONLY | os.O_CREAT | os.O_TRUNC), "wb")
         self._mcap = BulkWriter(self._file)
         self._mcap.resume(prefix.encoded)
         for name, record in records.items():

@@ -5,6 +5,7 @@
 
 from labrunner.results.campaign import CampaignResults, open_campaign, open_run
 from labrunner.results.catalog import Catalog
+from labrunner.results.conditions import near
 from labrunner.results.run import OUTCOME_KEYS, RunResults
 
-__all__ = ["OUTCOME_KEYS", "Catalog", "CampaignResults", "RunResults", "open_campaign", "open_run"]
+__all__ = ["OUTCOME_KEYS", "Catalog", "CampaignResults", "RunResults", "near", "open_campaign", "open_run"]

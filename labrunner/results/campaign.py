@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -24,6 +23,7 @@ import pandas as pd
 
 from labrunner.campaign.ledger import Ledger
 from labrunner.errors import InvalidParameter
+from labrunner.results import conditions as conditions_mod
 from labrunner.results.describe import column_units, logged_units
 from labrunner.results.run import RunResults, require_xarray
 
@@ -118,16 +118,22 @@ class CampaignResults:
     def select(self, where: Mapping[str, Any] | None = None, /, **by_name: Any) -> pd.DataFrame:
         """The table's rows matching every condition. Keys are column names (``"controller.k_p"``,
         ``"outcome"``) or, as keywords, a parameter's last part when unique (``k_p=10``). A value
-        is matched exactly, a float to within 1e-9 relative (grid values are computed); a list or
-        tuple matches any of its values, a ``slice(lo, hi)`` the closed range [lo, hi] (either end
-        None: open), a callable gets the column and returns a boolean mask."""
+        is matched exactly, a float to within 1e-9 relative (grid values are computed), and a
+        number on no grid value of a parameter is refused naming the closest; ``near(x)`` (or
+        ``near(x, tolerance)``) matches the grid value nearest x; a list, tuple, set, range, numpy
+        array or generator matches any of its values, a ``slice(lo, hi)`` the closed range [lo, hi]
+        (either end None: open), a callable gets the column and returns a boolean mask. See
+        :mod:`labrunner.results.conditions`."""
+        if where is not None and not isinstance(where, Mapping):
+            raise InvalidParameter("where", f"must map column names to conditions, got {type(where).__name__}")
         conditions = {**(where or {}), **{self._column(k): v for k, v in by_name.items()}}
         frame = self._built[0]
+        parameters = set(self.parameters)
         mask = np.ones(len(frame), dtype=bool)
         for column, wanted in conditions.items():
             if column not in frame.columns:
                 raise InvalidParameter(column, f"is no column of the table; parameters: {self.parameters}")
-            mask &= _matches(frame[column], wanted)
+            mask &= conditions_mod.mask(column, frame[column], wanted, grid=column in parameters)
         return frame[mask].copy()
 
     def _column(self, key: str) -> str:
@@ -139,9 +145,12 @@ class CampaignResults:
             raise InvalidParameter(key, why)
         return found[0]
 
-    def run(self, point: str | int) -> RunResults:
+    def run(self, point: str | int, *, check: bool = True) -> RunResults:
         """One run, by point id (or a prefix of it that only one id starts with) or by ``seq``; a
-        point without a log (not run, or failed before writing one) is refused, naming its outcome."""
+        point without a log (not run, or failed before writing one) is refused, naming its outcome.
+        Its log is served only once it backs the ledger row (its point, its data whole, its
+        parameters and outcome the ledger's; see :class:`RunResults`); ``check=False`` serves it
+        anyway, ``run.problem`` saying why not."""
         frame = self._built[0]
         if isinstance(point, str):
             point = self._full_id(point)
@@ -151,7 +160,7 @@ class CampaignResults:
         row = hit.iloc[0]
         if not isinstance(row["log_path"], str):
             raise InvalidParameter("point", f"{row['id']} has no run log (outcome {row['outcome']})")
-        return RunResults(row["log_path"], row["id"])
+        return self.runs(hit, check=check)[0]
 
     def _full_id(self, prefix: str) -> str:
         """The point id ``prefix`` names: itself, or the one id that starts with it (as git's short
@@ -165,21 +174,49 @@ class CampaignResults:
             raise InvalidParameter("point", f"{prefix!r} starts {len(found)} point ids ({shown}): give more of it")
         return str(found.iloc[0]) if len(found) else prefix
 
-    def runs(self, rows: pd.DataFrame | None = None) -> list[RunResults]:
-        """The runs of ``rows`` (default: the whole table) that have a log, in table order."""
+    def runs(self, rows: pd.DataFrame | None = None, *, check: bool = True) -> list[RunResults]:
+        """The runs of ``rows`` (default: the whole table) that have a log, in table order (each
+        checked against its ledger row when read, unless ``check=False``: see :meth:`run`)."""
         rows = self._built[0] if rows is None else rows
-        return [RunResults(p, i) for i, p in zip(rows["id"], rows["log_path"]) if isinstance(p, str)]
+        ids = [i for i, p in zip(rows["id"], rows["log_path"]) if isinstance(p, str)]
+        ledger_rows = self._ledger_rows(ids)
+        return [
+            RunResults(p, i, row=ledger_rows.get(i), check=check)
+            for i, p in zip(rows["id"], rows["log_path"])
+            if isinstance(p, str)
+        ]
 
-    def signals(self, rows: pd.DataFrame | None = None, names: Iterable[str] | None = None) -> xr.Dataset:
+    def _ledger_rows(self, ids: list[str]) -> dict[str, dict[str, Any]]:
+        """The ledger's parameters, outcome and committed metrics of points ``ids`` (what their logs
+        must agree with), read now: a ledger edited since the table was built is compared as it is."""
+        out: dict[str, dict[str, Any]] = {}
+        with Ledger.open_readonly(self.directory, verify=False) as ledger:
+            for start in range(0, len(ids), 500):
+                part = ids[start : start + 500]
+                marks = ", ".join("?" * len(part))
+                query = f"SELECT id, parameters, outcome, metrics_json FROM points WHERE id IN ({marks})"
+                for r in ledger.db.execute(query, part):
+                    out[r["id"]] = {
+                        "parameters": json.loads(r["parameters"]),
+                        "outcome": r["outcome"],
+                        "metrics": json.loads(r["metrics_json"]) if r["metrics_json"] else None,
+                    }
+        return out
+
+    def signals(
+        self, rows: pd.DataFrame | None = None, names: Iterable[str] | None = None, *, check: bool = True
+    ) -> xr.Dataset:
         """The signals of ``rows``' runs (default: every run with a log) as one xarray Dataset over
         (``point``, ``time``): runs must share their rate and their signals; a run shorter than the
         longest (aborted, torn) is padded with NaN, and ``n_samples`` (per point) and ``valid``
         (point × time) say which samples were logged. ``names``: the signals to keep (default
-        all). The parameters and outcome are coordinates along ``point``. Loads every selected
-        run into memory: select first for large campaigns."""
+        all). The parameters and outcome are coordinates along ``point``. A log that does not back
+        its ledger row (another point's, damaged, disagreeing: see :meth:`run`) is refused, naming
+        it; with ``check=False`` it is kept and the ``problem`` coordinate says what is wrong.
+        Loads every selected run into memory: select first for large campaigns."""
         xr = require_xarray()
         rows = self._built[0] if rows is None else rows
-        runs = self.runs(rows)
+        runs = self.runs(rows, check=check)
         if not runs:
             raise InvalidParameter("rows", "select at least one point with a run log")
         logs = [r.log for r in runs]
@@ -211,6 +248,8 @@ class CampaignResults:
         by_id = rows.set_index("id")
         ids = [r.id for r in runs]
         coords: dict[str, Any] = {"point": ids, "time": ("time", time, {"units": "s"})}
+        if not check:
+            coords["problem"] = ("point", np.array([r.problem for r in runs], dtype=object))
         for column in ["outcome", *self.parameters]:
             if column in by_id.columns:
                 coords[column] = ("point", by_id.loc[ids, column].to_numpy())
@@ -223,29 +262,6 @@ class CampaignResults:
         from labrunner.results.plots import campaign_map
 
         return campaign_map(self, metric, size=size, title=title, facet=facet)
-
-
-def _matches(column: pd.Series, wanted: Any) -> np.ndarray:
-    """Boolean mask of ``column`` against one :meth:`CampaignResults.select` condition."""
-    if callable(wanted):
-        return np.asarray(wanted(column), dtype=bool)
-    if isinstance(wanted, slice):
-        values = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
-        lo = -math.inf if wanted.start is None else wanted.start
-        hi = math.inf if wanted.stop is None else wanted.stop
-        return (values >= lo) & (values <= hi)
-    options = list(wanted) if isinstance(wanted, (list, tuple, set, frozenset)) else [wanted]
-    mask = np.zeros(len(column), dtype=bool)
-    for option in options:
-        mask |= _equal(column, option)
-    return mask
-
-
-def _equal(column: pd.Series, value: Any) -> np.ndarray:
-    if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
-        numbers = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
-        return np.isclose(numbers, float(value), rtol=1e-9, atol=0.0)
-    return (column == value).fillna(False).to_numpy(dtype=bool)
 
 
 def open_campaign(directory: str | Path) -> CampaignResults:

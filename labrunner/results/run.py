@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from labrunner import run_identity
 from labrunner.logs import RunLog, read_run
 
 if TYPE_CHECKING:
@@ -36,11 +38,28 @@ def require_xarray():
 
 class RunResults:
     """One run log, read when first needed: ``signals`` (pandas, index ``t`` [s]), ``units``,
-    ``config``, ``parameters``, ``outcome``, ``diagnostics``, ``metrics``, ``metadata``."""
+    ``config``, ``parameters``, ``outcome``, ``diagnostics``, ``metrics``, ``metadata``.
 
-    def __init__(self, path: str | os.PathLike[str], point_id: str | None = None) -> None:
+    Opened for a ledger row (``campaign.run(id)``: ``point_id`` and ``row``, the ledger's
+    parameters, outcome and metrics), the log must back that row before anything of it is
+    served: name that point (not a swapped or copied log), have every data chunk readable, and
+    agree with the row (:func:`labrunner.run_identity.disagreement`); else reading it raises
+    :class:`~labrunner.run_identity.ForeignLog` or :class:`~labrunner.run_identity.UntrustedLog`
+    in one line. ``check=False`` serves it anyway, :attr:`problem` saying what is wrong."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        point_id: str | None = None,
+        *,
+        row: Mapping[str, Any] | None = None,
+        check: bool = True,
+    ) -> None:
         self.path = Path(path)
         self.id = point_id if point_id is not None else self.path.stem
+        self._expected = point_id
+        self._row = row
+        self._check = check
 
     def __repr__(self) -> str:
         """Point, outcome, samples and rate, start time, parameters, RMS error (from its log)."""
@@ -55,8 +74,41 @@ class RunResults:
 
     @functools.cached_property
     def log(self) -> RunLog:
-        """The run log as :func:`labrunner.logs.read_run` reads it (bit-exact samples)."""
-        return read_run(self.path)
+        """The run log as :func:`labrunner.logs.read_run` reads it (bit-exact samples), once it
+        is shown to back its ledger row (see the class)."""
+        log = read_run(self.path)
+        kind, problem = self._problem_of(log)
+        if problem and self._check:
+            raise kind(f"{self.path}: {problem}; open it with check=False to read it anyway")
+        self.__dict__["problem"] = problem
+        return log
+
+    @property
+    def problem(self) -> str:
+        """What is wrong with the log for its ledger row ("" if nothing, or not opened for a row)."""
+        self.log  # noqa: B018 - reading it sets the problem
+        return self.__dict__["problem"]
+
+    def _problem_of(self, log: RunLog) -> tuple[type[Exception], str]:
+        """(the error to raise, what is wrong with ``log`` for its row: "" if nothing)."""
+        untrusted = run_identity.UntrustedLog
+        if self._expected is not None:
+            foreign = run_identity.mismatch(log.metadata, self._expected)
+            if foreign:
+                return run_identity.ForeignLog, foreign
+        if log.damaged:
+            return untrusted, f"damaged: {log.damaged}"
+        if self._row is not None:
+            differs = run_identity.disagreement(
+                log.metadata,
+                (log.outcome or {}).get("status"),
+                self._row.get("parameters") or {},
+                self._row.get("outcome"),
+                self._row.get("metrics"),
+            )
+            if differs:
+                return untrusted, f"disagrees with the ledger: {differs}"
+        return untrusted, ""
 
     @property
     def fs(self) -> float:

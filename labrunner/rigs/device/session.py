@@ -196,7 +196,15 @@ class _HostRun:
         elif block.kind == blocks.SAMPLES:
             first, chunk, t_us = blocks.decode_samples(block.body)
             if first != self.covered or first + len(chunk) > n_ticks or chunk.shape[1] != n_columns:
-                raise RigError(f"SAMPLES block for ticks {first}..{first + len(chunk) - 1} after {self.covered} ticks")
+                raise RigError(
+                    f"link fault: SAMPLES block for ticks {first}..{first + len(chunk) - 1} after {self.covered} "
+                    "ticks (old blocks replayed, or blocks lost)"
+                )
+            if first and t_us * 1e-6 <= self.clock[first - 1]:  # a u64 µs clock never wraps: it went back
+                raise RigError(
+                    f"link fault: the device clock went from {self.clock[first - 1]:.6f} s to {t_us * 1e-6:.6f} s "
+                    f"at tick {first} (a device reset, or old blocks replayed)"
+                )
             self.rows[first : first + len(chunk)] = chunk
             self.clock[first : first + len(chunk)] = t_us * 1e-6 + np.arange(len(chunk)) / self.fs
             self.covered += len(chunk)

@@ -3,7 +3,10 @@
 :class:`FaultyLink` wraps the device's link: each frame the device sends may be dropped,
 delayed, duplicated, followed by garbage (random bytes on a serial line; a malformed frame on
 CAN), by a stale repeat of an earlier frame, by a spoofed frame (this node's id on a kind only
-the host sends), or by a CAN error frame. ``die_after_s`` after the first run's set-up silences the device
+the host sends), or by a CAN error frame. ``replay`` sends, before each measurement, the previous
+run's frame of that tick and channel (a device replaying a stale buffer: same sequence numbers,
+old values and times); ``clock_reset_tick`` restarts the device's timestamps at 0 from that tick
+of each run (a device whose clock was reset). ``die_after_s`` after the first run's set-up silences the device
 for good (the emulator stops answering, like a board that lost power).
 """
 
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 
 import can
 
+from labrunner.rigs.transports import messages as m
 from labrunner.rigs.transports.can import CanLink
 from labrunner.rigs.transports.framing import encode_frame
 from labrunner.rigs.transports.link import Link
@@ -36,13 +40,18 @@ class LinkFaults:
     spoof: float = 0.0
     error_frame: float = 0.0  # CAN only
     die_after_s: float = float("inf")  # counted from the first run's set-up
+    replay: bool = False  # before each measurement, the previous run's frame of the same tick and channel
+    clock_reset_tick: int = 0  # from this tick of each run on, the device's clock restarts at 0 (0: never)
     seed: int = 0
 
     @property
     def any(self) -> bool:
-        return any(
-            (self.drop, self.delay_ms, self.garbage, self.duplicate, self.stale, self.spoof, self.error_frame)
-        ) or self.die_after_s != float("inf")
+        return (
+            any((self.drop, self.delay_ms, self.garbage, self.duplicate, self.stale, self.spoof, self.error_frame))
+            or self.die_after_s != float("inf")
+            or self.replay
+            or self.clock_reset_tick > 0
+        )
 
 
 class FaultyLink:
@@ -53,12 +62,15 @@ class FaultyLink:
         self.inner, self.faults = inner, faults
         self.node_id, self.end, self.counters = inner.node_id, inner.end, inner.counters
         self.injected: dict[str, int] = {
-            k: 0 for k in ("drop", "garbage", "duplicate", "stale", "spoof", "error_frame")
+            k: 0 for k in ("drop", "garbage", "duplicate", "stale", "spoof", "error_frame", "replay", "clock_reset")
         }
         self._rng = random.Random(faults.seed)
         self._delayed: list[tuple[float, int, Frame]] = []
         self._order = itertools.count()
         self._history: list[Frame] = []
+        self._runs: tuple[dict, dict] = ({}, {})  # measurement frames by (seq, channel): previous run's, this run's
+        self._last_seq = -1
+        self._clock_zero: int | None = None  # the timestamp the reset clock counts from
         self.silent_from = float("inf")  #: monotonic time the device dies (die_after_s after its first run began)
 
     @property
@@ -72,6 +84,8 @@ class FaultyLink:
     def send(self, frame: Frame) -> None:
         if self.dead:
             return
+        if frame.kind == Kind.MEASUREMENT and (self.faults.replay or self.faults.clock_reset_tick):
+            frame = self._replay_or_reset(frame)
         f, rng = self.faults, self._rng
         self._history = (self._history + [frame])[-11:]
         if rng.random() < f.drop:
@@ -91,6 +105,27 @@ class FaultyLink:
             if rng.random() < getattr(f, name):
                 self.injected[name] += 1
                 inject()
+
+    def _replay_or_reset(self, frame: Frame) -> Frame:
+        """A measurement frame as a device with a reset clock sends it, after the previous run's
+        frame of the same tick and channel when replaying."""
+        msg = m.unpack(frame)
+        previous, current = self._runs
+        if msg.seq < self._last_seq and self._last_seq < 2**16 - 2**10:  # a new run (not the u16 wrap)
+            self._runs = previous, current = current, {}
+            self._clock_zero = None
+        self._last_seq = msg.seq
+        if isinstance(msg, m.TickEnd) and 0 < self.faults.clock_reset_tick <= msg.seq:
+            if self._clock_zero is None:
+                self._clock_zero = msg.timestamp_us
+                self.injected["clock_reset"] += 1
+            frame = m.pack(msg._replace(timestamp_us=msg.timestamp_us - self._clock_zero))
+        key = (msg.seq, msg.channel)
+        if self.faults.replay and key in previous:
+            self.injected["replay"] += 1
+            self.inner.send(previous[key])
+        current[key] = frame
+        return frame
 
     def pump(self) -> None:
         """Send the delayed frames that are due."""

@@ -6,7 +6,9 @@ device's tick k+1 is complete (every output channel and the tick's trailer). A t
 missed its deadline arrives flagged LATE (the device held u_{k−1}); the host counts and lists it,
 and more than ``max_late_ticks`` late ticks in a row fail the run (the link cannot carry this
 rate). Stale, duplicate and out-of-range measurements are counted and ignored; a tick with a
-channel missing is never committed: the run fails. A missing answer within ``timeout_s + 1/f_s``,
+channel missing is never committed: the run fails, as it does when a channel arrives twice with
+different values (old frames replayed) or the device's clock goes back (a reset, a replay): link
+faults, never read as data (a |du/dt| abort) or as time (a +4295 s wrap). A missing answer within ``timeout_s + 1/f_s``,
 a dead transport or an ERROR frame raises :class:`~labrunner.errors.RigError`, and the rig goes
 to its safe state first (SAFE, best effort: if it cannot be sent, the device's watchdog takes over).
 
@@ -40,6 +42,9 @@ from labrunner.rigs.transports.protocol import NODE_MAX, NODE_MIN, PROTOCOL_VERS
 from labrunner.rigs.transports.realtime import realtime
 
 SETUP_ANSWER_S = 0.5  # longest wait for y_0 after SETUP (a device may reset its hardware first)
+#: Longest device time [s] between two ticks read as time passing; a longer step of the u32 µs
+#: clock is the clock going back (a device reset to 0 a second into a run steps 4294 s forward).
+CLOCK_STEP_MAX_S = 60.0
 DEFAULT_LOOP = {"dcmotor": "host", "valve": "device", "plate": "device"}
 
 COMMON = {
@@ -392,6 +397,11 @@ class RemoteRig(Rig):
                 self.host.bad_channel += 1
             elif msg.channel not in missing:
                 self.host.duplicate += 1
+                if not _same_value(msg.value, y[0, msg.channel]):  # not a repeat: one of them is old
+                    self._fail(
+                        f"link fault: tick {seq} channel {msg.channel} arrived twice with different values "
+                        f"({y[0, msg.channel]:g}, then {msg.value:g}): the device replays old frames"
+                    )
             else:
                 y[0, msg.channel] = msg.value
                 missing.discard(msg.channel)
@@ -400,8 +410,8 @@ class RemoteRig(Rig):
         late, overrun = bool(msg.flags & m.FLAG_LATE), bool(msg.flags & m.FLAG_OVERRUN)
         self.host.note_tick(tick, late, overrun)
         stamp = msg.timestamp_us * 1e-6
-        while self._clock and stamp < self._clock[-1]:  # timestamp_us wrapped (every 71.6 min)
-            stamp += 2**32 * 1e-6
+        if self._clock:
+            stamp = self._clock[-1] + self._clock_step(msg, tick)
         self._clock.append(stamp)
         self.device.device_time_s = stamp
         self._late_run = self._late_run + 1 if late else 0
@@ -410,6 +420,21 @@ class RemoteRig(Rig):
                 f"{self._late_run} late ticks in a row at {self.fs:g} Hz: the host loop cannot keep "
                 f'this rate over this link (lower fs, or loop = "device")'
             )
+
+    def _clock_step(self, msg: m.TickEnd, tick: int) -> float:
+        """The device time [s] from the previous tick to this one: its u32 µs timestamps differ
+        modulo 2^32 (a wrap every 71.6 min is a small step). A step longer than
+        :data:`CLOCK_STEP_MAX_S` (far beyond any tick the host waits for, or the device's watchdog)
+        is not time passing but the device's clock going back — reset to 0, or old frames
+        replayed — a link fault, never read as +4295 s."""
+        previous = round(self._clock[-1] * 1e6) % 2**32
+        step = ((msg.timestamp_us - previous) % 2**32) * 1e-6
+        if step > CLOCK_STEP_MAX_S:
+            self._fail(
+                f"link fault: the device clock went from {self._clock[-1]:.6f} s to {msg.timestamp_us * 1e-6:.6f} s "
+                f"at tick {tick} (a device reset, or old frames replayed)"
+            )
+        return step
 
     def _status(self, msg: m.Status) -> None:
         self.host.status_frames += 1
@@ -425,6 +450,11 @@ class RemoteRig(Rig):
     def _fail(self, message: str) -> None:
         self.safe_state()
         raise RigError(f"rig {self.info.name!r}: {message}")
+
+
+def _same_value(a: float, b: float) -> bool:
+    """Equal values, NaN equal to NaN (a repeated frame, not a conflicting one)."""
+    return a == b or (a != a and b != b)
 
 
 def device_kinds() -> list[str]:
