@@ -26,6 +26,12 @@ rig-specific knowledge beyond the input's limits [lo, hi]:
   dying out (σ of the piece's second half ≥ ``decay`` × the first half's).
   ``periodicity`` is that largest autocorrelation (0 where no piece qualifies).
 
+A growth over a run that holds only a period or two of the oscillation (the thesis's 2.5 s angle
+runs against a loop of about 1 Hz) is one swing, not a trend: where the growth rule is the only
+one to fire and the run holds fewer than ``min_periods`` periods of the frequency at which Δu's
+spectrum (second half of the run) peaks, ``undecided`` is 1.0 — the run is still flagged (the maps
+show it), but a verdict that depends on it is undecided (:mod:`labrunner.reproduce.verdict`).
+
 Pure numpy; the metrics of :mod:`labrunner.metrics` call it once per run.
 """
 
@@ -36,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Columns :func:`detect` adds to a run's metrics.
-DETECTOR_METRICS = ("pinned_share", "limit_hits_per_s", "du_growth", "periodicity", "oscillating")
+DETECTOR_METRICS = ("pinned_share", "limit_hits_per_s", "du_growth", "periodicity", "oscillating", "undecided")
 
 
 @dataclass(frozen=True)
@@ -53,6 +59,7 @@ class Detector:
     periodicity: float = 0.7  # sustained: autocorrelation at the period (hand-labelled runs: see tests)
     amplitude: float = 0.1  # sustained: peak-to-peak ≥ this share of the input's range over the run
     decay: float = 0.7  # sustained: the piece's second half keeps at least this share of the first's σ
+    min_periods: float = 3.0  # growth alone decides only on runs holding at least this many periods
 
     def detect(self, u: np.ndarray, lo: np.ndarray, hi: np.ndarray, fs: float) -> dict[str, float]:
         """Detector metrics of one run: ``u`` (n_inputs, K) with limits ``lo``, ``hi`` (n_inputs,).
@@ -81,18 +88,19 @@ class Detector:
         spread = (where[-1] - where[0]) / fs if hits else 0.0
         growth = _growth(u)
         periodic = max(self.sustained(row) for row in u)
-        oscillating = (
+        other = (
             pinned >= self.pinned_share
             or (hits >= self.min_hits and rate >= self.hit_rate and spread >= (self.min_hits - 1) / self.hit_rate)
-            or growth >= self.growth
             or periodic >= self.periodicity
         )
+        grows = growth >= self.growth
         return {
             "pinned_share": pinned,
             "limit_hits_per_s": float(rate),
             "du_growth": growth,
             "periodicity": periodic,
-            "oscillating": float(oscillating),
+            "oscillating": float(other or grows),
+            "undecided": float(grows and not other and periods(u, fs) < self.min_periods),
         }
 
     def sustained(self, x: np.ndarray) -> float:
@@ -123,6 +131,17 @@ class Detector:
             if below.size:
                 best = max(best, float(row[below[0] :].max()))
         return best
+
+
+def periods(u: np.ndarray, fs: float) -> float:
+    """How many periods of its dominant oscillation the run ``u`` (n_inputs, K) holds: K / fs times the
+    frequency at which the spectrum of Δu over the run's second half (Hann window, inputs summed) peaks."""
+    du = np.diff(u[:, u.shape[1] // 2 :], axis=1)
+    if du.shape[1] < 8:
+        return 0.0
+    power = np.square(np.abs(np.fft.rfft(du * np.hanning(du.shape[1]), axis=1))).sum(axis=0)
+    power[0] = 0.0
+    return float(np.fft.rfftfreq(du.shape[1], 1.0 / fs)[int(power.argmax())] * u.shape[1] / fs)
 
 
 def _growth(u: np.ndarray) -> float:
