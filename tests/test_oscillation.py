@@ -26,7 +26,9 @@ def test_stable_tracking_with_noise_and_transitions_is_not_flagged():
     rng = np.random.default_rng(0)
     u = 3.0 * np.clip(T - 1.0, 0.0, 1.0) + 0.05 * rng.standard_normal(T.size)  # a ramp to 3 V, noise
     r = D.detect(u[None], [-12.0], [12.0], FS)
-    assert r == dict.fromkeys(("pinned_share", "limit_hits_per_s", "du_growth", "periodicity", "oscillating", "undecided"), 0.0)
+    assert r == dict.fromkeys(
+        ("pinned_share", "limit_hits_per_s", "du_growth", "periodicity", "oscillating", "undecided"), 0.0
+    )
 
 
 def test_input_pinned_at_a_limit_for_most_of_the_run():
