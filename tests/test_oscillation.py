@@ -197,3 +197,15 @@ def test_sustained_rule_on_synthetic_signals():
     # limit entries crowded into 80 ms at the start (the plate's lift) are no limit cycle
     chatter = np.where((T < 0.08) & (np.arange(T.size) % 4 < 2), 0.0, 2.0)
     assert D.detect(chatter[None], [0.0], [8.0], FS)["oscillating"] == 0.0
+
+
+def test_growth_alone_on_a_run_shorter_than_three_periods_is_undecided():
+    """The thesis's 2.5 s angle runs against a loop of ~1 Hz: a growth over one or two swings is not a
+    trend, so the flag stands (the maps show it) but a verdict hanging on it is undecided; a growth over
+    many periods is decided."""
+    t = np.arange(2500) / FS
+    slow = 0.5 * np.exp(0.8 * t) * np.sin(2 * np.pi * 1.0 * t)  # 2.5 periods
+    fast = 0.01 * np.exp(0.8 * T) * np.sin(2 * np.pi * 20.0 * T)  # 100 periods
+    r_slow, r_fast = D.detect(slow[None], [-12.0], [12.0], FS), D.detect(fast[None], [-12.0], [12.0], FS)
+    assert r_slow["oscillating"] == 1.0 and r_slow["undecided"] == 1.0
+    assert r_fast["oscillating"] == 1.0 and r_fast["undecided"] == 0.0
