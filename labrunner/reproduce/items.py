@@ -241,6 +241,10 @@ ITEMS: tuple[Item, ...] = (
         _TWIN_IS_MODEL + " (2.53)–(2.54) are used as corrected (SEED-NOTES: the thesis's k_d bound is wrong).",
         {"campaigns/dcmotor-angle-kp-kd.toml": _KP_KD},
         variant=_wrong_b(0.25, ", the optimum's interval a decade lower", kd_interval=(4.93, 11.95)),
+        flips="the full grid (1/4 decade) has k_p = 100, k_d = 1 completed more than a grid step beyond (2.58)–(2.59): "
+        "all its neighbours are predicted unstable; on the quick grid (1/2 decade) its neighbour k_d = 3.16 is "
+        "predicted stable, so the same run lies next to the boundary and does not count (grid resolution, not the "
+        "detector: the run is not flagged).",
     ),
     Item(
         "3.15",
