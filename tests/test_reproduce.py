@@ -46,7 +46,7 @@ def test_quick_pack_runs_every_quick_item_and_writes_one_report(quick):
 @pytest.mark.slow
 def test_quick_pack_verdicts_on_the_twins(quick):
     """Where the twins reproduce their sources, where they depart, and what they cannot test (measured on the
-    quick pack, 2026-12-03): the identification is calibration, never agreement."""
+    quick pack, 2026-12-03 and -04): the identification is calibration, never agreement."""
     _, summary = quick
     items = summary["items"]
     assert items["ident"]["verdict"] == "not testable" and "-10.6%" in items["ident"]["measured"]
@@ -56,6 +56,13 @@ def test_quick_pack_verdicts_on_the_twins(quick):
         assert items[departing]["verdict"] == "disagrees", (departing, items[departing]["measured"])
     assert "DISAGREES" in items["table3"]["measured"] and "MBC beats MFC v" in items["table3"]["measured"]
     assert items["valve-6"]["verdict"] == "not testable" and items["3.12"]["verdict"] == "not reproduced"
+    # the falsification variants (2026-12-04): A.1's falling mismatch is built in; Polack's chosen loop oscillates
+    assert items["A.1"]["verdict"] == "not discriminating" and items["A.1"]["variant"] == "agrees"
+    assert items["3.7"]["variant"] == "disagrees" and items["3.11"]["variant"] == "disagrees"
+    for undecided in ("3.5.3", "3.24"):
+        assert items[undecided]["verdict"] == "undecided", items[undecided]["measured"]
+    assert items["valve-8"]["verdict"] == "disagrees" and "oscillating [DISAGREES]" in items["valve-8"]["measured"]
+    assert items["calib-motor"]["verdict"] == "disagrees" and "backlash 0.25 rad" in items["calib-motor"]["measured"]
 
 
 ROOT = Path(__file__).resolve().parents[1]

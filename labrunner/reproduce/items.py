@@ -296,6 +296,10 @@ ITEMS: tuple[Item, ...] = (
         _TWIN_IS_MODEL,
         {T + "fig3-17-angle-kp-kd-gamma-1.1b.toml": _KP_KD},
         variant=_wrong_b(0.25),
+        flips="on the full grid (1/4 decade) four predicted-stable points at k_d ≤ 10 are unstable: k_p = 177.8, "
+        "k_d = 5.6 aborted, and k_p = 56.2 at k_d = 1, 1.8, 3.2 flagged by the growth rule alone on runs holding two "
+        "periods (undecided; the abort alone keeps the verdict); the quick grid (1/2 decade) has neither k_p, and "
+        "its 16 such points all complete (grid resolution).",
     ),
     Item(
         "3.18",
@@ -315,6 +319,9 @@ ITEMS: tuple[Item, ...] = (
             '"controller.k_d" = { log10 = [0.0, 1.0], num = 5 }'
         },
         variant=_wrong_b(0.25),
+        flips="on the full grid three predicted-stable points are flagged, each by the growth rule alone on a run "
+        "holding two periods of its swing, so the full verdict is undecided; the quick grid's 22 such points are "
+        "none flagged (the slow ~1.3 s cycles there are the detector's known miss, tests/data/oscillation).",
     ),
     Item(
         "3.19",
