@@ -265,6 +265,9 @@ ITEMS: tuple[Item, ...] = (
             "the safety-off runs in place of the safety-on ones (no routine to abort the brown region)",
             files={T + "fig3-15-angle-kp-kd-fine.toml": T + "fig3-16-safety-off.toml"},
         ),
+        flips="the full rectangle (1/16 decade) holds k_p = 1334, k_d = 31.6 and k_p = 2054, k_d = 86.6, beyond the "
+        "bound by more than a grid step, which complete stably with the routine off; the quick one (1/8 decade) "
+        "holds neither (grid resolution).",
     ),
     Item(
         "3.16",
@@ -282,6 +285,8 @@ ITEMS: tuple[Item, ...] = (
             "the safety-on runs in place of the safety-off ones",
             files={T + "fig3-16-safety-off.toml": T + "fig3-15-angle-kp-kd-fine.toml"},
         ),
+        flips="on the full rectangle 8 of the 100 points beyond the bound do not reach ±12 V: 6 oscillate below "
+        "the limits, 2 are stable (see item 3.15); the quick rectangle's 16 all do (grid resolution).",
     ),
     Item(
         "3.17",
@@ -336,6 +341,9 @@ ITEMS: tuple[Item, ...] = (
         _TWIN_IS_MODEL,
         {T + "fig3-19-angle-kp-kd-gamma-0.9b.toml": _KP_KD},
         variant=_wrong_b(0.25),
+        flips="on the full grid one of the 24 points below k_d,min is unstable only by growth flags on 2.5 s runs "
+        "holding two periods of their swing, so the full verdict is undecided; the quick grid's 10 such points all "
+        "complete.",
     ),
     Item(
         "3.21",
