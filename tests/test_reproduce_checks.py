@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrunner.reproduce import checks, checks_papers
+from labrunner.reproduce import checks, checks_papers, checks_plate
 from labrunner.reproduce.items import ITEMS
 from labrunner.reproduce.report import counts, verdict_kind
 from labrunner.reproduce.run import CampaignResult
@@ -107,12 +107,12 @@ def test_plate_input_gains_each_sub_claim_can_fail():
                 )
         return result("fig08", pd.DataFrame(rows))
 
-    assert checks_papers.plate_input_gains(frame()).agrees is True
-    assert checks_papers.plate_input_gains(frame(v_best=0.84)).agrees is False
-    assert checks_papers.plate_input_gains(frame(v_half="completed")).agrees is False
-    verdict = checks_papers.plate_input_gains(frame(f84="completed"))  # γ_F: the paper blames its force law
+    assert checks_plate.plate_input_gains(frame()).agrees is True
+    assert checks_plate.plate_input_gains(frame(v_best=0.84)).agrees is False
+    assert checks_plate.plate_input_gains(frame(v_half="completed")).agrees is False
+    verdict = checks_plate.plate_input_gains(frame(f84="completed"))  # γ_F: the paper blames its force law
     assert verdict.agrees is True and "cannot carry the claim [not testable]" in verdict.measured
-    assert checks_papers.plate_input_gains(frame(u14=7.0)).agrees is False
+    assert checks_plate.plate_input_gains(frame(u14=7.0)).agrees is False
 
 
 def test_table3_parts_not_run_are_not_testable_and_the_sensor_fault_decides():
@@ -129,14 +129,14 @@ def test_table3_parts_not_run_are_not_testable_and_the_sensor_fault_decides():
 
     laws = {"v": 56.4, "force": 45.8, "u": 17.0, "current": 46.1}
     only_sensor = experiment("sensor", 41.9, laws)
-    verdict = checks_papers.table3(only_sensor)
+    verdict = checks_plate.table3(only_sensor)
     assert verdict.agrees is True and verdict.measured.count("[not testable]") == 2
-    assert checks_papers.table3(experiment("sensor", 60.0, laws)).agrees is False  # the MBC loses: reversed
+    assert checks_plate.table3(experiment("sensor", 60.0, laws)).agrees is False  # the MBC loses: reversed
     # the movement: MFC v at half the MBC agrees; at 0.9 of it, "almost half" fails
     move = experiment("horizontal", 8.0, {"v": 4.0, "force": 5.0, "u": 5.0, "current": 30.0})
-    assert checks_papers.table3({**only_sensor, **move}).agrees is True
+    assert checks_plate.table3({**only_sensor, **move}).agrees is True
     slow = experiment("horizontal", 8.0, {"v": 7.2, "force": 7.5, "u": 7.5, "current": 30.0})
-    assert checks_papers.table3({**only_sensor, **slow}).agrees is False
+    assert checks_plate.table3({**only_sensor, **slow}).agrees is False
 
 
 def test_a_point_off_the_predicted_boundary_counts_against_the_bound():

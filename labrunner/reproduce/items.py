@@ -49,7 +49,7 @@ class Item:
     place: str  # section, figure, table, equation of the claim
     files: tuple[str, ...]  # empty: not reproduced (``reason`` says why)
     claim: str  # the claim as the source states it
-    check: str  # name of the check function (labrunner.reproduce.checks, checks_walks, checks_papers)
+    check: str  # name of the check function (labrunner.reproduce.checks*: motor, walks, valve, plate, calibration)
     tolerance: str = ""  # the tolerance the check applies and why it is that
     calibration: str = ""  # what of the source the twin was built or calibrated on (not counted as agreement)
     quick_grids: Mapping[str, str] = field(default_factory=dict)  # file → [grid] body for --quick

@@ -16,7 +16,14 @@ from typing import Any, TextIO
 import pandas as pd
 
 from labrunner.analysis.report import Image, Section, write_report
-from labrunner.reproduce import checks, checks_calibration, checks_papers, checks_twin_only, checks_walks
+from labrunner.reproduce import (
+    checks,
+    checks_calibration,
+    checks_papers,
+    checks_plate,
+    checks_twin_only,
+    checks_walks,
+)
 from labrunner.reproduce.items import QUICK_SKIP, Item, select
 from labrunner.reproduce.run import CampaignResult, run_items
 from labrunner.reproduce.verdict import KINDS, NO_REF, Judged, Ref, Verdict
@@ -32,7 +39,7 @@ _VERDICT = {
 
 
 def _check(name: str) -> Callable[..., Verdict]:
-    for module in (checks, checks_twin_only, checks_walks, checks_papers, checks_calibration):
+    for module in (checks, checks_twin_only, checks_walks, checks_papers, checks_plate, checks_calibration):
         if hasattr(module, name):
             return getattr(module, name)
     raise AttributeError(f"no check {name!r}")
