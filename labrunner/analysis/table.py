@@ -70,8 +70,9 @@ TIMING_COLUMNS = ("late_ticks", "overruns")
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS, *TIMING_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
 METRICS_VERSION = (
-    5  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
-    # columns; 5: the detector's sustained-oscillation rule (periodicity)
+    6  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
+    # columns; 5: the detector's sustained-oscillation rule (periodicity); 6: detector version 2 (short-run
+    # limit cycles, ring-downs, undecided, detector_version)
 )
 _LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")  # the ledger's own columns (older ledgers: only these)
 
