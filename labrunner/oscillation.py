@@ -10,8 +10,10 @@ rig-specific knowledge beyond the input's limits [lo, hi]:
   ``pinned_share`` of the run (the loop has lost authority);
 - **saturated oscillation**: an input enters a limit band at least ``min_hits`` (5) times and at
   least ``hit_rate`` (2) times per second, its entries spread over at least (min_hits − 1)/hit_rate
-  seconds (a limit cycle, e.g. paper 1's runs above the stability region — not the plate's currents
-  chattering at 0 A for 80 ms as the lift starts);
+  seconds or half the run, whichever is shorter (a limit cycle, e.g. paper 1's runs above the
+  stability region or the thesis's ±12 V switching in 2.5 s angle runs with the safety routine off,
+  whose entries start after the 0.5 s rest — not the plate's currents chattering at 0 A for 80 ms
+  as the lift starts);
 - **growing oscillation**: the RMS of the input's sample-to-sample change Δu rises quarter by
   quarter of the run (r₂ < r₃ < r₄) to ``growth`` × its value in the second quarter (the first is
   left out: runs start at rest). A growing oscillation adds energy at high frequency, where
@@ -22,9 +24,17 @@ rig-specific knowledge beyond the input's limits [lo, hi]:
   repeats itself — its autocorrelation after the first zero crossing reaches ``periodicity`` at a
   lag of at most a third of the piece (three periods or more) — with a peak-to-peak amplitude
   (2√2 σ) of at least ``amplitude`` × the input's own range over the run (so that a periodic
-  pattern of quantisation or rounding far below what the input does is not an oscillation), not
-  dying out (σ of the piece's second half ≥ ``decay`` × the first half's).
+  pattern of quantisation or rounding far below what the input does is not an oscillation), neither
+  dying out nor setting in within the piece (σ of each half ≥ ``decay`` × the other's: a ring-down
+  that starts mid-piece, as the plate's after a fault, is not sustained; a growing oscillation is
+  the growth rule's).
   ``periodicity`` is that largest autocorrelation (0 where no piece qualifies).
+
+A growth over a run that holds only a period or two of the oscillation (the thesis's 2.5 s angle
+runs against a loop of about 1 Hz) is one swing, not a trend: where the growth rule is the only
+one to fire and the run holds fewer than ``min_periods`` periods of the frequency at which Δu's
+spectrum (second half of the run) peaks, ``undecided`` is 1.0 — the run is still flagged (the maps
+show it), but a verdict that depends on it is undecided (:mod:`labrunner.reproduce.verdict`).
 
 Pure numpy; the metrics of :mod:`labrunner.metrics` call it once per run.
 """
@@ -36,7 +46,18 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Columns :func:`detect` adds to a run's metrics.
-DETECTOR_METRICS = ("pinned_share", "limit_hits_per_s", "du_growth", "periodicity", "oscillating")
+DETECTOR_METRICS = (
+    "pinned_share",
+    "limit_hits_per_s",
+    "du_growth",
+    "periodicity",
+    "oscillating",
+    "undecided",
+    "detector_version",
+)
+#: Raised whenever a rule changes, so that runs judged by an older detector are recomputed
+#: (:func:`labrunner.reproduce.run.stale_detector`). 2: short-run limit cycles, ring-downs, ``undecided``.
+VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -53,6 +74,7 @@ class Detector:
     periodicity: float = 0.7  # sustained: autocorrelation at the period (hand-labelled runs: see tests)
     amplitude: float = 0.1  # sustained: peak-to-peak ≥ this share of the input's range over the run
     decay: float = 0.7  # sustained: the piece's second half keeps at least this share of the first's σ
+    min_periods: float = 3.0  # growth alone decides only on runs holding at least this many periods
 
     def detect(self, u: np.ndarray, lo: np.ndarray, hi: np.ndarray, fs: float) -> dict[str, float]:
         """Detector metrics of one run: ``u`` (n_inputs, K) with limits ``lo``, ``hi`` (n_inputs,).
@@ -81,18 +103,24 @@ class Detector:
         spread = (where[-1] - where[0]) / fs if hits else 0.0
         growth = _growth(u)
         periodic = max(self.sustained(row) for row in u)
-        oscillating = (
+        other = (
             pinned >= self.pinned_share
-            or (hits >= self.min_hits and rate >= self.hit_rate and spread >= (self.min_hits - 1) / self.hit_rate)
-            or growth >= self.growth
+            or (
+                hits >= self.min_hits
+                and rate >= self.hit_rate
+                and spread >= min((self.min_hits - 1) / self.hit_rate, 0.5 * k / fs)
+            )
             or periodic >= self.periodicity
         )
+        grows = growth >= self.growth
         return {
             "pinned_share": pinned,
             "limit_hits_per_s": float(rate),
             "du_growth": growth,
             "periodicity": periodic,
-            "oscillating": float(oscillating),
+            "oscillating": float(other or grows),
+            "undecided": float(grows and not other and periods(u, fs) < self.min_periods),
+            "detector_version": float(VERSION),
         }
 
     def sustained(self, x: np.ndarray) -> float:
@@ -110,7 +138,9 @@ class Detector:
         if not big.any():
             return 0.0
         half = n // 2
-        kept = y[:, half:].std(axis=1) >= self.decay * y[:, :half].std(axis=1)  # not dying out
+        first, second = y[:, :half].std(axis=1), y[:, half:].std(axis=1)
+        # neither dying out nor starting mid-piece (a ring-down after a fault at the piece's middle)
+        kept = (second >= self.decay * first) & (first >= self.decay * second)
         y = y[big & kept]
         if not len(y):
             return 0.0
@@ -123,6 +153,17 @@ class Detector:
             if below.size:
                 best = max(best, float(row[below[0] :].max()))
         return best
+
+
+def periods(u: np.ndarray, fs: float) -> float:
+    """How many periods of its dominant oscillation the run ``u`` (n_inputs, K) holds: K / fs times the
+    frequency at which the spectrum of Δu over the run's second half (Hann window, inputs summed) peaks."""
+    du = np.diff(u[:, u.shape[1] // 2 :], axis=1)
+    if du.shape[1] < 8:
+        return 0.0
+    power = np.square(np.abs(np.fft.rfft(du * np.hanning(du.shape[1]), axis=1))).sum(axis=0)
+    power[0] = 0.0
+    return float(np.fft.rfftfreq(du.shape[1], 1.0 / fs)[int(power.argmax())] * u.shape[1] / fs)
 
 
 def _growth(u: np.ndarray) -> float:

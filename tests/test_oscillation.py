@@ -14,7 +14,7 @@ from labrunner import engine
 from labrunner.analysis.agreement import agreement, observed_outcome
 from labrunner.errors import InvalidParameter
 from labrunner.metrics import Roles, parse_windows, run_metrics
-from labrunner.oscillation import Detector
+from labrunner.oscillation import DETECTOR_METRICS, VERSION, Detector
 from labrunner.rigs import registry
 
 FS = 1000.0
@@ -26,7 +26,7 @@ def test_stable_tracking_with_noise_and_transitions_is_not_flagged():
     rng = np.random.default_rng(0)
     u = 3.0 * np.clip(T - 1.0, 0.0, 1.0) + 0.05 * rng.standard_normal(T.size)  # a ramp to 3 V, noise
     r = D.detect(u[None], [-12.0], [12.0], FS)
-    assert r == {"pinned_share": 0.0, "limit_hits_per_s": 0.0, "du_growth": 0.0, "periodicity": 0.0, "oscillating": 0.0}
+    assert r == {**dict.fromkeys(DETECTOR_METRICS, 0.0), "detector_version": float(VERSION)}
 
 
 def test_input_pinned_at_a_limit_for_most_of_the_run():
@@ -151,9 +151,11 @@ LABELLED = Path(__file__).parent / "data" / "oscillation"
 LIMITS = {"valve": (0.0, 1.01), "plate": (0.0, 8.0), "motor": (-12.0, 12.0)}  # the rigs' input limits
 
 
+LABELS = tomllib.loads((LABELLED / "labels.toml").read_text(encoding="utf-8"))
+
+
 def _labelled():
-    labels = tomllib.loads((LABELLED / "labels.toml").read_text(encoding="utf-8"))
-    for name, entry in labels.items():
+    for name, entry in LABELS.items():
         data = np.load(LABELLED / f"{name}.npz")
         lo, hi = LIMITS[name.split("-")[0]]
         yield name, entry["label"], data["u"].astype(float), lo, hi, float(data["fs"])
@@ -161,8 +163,19 @@ def _labelled():
 
 @pytest.mark.parametrize("name, label, u, lo, hi, fs", list(_labelled()), ids=lambda v: v if isinstance(v, str) else "")
 def test_detector_matches_the_hand_labels(name, label, u, lo, hi, fs):
-    """tests/data/oscillation: runs of the valve, plate and motor twins labelled by eye from their plots."""
-    assert D.detect(u, lo, hi, fs)["oscillating"] == (1.0 if label == "oscillating" else 0.0), name
+    """tests/data/oscillation: runs of the valve, plate and motor twins labelled by eye from their plots.
+    A run marked ``known`` (a documented miss or false alarm) must still get the other answer: once the
+    detector gets it right, the label file and docs/fidelity.md must say so."""
+    right = D.detect(u, lo, hi, fs)["oscillating"] == (1.0 if label == "oscillating" else 0.0)
+    assert right is ("known" not in LABELS[name]), name
+
+
+def test_the_labelled_set_spans_every_rig_and_its_misses_and_false_alarms_are_counted():
+    """docs/fidelity.md quotes these counts; every rig has runs labelled each way."""
+    rigs = {(name.split("-")[0], entry["label"]) for name, entry in LABELS.items()}
+    assert rigs == {(r, lab) for r in ("motor", "valve", "plate") for lab in ("stable", "oscillating")}
+    known = [entry["known"] for entry in LABELS.values() if "known" in entry]
+    assert (len(LABELS), known.count("miss"), known.count("false alarm")) == (22, 1, 1)
 
 
 def test_sustained_rule_catches_oscillations_below_the_limits_that_the_limit_rules_miss():
@@ -172,7 +185,9 @@ def test_sustained_rule_catches_oscillations_below_the_limits_that_the_limit_rul
     missed = [
         name
         for name, label, u, lo, hi, fs in _labelled()
-        if label == "oscillating" and without.detect(u, lo, hi, fs)["oscillating"] == 0.0
+        if label == "oscillating"
+        and "known" not in LABELS[name]
+        and without.detect(u, lo, hi, fs)["oscillating"] == 0.0
     ]
     assert {"valve-line-A1", "valve-line-A2-paper-point", "valve-no1-oscillating-below-imax"} <= set(missed)
     for name, _, u, lo, hi, fs in _labelled():
@@ -195,3 +210,29 @@ def test_sustained_rule_on_synthetic_signals():
     # limit entries crowded into 80 ms at the start (the plate's lift) are no limit cycle
     chatter = np.where((T < 0.08) & (np.arange(T.size) % 4 < 2), 0.0, 2.0)
     assert D.detect(chatter[None], [0.0], [8.0], FS)["oscillating"] == 0.0
+
+
+def test_growth_alone_on_a_run_shorter_than_three_periods_is_undecided():
+    """The thesis's 2.5 s angle runs against a loop of ~1 Hz: a growth over one or two swings is not a
+    trend, so the flag stands (the maps show it) but a verdict hanging on it is undecided; a growth over
+    many periods is decided."""
+    t = np.arange(2500) / FS
+    slow = 0.5 * np.exp(0.8 * t) * np.sin(2 * np.pi * 1.0 * t)  # 2.5 periods
+    fast = 0.01 * np.exp(0.8 * T) * np.sin(2 * np.pi * 20.0 * T)  # 100 periods
+    r_slow, r_fast = D.detect(slow[None], [-12.0], [12.0], FS), D.detect(fast[None], [-12.0], [12.0], FS)
+    assert r_slow["oscillating"] == 1.0 and r_slow["undecided"] == 1.0
+    assert r_fast["oscillating"] == 1.0 and r_fast["undecided"] == 0.0
+
+
+def test_switching_between_the_limits_in_a_short_run_is_a_saturated_oscillation():
+    """Thesis Fig. 3.16/3.18 with the safety routine off (2.5 s runs, 0.5 s at rest): the input switches
+    between ±12 V from about 0.8 s on, 6–13 entries spread over ~1.6 s — less than the 2 s a long run
+    must show, but more than half of this run."""
+    t = np.arange(2500) / FS
+    u = np.where(t < 0.8, 0.0, 12.0 * np.sign(np.sin(2 * np.pi * 1.5 * (t - 0.8))))
+    r = D.detect(u[None], [-12.0], [12.0], FS)
+    assert r["limit_hits_per_s"] >= 2.0 and r["oscillating"] == 1.0
+    # the plate's 80 ms chatter at 0 A as it lifts stays unflagged in its long run
+    t5 = np.arange(5000) / FS
+    chatter = np.where((t5 > 0.5) & (t5 < 0.58), np.where(np.sin(2 * np.pi * 60 * t5) > 0, 0.0, 0.5), 1.0)
+    assert D.detect(chatter[None], [0.0], [2.0], FS)["oscillating"] == 0.0

@@ -5,6 +5,7 @@ must say plainly where the twin disagrees with its source and which claims it ca
 import json
 import re
 from html import escape
+from pathlib import Path
 
 import pytest
 
@@ -45,7 +46,7 @@ def test_quick_pack_runs_every_quick_item_and_writes_one_report(quick):
 @pytest.mark.slow
 def test_quick_pack_verdicts_on_the_twins(quick):
     """Where the twins reproduce their sources, where they depart, and what they cannot test (measured on the
-    quick pack, 2026-12-03): the identification is calibration, never agreement."""
+    quick pack, 2026-12-03 and -04): the identification is calibration, never agreement."""
     _, summary = quick
     items = summary["items"]
     assert items["ident"]["verdict"] == "not testable" and "-10.6%" in items["ident"]["measured"]
@@ -55,3 +56,55 @@ def test_quick_pack_verdicts_on_the_twins(quick):
         assert items[departing]["verdict"] == "disagrees", (departing, items[departing]["measured"])
     assert "DISAGREES" in items["table3"]["measured"] and "MBC beats MFC v" in items["table3"]["measured"]
     assert items["valve-6"]["verdict"] == "not testable" and items["3.12"]["verdict"] == "not reproduced"
+    # the falsification variants (2026-12-04): A.1's falling mismatch is built in; Polack's chosen loop oscillates
+    assert items["A.1"]["verdict"] == "not discriminating" and items["A.1"]["variant"] == "agrees"
+    assert items["3.7"]["variant"] == "disagrees" and items["3.11"]["variant"] == "disagrees"
+    for undecided in ("3.5.3", "3.24"):
+        assert items[undecided]["verdict"] == "undecided", items[undecided]["measured"]
+    assert items["valve-8"]["verdict"] == "disagrees" and "oscillating [DISAGREES]" in items["valve-8"]["measured"]
+    assert items["calib-motor"]["verdict"] == "disagrees" and "backlash 0.25 rad" in items["calib-motor"]["measured"]
+
+
+ROOT = Path(__file__).resolve().parents[1]
+#: How README.md and docs/fidelity.md quote the quick pack's counts (one sentence each).
+COUNTS = re.compile(
+    r"quick pack[^*]*\*\*(\d+) agree, (\d+) disagree, (\d+) not discriminating, (\d+) undecided, "
+    r"(\d+) not testable, (\d+) not reproduced(?:, (\d+) not run)?\*\*"
+)
+NUMBER = re.compile(r"(?<![\w.])[−-]?\d+(?:\.\d+)?(?:\s?%)?")
+
+
+def quoted_counts(text: str) -> dict[str, int]:
+    m = COUNTS.search(text)
+    assert m, "no quick-pack counts sentence"
+    keys = ("agrees", "disagrees", "not discriminating", "undecided", "not testable", "not reproduced")
+    return {**dict(zip(keys, map(int, m.groups()[:6]))), "not run (--quick)": int(m.group(7) or 0)}
+
+
+def fidelity_rows(text: str) -> dict[str, list[str]]:
+    """docs/fidelity.md's quick-pack table: item → [source, quick verdict, variant, what the twin does]."""
+    section = text.split("## The verdicts of the quick pack", 1)[1].split("\n## ", 1)[0]
+    rows = [
+        line.strip("|").split(" | ") for line in section.splitlines() if line.startswith("| ") and "---" not in line
+    ]
+    return {r[0].strip(): [c.strip().strip("*") for c in r[1:]] for r in rows[1:]}
+
+
+@pytest.mark.slow
+def test_the_docs_quote_the_quick_packs_own_output(quick):
+    """Every count and verdict README.md and docs/fidelity.md quote for the quick pack, and every number
+    in fidelity.md's 'what the twin does' cells, is what this run of the pack measured."""
+    _, summary = quick
+    for doc in ("README.md", "docs/fidelity.md"):
+        assert quoted_counts((ROOT / doc).read_text(encoding="utf-8")) == summary["counts"], doc
+    rows = fidelity_rows((ROOT / "docs" / "fidelity.md").read_text(encoding="utf-8"))
+    assert set(rows) == set(summary["items"])
+    for item, (_, verdict, variant, cell) in rows.items():
+        got = summary["items"][item]
+        assert verdict == got["verdict"], (item, verdict, got["verdict"])
+        assert variant == (got["variant"] or "—"), (item, variant, got["variant"])
+        if got["verdict"] == "not run (--quick)":
+            continue
+        measured = " ".join(str(got[k] or "") for k in ("measured", "variant_measured"))
+        for number in NUMBER.findall(cell):
+            assert number.replace("−", "-") in measured.replace("−", "-"), (item, number, measured)

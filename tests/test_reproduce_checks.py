@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrunner.reproduce import checks, checks_papers
+from labrunner.reproduce import checks, checks_papers, checks_plate
 from labrunner.reproduce.items import ITEMS
 from labrunner.reproduce.report import counts, verdict_kind
 from labrunner.reproduce.run import CampaignResult
@@ -107,11 +107,12 @@ def test_plate_input_gains_each_sub_claim_can_fail():
                 )
         return result("fig08", pd.DataFrame(rows))
 
-    assert checks_papers.plate_input_gains(frame()).agrees is True
-    assert checks_papers.plate_input_gains(frame(v_best=0.84)).agrees is False
-    assert checks_papers.plate_input_gains(frame(v_half="completed")).agrees is False
-    assert checks_papers.plate_input_gains(frame(f84="completed")).agrees is False
-    assert checks_papers.plate_input_gains(frame(u14=7.0)).agrees is False
+    assert checks_plate.plate_input_gains(frame()).agrees is True
+    assert checks_plate.plate_input_gains(frame(v_best=0.84)).agrees is False
+    assert checks_plate.plate_input_gains(frame(v_half="completed")).agrees is False
+    verdict = checks_plate.plate_input_gains(frame(f84="completed"))  # γ_F: the paper blames its force law
+    assert verdict.agrees is True and "cannot carry the claim [not testable]" in verdict.measured
+    assert checks_plate.plate_input_gains(frame(u14=7.0)).agrees is False
 
 
 def test_table3_parts_not_run_are_not_testable_and_the_sensor_fault_decides():
@@ -128,14 +129,14 @@ def test_table3_parts_not_run_are_not_testable_and_the_sensor_fault_decides():
 
     laws = {"v": 56.4, "force": 45.8, "u": 17.0, "current": 46.1}
     only_sensor = experiment("sensor", 41.9, laws)
-    verdict = checks_papers.table3(only_sensor)
+    verdict = checks_plate.table3(only_sensor)
     assert verdict.agrees is True and verdict.measured.count("[not testable]") == 2
-    assert checks_papers.table3(experiment("sensor", 60.0, laws)).agrees is False  # the MBC loses: reversed
+    assert checks_plate.table3(experiment("sensor", 60.0, laws)).agrees is False  # the MBC loses: reversed
     # the movement: MFC v at half the MBC agrees; at 0.9 of it, "almost half" fails
     move = experiment("horizontal", 8.0, {"v": 4.0, "force": 5.0, "u": 5.0, "current": 30.0})
-    assert checks_papers.table3({**only_sensor, **move}).agrees is True
+    assert checks_plate.table3({**only_sensor, **move}).agrees is True
     slow = experiment("horizontal", 8.0, {"v": 7.2, "force": 7.5, "u": 7.5, "current": 30.0})
-    assert checks_papers.table3({**only_sensor, **slow}).agrees is False
+    assert checks_plate.table3({**only_sensor, **slow}).agrees is False
 
 
 def test_a_point_off_the_predicted_boundary_counts_against_the_bound():
@@ -191,3 +192,106 @@ def test_walk_steps_are_counted_as_the_thesis_counts_them():
     assert f["steps"] == {"polack_ff": 3, "polack_fb": 3, "guideline2": 2}
     assert f["ff_choice"].params["controller.gamma"] == 50.0 and f["g2"].id == "p12"
     assert f["runs"] == {"polack": 9, "guideline2": 3}
+
+
+def test_a_check_that_agrees_on_its_falsification_variant_is_not_discriminating():
+    from labrunner.reproduce.verdict import Judged, Verdict
+
+    yes, no, na = Verdict("m", True), Verdict("m", False), Verdict("m", None)
+    undecided = Verdict("m", None, undecided=True)
+    assert Judged(yes, no).kind == "agrees"
+    assert Judged(yes, yes).kind == "not discriminating"  # agrees on a variant built to fail the claim
+    assert Judged(yes, na).kind == "not discriminating"  # the variant cannot show the check can fail
+    assert Judged(yes, None).kind == "not discriminating"  # no variant declared
+    assert Judged(no, no).kind == "disagrees"
+    assert Judged(no, yes).kind == "not discriminating"  # passes the wrong variant, fails the twin
+    assert Judged(na, yes).kind == "not testable" and Judged(undecided, None).kind == "undecided"
+
+
+def test_an_undecided_part_makes_the_verdict_undecided_unless_another_part_disagrees():
+    yes, no = Part("a", "m", True), Part("b", "m", False)
+    open_ = Part("c", "m", None, "runs too short")
+    assert combine([yes, open_]).kind == "undecided" and "undecided: runs too short" in combine([open_]).measured
+    assert combine([no, open_]).kind == "disagrees"
+
+
+def test_the_variant_runs_the_same_check_with_its_references_and_its_files_in_place():
+    """Paper 1 Figs. 9/10 against its variant (the MFC's runs in the FFC's place): the same check, and
+    it must disagree there — MFC against itself is not lower."""
+    from labrunner.reproduce.report import judged
+
+    item = next(i for i in ITEMS if i.id == "valve-9-10")
+    params = [{"reference.levels": [2.0, e, 2.0]} for e in (4.0, 10.0, 14.0)]
+    mfc, ffc = item.files
+    results = {
+        mfc: CampaignResult(mfc, Path("."), pd.DataFrame({"rms_error@tracking": [0.5, 0.6, 0.7]}), {}, params),
+        ffc: CampaignResult(ffc, Path("."), pd.DataFrame({"rms_error@tracking": [2.2, 2.5, 3.0]}), {}, params),
+    }
+    j = judged(item, results)
+    assert j.twin.kind == "agrees" and j.variant.kind == "disagrees" and j.kind == "agrees"
+    same = {**results, ffc: results[mfc]}  # a twin whose FFC is as good as its MFC
+    assert judged(item, same).kind == "disagrees"
+
+
+def test_a_verdict_hanging_on_the_detectors_undecided_runs_is_undecided():
+    from labrunner.reproduce.report import decided
+    from labrunner.reproduce.verdict import Verdict
+
+    frame = pd.DataFrame({"outcome": ["completed"] * 3, "oscillating": [1.0, 0.0, 0.0], "undecided": [1.0, 0.0, 0.0]})
+
+    def none_oscillates(results, ref=None):
+        f = next(iter(results.values())).frame
+        return Verdict(f"{int(f['oscillating'].sum())} flagged", not f["oscillating"].any())
+
+    assert decided(none_oscillates, result("x", frame)).kind == "undecided"
+    firm = frame.assign(undecided=0.0)  # the same flag from a rule that holds on short runs
+    assert decided(none_oscillates, result("x", firm)).kind == "disagrees"
+
+
+def test_every_reproduced_item_declares_a_variant_and_its_references_are_the_checks():
+    import inspect
+
+    from labrunner.reproduce.report import _check
+
+    for item in ITEMS:
+        if not item.reproduced or item.id == "ident":
+            continue
+        assert item.variant is not None and item.variant.what, item.id
+        assert set(item.variant.files) <= set(item.files) and set(item.variant.files.values()) <= set(item.files)
+        assert "ref" in inspect.signature(_check(item.check)).parameters, item.id
+
+
+def test_valve_parametrisations_disagree_with_no1s_map_shifted():
+    keys = {"controller.gamma": [0.01, 0.1, 1.0, 10.0], "controller.k_p": [1.0, 10.0, 100.0, 1000.0]}
+    rows = []
+    for n, (alpha, omega) in enumerate(((2, 250.0), (4, 850.0))):
+        for g in keys["controller.gamma"]:
+            for k in keys["controller.k_p"]:
+                unstable = g * k > 50.0 + 40.0 * n  # No. 2's boundary a little off No. 1's
+                rows.append(
+                    {
+                        "differentiator.alpha": alpha,
+                        "differentiator.omega_c": omega,
+                        "controller.gamma": g,
+                        "controller.k_p": k,
+                        "outcome": "aborted" if unstable else "completed",
+                        "oscillating": 0.0,
+                    }
+                )
+    frame = result("fig07", pd.DataFrame(rows))
+    assert checks_papers.valve_parametrisations(frame).agrees is True
+    assert checks_papers.valve_parametrisations(frame, ref={"shift": 2}).agrees is False
+
+
+def test_the_backlash_is_fitted_on_the_feed_forward_edge_and_judged_on_table_3_1():
+    from labrunner.reproduce.checks_calibration import edges
+
+    ladder = 10 ** (np.arange(2.125, 1.49, -1 / 16))
+    rows = [
+        {"controller.gamma": g, "rig_parameters.backlash": b, "outcome": "completed" if g >= edge else "aborted"}
+        for b, edge in ((0.02, 48.6), (0.25, 64.9))
+        for g in ladder
+    ]
+    table = edges(pd.DataFrame(rows))
+    assert list(table["edge γ_Ω"].round(1)) == [48.7, 64.9]
+    assert abs(table["rungs from the thesis's"].iloc[1]) < 0.01 and table["rungs from the thesis's"].iloc[0] < -1.9

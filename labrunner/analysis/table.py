@@ -69,8 +69,9 @@ TIMING_COLUMNS = ("late_ticks", "overruns")
 INTEGER_COLUMNS = ("seq", "attempts", "n_samples", *CACHE_COLUMNS, *TIMING_COLUMNS)
 #: Bump when the metrics change meaning: cached tables of another version are recomputed.
 METRICS_VERSION = (
-    6  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
-    # columns; 5: the detector's sustained-oscillation rule (periodicity); 6: failed runs' in _until_abort too
+    7  # 2: windowed metrics and the oscillation detector; 3: its thresholds; 4: aborted runs' in _until_abort
+    # columns; 5: the detector's sustained-oscillation rule (periodicity); 6: failed runs' in _until_abort too;
+    # 7: detector version 2 (short-run limit cycles, ring-downs, undecided, detector_version)
 )
 
 

@@ -4,7 +4,7 @@ The pack (:mod:`labrunner.reproduce.items`) maps each figure or table of the the
 papers to campaign files under ``campaigns/thesis``, ``campaigns/valve-paper`` and
 ``campaigns/plate-paper`` (and the top-level campaigns for Figs. 3.10, 3.14 and paper 2 Fig. 4).
 :func:`reproduce` runs them (:mod:`labrunner.reproduce.run`), applies each item's check
-(:mod:`labrunner.reproduce.checks`, :mod:`labrunner.reproduce.checks_papers`) and writes
+(:mod:`labrunner.reproduce.checks` and its siblings, one per source and kind) and writes
 ``OUT/index.html``: per item the source's claim, the measured check, whether they agree — stated
 plainly where the twin disagrees — the numbers side by side and the campaign's maps; plus the
 Guideline 2 vs Polack step counts of the guided campaigns where that module is present.

@@ -13,7 +13,9 @@ import numpy as np
 import pandas as pd
 
 from labrunner.reproduce.verdict import (
+    NO_REF,
     Part,
+    Ref,
     Results,
     Verdict,
     bound_parts,
@@ -30,7 +32,7 @@ from labrunner.reproduce.verdict import (
 KP, KD, GAMMA = "controller.k_p", "controller.k_d", "controller.gamma"
 
 
-def identification(results: Results) -> Verdict:
+def identification(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Thesis Sec. 3.2's procedure on the twin's logs: not testable, since the twin was calibrated on it."""
     from labrunner.identification import identify_logs, physical_parameters
 
@@ -67,15 +69,16 @@ THESIS_UNSTABLE = {
 CUTOFF_RTOL = 0.05
 
 
-def unstable_differentiators(results: Results) -> Verdict:
-    """The twin's unstable (α, ω_c) grid points against the thesis's table, restricted to the grid."""
+def unstable_differentiators(results: Results, ref: Ref = NO_REF) -> Verdict:
+    """The twin's unstable (α, ω_c) grid points against the thesis's table (``ref["table"]`` in its
+    place: entries (α, ω_c), ω_c None for every cutoff), restricted to the grid."""
     from labrunner.campaign import runner, spec
     from labrunner.differentiators.design import design
 
     run = one(results)
     campaign = spec.load(run.directory / runner.CAMPAIGN_COPY)
     kind, fs = campaign.base["controller"]["kind"], fs_of(run)
-    expected = THESIS_UNSTABLE[(kind, fs)]
+    expected = ref.get("table", THESIS_UNSTABLE[(kind, fs)])
     frame = run.frame.copy()
     frame["realised ω_c"] = [
         design(alpha=a, beta=a, N=0, omega_c=w, fs=fs).omega_c_actual
@@ -107,44 +110,51 @@ def unstable_differentiators(results: Results) -> Verdict:
     return Verdict(measured, wrong.empty, table.round(1))
 
 
-def listed_one(row: pd.Series, entry: tuple[int, float]) -> bool:
+def listed_one(row: pd.Series, entry: tuple[int, float | None]) -> bool:
     """Whether grid row ``row`` (with its realised cutoff) is the thesis's table entry (α, ω_c)."""
-    return int(row["differentiator.alpha"]) == entry[0] and abs(row["realised ω_c"] / entry[1] - 1) <= CUTOFF_RTOL
+    return int(row["differentiator.alpha"]) == entry[0] and (
+        entry[1] is None or abs(row["realised ω_c"] / entry[1] - 1) <= CUTOFF_RTOL
+    )
 
 
 #: Thesis Sec. 3.5.1: the experiments depart from (2.46) "especially for (γ_Ω, k_p) ∈ [10, 100] × [0.1, 100]".
 DEPARTURE_BOX = ((10.0, 100.0), (0.1, 100.0))
 
 
-def gamma_kp_map(results: Results) -> Verdict:
+def gamma_kp_map(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Fig. 3.10: (2.46) explains the map outside the thesis's departure box; inside it the test bed
-    departs from (2.46) both ways; (2.41) is conservative."""
+    departs from (2.46) both ways; (2.41) is conservative. "Unstable between the lines" is judged per
+    γ_Ω row — the row's whole predicted-stable band in the box unstable — since a band narrower than
+    three grid steps has no point more than a grid step from the bound (``ref["bound"]``: a variant's)."""
     run = one(results)
+    bound = ref.get("bound")
     (g0, g1), (k0, k1) = DEPARTURE_BOX
     box = run.frame[GAMMA].between(g0, g1) & run.frame[KP].between(k0, k1)
-    outside, frame = bound_parts(run, "motor", "(2.46) with (2.31) explains the map outside the departure box", ~box)
-    _, inside = bound_parts(run, "motor", "", box)
+    outside, frame = bound_parts(
+        run, "motor", "(2.46) with (2.31) explains the map outside the departure box", ~box, bound
+    )
+    _, inside = bound_parts(run, "motor", "", box, bound)
+    stable = inside["observed"].isin(("completed", "no-motion"))
+    below = int((inside["far"] & stable).sum())
+    bands = inside[inside["predicted_stable"].astype(bool)].assign(unstable=~stable).groupby(GAMMA)["unstable"]
+    rows = [g for g, band in bands if band.all()]
     departs = Part(
         "inside [10, 100] × [0.1, 100] the test bed departs from (2.46): stable below the min-k_p line and "
         "unstable between the lines",
-        f"{int((inside['far'] & inside['observed'].isin(('completed', 'no-motion'))).sum())} stable below, "
-        f"{int((inside['far'] & ~inside['observed'].isin(('completed', 'no-motion'))).sum())} unstable between, "
-        f"of {len(inside)} points in the box",
-        bool(
-            (inside["far"] & inside["observed"].isin(("completed", "no-motion"))).any()
-            and (inside["far"] & ~inside["observed"].isin(("completed", "no-motion"))).any()
-        )
-        if len(inside)
-        else None,
+        f"{below} stable more than a grid step beyond the bound; the whole predicted-stable band unstable in "
+        f"{len(rows)} of {bands.ngroups} γ_Ω rows"
+        + (f" (γ_Ω = {', '.join(f'{g:.3g}' for g in rows)})" if rows else "")
+        + f", of {len(inside)} points in the box",
+        bool(below and rows) if len(inside) else None,
     )
-    return combine([outside, departs, _conservative(run, "(2.41)")], frame[frame["far"]].round(4))
+    return combine([outside, departs, _conservative(run, "(2.41)", bound)], frame[frame["far"]].round(4))
 
 
-def _conservative(run, equation: str) -> Part:
+def _conservative(run, equation: str, bound: Ref | None = None) -> Part:
     """The ultra-local bound is conservative: runs are stable beyond it (more than one grid step outside
     its stable set). Unstable runs inside its set are reported, not judged: the ultra-local model has no
     term for the low-γ region the thesis's experiments also abort."""
-    _, frame = bound_parts(run, "ultralocal", "")
+    _, frame = bound_parts(run, "ultralocal", "", bound=bound)
     stable = frame["observed"].isin(("completed", "no-motion"))
     inside_bad = frame["predicted_stable"].astype(bool) & ~stable & frame["far"]
     outside_good = ~frame["predicted_stable"].astype(bool) & stable & frame["far"]
@@ -155,12 +165,14 @@ def _conservative(run, equation: str) -> Part:
     )
 
 
-def ratio_lines(results: Results) -> tuple[Part, pd.DataFrame]:
+def ratio_lines(results: Results, ref: Ref = NO_REF) -> tuple[Part, pd.DataFrame]:
     """Runs on one line of constant γ/k_p "behave alike": every run of a line in one observed class,
     and a stable line's RMS spread (max/min − 1) below the RMS gap to each neighbouring stable line —
-    the ratio separates the lines more than the individual gains move a line. One row per line."""
+    the ratio separates the lines more than the individual gains move a line. One row per line.
+    ``ref["invariant"] = "product"`` draws the lines at constant γ·k_p instead (a variant's)."""
     frame = one(results).frame.copy()
-    frame["line"] = np.round(np.log10(frame[GAMMA] / frame[KP]), 3)
+    product = ref.get("invariant") == "product"
+    frame["line"] = np.round(np.log10(frame[GAMMA] * frame[KP] if product else frame[GAMMA] / frame[KP]), 3)
     frame["status"] = unstable(frame).map({True: "unstable", False: "stable"})
     lines = (
         frame.groupby("line")
@@ -172,7 +184,7 @@ def ratio_lines(results: Results) -> tuple[Part, pd.DataFrame]:
             max_input=("max_abs_input", "max"),
         )
         .reset_index()
-        .rename(columns={"line": "log10 γ/k_p"})
+        .rename(columns={"line": "log10 γ·k_p" if product else "log10 γ/k_p"})
     )
     means, classes = lines["mean_rms"].to_numpy(), lines["classes"].tolist()
     lines["gap to neighbour"] = [
@@ -194,10 +206,10 @@ def ratio_lines(results: Results) -> tuple[Part, pd.DataFrame]:
     return part, lines
 
 
-def constant_ratio_lines(results: Results) -> Verdict:
+def constant_ratio_lines(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Figs. 3.11/3.12: the lines behave alike (:func:`ratio_lines`) and a larger γ/k_p degrades the
     tracking (mean RMS rises with the ratio)."""
-    alike, lines = ratio_lines(results)
+    alike, lines = ratio_lines(results, ref)
     means = lines["mean_rms"].to_numpy()
     rises = bool(lines["mean_rms"].is_monotonic_increasing) and len(lines) > 1
     degrade = Part(
@@ -208,49 +220,53 @@ def constant_ratio_lines(results: Results) -> Verdict:
     return combine([alike, degrade], lines)
 
 
-def angle_map(results: Results) -> Verdict:
+def angle_map(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Fig. 3.14: (2.58)–(2.59) describe the stable set; (2.53)–(2.54) are conservative; the smallest
-    RMS(e_θ) lies in k_d ∈ [49.3, 119.5] 1/s."""
+    RMS(e_θ) lies in k_d ∈ [49.3, 119.5] 1/s (``ref``: "bound" scaling, "kd_interval")."""
     run = one(results)
-    bound, frame = bound_parts(run, "motor", "(2.58)–(2.59) describe the stable set")
+    lo, hi = ref.get("kd_interval", (49.3, 119.5))
+    bound, frame = bound_parts(run, "motor", "(2.58)–(2.59) describe the stable set", bound=ref.get("bound"))
     best = done(run.frame).nsmallest(1, "rms_error")
     kd = float(best[KD].iloc[0]) if len(best) else math.nan
     optimum = Part(
-        "the smallest RMS(e_θ) lies at k_d ∈ [49.3, 119.5] 1/s", f"at k_d = {kd:.4g} 1/s", 49.3 <= kd <= 119.5
+        f"the smallest RMS(e_θ) lies at k_d ∈ [{lo:g}, {hi:g}] 1/s", f"at k_d = {kd:.4g} 1/s", lo <= kd <= hi
     )
-    return combine([bound, _conservative(run, "(2.53)–(2.54)"), optimum], frame[frame["far"]].round(4))
+    conservative = _conservative(run, "(2.53)–(2.54)", ref.get("bound"))
+    return combine([bound, conservative, optimum], frame[frame["far"]].round(4))
 
 
 #: Fig. 3.20: the smallest RMS(e_θ) of Fig. 3.15 (log10 k_p, log10 k_d).
 THESIS_BEST_3_15 = (3.1875, 1.9375)
 
 
-def fine_kp_kd(results: Results) -> Verdict:
+def fine_kp_kd(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Fig. 3.15: the bounds are accurate here; a region inside them is aborted though stable; the
-    smallest RMS lies at Fig. 3.20's point (to within one grid step of each axis)."""
-    run = [r for f, r in results.items() if "safety-off" not in f][0]
-    _, frame = bound_parts(run, "motor", "")
-    aborted_inside = frame["predicted_stable"].astype(bool) & (frame["observed"] == "aborted") & frame["far"]
-    # the thesis reads its brown region as stable runs the routine aborted (Fig. 3.16): not against the bound
+    smallest RMS lies at Fig. 3.20's point (to within one grid step of each axis). The bounds and the
+    optimum are judged on the safety-off runs of the same rectangle (Fig. 3.16): the thesis reads its
+    brown region as stable runs the routine aborted, and on the twin the routine aborts Fig. 3.20's
+    point itself (1.7 % over the |du/dt| limit). ``ref``: "bound" scaling, "best" (log10 k_p, log10 k_d)."""
+    on = next(r for f, r in results.items() if "safety-off" not in f)
+    off = next(r for f, r in results.items() if "safety-off" in f)
     bound, _ = bound_parts(
-        run,
-        "motor",
-        "(2.58)–(2.59) are accurate (safety aborts inside them left to part 2)",
-        pd.Series(~run.frame.index.isin(frame.index[aborted_inside]), index=run.frame.index),
+        off, "motor", "(2.58)–(2.59) are accurate (judged without the safety routine)", bound=ref.get("bound")
     )
+    _, frame = bound_parts(on, "motor", "", bound=ref.get("bound"))
+    aborted_inside = frame["predicted_stable"].astype(bool) & (frame["observed"] == "aborted") & frame["far"]
     region = Part(
         "a region inside the bounds is aborted by the safety routine (the brown line)",
         f"{int(aborted_inside.sum())} aborted runs inside the bounds",
         bool(aborted_inside.any()),
     )
-    best = done(run.frame).nsmallest(1, "rms_error")
+    best = done(off.frame).nsmallest(1, "rms_error")
     if best.empty:
         return combine([bound, region])
+    target = ref.get("best", THESIS_BEST_3_15)
     lk, ld = math.log10(float(best[KP].iloc[0])), math.log10(float(best[KD].iloc[0]))
-    steps = [float(np.diff(np.log10(np.unique(run.frame[c]))).max()) for c in (KP, KD)]
-    near = abs(lk - THESIS_BEST_3_15[0]) <= steps[0] + 1e-9 and abs(ld - THESIS_BEST_3_15[1]) <= steps[1] + 1e-9
+    steps = [float(np.diff(np.log10(np.unique(off.frame[c]))).max()) for c in (KP, KD)]
+    near = abs(lk - target[0]) <= steps[0] + 1e-9 and abs(ld - target[1]) <= steps[1] + 1e-9
     optimum = Part(
-        "the smallest RMS(e_θ) lies at log10 k_p = 3.1875, log10 k_d = 1.9375 (Fig. 3.20)",
+        f"the smallest RMS(e_θ) lies at log10 k_p = {target[0]:g}, log10 k_d = {target[1]:g} (Fig. 3.20; judged "
+        "without the safety routine)",
         f"at log10 k_p = {lk:.4g}, log10 k_d = {ld:.4g} (grid steps {steps[0]:.3g}, {steps[1]:.3g})",
         near,
     )
@@ -258,7 +274,8 @@ def fine_kp_kd(results: Results) -> Verdict:
 
 
 def _kd_interval(run) -> tuple[float, float]:
-    """(k_d,min, k_d,max) of (2.58)–(2.59) at the campaign's γ and δ_t (labrunner's corrected solver)."""
+    """(k_d,min, k_d,max) of (2.58)–(2.59) at the campaign's γ and δ_t (labrunner's corrected solver;
+    the source's bound, whatever a variant's)."""
     from labrunner.analysis.context import Theories
     from labrunner.campaign import runner, spec
 
@@ -272,14 +289,15 @@ def _kd_interval(run) -> tuple[float, float]:
     return float(pair[0]), float(pair[-1])
 
 
-def kd_below_10(results: Results) -> Verdict:
+def kd_below_10(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Fig. 3.17 (γ_θ = 1.1 b): stability for k_d > 10 1/s is predicted correctly; below, the runs depart
     from the bound (Fig. 3.18: a point predicted stable oscillates); the thesis's k_d,min = −3.54 1/s."""
     run = one(results)
+    bound = ref.get("bound")
     above, frame = bound_parts(
-        run, "motor", "for k_d > 10 1/s (2.58)–(2.59) predict stability correctly", run.frame[KD] > 10
+        run, "motor", "for k_d > 10 1/s (2.58)–(2.59) predict stability correctly", run.frame[KD] > 10, bound
     )
-    _, below = bound_parts(run, "motor", "", run.frame[KD] <= 10)
+    _, below = bound_parts(run, "motor", "", run.frame[KD] <= 10, bound)
     bad = below["predicted_stable"].astype(bool) & ~below["observed"].isin(("completed", "no-motion")) & below["far"]
     depart = Part(
         "for k_d ≤ 10 1/s points predicted stable are not stable (Fig. 3.18, green)",
@@ -293,13 +311,13 @@ def kd_below_10(results: Results) -> Verdict:
     return combine([above, depart, kdmin], frame[frame["far"]].round(4))
 
 
-def kd_min_conservative(results: Results) -> Verdict:
+def kd_min_conservative(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Fig. 3.19 (γ_θ = 0.9 b): points with k_d < k_d,min are predicted unstable although they run stably.
     Compared: the points below k_d,min whose k_p is predicted stable at the first grid k_d above k_d,min
     (so k_d,min alone makes them 'unstable'); the thesis's k_d,min = 4.33 1/s."""
     run = one(results)
     lo, _ = _kd_interval(run)
-    frame = predictions(run, "motor")
+    frame = predictions(run, "motor", ref.get("bound"))
     kds = np.unique(frame[KD])
     above = kds[kds > lo]
     if not len(above) or not (kds < lo).any():
@@ -320,10 +338,11 @@ def kd_min_conservative(results: Results) -> Verdict:
     return combine(parts, below[[KP, KD, "predicted_stable", "observed", "rms_error"]].round(4))
 
 
-def a8_validation(results: Results) -> Verdict:
+def a8_validation(results: Results, ref: Ref = NO_REF) -> Verdict:
     """App. A.1, Fig. A.1: on line (A) of Fig. 3.11 (the smallest γ_Ω/k_p) the two sides of (A.8),
     f̂_Ω ≈ −a Ω̂ + (b − γ_Ω) û (η̂ ≈ 0, a, b of Sec. 3.2), differ less the larger γ_Ω. Ω̂ and û are the run's
-    Ω and u through the differentiator's order-0 filter, aligned as in (3.4) (samples k − j − 1)."""
+    Ω and u through the differentiator's order-0 filter, aligned as in (3.4) (samples k − j − 1).
+    ``ref``: the model's "a", "b" (a variant's wrong model)."""
     from labrunner.campaign import runner, spec
     from labrunner.differentiators.design import design
     from labrunner.logs import read_run
@@ -343,7 +362,8 @@ def a8_validation(results: Results) -> Verdict:
         omega, u, f_hat = log.signal("omega"), log.signal("u"), log.signal("f_hat_omega")
         past = np.arange(len(w0)) + 1  # x[k − j − 1], j = 0 .. L − 1
         k = np.arange(len(w0) + 1, len(u))
-        rhs = -39.44 * (omega[k[:, None] - past] @ w0) + (108.55 - r[GAMMA]) * (u[k[:, None] - past] @ w0)
+        a, b = ref.get("a", 39.44), ref.get("b", 108.55)
+        rhs = -a * (omega[k[:, None] - past] @ w0) + (b - r[GAMMA]) * (u[k[:, None] - past] @ w0)
         mismatch = float(np.sqrt(np.mean((f_hat[k] - rhs) ** 2) / np.mean(f_hat[k] ** 2)))
         rows.append({"γ_Ω": r[GAMMA], "k_p": r[KP], "RMS(f̂ − rhs)/RMS(f̂)": mismatch})
     table = pd.DataFrame(rows)

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from labrunner.reproduce.verdict import Part, Results, Verdict, combine
+from labrunner.reproduce.verdict import NO_REF, Part, Ref, Results, Verdict, combine
 
 GAMMA, KP = "controller.gamma", "controller.k_p"
 RUNG = 10 ** (1 / 16)
@@ -41,23 +41,25 @@ def _stages(state: Any) -> dict[str, list]:
     return out
 
 
-def walks(results: Results) -> dict[str, Any]:
+def walks(results: Results, target: float = 1.0) -> dict[str, Any]:
     """:func:`facts` of the two guided campaigns of ``results``."""
     polack, prun = _state(results, "polack")
     g2, grun = _state(results, "guideline2")
-    return {**facts(polack, g2), "dirs": {"polack": prun, "guideline2": grun}}
+    return {**facts(polack, g2, target), "dirs": {"polack": prun, "guideline2": grun}}
 
 
-def facts(polack: Any, g2: Any) -> dict[str, Any]:
+def facts(polack: Any, g2: Any, target: float = 1.0) -> dict[str, Any]:
     """The facts of both walks (two replayed procedures, :class:`~labrunner.campaign.guided.Advance`):
-    chosen points, steps as the thesis counts them, runs made."""
+    chosen points, steps as the thesis counts them (Guideline 2's to ``target`` × Polack's RMS), runs made."""
     ff, fb = (list(v) for v in _stages(polack).values()) if len(_stages(polack)) == 2 else ([], [])
     ff_choice = next((o for o in ff if fb and o.params[GAMMA] == fb[0].params[GAMMA]), None)
     chosen = polack.result.chosen if polack.result else None
     n_ff = ff.index(ff_choice) if ff_choice else None
     n_fb = fb.index(chosen) + 1 if chosen in fb else None
     g2_obs = [s.observation for s in g2.walk]
-    reach = next((i for i, o in enumerate(g2_obs) if chosen and o.completed and o.rms_error <= chosen.rms_error), None)
+    reach = next(
+        (i for i, o in enumerate(g2_obs) if chosen and o.completed and o.rms_error <= target * chosen.rms_error), None
+    )
     best_ff = min((o for o in ff if o.completed), key=lambda o: o.rms_error, default=None)
     trip = next((o for o in ff if o.tripped), None)
     return {
@@ -81,10 +83,12 @@ def _fmt(value: float | None) -> str:
     return "—" if value is None else f"{value:.5g}"
 
 
-def polack_stages(results: Results) -> Verdict:
+def polack_stages(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Fig. 3.21: the feed-forward stage trips below γ_Ω = 64.93 and picks 74.98; the feedback stage picks
-    k_p = 31.62 (each within one rung)."""
+    k_p = 31.62 (each within one rung), a satisfactory loop: the detector does not flag it oscillating.
+    ``ref["scale"]`` multiplies the thesis's gains (a variant's)."""
     w = walks(results)
+    x = float(ref.get("scale", 1.0))
     last_ok = next((o for o in reversed(w["ff"]) if o.completed), None) if w["ff"] else None
     gamma = w["ff_choice"].params[GAMMA] if w["ff_choice"] else None
     kp = w["chosen"].params[KP] if w["chosen"] else None
@@ -93,18 +97,43 @@ def polack_stages(results: Results) -> Verdict:
             "feed-forward (k_p = 0): aborted below γ_Ω = 64.93",
             f"last stable γ_Ω {_fmt(last_ok.params[GAMMA] if last_ok else None)}, first trip at "
             f"{_fmt(w['ff_trip'].params[GAMMA] if w['ff_trip'] else None)}",
-            _near(last_ok.params[GAMMA] if last_ok else None, 64.93),
+            _near(last_ok.params[GAMMA] if last_ok else None, 64.93 * x),
         ),
-        Part("the feed-forward stage picks γ_Ω = 74.98", f"γ_Ω = {_fmt(gamma)}", _near(gamma, 74.98)),
-        Part("the feedback stage picks k_p = 31.62", f"k_p = {_fmt(kp)}", _near(kp, 31.62)),
+        Part(f"the feed-forward stage picks γ_Ω = {74.98 * x:.4g}", f"γ_Ω = {_fmt(gamma)}", _near(gamma, 74.98 * x)),
+        Part(f"the feedback stage picks k_p = {31.62 * x:.4g}", f"k_p = {_fmt(kp)}", _near(kp, 31.62 * x)),
+        _satisfactory(w),
     ]
     return combine(parts, _walk_table(w))
 
 
-def backoff(results: Results) -> Verdict:
+def _satisfactory(w: dict[str, Any]) -> Part:
+    """Polack's chosen loop is the thesis's "satisfactory" one: completed and not flagged oscillating."""
+    chosen = w["chosen"]
+    flagged = [o for o in w["fb"] if o.completed and o.oscillating]
+    return Part(
+        "the procedure ends at a satisfactory (non-oscillating) loop",
+        "no choice"
+        if chosen is None
+        else f"the chosen k_p = {chosen.params[KP]:.4g} is {'flagged' if chosen.oscillating else 'not flagged'} "
+        f"oscillating by the detector; {len(flagged)} of {len(w['fb'])} feedback runs flagged",
+        chosen is not None and chosen.completed and not chosen.oscillating,
+    )
+
+
+def _premise(w: dict[str, Any]) -> Part:
+    """The premise of the Sec. 3.5.3 comparisons: Polack's result is a satisfactory loop. Where the
+    detector flags it, a comparison with it is not the thesis's: the part is undecided."""
+    part = _satisfactory(w)
+    if part.agrees:
+        return part
+    return Part(part.claim, part.measured, None, "the comparison is made against an oscillating loop")
+
+
+def backoff(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Fig. 3.22: the smallest-RMS feed-forward γ_Ω (64.93) oscillates as Ω_r returns to zero, so the next
-    larger one (74.98) is chosen."""
+    larger one (74.98) is chosen (``ref["direction"] = -1``: the next smaller, a variant's)."""
     w = walks(results)
+    direction = ref.get("direction", 1)
     best, pick = w["best_ff"], w["ff_choice"]
     if best is None or pick is None:
         return combine(
@@ -115,34 +144,37 @@ def backoff(results: Results) -> Verdict:
         "the smallest-RMS γ_Ω oscillates when Ω_r returns to zero, so the next larger γ_Ω is chosen",
         f"smallest RMS at γ_Ω = {best.params[GAMMA]:.5g} ({'oscillating' if oscillates else 'not flagged oscillating'}"
         f" by the detector), chosen {pick.params[GAMMA]:.5g}",
-        oscillates and pick.params[GAMMA] > best.params[GAMMA],
+        oscillates and direction * (pick.params[GAMMA] - best.params[GAMMA]) > 0,
     )
     return combine([part])
 
 
-def guideline2(results: Results) -> Verdict:
-    """Fig. 3.23: Guideline 2 reaches Polack's RMS (0.29 rad/s) at γ_Ω = 421.69, k_p = 237.13."""
+def guideline2(results: Results, ref: Ref = NO_REF) -> Verdict:
+    """Fig. 3.23: Guideline 2 reaches Polack's RMS (0.29 rad/s) at γ_Ω = 421.69, k_p = 237.13
+    (``ref["scale"]`` multiplies the thesis's numbers: a variant's)."""
     w = walks(results)
     g = w["g2"]
+    x = float(ref.get("scale", 1.0))
     target = w["chosen"].rms_error if w["chosen"] else math.nan
     parts = [
         Part(
-            "Polack's result has RMS(e_Ω) = 0.29 rad/s (±10 %: two printed digits and the twin's noise)",
+            f"Polack's result has RMS(e_Ω) = {0.29 * x:.3g} rad/s (±10 %: two printed digits and the twin's noise)",
             f"{target:.3g} rad/s",
-            bool(abs(target / 0.29 - 1) <= 0.1),
+            bool(abs(target / (0.29 * x) - 1) <= 0.1),
         ),
         Part(
-            "Guideline 2 reaches that RMS at γ_Ω = 421.69, k_p = 237.13",
+            f"Guideline 2 reaches that RMS at γ_Ω = {421.69 * x:.5g}, k_p = {237.13 * x:.5g}",
             f"γ_Ω = {_fmt(g.params[GAMMA] if g else None)}, k_p = {_fmt(g.params[KP] if g else None)}",
-            _near(g.params[GAMMA] if g else None, 421.69),
+            _near(g.params[GAMMA] if g else None, 421.69 * x),
         ),
     ]
     return combine(parts, _walk_table(w))
 
 
-def step_counts(results: Results) -> Verdict:
-    """Sec. 3.5.3: Guideline 2 needs 54 steps, Polack et al. 66 + 41 = 107: fewer steps with Guideline 2."""
-    w = walks(results)
+def step_counts(results: Results, ref: Ref = NO_REF) -> Verdict:
+    """Sec. 3.5.3: Guideline 2 needs 54 steps, Polack et al. 66 + 41 = 107: fewer steps with Guideline 2
+    to Polack's result (``ref["target"]`` × its RMS: a variant's); undecided if that result oscillates."""
+    w = walks(results, float(ref.get("target", 1.0)))
     s = w["steps"]
     polack = s["polack_ff"] + s["polack_fb"] if s["polack_ff"] is not None and s["polack_fb"] is not None else None
     g2 = s["guideline2"]
@@ -156,18 +188,21 @@ def step_counts(results: Results) -> Verdict:
     part = Part(
         "Guideline 2 reaches Polack's RMS in fewer steps (54 vs 107)",
         f"{_fmt(g2)} vs {_fmt(polack)} steps (runs made, trips included: {w['runs']['guideline2']} vs {w['runs']['polack']})",
-        None if polack is None or g2 is None else g2 < polack,
+        None if polack is None else g2 is not None and g2 < polack,
     )
-    return combine([part], table)
+    return combine([part, _premise(w)], table)
 
 
-def input_noise(results: Results) -> Verdict:
-    """Fig. 3.24: Guideline 2's result has a less noisy input u than Polack's (its γ_Ω is higher)."""
+def input_noise(results: Results, ref: Ref = NO_REF) -> Verdict:
+    """Fig. 3.24: Guideline 2's result has a less noisy input u than Polack's (its γ_Ω is higher);
+    undecided if Polack's result oscillates. ``ref["polack"] = "first"`` takes Polack's first
+    feed-forward run (γ_Ω = 10⁶) in place of its result (a variant's)."""
     from labrunner.logs import read_run
 
     w = walks(results)
+    polack = next((o for o in w["ff"] if o.completed), None) if ref.get("polack") == "first" else w["chosen"]
     noise = {}
-    for key, obs in (("polack", w["chosen"]), ("guideline2", w["g2"])):
+    for key, obs in (("polack", polack), ("guideline2", w["g2"])):
         if obs is None:
             return combine([Part("Guideline 2's input is less noisy", f"{key} chose nothing", False)])
         run = w["dirs"][key]
@@ -180,7 +215,7 @@ def input_noise(results: Results) -> Verdict:
         f"RMS of Δu at rest (t > 3.5 s): Guideline 2 {noise['guideline2']:.3g} V, Polack {noise['polack']:.3g} V",
         noise["guideline2"] < noise["polack"],
     )
-    return combine([part])
+    return combine([part, _premise(w)])
 
 
 def _walk_table(w: dict[str, Any]) -> pd.DataFrame:

@@ -6,18 +6,37 @@ and, for ``--quick``, reduced ``[grid]`` sections that replace the files' own (a
 single value also shortens a reference, e.g. ``"reference.hold" = { values = [1.5] }``). An item
 without a quick grid for some file runs that file in full in ``--quick``; ``quick=False`` leaves the
 item out of ``--quick`` altogether (the report says so).
+
+Every reproduced item declares a :class:`Variant`: a reference or a twin deliberately wrong in the
+way the claim is about (another b in the bound, a shifted optimum, the safety routine on where the
+claim is about it off). The report applies the same check to it; a check that agrees there too does
+not discriminate (:class:`labrunner.reproduce.verdict.Judged`). Variants reuse the pack's runs —
+a reference passed to the check (``ref``) or another campaign of the item in a file's place
+(``files``) — so they cost no runs.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 T = "campaigns/thesis/"
 V = "campaigns/valve-paper/"
 P = "campaigns/plate-paper/"
 TABLE3 = ("horizontal", "tilt", "actuator-offset", "actuator-gain", "sensor")
 _VALVE_SHORT = '\n"reference.transition" = { values = [1.5] }\n"reference.hold" = { values = [1.5] }'
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A falsification variant: what is wrong in it, the check's references it replaces (``ref``, keys
+    of the check's ``ref`` argument) and the item's files whose runs stand in for others (``files``:
+    slot → file of the same item)."""
+
+    what: str
+    ref: Mapping[str, Any] = field(default_factory=dict)
+    files: Mapping[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -30,12 +49,14 @@ class Item:
     place: str  # section, figure, table, equation of the claim
     files: tuple[str, ...]  # empty: not reproduced (``reason`` says why)
     claim: str  # the claim as the source states it
-    check: str  # name of the check function (labrunner.reproduce.checks, checks_walks, checks_papers)
+    check: str  # name of the check function (labrunner.reproduce.checks*: motor, walks, valve, plate, calibration)
     tolerance: str = ""  # the tolerance the check applies and why it is that
     calibration: str = ""  # what of the source the twin was built or calibrated on (not counted as agreement)
     quick_grids: Mapping[str, str] = field(default_factory=dict)  # file → [grid] body for --quick
     quick: bool = True
     reason: str = ""  # why an item without files is not reproduced
+    variant: Variant | None = None  # the falsification variant (None: not reproduced, or not a verdict)
+    flips: str = ""  # why the quick and full grids give different verdicts, where they do
 
     @property
     def reproduced(self) -> bool:
@@ -60,6 +81,15 @@ _DIFF_QUICK = (
 )
 _WALKS = ("campaigns/guided/polack.toml", "campaigns/guided/guideline2-case1.toml")
 _WALK_TOL = "one rung of the 16-per-decade ladder (a factor 1.155): the procedure cannot place a gain closer"
+
+
+#: Variants shared by several items.
+_ALPHA2 = Variant("the table replaced by one listing every α = β = 2 window as unstable", ref={"table": ((2, None),)})
+
+
+def _wrong_b(factor: float, more: str = "", **ref: Any) -> Variant:
+    """The bounds computed with b × ``factor`` (another b), plus the other wrong references ``ref``."""
+    return Variant(f"the bounds computed with b × {factor:g}{more}", ref={"bound": {"b": factor}, **ref})
 
 
 def _not(id_: str, title: str, source: str, place: str, claim: str, reason: str) -> Item:
@@ -102,6 +132,7 @@ ITEMS: tuple[Item, ...] = (
         "exact set: the twin's unstable grid points must be the table's entries on the grid (matched on α and the "
         "realised cutoff within 5 %: the thesis's cutoffs and labrunner's differ by up to 4 %, neighbouring windows "
         "by at least 10 %)",
+        variant=_ALPHA2,
     ),
     _not(
         "3.4-3.5",
@@ -123,6 +154,7 @@ ITEMS: tuple[Item, ...] = (
             "unstable_differentiators",
             "exact set, realised cutoffs matched within 5 % (see item 3.3)",
             quick_grids={} if n == 7 else {T + f"fig3-0{n}-angle-fs{'200' if n == 8 else '1000'}.toml": _DIFF_QUICK},
+            variant=_ALPHA2,
         )
         for n, fs, claim in (
             (
@@ -133,6 +165,25 @@ ITEMS: tuple[Item, ...] = (
             (8, "200 Hz", "Unstable (aborted): α = β = 2 at realised ω_c = 163, 195, 260 and 3 at 215 rad/s."),
             (9, "1000 Hz", "Unstable: α = β = 2 at realised ω_c = 153, 177, 206 and 3 at 179, 207 rad/s."),
         )
+    ),
+    Item(
+        "calib-motor",
+        "The motor twin's backlash: calibrated on Fig. 3.21, validated on Table 3.1",
+        "thesis",
+        "Sec. 3.5.3, Fig. 3.21 (calibration); Sec. 3.4.1, Table 3.1 (validation)",
+        (T + "calib-backlash-feedforward.toml", T + "calib-backlash-table3-1.toml"),
+        "Fig. 3.21: the feed-forward stage is aborted below γ_Ω = 64.93 (the twin as shipped: below 48.7); "
+        "Table 3.1: α = β = 1 at realised ω_c = 122, 163, 244; 2 at 195, 260; 3 at 215 rad/s are unstable.",
+        "calib_backlash",
+        "calibration: the backlash of the grid whose edge is nearest 64.93 (the residual in 1/16-decade rungs is "
+        "reported, not judged); validation: Table 3.1's exact set as item 3.3",
+        "Fitted: the gearbox backlash (assumed 0.02 rad in rigs/dcmotor-sim.toml), on Fig. 3.21's feed-forward edge "
+        "only; Table 3.1 is not used in the fit.",
+        {
+            T + "calib-backlash-table3-1.toml": '"differentiator.omega_c" = { linspace = [25.0, 200.0], num = 8 }\n'
+            '"differentiator.alpha" = { values = [1, 2, 3, 4, 5, 6, 7, 8] }\n"rig_parameters.backlash" = { values = [0.25] }'
+        },
+        variant=Variant("calibrated on a wrong edge (γ_Ω = 48.7, the shipped twin's)", ref={"edge": 48.7}),
     ),
     Item(
         "3.10",
@@ -150,6 +201,7 @@ ITEMS: tuple[Item, ...] = (
             "campaigns/dcmotor-velocity-gamma-kp.toml": '"controller.gamma" = { log10 = [0.0, 4.0], num = 9 }\n'
             '"controller.k_p" = { log10 = [-1.0, 3.0], num = 9 }'
         },
+        variant=_wrong_b(0.25),
     ),
     Item(
         "3.11",
@@ -163,6 +215,9 @@ ITEMS: tuple[Item, ...] = (
         "'alike': every run of a line in one observed class and the line's RMS spread (max/min − 1) below the RMS "
         "gap to its neighbouring line — the ratio must separate the lines more than the individual gains move a line",
         "The thesis draws the lines only; the campaign's ratios (2, 6.3, 20) and products are the pack's choice.",
+        variant=Variant(
+            "lines of constant γ_Ω·k_p in place of γ_Ω/k_p (the wrong invariant)", ref={"invariant": "product"}
+        ),
     ),
     _not(
         "3.12",
@@ -185,19 +240,34 @@ ITEMS: tuple[Item, ...] = (
         _BOUND_TOL + "; the optimum's k_d interval as printed",
         _TWIN_IS_MODEL + " (2.53)–(2.54) are used as corrected (SEED-NOTES: the thesis's k_d bound is wrong).",
         {"campaigns/dcmotor-angle-kp-kd.toml": _KP_KD},
+        variant=_wrong_b(0.25, ", the optimum's interval a decade lower", kd_interval=(4.93, 11.95)),
+        flips="the full grid (1/4 decade) has k_p = 100, k_d = 1 completed more than a grid step beyond (2.58)–(2.59): "
+        "all its neighbours are predicted unstable; on the quick grid (1/2 decade) its neighbour k_d = 3.16 is "
+        "predicted stable, so the same run lies next to the boundary and does not count (grid resolution, not the "
+        "detector: the run is not flagged).",
     ),
     Item(
         "3.15",
         "Angle MFC, the white rectangle sampled finely",
         "thesis",
         "Sec. 3.5.2, Figs. 3.15, 3.20",
-        (T + "fig3-15-angle-kp-kd-fine.toml",),
+        (T + "fig3-15-angle-kp-kd-fine.toml", T + "fig3-16-safety-off.toml"),
         "The bounds (2.58)–(2.59) are quite accurate here; the region in the brown line is aborted by the safety "
         "routine although stable; the smallest RMS of e_θ lies at log10 k_p = 3.1875, log10 k_d = 1.9375.",
         "fine_kp_kd",
-        _BOUND_TOL + "; the optimum within one grid step of each axis (the quick grid contains the thesis's point)",
+        _BOUND_TOL + "; the bounds judged on the safety-off runs (the thesis reads the brown region as stable runs "
+        "falsely aborted, Fig. 3.16); the optimum within one grid step of each axis, among the safety-off runs "
+        "(Fig. 3.20's point is marked in Fig. 3.16 too; on the twin the routine aborts it, 1.7 % over the "
+        "|du/dt| limit); the quick grid contains the thesis's point",
         _TWIN_IS_MODEL,
-        {T + "fig3-15-angle-kp-kd-fine.toml": _FINE},
+        {T + "fig3-15-angle-kp-kd-fine.toml": _FINE, T + "fig3-16-safety-off.toml": _FINE},
+        variant=Variant(
+            "the safety-off runs in place of the safety-on ones (no routine to abort the brown region)",
+            files={T + "fig3-15-angle-kp-kd-fine.toml": T + "fig3-16-safety-off.toml"},
+        ),
+        flips="the full rectangle (1/16 decade) holds k_p = 1334, k_d = 31.6 and k_p = 2054, k_d = 86.6, beyond the "
+        "bound by more than a grid step, which complete stably with the routine off; the quick one (1/8 decade) "
+        "holds neither (grid resolution).",
     ),
     Item(
         "3.16",
@@ -211,6 +281,12 @@ ITEMS: tuple[Item, ...] = (
         "every such run; 'at ±12 V': the detector's saturated oscillation (≥ 2 limit hits per second) or pinned input",
         "Run on the twin only: the thesis made three such runs on the motor.",
         {T + "fig3-15-angle-kp-kd-fine.toml": _FINE, T + "fig3-16-safety-off.toml": _FINE},
+        variant=Variant(
+            "the safety-on runs in place of the safety-off ones",
+            files={T + "fig3-16-safety-off.toml": T + "fig3-15-angle-kp-kd-fine.toml"},
+        ),
+        flips="on the full rectangle 8 of the 100 points beyond the bound do not reach ±12 V: 6 oscillate below "
+        "the limits, 2 are stable (see item 3.15); the quick rectangle's 16 all do (grid resolution).",
     ),
     Item(
         "3.17",
@@ -224,6 +300,11 @@ ITEMS: tuple[Item, ...] = (
         _BOUND_TOL,
         _TWIN_IS_MODEL,
         {T + "fig3-17-angle-kp-kd-gamma-1.1b.toml": _KP_KD},
+        variant=_wrong_b(0.25),
+        flips="on the full grid (1/4 decade) four predicted-stable points at k_d ≤ 10 are unstable: k_p = 177.8, "
+        "k_d = 5.6 aborted, and k_p = 56.2 at k_d = 1, 1.8, 3.2 flagged by the growth rule alone on runs holding two "
+        "periods (undecided; the abort alone keeps the verdict); the quick grid (1/2 decade) has neither k_p, and "
+        "its 16 such points all complete (grid resolution).",
     ),
     Item(
         "3.18",
@@ -242,6 +323,10 @@ ITEMS: tuple[Item, ...] = (
             T + "fig3-18-safety-off.toml": '"controller.k_p" = { log10 = [0.0, 4.0], num = 9 }\n'
             '"controller.k_d" = { log10 = [0.0, 1.0], num = 5 }'
         },
+        variant=_wrong_b(0.25),
+        flips="on the full grid three predicted-stable points are flagged, each by the growth rule alone on a run "
+        "holding two periods of its swing, so the full verdict is undecided; the quick grid's 22 such points are "
+        "none flagged (the slow ~1.3 s cycles there are the detector's known miss, tests/data/oscillation).",
     ),
     Item(
         "3.19",
@@ -255,6 +340,10 @@ ITEMS: tuple[Item, ...] = (
         "every point below k_d,min (labrunner's solver) whose k_p is predicted stable just above k_d,min",
         _TWIN_IS_MODEL,
         {T + "fig3-19-angle-kp-kd-gamma-0.9b.toml": _KP_KD},
+        variant=_wrong_b(0.25),
+        flips="on the full grid one of the 24 points below k_d,min is unstable only by growth flags on 2.5 s runs "
+        "holding two periods of their swing, so the full verdict is undecided; the quick grid's 10 such points all "
+        "complete.",
     ),
     Item(
         "3.21",
@@ -265,7 +354,9 @@ ITEMS: tuple[Item, ...] = (
         "Feed-forward (k_p = 0, γ_Ω from 10⁶ down in 1/16 decades): aborted below γ_Ω = 64.93, 74.98 chosen; "
         "feedback (k_p from 0.1 up): k_p = 31.62 gives the smallest error.",
         "polack_stages",
-        _WALK_TOL,
+        _WALK_TOL + "; the chosen loop must not oscillate (the detector's flag: the thesis's choice is a "
+        "satisfactory loop)",
+        variant=Variant("the thesis's gains ten times larger", ref={"scale": 10.0}),
     ),
     Item(
         "3.22",
@@ -276,6 +367,7 @@ ITEMS: tuple[Item, ...] = (
         "γ_Ω = 64.93 gives a smaller RMS but oscillates as Ω_r returns to zero, so 74.98 is chosen.",
         "backoff",
         "the oscillation detector's flag (labrunner.oscillation) decides 'oscillates'",
+        variant=Variant("a back-off to the next smaller γ_Ω (the wrong direction)", ref={"direction": -1}),
     ),
     Item(
         "3.23",
@@ -286,6 +378,7 @@ ITEMS: tuple[Item, ...] = (
         "From γ̃_Ω = 10⁶, k̃_p = 0.1 along (3.7), γ_Ω = 421.69, k_p = 237.13 reach Polack's RMS(e_Ω) = 0.29 rad/s.",
         "guideline2",
         _WALK_TOL + "; the RMS within 10 % (two printed digits)",
+        variant=Variant("the thesis's RMS and gains ten times larger", ref={"scale": 10.0}),
     ),
     Item(
         "3.5.3",
@@ -296,7 +389,11 @@ ITEMS: tuple[Item, ...] = (
         "Guideline 2 needs 54 steps to a satisfactory result, Polack et al. 107 (66 + 41).",
         "step_counts",
         "the claim's point, fewer steps; the counts are printed beside the thesis's (steps as the thesis counts them: "
-        "changes of the setting from the start to the choice)",
+        "changes of the setting from the start to the choice); undecided where Polack's chosen loop oscillates "
+        "(then the target is not the thesis's satisfactory loop)",
+        variant=Variant(
+            "Guideline 2 held to a target ten times smaller than Polack's RMS (a wrong target)", ref={"target": 0.1}
+        ),
     ),
     Item(
         "3.24",
@@ -306,7 +403,12 @@ ITEMS: tuple[Item, ...] = (
         _WALKS,
         "Guideline 2's result gives a less noisy input u than Polack's, since its γ_Ω is higher.",
         "input_noise",
-        "RMS of the sample-to-sample change of u at rest (t > 3.5 s): lower, no margin",
+        "RMS of the sample-to-sample change of u at rest (t > 3.5 s): lower, no margin; undecided where "
+        "Polack's chosen loop oscillates (then its input is not that of a tuned loop)",
+        variant=Variant(
+            "Guideline 2's noise compared with Polack's feed-forward run at γ_Ω = 10⁶ (a far higher γ_Ω)",
+            ref={"polack": "first"},
+        ),
     ),
     Item(
         "A.1",
@@ -320,6 +422,7 @@ ITEMS: tuple[Item, ...] = (
         "the relative RMS difference must fall from each point of line (A) to the next larger γ_Ω, no margin",
         "The twin's plant is (2.31) with friction, backlash and noise: the difference is those effects and the "
         "calibrated a, b's offset from 39.44, 108.55, not the real motor's η.",
+        variant=Variant("(A.8) evaluated with a wrong model: a = 0, b doubled", ref={"a": 0.0, "b": 2 * 108.55}),
     ),
     Item(
         "valve-5",
@@ -336,6 +439,7 @@ ITEMS: tuple[Item, ...] = (
             "campaigns/valve-gamma-kp.toml": '"controller.gamma" = { log10 = [-2.0, 1.0], num = 4 }\n'
             '"controller.k_p" = { log10 = [0.0, 3.0], num = 4 }' + _VALVE_SHORT
         },
+        variant=Variant("the oscillating runs' RMS required at 20–30 l/min", ref={"rms": (20.0, 30.0)}),
     ),
     _not(
         "valve-6",
@@ -362,6 +466,7 @@ ITEMS: tuple[Item, ...] = (
             '"controller.gamma" = { log10 = [-2.0, 1.0], num = 4 }\n'
             '"controller.k_p" = { log10 = [0.0, 3.0], num = 4 }' + _VALVE_SHORT
         },
+        variant=Variant("No. 1's map shifted by two grid steps along k_p", ref={"shift": 2}),
     ),
     Item(
         "valve-8",
@@ -373,8 +478,13 @@ ITEMS: tuple[Item, ...] = (
         "with a delay, (B) is more aggressive with smaller errors, on (A) the system starts oscillating but the "
         "current is not reaching i_max.",
         "valve_lines",
-        "'alike' as item 3.11; 'oscillating' by the detector's flag (labrunner.oscillation); orderings without margin",
+        "'alike' as item 3.11; 'oscillating' by the detector's flag (labrunner.oscillation); orderings without "
+        "margin; the paper's chosen point (γ = 0.4, k_p = 30), through which the campaign draws line (A), must not "
+        "oscillate (the paper calls it a good trade-off)",
         "The paper draws the lines only; the campaign's ratios are the pack's choice.",
+        variant=Variant(
+            "lines of constant γ·k_p in place of γ/k_p (the wrong invariant)", ref={"invariant": "product"}
+        ),
     ),
     Item(
         "valve-9-10",
@@ -385,6 +495,9 @@ ITEMS: tuple[Item, ...] = (
         "The MFC always results in a lower RMS of e_q than the FFC, for every end value of the commanded flow.",
         "mfc_vs_ffc",
         "at every end value, no margin",
+        variant=Variant(
+            "the MFC's runs in place of the FFC's", files={V + "fig09-10-ffc.toml": V + "fig09-10-mfc.toml"}
+        ),
         quick_grids={
             V
             + "fig09-10-mfc.toml": '"reference.levels" = { values = [[2.0, 4.0, 2.0], [2.0, 10.0, 2.0], [2.0, 14.0, 2.0]] }',
@@ -411,6 +524,10 @@ ITEMS: tuple[Item, ...] = (
         "plate_differentiators",
         "'larger': every completed α ≤ 3 run above every completed α > 3 run at the same ω_c; 'smallest': the grid's argmin",
         quick=False,
+        variant=Variant(
+            "the orders swapped (α = β ∈ {4..} worse) and the optimum at α = 2, ω_c = 540",
+            ref={"split": -1, "best": (2, 540.0)},
+        ),
     ),
     Item(
         "plate-5",
@@ -425,6 +542,7 @@ ITEMS: tuple[Item, ...] = (
         "the −200 dB line and the orderings as stated; the printed values are shown but not judged (the paper does "
         "not state the frequency range of J_2; labrunner integrates up to the Nyquist frequency)",
         "No twin: labrunner's discretised differentiators (f_s = 32 kHz) against the paper's computation.",
+        variant=Variant("the acceptability line moved to −100 dB", ref={"line": -100.0}),
     ),
     _not(
         "plate-6",
@@ -446,6 +564,7 @@ ITEMS: tuple[Item, ...] = (
         "'near': the paper's point (the grid point within half a step of it) is the argmin of each RMS(ê_j) or a "
         "grid neighbour of it (1/4-decade grid)",
         quick=False,
+        variant=Variant("the paper's point moved to k_p = 1000 1/s², k_d = 31.6 1/s", ref={"point": (1000.0, 31.6)}),
     ),
     Item(
         "plate-8",
@@ -458,6 +577,9 @@ ITEMS: tuple[Item, ...] = (
         "plate_input_gains",
         "orderings and stability as stated, no margin",
         quick=False,
+        variant=Variant(
+            "the lowest-RMS γ_v and the unstable γ_v, γ_F moved to 1.2", ref={"v_best": 1.2, "unstable": 1.2}
+        ),
     ),
     Item(
         "plate-13",
@@ -470,6 +592,7 @@ ITEMS: tuple[Item, ...] = (
         "fault_minima",
         "orderings of |min ê_1| without margin; the 150 ms not judged (no criterion printed)",
         "The fault rig is the plate twin plus the paper's +0.4 A on i_1 (Sec. 4.4.1), from 2.5 s.",
+        variant=Variant("the MFC laws required at a tenth of the MBC's deviation", ref={"factor": 0.1}),
     ),
     _not(
         "plate-11-12-14-15",
@@ -493,6 +616,10 @@ ITEMS: tuple[Item, ...] = (
         "table3",
         "'almost half': MFC v / MBC in 0.40–0.73 (the paper's own ratios 0.49–0.63, ±0.1); orderings without margin",
         "The fault rigs are the plate twin plus the paper's fault sizes (Sec. 4.4).",
+        variant=Variant(
+            "'almost half' read as 0.9–1.1 and the sensor fault's order reversed",
+            ref={"half": (0.9, 1.1), "sensor": -1},
+        ),
     ),
 )
 

@@ -74,17 +74,19 @@ def run_file(path: Path, directory: Path, *, workers: int | None, stream: TextIO
 
 def stale_detector(directory: Path) -> bool:
     """Whether runs of ``directory`` were committed by an older oscillation detector (their metrics lack
-    one of its columns): their metrics are then recomputed from the logs, so that every run of the
-    pack is judged by the same detector."""
+    one of its columns or carry another ``detector_version``): their metrics are then recomputed from
+    the logs, so that every run of the pack is judged by the same detector."""
     import json
 
     from labrunner.campaign.ledger import Ledger
-    from labrunner.oscillation import DETECTOR_METRICS
+    from labrunner.oscillation import DETECTOR_METRICS, VERSION
 
     with Ledger.open_readonly(directory) as ledger:
         for row in ledger.rows(("done", "aborted")):
             metrics = json.loads(row["metrics_json"]) if row["metrics_json"] else {}
-            if "oscillating" in metrics and not set(DETECTOR_METRICS) <= set(metrics):
+            if "oscillating" in metrics and (
+                not set(DETECTOR_METRICS) <= set(metrics) or metrics["detector_version"] != VERSION
+            ):
                 return True
     return False
 
