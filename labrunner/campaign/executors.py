@@ -201,14 +201,15 @@ def _stop_signals_held() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
 
 
-def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
+def _pool(workers: int | None, lock_fd: int | None, signals: bool = False) -> Iterator[ExecutorHandle]:
     """A fork pool whose workers are forked now (a fork pool forks every worker at its first
     submit), the stop signals held until their initializer ignores them. The runner opens it
     before its own signal handling starts and shuts it down after that ends: a Ctrl-C then
-    raises KeyboardInterrupt, held until the workers are down."""
+    raises KeyboardInterrupt, held until the workers are down. ``signals``: the slots carry
+    their runs' signals too, for the live view (64 kB of shared memory a slot: only with it)."""
     n = workers or len(os.sched_getaffinity(0))
     context = multiprocessing.get_context("fork")
-    ticks = live.LiveTicks(QUEUE_DEPTH * n, context, signals=True)
+    ticks = live.LiveTicks(QUEUE_DEPTH * n, context, signals=signals)
     pool = ProcessPoolExecutor(
         max_workers=n, mp_context=context, initializer=_init_worker, initargs=(lock_fd, ticks.shared)
     )
@@ -308,12 +309,13 @@ def _dask_session(Client: Any, url: str, workers: int | None) -> Iterator[Execut
 
 @contextlib.contextmanager
 def open_executor(
-    *, real_rig: bool, workers: int | None, url: str | None, lock_fd: int | None = None
+    *, real_rig: bool, workers: int | None, url: str | None, lock_fd: int | None = None, signals: bool = False
 ) -> Iterator[ExecutorHandle]:
-    """The executor for this campaign (see the module docstring)."""
+    """The executor for this campaign (see the module docstring); ``signals``: a pool's workers
+    share their runs' signals (the live view)."""
     if real_rig:
         yield ExecutorHandle(InProcessExecutor(), 1)
     elif url:
         yield from _dask(url, workers)
     else:
-        yield from _pool(workers, lock_fd)
+        yield from _pool(workers, lock_fd, signals)

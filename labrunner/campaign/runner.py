@@ -175,7 +175,7 @@ def _early_pool(
     once the campaign is known to be good."""
     if opts.executor or not campaign.rig_info.simulated:
         return contextlib.nullcontext()
-    return open_executor(real_rig=False, workers=opts.workers, url=None, lock_fd=lock_fd)
+    return open_executor(real_rig=False, workers=opts.workers, url=None, lock_fd=lock_fd, signals=opts.live is not None)
 
 
 def _check_unchanged(ledger: Ledger, link: Mapping[str, str | None] | None = None) -> spec.Campaign:
@@ -342,7 +342,13 @@ def _execute(
             (
                 contextlib.nullcontext(pool)
                 if pool is not None
-                else open_executor(real_rig=real, workers=opts.workers, url=opts.executor, lock_fd=lock.fd)
+                else open_executor(
+                    real_rig=real,
+                    workers=opts.workers,
+                    url=opts.executor,
+                    lock_fd=lock.fd,
+                    signals=opts.live is not None,
+                )
             ) as handle,
         ):
             scheduler = Scheduler(
