@@ -61,4 +61,5 @@ def test_every_benchmark_is_run_here_or_timed_by_bench_campaign():
     (tests/test_naive_reference.py); motor_campaign and synthetic_ledger are helpers the others
     import (bench_scale's run above builds a synthetic ledger)."""
     by_hand = {"bench_campaign.py", "bench_rigs.py", "naive_reference.py", "motor_campaign.py", "synthetic_ledger.py"}
+    by_hand.add("bench_firmware_m4.py")  # run on the Cortex-M4 images by tests/test_firmware_m4.py
     assert {p.name for p in BENCHMARKS.glob("*.py")} == set(QUICK) | set(SLOW) | by_hand

@@ -17,7 +17,7 @@ def test_a_sweep_with_a_derived_gain_names_its_range_and_predicts_along_it(proje
     seen = []
     monkeypatch.setattr(figures, "map_jobs", lambda *a, _f=figures.map_jobs: seen.append((a, _f(*a))) or seen[-1][1])
     analyse(project / "data" / "s", workers=1, progress=False)
-    (frame, _, theories), jobs = seen[0]
+    (frame, _, theories, *_), jobs = seen[0]
     [job] = jobs
     title = job.kwargs["title"]
     kp = frame["controller.k_p"]

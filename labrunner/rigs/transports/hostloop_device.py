@@ -29,7 +29,8 @@ class HostLoopDevice:
         n_in = len(emulator.rig.info.inputs)
         self.n_out = len(emulator.rig.info.outputs)
         self.setup: dict[int, float | int] = {}
-        self.k = 0
+        self.k = 0  # the tick number (its low 16 bits are the frames' seq)
+        self.ran = 0  # ticks run since SETUP: an unpaced device's clock (not k, which a test may move)
         self.period = 0.0
         self.t0 = self.next_tick = 0.0
         self.pending = np.zeros((1, n_in))  # u_k as it arrives
@@ -59,7 +60,7 @@ class HostLoopDevice:
         self.setup = {}
         y = emu.rig.reset(1, [seed], float(fs))
         emu.begin_run(watchdog)
-        self.k, self.period, self.committed, self.got = 0, 1.0 / fs, -1, set()
+        self.k, self.ran, self.period, self.committed, self.got = 0, 0, 1.0 / fs, -1, set()
         self.applied = np.asarray([emu.rig.info.safe_input], dtype=float)
         self.pending = self.applied.copy()
         self.t0 = time.monotonic()
@@ -113,9 +114,10 @@ class HostLoopDevice:
             self.applied = self.pending.copy()
         y = self.emu.rig.step(self.applied)
         self.k += 1
+        self.ran += 1
         self.emu.seq = self.k
         self.got = set()
-        stamp = now - self.t0 if self.emu.paced else self.k * self.period
+        stamp = now - self.t0 if self.emu.paced else self.ran * self.period
         self._send(y, (m.FLAG_LATE if late else 0) | (m.FLAG_OVERRUN if overrun else 0), round(stamp * 1e6))
 
     def _send(self, y: np.ndarray, flags: int, stamp_us: int) -> None:
