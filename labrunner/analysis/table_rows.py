@@ -34,7 +34,7 @@ LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")
 #: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
 #: while it is turned into columns) are freed before the next is read, so that building the table
 #: of 10^6 points holds one chunk's, not all.
-CHUNK_ROWS = 2_000
+CHUNK_ROWS = 10000
 #: A chunk of ledger rows, column-wise: column name → one value a row.
 Chunk = Mapping[str, Sequence[Any]]
 #: The ledger columns the table reads (an older ledger lacks some: read as None).
