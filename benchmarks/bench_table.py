@@ -6,8 +6,9 @@ their fingerprints in the ledger), each measured in a fresh process: the imports
 copy of the built one), ``select(k_p=...)`` of one grid column, ``run(id)`` of one point and its
 signals, and the process's peak RSS (the kernel's high-water mark, imports included).
 
-Run: ``nice python benchmarks/bench_table.py [--max 1000000] [--work DIR]`` (DIR needs ~1.2 kB of
-disk a point for the ledger). ``PYTHONPATH`` chooses the labrunner measured (its ``table()`` is
+Run: ``nice python benchmarks/bench_table.py [--max 1000000] [--work DIR] [--ledgers DIR]`` (DIR
+needs ~1.2 kB of disk a point for the ledger; ``--ledgers``: the campaigns are kept there and reused
+by the next run, the 10^6 one takes ~7 min to build). ``PYTHONPATH`` chooses the labrunner measured (its ``table()`` is
 timed by this same script, so that an older checkout can be measured beside the current one).
 The CPU time is the figure to compare: this 2-core machine is shared by other jobs, and wall time
 follows the load.
@@ -81,6 +82,9 @@ def main() -> None:
     parser.add_argument("--max", type=int, default=100_000, help="largest campaign (points; default 100000)")
     parser.add_argument("--repeat", type=int, default=2, help="fresh processes per size (the fastest is printed)")
     parser.add_argument("--work", type=Path, default=None, help="folder for the campaigns (default: a temporary one)")
+    parser.add_argument(
+        "--ledgers", type=Path, default=None, help="folder whose campaigns (table<N>) are built once and kept, reused"
+    )
     args = parser.parse_args()
     import synthetic_ledger
 
@@ -93,7 +97,11 @@ def main() -> None:
         side = min(100, math.isqrt(args.max))  # 10^4 first; less only when --max asks (a quick check)
         while side * side <= args.max:
             t0 = time.perf_counter()
-            directory = synthetic_ledger.make(work, f"table{side * side}", side, side)
+            directory = (args.ledgers or work) / f"table{side * side}"
+            if directory.exists():  # kept from an earlier run (--ledgers): this code's plan digest
+                synthetic_ledger.restamp(directory)
+            else:
+                synthetic_ledger.make(directory.parent, directory.name, side, side)
             built = time.perf_counter() - t0
             runs = [measure(directory) for _ in range(args.repeat)]
             r = min(runs, key=lambda x: x["table_cpu_s"])
@@ -106,7 +114,8 @@ def main() -> None:
                 f"load {os.getloadavg()[0]:.1f}; table() wall / CPU of each run: {each} s)",
                 flush=True,
             )
-            shutil.rmtree(directory)
+            if args.ledgers is None:
+                shutil.rmtree(directory)
             side = round(side * 10**0.5)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -43,21 +43,26 @@ _PARALLEL_MIN = 64
 _MAGIC = b"\x89MCAP0\r\n"
 
 
-def fingerprints(paths: Sequence[str | None]) -> list[Fingerprint | None]:
-    """:func:`~labrunner.run_identity.fingerprint` of each path, None where there is no path or
-    no file: one ``stat`` each in one loop (a function call a row cost as much as the ``stat``)."""
+def fingerprints(directory: Path, paths: Sequence[str | None]) -> list[Fingerprint | None]:
+    """:func:`~labrunner.run_identity.fingerprint` of each path (relative to ``directory``, or
+    absolute), None where there is no path or no file: one ``stat`` each in one loop, relative to
+    the directory's descriptor (no path joined a row, a shorter lookup; no function call a row)."""
     out: list[Fingerprint | None] = []
     append, stat = out.append, os.stat
-    for path in paths:
-        if path is None:
-            append(None)
-            continue
-        try:
-            st = stat(path)
-        except OSError:
-            append(None)
-            continue
-        append((st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino))
+    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        for path in paths:
+            if not path:
+                append(None)
+                continue
+            try:
+                st = stat(path, dir_fd=fd)  # an absolute path is taken as such (fstatat)
+            except OSError:
+                append(None)
+                continue
+            append((st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino))
+    finally:
+        os.close(fd)
     return out
 
 
@@ -100,7 +105,7 @@ class LogChecks:
         mtime = size.copy()
         root = str(self.directory) + os.sep  # joined as text: a tenth of pathlib's cost a row
         rels = rows["log_path"]
-        found = fingerprints([(r if r.startswith(os.sep) else root + r) if r else None for r in rels])
+        found = fingerprints(self.directory, rels)
         recorded = list(zip(*(rows.get(c) or [None] * n for c in FINGERPRINT_COLUMNS)))
         # a row whose log has its recorded fingerprint is proved and whole, and needs nothing more
         # unless its metrics are to be read: only the others are looked at one by one
