@@ -58,7 +58,15 @@ def ledger_chunks(db: sqlite3.Connection) -> Iterator[dict[str, list[Any]]]:
     row from SQLite, transposed (a dict a row would cost as much as the rest of the table)."""
     present = {r[1] for r in db.execute("PRAGMA table_info(points)")}
     names = [c for c in LEDGER_COLUMNS if c in present]
-    cursor = db.execute(f"SELECT {', '.join(names)} FROM points ORDER BY seq")
+    # the ledger's own metrics only where no stored metrics replace them (a float object a row less)
+    own = (
+        "CASE WHEN metrics_json IS NULL OR metrics_json = '' THEN {0} END AS {0}"
+        if "metrics_json" in present
+        else "{0}"
+    )
+    cursor = db.execute(
+        f"SELECT {', '.join(own.format(c) if c in LEDGER_METRICS else c for c in names)} FROM points ORDER BY seq"
+    )
     cursor.row_factory = None
     while rows := cursor.fetchmany(CHUNK_ROWS):
         yield dict(zip(names, map(list, zip(*rows))))
