@@ -2,8 +2,8 @@
 
 Each chunk is built a column at a time, not a record a row: the ledger's JSON texts of a column
 are parsed together — the metrics (the widest: ~360 bytes a row) by Arrow's JSON reader straight
-into typed arrays, parameters and outcomes by one ``json.loads`` of the chunk's texts joined as
-an array — and each column is handed to pandas as one list or array. The result is the frame of
+into typed arrays, parameters likewise, outcomes by one ``json.loads`` of the chunk's distinct texts joined
+as an array (an outcome's columns are worked out once per distinct text) — and each column is handed to pandas as one list or array. The result is the frame of
 per-row records the table was built from before (``pd.DataFrame.from_records``), value for value
 and type for type (tests/test_analysis_table_rows.py checks it against that path): where Arrow
 would type a metric otherwise (a text, a boolean, a number and a boolean in one column) the
@@ -32,9 +32,10 @@ from labrunner.run_identity import FINGERPRINT_COLUMNS
 #: The ledger's own metric columns (older ledgers hold only these, no ``metrics_json``).
 LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")
 #: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
-#: while it is turned into columns) are freed before the next is read, so that building the table
-#: of 10^6 points holds one chunk's, not all.
-CHUNK_ROWS = 10000
+#: while it is turned into columns, ~46 MB) are freed before the next is read, so that building the
+#: table of 10^6 points holds one chunk's, not all; pandas' fixed cost a column a chunk made 2000
+#: rows a chunk ~20 % slower at 10^5 (benchmarks/bench_table.py).
+CHUNK_ROWS = 10_000
 #: A chunk of ledger rows, column-wise: column name → one value a row.
 Chunk = Mapping[str, Sequence[Any]]
 #: The ledger columns the table reads (an older ledger lacks some: read as None).
