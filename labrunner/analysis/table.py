@@ -179,7 +179,7 @@ def ledger_frame(
 
 
 #: Chunks whose pieces of a column are joined as soon as they are all there: a piece of one chunk
-#: (40 kB of floats) lies in the C heap, where the many freed ones would stay as the process's
+#: (80 kB of floats) lies in the C heap, where the many freed ones would stay as the process's
 #: memory; pieces of 16 chunks are large enough to be mapped and unmapped on their own.
 _MERGE = 32
 

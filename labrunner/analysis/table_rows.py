@@ -2,8 +2,8 @@
 
 Each chunk is built a column at a time, not a record a row: the ledger's JSON texts of a column
 are parsed together — the metrics (the widest: ~360 bytes a row) by Arrow's JSON reader straight
-into typed arrays, parameters and outcomes by one ``json.loads`` of the chunk's texts joined as
-an array — and each column is handed to pandas as one list or array. The result is the frame of
+into typed arrays, parameters likewise, outcomes by one ``json.loads`` of the chunk's distinct texts joined
+as an array (an outcome's columns are worked out once per distinct text) — and each column is handed to pandas as one list or array. The result is the frame of
 per-row records the table was built from before (``pd.DataFrame.from_records``), value for value
 and type for type (tests/test_analysis_table_rows.py checks it against that path): where Arrow
 would type a metric otherwise (a text, a boolean, a number and a boolean in one column) the
@@ -32,9 +32,10 @@ from labrunner.run_identity import FINGERPRINT_COLUMNS
 #: The ledger's own metric columns (older ledgers hold only these, no ``metrics_json``).
 LEDGER_METRICS = ("rms_error", "input_energy", "max_abs_input")
 #: Ledger rows turned into table rows at a time: the Python objects of one chunk (~4.6 kB a row
-#: while it is turned into columns) are freed before the next is read, so that building the table
-#: of 10^6 points holds one chunk's, not all.
-CHUNK_ROWS = 2_000
+#: while it is turned into columns, ~46 MB) are freed before the next is read, so that building the
+#: table of 10^6 points holds one chunk's, not all; pandas' fixed cost a column a chunk made 2000
+#: rows a chunk ~20 % slower at 10^5 (benchmarks/bench_table.py).
+CHUNK_ROWS = 10_000
 #: A chunk of ledger rows, column-wise: column name → one value a row.
 Chunk = Mapping[str, Sequence[Any]]
 #: The ledger columns the table reads (an older ledger lacks some: read as None).
@@ -58,7 +59,15 @@ def ledger_chunks(db: sqlite3.Connection) -> Iterator[dict[str, list[Any]]]:
     row from SQLite, transposed (a dict a row would cost as much as the rest of the table)."""
     present = {r[1] for r in db.execute("PRAGMA table_info(points)")}
     names = [c for c in LEDGER_COLUMNS if c in present]
-    cursor = db.execute(f"SELECT {', '.join(names)} FROM points ORDER BY seq")
+    # the ledger's own metrics only where no stored metrics replace them (a float object a row less)
+    own = (
+        "CASE WHEN metrics_json IS NULL OR metrics_json = '' THEN {0} END AS {0}"
+        if "metrics_json" in present
+        else "{0}"
+    )
+    cursor = db.execute(
+        f"SELECT {', '.join(own.format(c) if c in LEDGER_METRICS else c for c in names)} FROM points ORDER BY seq"
+    )
     cursor.row_factory = None
     while rows := cursor.fetchmany(CHUNK_ROWS):
         yield dict(zip(names, map(list, zip(*rows))))
@@ -85,14 +94,6 @@ def parsed(texts: Sequence[str | None]) -> list[Any]:
     return json.loads("[" + ",".join(t or "null" for t in texts) + "]")
 
 
-def _distinct_parsed(texts: Sequence[str | None]) -> list[Any]:
-    """:func:`parsed`, each distinct text once (a completed run's outcome is the same text in
-    every such row); rows of one text share its parsed value: read it, never change it."""
-    distinct = dict.fromkeys(texts)
-    by_text = dict(zip(distinct, parsed(list(distinct))))
-    return [by_text[t] for t in texts]
-
-
 def _arrow_table(texts: Sequence[str]) -> Any:
     """JSON objects, one a text, as an Arrow table (a column a key, in the order keys first
     appear); None where Arrow cannot read them as such."""
@@ -106,10 +107,10 @@ def _arrow_table(texts: Sequence[str]) -> Any:
         return None
 
 
-def _arrow_parameters(texts: Sequence[str]) -> list[dict[str, Any]] | None:
-    """The parameters of a chunk's rows, their scalars only (a list or table is no column), from
-    Arrow's reading; None (read them a row at a time) unless every row gives every key a number,
-    a text or a boolean (Arrow would make a date of a text that looks like one)."""
+def _arrow_parameters(texts: Sequence[str]) -> dict[str, list[Any]] | None:
+    """The parameters of a chunk's rows, their scalars only (a list or table is no column), as
+    columns from Arrow's reading; None (read them a row at a time) unless every row gives every
+    key a number, a text or a boolean (Arrow would make a date of a text that looks like one)."""
     import pyarrow as pa
 
     table = _arrow_table(texts)
@@ -129,7 +130,18 @@ def _arrow_parameters(texts: Sequence[str]) -> list[dict[str, Any]] | None:
             columns[name] = column.to_pylist()
         elif not (pa.types.is_list(kind) or pa.types.is_struct(kind)):
             return None
-    return [dict(zip(columns, values)) for values in zip(*columns.values())] if columns else [{} for _ in texts]
+    return columns
+
+
+def _parameter_columns(texts: Sequence[str]) -> tuple[dict[str, Any], list[tuple[str, ...]]]:
+    """The chunk's parameter columns (scalars only; NaN where a row lacks a key) and each row's
+    keys in its order: from Arrow (every row the same keys) or, failing it, a record a row."""
+    columns = _arrow_parameters(texts)
+    if columns is not None:
+        return columns, [tuple(columns)] * len(texts)
+    rows = [{k: v for k, v in p.items() if isinstance(v, _SCALARS)} for p in parsed(texts)]
+    shapes = [tuple(r) for r in rows]
+    return {k: [r.get(k, np.nan) for r in rows] for k in dict.fromkeys(itertools.chain(*shapes))}, shapes
 
 
 def _arrow_metrics(texts: Sequence[str]) -> dict[str, np.ndarray] | None:
@@ -202,35 +214,42 @@ def chunk_frame(chunk: Chunk) -> tuple[pd.DataFrame, list[int]]:
     details, parameters (scalars), metrics, a real rig's timing counts; and the positions of
     finished rows whose ledger holds no full metrics (their logs must be read)."""
     n = len(chunk["seq"])
-    outcomes = [o or {} for o in _distinct_parsed(chunk["outcome_json"])]
+    # an outcome's columns once per distinct text (a completed run's is the same in every such row)
+    distinct = dict.fromkeys(chunk["outcome_json"])
+    which = np.fromiter(map({t: k for k, t in enumerate(distinct)}.__getitem__, chunk["outcome_json"]), np.intp, n)
+    outcomes = [o or {} for o in parsed(list(distinct))]
+    timing = [timing_counts(o.get("diagnostics")) if "diagnostics" in o else {} for o in outcomes]
+    aborted = np.array(chunk["outcome"], dtype=object) == "aborted"
     texts = _column(chunk, "metrics_json")
     missing = [i for i, (t, p) in enumerate(zip(texts, chunk["log_path"])) if not t and p]
-    params = _arrow_parameters(chunk["parameters"]) or [
-        {k: v for k, v in p.items() if isinstance(v, _SCALARS)} for p in parsed(chunk["parameters"])
-    ]
-    timing = [timing_counts(o.get("diagnostics")) if "diagnostics" in o else {} for o in outcomes]
-    aborted = [o == "aborted" for o in chunk["outcome"]]
+    params, param_shapes = _parameter_columns(chunk["parameters"])
+
+    def per_row(values: list[Any], dtype: Any = object) -> np.ndarray:
+        return np.array(values, dtype=dtype)[which]
+
     columns: dict[str, Any] = {
         "seq": chunk["seq"],
         "id": chunk["id"],
         "outcome": [o or s for o, s in zip(chunk["outcome"], chunk["state"])],
-        "monitor": [o.get("monitor") for o in outcomes],
-        "abort_time": [as_float(o.get("time")) if a else np.nan for o, a in zip(outcomes, aborted)],
-        "abort_value": [as_float(o.get("value")) if a else np.nan for o, a in zip(outcomes, aborted)],
+        "monitor": per_row([o.get("monitor") for o in outcomes]),
+        "abort_time": np.where(aborted, per_row([as_float(o.get("time")) for o in outcomes], float), np.nan),
+        "abort_value": np.where(aborted, per_row([as_float(o.get("value")) for o in outcomes], float), np.nan),
         "attempts": chunk["attempts"],
         "log_path": chunk["log_path"],
-        "torn": [False] * n,
-        "law_check": [flag_of(o) if "diagnostics" in o else "" for o in outcomes],
-        "law_arithmetic": [arithmetic_of(o) if "diagnostics" in o else "" for o in outcomes],
+        "torn": np.zeros(n, dtype=bool),
+        "law_check": per_row([flag_of(o) if "diagnostics" in o else "" for o in outcomes]),
+        "law_arithmetic": per_row([arithmetic_of(o) if "diagnostics" in o else "" for o in outcomes]),
     }
     metrics, shapes = _metric_columns(chunk, texts) or _per_row_metrics(chunk, texts)
     # the other columns in the order their names first appear in the rows' parameters, metrics and
     # timing counts (as a frame of per-row records orders them; distinct shapes of rows are few)
     timed = dict.fromkeys(itertools.chain(*dict.fromkeys(map(tuple, timing))))
-    order = dict.fromkeys(zip(map(tuple, params), shapes, map(tuple, timing)))
+    order = dict.fromkeys(zip(param_shapes, shapes, (tuple(timing[k]) for k in which)))
     for key in dict.fromkeys(itertools.chain.from_iterable(itertools.chain(*shape) for shape in order)):
         if key in metrics:
             columns[key] = metrics[key]
+        elif key in timed:
+            columns[key] = per_row([d.get(key, np.nan) for d in timing], None)  # counts: NumPy types them
         else:
-            columns[key] = [d.get(key, np.nan) for d in (timing if key in timed else params)]
+            columns[key] = params[key]
     return pd.DataFrame(columns), missing
