@@ -64,11 +64,19 @@ def test_a_broken_vector_fails_the_replay(build, tmp_path):
     assert done.returncode == 1 and "FAIL" in done.stdout and "tick 49" in done.stdout
 
 
-def _conform(build: Path, tmp_path: Path, kind: str, rig: str, *args: str, device: tuple[str, ...] = ()) -> dict:
-    """``labrunner conform --json`` against ``labdevice --kind KIND --pty`` on a copy of rigs/RIG."""
+def _conform(
+    build: Path,
+    tmp_path: Path,
+    kind: str,
+    rig: str,
+    *args: str,
+    device: tuple[str, ...] = (),
+    binary: str = "labdevice",
+) -> dict:
+    """``labrunner conform --json`` against ``BINARY --kind KIND --pty`` on a copy of rigs/RIG."""
     node = {"dcmotor": 1, "valve": 2, "plate": 3}[kind]
     proc = subprocess.Popen(
-        [build / "labdevice", "--kind", kind, "--pty", "--node", str(node), *device], stdout=subprocess.PIPE, text=True
+        [build / binary, "--kind", kind, "--pty", "--node", str(node), *device], stdout=subprocess.PIPE, text=True
     )
     try:
         line = proc.stdout.readline().strip()
@@ -90,21 +98,28 @@ def _conform(build: Path, tmp_path: Path, kind: str, rig: str, *args: str, devic
         proc.wait(timeout=10)
 
 
+ARITHMETIC = {"labdevice": "float64", "labdevice32": "float32"}  # the host builds: -DLAB_FLOAT32 or not
+
+
 @pytest.mark.slow
+@pytest.mark.parametrize("binary", list(ARITHMETIC))
 @pytest.mark.parametrize(
     ("kind", "rig", "count"),
-    [("dcmotor", "dcmotor-serial.toml", 18), ("valve", "valve-serial.toml", 14), ("plate", "plate-serial.toml", 17)],
+    [("dcmotor", "dcmotor-serial.toml", 28), ("valve", "valve-serial.toml", 24), ("plate", "plate-serial.toml", 29)],
 )
-def test_conform_passes_every_check_against_the_host_build(build, tmp_path, kind, rig, count):
-    report = _conform(build, tmp_path, kind, rig)
+def test_conform_passes_every_check_against_the_host_build(build, tmp_path, kind, rig, count, binary):
+    """The float32 build is checked under the float32 tolerance it announces (IDENTITY bit FLOAT32)."""
+    report = _conform(build, tmp_path, kind, rig, binary=binary)
     failed = [c for c in report["checks"] if not c["passed"]]
     assert report["code"] == 0 and not failed and len(report["checks"]) == count, failed
+    assert f"laws in {ARITHMETIC[binary]}" in report["checks"][0]["detail"]
 
 
-def test_conform_fails_the_host_build_with_gamma_one_percent_off(build, tmp_path):
+@pytest.mark.parametrize("binary", list(ARITHMETIC))
+def test_conform_fails_the_host_build_with_gamma_one_percent_off(build, tmp_path, binary):
     report = _conform(
         build, tmp_path, "dcmotor", "dcmotor-serial.toml", "--case", "mfc1-motor-velocity", "--case",
-        "open-loop-motor-sine", "--no-protocol", device=("--fault-law", "gamma=1.01"),
+        "open-loop-motor-sine", "--no-protocol", device=("--fault-law", "gamma=1.01"), binary=binary,
     )  # fmt: skip
     passed = {c["name"]: c["passed"] for c in report["checks"]}
     assert report["code"] == 1
