@@ -1,6 +1,7 @@
 """The reference firmware in firmware/ (C99), host build: its vector replay (float64 as tight as the
-Python reference, float32 measured) and ``labrunner conform`` against ``labdevice --pty`` for the
-motor, the valve and the plate; a deliberately wrong law (γ × 1.01) fails the MFC vectors.
+Python reference; float32 within the host's derived float32 tolerance, per column and tick) and
+``labrunner conform`` against ``labdevice --pty`` and ``labdevice32 --pty`` for the motor, the valve
+and the plate; a deliberately wrong law (γ × 1.01) fails the MFC vectors in both arithmetics.
 
 Built with make into a temporary directory; a missing C compiler or make skips, except under
 LABRUNNER_CI=1, where it fails."""
@@ -14,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,12 +46,35 @@ def test_the_float64_core_replays_every_vector_as_tightly_as_the_python_referenc
     assert all(" ok " in line for line in lines[1:]), done.stdout
 
 
-def test_the_float32_core_keeps_every_verdict_and_its_measured_error(build):
-    """The float32 build's verdicts are the vectors'; its largest normalised error (measured 5.4e-4,
-    the plate's square roots at tick 0) stays below 1e-3 — until the host side's float32 tolerance exists."""
-    done = subprocess.run([build / "vectors32", VECTORS, "1e-3", *CASES], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert done.stdout.splitlines()[0] == "arithmetic: float32"
+def _replay32(build: Path, out: Path, case: str, *fault: str):
+    """The float32 core's replay of vector ``case`` (its verdict checked in C), judged by the host's
+    law check under the float32 tolerance: per column and tick, the a-priori bound of
+    labrunner/rigs/device/f32bound.py added to the float64 tolerance, exactly as conform judges a
+    float32 device."""
+    from labrunner.rigs.device import blocks, conform, lawcheck, vectors
+
+    done = subprocess.run(
+        [build / "vectors32", "--rows", out, *fault, VECTORS, "inf", case], capture_output=True, text=True, timeout=120
+    )
+    assert done.stdout.splitlines()[0] == "arithmetic: float32", done.stdout + done.stderr
+    rows = np.loadtxt(out / f"{case}.csv", delimiter=",", ndmin=2)
+    status, monitor, *numbers = (out / f"{case}.verdict").read_text().split()
+    verdict = blocks.Verdict(status, len(rows), len(rows), 0, "" if monitor == "-" else monitor, *map(float, numbers))
+    return done, conform.judge(case, vectors.build(vectors.CASES[case]), verdict, rows, lawcheck.FLOAT32)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES)
+def test_the_float32_core_replays_every_vector_within_the_derived_float32_tolerance(build, tmp_path, case):
+    done, check = _replay32(build, tmp_path, case)
+    assert done.returncode == 0, done.stdout + done.stderr  # the vector's verdict, tick for tick
+    assert check.passed and "of the float32 tolerance" in check.detail, check.detail
+
+
+@pytest.mark.parametrize("case", ["mfc1-motor-velocity", "mfc1-valve-i_min", "plate-mfc-v"])
+def test_the_float32_replay_with_gamma_one_percent_off_fails_the_derived_tolerance(build, tmp_path, case):
+    _, check = _replay32(build, tmp_path, case, "--fault", "gamma", "1.01")
+    assert not check.passed and "law diverged" in check.detail, check.detail
 
 
 def test_a_broken_vector_fails_the_replay(build, tmp_path):
