@@ -3,13 +3,12 @@ Python reference; float32 within the host's derived float32 tolerance, per colum
 ``labrunner conform`` against ``labdevice --pty`` and ``labdevice32 --pty`` for the motor, the valve
 and the plate; a deliberately wrong law (γ × 1.01) fails the MFC vectors in both arithmetics.
 
-Built with make into a temporary directory; a missing C compiler or make skips, except under
-LABRUNNER_CI=1, where it fails."""
+Built once per session into firmware/build/tests (tests/firmware_build.py); a missing C compiler or
+make skips, except under LABRUNNER_CI=1, where it fails."""
 
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -18,24 +17,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.firmware_build import BUILD, make, need
+
 ROOT = Path(__file__).resolve().parents[1]
 VECTORS = ROOT / "docs" / "vectors"
 CASES = sorted(p.name for p in VECTORS.iterdir())
 
 
 @pytest.fixture(scope="module")
-def build(tmp_path_factory) -> Path:
-    missing = [tool for tool in ("make", "cc") if shutil.which(tool) is None]
-    if missing:
-        if os.environ.get("LABRUNNER_CI") == "1":
-            pytest.fail(f"the firmware tests need {', '.join(missing)} (LABRUNNER_CI=1: no skipping)")
-        pytest.skip(f"no {', '.join(missing)}")
-    out = tmp_path_factory.mktemp("firmware")
-    done = subprocess.run(
-        ["make", "-C", str(ROOT / "firmware"), "host", f"BUILD={out}"], capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stdout + done.stderr
-    return out / "host"
+def build() -> Path:
+    need("make", "cc")
+    make("host", "host")
+    return BUILD / "host"
 
 
 def test_the_float64_core_replays_every_vector_as_tightly_as_the_python_reference(build):
