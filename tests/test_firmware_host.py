@@ -1,20 +1,23 @@
 """The reference firmware in firmware/ (C99), host build: its vector replay (float64 as tight as the
-Python reference, float32 measured) and ``labrunner conform`` against ``labdevice --pty`` for the
-motor, the valve and the plate; a deliberately wrong law (γ × 1.01) fails the MFC vectors.
+Python reference; float32 within the host's derived float32 tolerance, per column and tick) and
+``labrunner conform`` against ``labdevice --pty`` and ``labdevice32 --pty`` for the motor, the valve
+and the plate; a deliberately wrong law (γ × 1.01) fails the MFC vectors in both arithmetics.
 
-Built with make into a temporary directory; a missing C compiler or make skips, except under
-LABRUNNER_CI=1, where it fails."""
+Built once per session into firmware/build/tests (tests/firmware_build.py); a missing C compiler or
+make skips, except under LABRUNNER_CI=1, where it fails."""
 
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from tests.firmware_build import BUILD, make, need
 
 ROOT = Path(__file__).resolve().parents[1]
 VECTORS = ROOT / "docs" / "vectors"
@@ -22,18 +25,10 @@ CASES = sorted(p.name for p in VECTORS.iterdir())
 
 
 @pytest.fixture(scope="module")
-def build(tmp_path_factory) -> Path:
-    missing = [tool for tool in ("make", "cc") if shutil.which(tool) is None]
-    if missing:
-        if os.environ.get("LABRUNNER_CI") == "1":
-            pytest.fail(f"the firmware tests need {', '.join(missing)} (LABRUNNER_CI=1: no skipping)")
-        pytest.skip(f"no {', '.join(missing)}")
-    out = tmp_path_factory.mktemp("firmware")
-    done = subprocess.run(
-        ["make", "-C", str(ROOT / "firmware"), "host", f"BUILD={out}"], capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stdout + done.stderr
-    return out / "host"
+def build() -> Path:
+    need("make", "cc")
+    make("host", "host")
+    return BUILD / "host"
 
 
 def test_the_float64_core_replays_every_vector_as_tightly_as_the_python_reference(build):
@@ -44,12 +39,35 @@ def test_the_float64_core_replays_every_vector_as_tightly_as_the_python_referenc
     assert all(" ok " in line for line in lines[1:]), done.stdout
 
 
-def test_the_float32_core_keeps_every_verdict_and_its_measured_error(build):
-    """The float32 build's verdicts are the vectors'; its largest normalised error (measured 5.4e-4,
-    the plate's square roots at tick 0) stays below 1e-3 — until the host side's float32 tolerance exists."""
-    done = subprocess.run([build / "vectors32", VECTORS, "1e-3", *CASES], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert done.stdout.splitlines()[0] == "arithmetic: float32"
+def _replay32(build: Path, out: Path, case: str, *fault: str):
+    """The float32 core's replay of vector ``case`` (its verdict checked in C), judged by the host's
+    law check under the float32 tolerance: per column and tick, the a-priori bound of
+    labrunner/rigs/device/f32bound.py added to the float64 tolerance, exactly as conform judges a
+    float32 device."""
+    from labrunner.rigs.device import blocks, conform, lawcheck, vectors
+
+    done = subprocess.run(
+        [build / "vectors32", "--rows", out, *fault, VECTORS, "inf", case], capture_output=True, text=True, timeout=120
+    )
+    assert done.stdout.splitlines()[0] == "arithmetic: float32", done.stdout + done.stderr
+    rows = np.loadtxt(out / f"{case}.csv", delimiter=",", ndmin=2)
+    status, monitor, *numbers = (out / f"{case}.verdict").read_text().split()
+    verdict = blocks.Verdict(status, len(rows), len(rows), 0, "" if monitor == "-" else monitor, *map(float, numbers))
+    return done, conform.judge(case, vectors.build(vectors.CASES[case]), verdict, rows, lawcheck.FLOAT32)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES)
+def test_the_float32_core_replays_every_vector_within_the_derived_float32_tolerance(build, tmp_path, case):
+    done, check = _replay32(build, tmp_path, case)
+    assert done.returncode == 0, done.stdout + done.stderr  # the vector's verdict, tick for tick
+    assert check.passed and "of the float32 tolerance" in check.detail, check.detail
+
+
+@pytest.mark.parametrize("case", ["mfc1-motor-velocity", "mfc1-valve-i_min", "plate-mfc-v"])
+def test_the_float32_replay_with_gamma_one_percent_off_fails_the_derived_tolerance(build, tmp_path, case):
+    _, check = _replay32(build, tmp_path, case, "--fault", "gamma", "1.01")
+    assert not check.passed and "law diverged" in check.detail, check.detail
 
 
 def test_a_broken_vector_fails_the_replay(build, tmp_path):
@@ -64,11 +82,19 @@ def test_a_broken_vector_fails_the_replay(build, tmp_path):
     assert done.returncode == 1 and "FAIL" in done.stdout and "tick 49" in done.stdout
 
 
-def _conform(build: Path, tmp_path: Path, kind: str, rig: str, *args: str, device: tuple[str, ...] = ()) -> dict:
-    """``labrunner conform --json`` against ``labdevice --kind KIND --pty`` on a copy of rigs/RIG."""
+def _conform(
+    build: Path,
+    tmp_path: Path,
+    kind: str,
+    rig: str,
+    *args: str,
+    device: tuple[str, ...] = (),
+    binary: str = "labdevice",
+) -> dict:
+    """``labrunner conform --json`` against ``BINARY --kind KIND --pty`` on a copy of rigs/RIG."""
     node = {"dcmotor": 1, "valve": 2, "plate": 3}[kind]
     proc = subprocess.Popen(
-        [build / "labdevice", "--kind", kind, "--pty", "--node", str(node), *device], stdout=subprocess.PIPE, text=True
+        [build / binary, "--kind", kind, "--pty", "--node", str(node), *device], stdout=subprocess.PIPE, text=True
     )
     try:
         line = proc.stdout.readline().strip()
@@ -90,21 +116,28 @@ def _conform(build: Path, tmp_path: Path, kind: str, rig: str, *args: str, devic
         proc.wait(timeout=10)
 
 
+ARITHMETIC = {"labdevice": "float64", "labdevice32": "float32"}  # the host builds: -DLAB_FLOAT32 or not
+
+
 @pytest.mark.slow
+@pytest.mark.parametrize("binary", list(ARITHMETIC))
 @pytest.mark.parametrize(
     ("kind", "rig", "count"),
-    [("dcmotor", "dcmotor-serial.toml", 18), ("valve", "valve-serial.toml", 14), ("plate", "plate-serial.toml", 17)],
+    [("dcmotor", "dcmotor-serial.toml", 28), ("valve", "valve-serial.toml", 24), ("plate", "plate-serial.toml", 29)],
 )
-def test_conform_passes_every_check_against_the_host_build(build, tmp_path, kind, rig, count):
-    report = _conform(build, tmp_path, kind, rig)
+def test_conform_passes_every_check_against_the_host_build(build, tmp_path, kind, rig, count, binary):
+    """The float32 build is checked under the float32 tolerance it announces (IDENTITY bit FLOAT32)."""
+    report = _conform(build, tmp_path, kind, rig, binary=binary)
     failed = [c for c in report["checks"] if not c["passed"]]
     assert report["code"] == 0 and not failed and len(report["checks"]) == count, failed
+    assert f"laws in {ARITHMETIC[binary]}" in report["checks"][0]["detail"]
 
 
-def test_conform_fails_the_host_build_with_gamma_one_percent_off(build, tmp_path):
+@pytest.mark.parametrize("binary", list(ARITHMETIC))
+def test_conform_fails_the_host_build_with_gamma_one_percent_off(build, tmp_path, binary):
     report = _conform(
         build, tmp_path, "dcmotor", "dcmotor-serial.toml", "--case", "mfc1-motor-velocity", "--case",
-        "open-loop-motor-sine", "--no-protocol", device=("--fault-law", "gamma=1.01"),
+        "open-loop-motor-sine", "--no-protocol", device=("--fault-law", "gamma=1.01"), binary=binary,
     )  # fmt: skip
     passed = {c["name"]: c["passed"] for c in report["checks"]}
     assert report["code"] == 1

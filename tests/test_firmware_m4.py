@@ -8,30 +8,22 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from tests.firmware_build import BUILD, make, need
+
 ROOT = Path(__file__).resolve().parents[1]
 TOOLS = ("make", "arm-none-eabi-gcc", "arm-none-eabi-size", "qemu-system-arm")
 
 
 @pytest.fixture(scope="module")
-def m4(tmp_path_factory) -> tuple[Path, str]:
-    missing = [tool for tool in TOOLS if shutil.which(tool) is None]
-    if missing:
-        if os.environ.get("LABRUNNER_CI") == "1":
-            pytest.fail(f"the Cortex-M4 tests need {', '.join(missing)} (LABRUNNER_CI=1: no skipping)")
-        pytest.skip(f"no {', '.join(missing)}")
-    out = tmp_path_factory.mktemp("m4")
-    done = subprocess.run(
-        ["make", "-s", "-C", str(ROOT / "firmware"), "m4", f"BUILD={out}"], capture_output=True, text=True, timeout=900
-    )
-    assert done.returncode == 0, done.stdout + done.stderr
-    return out, done.stdout
+def m4() -> tuple[Path, str]:
+    need(*TOOLS)
+    return BUILD, make("m4", "m4")  # its stdout: arm-none-eabi-size's table
 
 
 def test_every_m4_image_fits_an_stm32f405(m4):
@@ -61,10 +53,10 @@ def test_the_m4_benchmark_counts_instructions_per_tick(m4):
 
 
 @contextlib.contextmanager
-def _qemu_rig(out: Path, tmp_path: Path):
-    """The float64 motor image in QEMU behind a serial rig file (loop = "device"); yields its path."""
+def _qemu_rig(out: Path, tmp_path: Path, arith: str = "f64"):
+    """The motor image (``arith`` f64 or f32) in QEMU behind a serial rig file (loop = "device"); yields its path."""
     proc = subprocess.Popen(
-        [str(ROOT / "firmware" / "qemu.sh"), "dcmotor", "f64"],
+        [str(ROOT / "firmware" / "qemu.sh"), "dcmotor", arith],
         stdout=subprocess.PIPE, text=True, env={**os.environ, "LAB_M4_BUILD": str(out)},
     )  # fmt: skip
     try:
@@ -81,16 +73,19 @@ def _qemu_rig(out: Path, tmp_path: Path):
 
 
 @pytest.mark.slow
-def test_conform_passes_against_the_m4_motor_in_qemu(m4, tmp_path):
+@pytest.mark.parametrize(("arith", "arithmetic"), [("f64", "float64"), ("f32", "float32")])
+def test_conform_passes_against_the_m4_motor_in_qemu(m4, tmp_path, arith, arithmetic):
+    """The float32 image announces FLOAT32 and is judged under the float32 tolerance."""
     out, _ = m4
-    with _qemu_rig(out, tmp_path) as rig:
+    with _qemu_rig(out, tmp_path, arith) as rig:
         done = subprocess.run(
             [sys.executable, "-m", "labrunner", "conform", str(rig), "--json"],
             capture_output=True, text=True, cwd=ROOT, timeout=900,
         )  # fmt: skip
     report = json.loads(done.stdout)
     failed = [c for c in report["checks"] if not c["passed"]]
-    assert done.returncode == 0 and not failed and len(report["checks"]) == 18, failed
+    assert done.returncode == 0 and not failed and len(report["checks"]) == 28, failed
+    assert f"laws in {arithmetic}" in report["checks"][0]["detail"]
 
 
 @pytest.mark.slow

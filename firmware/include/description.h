@@ -18,6 +18,7 @@ typedef struct { /* one FILTER record: [out, x+] = [x, w] . M */
     uint16_t n;
     uint8_t m, p;
     lab_real M[(LAB_MAX_FSTATES + LAB_MAX_FIN) * (LAB_MAX_FOUT + LAB_MAX_FSTATES)];
+    double steady[LAB_MAX_FSTATES][LAB_MAX_FIN]; /* (I - A)^-1 B from the record's float64 M */
 } lab_filter_def;
 
 typedef struct { /* the LAW records (docs/control-laws.md § Kinds) */
@@ -43,7 +44,7 @@ typedef struct {
     lab_real derived[LAB_MAX_IO][LAB_MAX_IO];
     int have_rate;
     lab_real max_du_dt;
-    lab_real max_duration;
+    double max_duration; /* compared with t = k/f_s, which is double too */
     uint8_t n_traj;
     lab_traj traj[LAB_MAX_IO];
     lab_filter_def notch, chain;

@@ -22,8 +22,11 @@ typedef struct {
     lab_real x[LAB_MAX_FSTATES];
 } lab_filter;
 
-/* Start in the steady state of the first input: x = (I - A)^-1 B w0; -1 if I - A is singular. */
-int lab_filter_init(lab_filter *f, const lab_filter_def *def, const lab_real *w0);
+/* def->steady = (I - A)^-1 B, solved in double from the record's float64 M (m64, little-endian);
+ * -1 if I - A is singular. */
+int lab_filter_steady(lab_filter_def *def, const uint8_t *m64);
+/* Start in the steady state of the first input: x = (I - A)^-1 B w0, rounded once. */
+void lab_filter_init(lab_filter *f, const lab_filter_def *def, const lab_real *w0);
 /* One tick: out gets the p outputs. */
 void lab_filter_step(lab_filter *f, const lab_real *w, lab_real *out);
 

@@ -16,9 +16,8 @@ typedef struct {
     lab_real d_prev[4], h_prev[4], gy_prev[3];    /* the plate: the previous tick's d(h), h, gamma_y */
 } lab_law;
 
-/* The state before tick 0 from the first measurement y0 (docs/control-laws.md § One tick); -1 if a
- * FILTER has no steady state. */
-int lab_law_init(lab_law *law, const lab_desc *d, const lab_real *y0);
+/* The state before tick 0 from the first measurement y0 (docs/control-laws.md § One tick). */
+void lab_law_init(lab_law *law, const lab_desc *d, const lab_real *y0);
 
 /* One tick: from y[k], the references r[j][0..3] and the applied inputs u_prev = u[k-1], the
  * unsaturated inputs u_star, the logged controlled outputs not measured (extra) and the estimates

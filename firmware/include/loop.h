@@ -13,8 +13,8 @@ typedef struct {
     uint32_t k;                       /* ticks done */
 } lab_loop;
 
-/* The state before tick 0 from y[0]; -1 if the law cannot start (a FILTER without steady state). */
-int lab_loop_init(lab_loop *loop, const lab_desc *d, const lab_real *y0);
+/* The state before tick 0 from y[0] (a FILTER without a steady state was rejected with its description). */
+void lab_loop_init(lab_loop *loop, const lab_desc *d, const lab_real *y0);
 /* Tick k = loop->k on the measured y: writes the logged row (d->n_columns values; the device sends them as float32) and the
  * input to apply; returns 1 with *trip set when the safety routine trips (the row is still logged). */
 int lab_loop_tick(lab_loop *loop, const lab_real *y, lab_real *row, lab_real *u, lab_trip *trip);

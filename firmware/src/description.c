@@ -3,6 +3,7 @@
 #include <stdio.h>
 #include <string.h>
 #include "description.h"
+#include "fir.h"
 #include "crc.h"
 
 #define HEADER_BYTES 16u
@@ -144,6 +145,8 @@ static int filter_record(lab_desc *d, const uint8_t *v, uint32_t size, why *w)
     f->m = m;
     f->p = p;
     reals(f->M, v + 5 + v[0], count);
+    if (lab_filter_steady(f, v + 5 + v[0]) != 0)
+        return fail(w, "FILTER %s has no steady state (I - A is singular)", name);
     return 0;
 }
 
@@ -219,7 +222,7 @@ static int record(lab_desc *d, uint16_t type, const uint8_t *v, uint32_t size, i
     case R_MAX_DURATION:
         if (size != 8)
             return fail(w, "malformed MAX_DURATION record");
-        d->max_duration = (lab_real)lab_getf64(v);
+        d->max_duration = lab_getf64(v);
         return 0;
     case R_TRAJECTORY:
         return traj_record(d, v, size, w);
@@ -336,7 +339,7 @@ int lab_desc_parse(lab_desc *d, const uint8_t *data, size_t n, uint8_t device_ki
 {
     why w = {reason, reason_size};
     memset(d, 0, sizeof *d);
-    d->max_duration = (lab_real)(1.0 / 0.0);
+    d->max_duration = 1.0 / 0.0;
     if (n < HEADER_BYTES + 4)
         return fail(&w, "description of %ld bytes is shorter than its header and CRC", (long)n);
     if (memcmp(data, "LRDL", 4) != 0)

@@ -2,6 +2,7 @@
 #include <math.h>
 #include <string.h>
 #include "fir.h"
+#include "protocol.h"
 
 void lab_history_fill(lab_history *h, uint32_t len, lab_real v)
 {
@@ -27,19 +28,19 @@ lab_real lab_fir(const lab_real *w, const lab_history *h)
     return sum;
 }
 
-/* M is (n + m) x (p + n), row-major; A[i][j] = M[j][p + i], B[i][j] = M[n + j][p + i]. */
-int lab_filter_init(lab_filter *f, const lab_filter_def *def, const lab_real *w0)
+/* M is (n + m) x (p + n), row-major; A[i][j] = M[j][p + i], B[i][j] = M[n + j][p + i].
+ * docs/control-laws.md, "float32 devices": I - A is ill-conditioned (the MBC chain's integrators),
+ * so the steady-state gain (I - A)^-1 B is solved in double from the record's float64 M (m64, the
+ * FILTER record's little-endian values), never from the float M of a float32 build. */
+int lab_filter_steady(lab_filter_def *def, const uint8_t *m64)
 {
     unsigned n = def->n, m = def->m, cols = (unsigned)def->p + n;
-    double a[LAB_MAX_FSTATES][LAB_MAX_FSTATES + 1];
-    f->def = def;
-    for (unsigned i = 0; i < n; i++) { /* the system (I - A) x = B w0, augmented */
-        double rhs = 0;
+    double a[LAB_MAX_FSTATES][LAB_MAX_FSTATES + LAB_MAX_FIN];
+    for (unsigned i = 0; i < n; i++) { /* the system (I - A) S = B, augmented */
         for (unsigned j = 0; j < n; j++)
-            a[i][j] = (i == j) - (double)def->M[j * cols + def->p + i];
+            a[i][j] = (i == j) - lab_getf64(m64 + 8 * (j * cols + def->p + i));
         for (unsigned j = 0; j < m; j++)
-            rhs += (double)def->M[(n + j) * cols + def->p + i] * (double)w0[j];
-        a[i][n] = rhs;
+            a[i][n + j] = lab_getf64(m64 + 8 * ((n + j) * cols + def->p + i));
     }
     for (unsigned c = 0; c < n; c++) { /* Gaussian elimination with partial pivoting */
         unsigned best = c;
@@ -48,24 +49,36 @@ int lab_filter_init(lab_filter *f, const lab_filter_def *def, const lab_real *w0
                 best = r;
         if (a[best][c] == 0)
             return -1;
-        for (unsigned j = 0; j <= n; j++) {
+        for (unsigned j = 0; j < n + m; j++) {
             double t = a[c][j];
             a[c][j] = a[best][j];
             a[best][j] = t;
         }
         for (unsigned r = c + 1; r < n; r++) {
             double q = a[r][c] / a[c][c];
-            for (unsigned j = c; j <= n; j++)
+            for (unsigned j = c; j < n + m; j++)
                 a[r][j] -= q * a[c][j];
         }
     }
-    for (unsigned i = n; i-- > 0;) {
-        double s = a[i][n];
-        for (unsigned j = i + 1; j < n; j++)
-            s -= a[i][j] * (double)f->x[j];
-        f->x[i] = (lab_real)(s / a[i][i]);
-    }
+    for (unsigned k = 0; k < m; k++)
+        for (unsigned i = n; i-- > 0;) {
+            double s = a[i][n + k];
+            for (unsigned j = i + 1; j < n; j++)
+                s -= a[i][j] * def->steady[j][k];
+            def->steady[i][k] = s / a[i][i];
+        }
     return 0;
+}
+
+void lab_filter_init(lab_filter *f, const lab_filter_def *def, const lab_real *w0)
+{
+    f->def = def;
+    for (unsigned i = 0; i < def->n; i++) {
+        double s = 0;
+        for (unsigned j = 0; j < def->m; j++)
+            s += def->steady[i][j] * (double)w0[j];
+        f->x[i] = (lab_real)s; /* rounded once */
+    }
 }
 
 void lab_filter_step(lab_filter *f, const lab_real *w, lab_real *out)

@@ -33,7 +33,7 @@ static void gaps(const lab_law_consts *c, const lab_real *y, lab_real *h, lab_re
 
 static lab_real max0(lab_real v) { return v > 0 ? v : 0; }
 
-int lab_law_init(lab_law *law, const lab_desc *d, const lab_real *y0)
+void lab_law_init(lab_law *law, const lab_desc *d, const lab_real *y0)
 {
     const lab_law_consts *c = &d->law;
     law->d = d;
@@ -47,16 +47,14 @@ int lab_law_init(lab_law *law, const lab_desc *d, const lab_real *y0)
             if (d->kind == LAB_PLATE_MFC) {
                 law->gy_prev[j] = c->gamma / (y0[j] > c->y_min ? y0[j] : c->y_min);
                 estimator_init(&law->est[j], d->fir_len[0], y0[j], fe);
-                if (d->notch.have && lab_filter_init(&law->filter[j], &d->notch, &y0[j]) != 0)
-                    return -1;
+                if (d->notch.have)
+                    lab_filter_init(&law->filter[j], &d->notch, &y0[j]);
             } else {
                 lab_real w0[2] = {y0[j], c->g};
-                if (lab_filter_init(&law->filter[j], &d->chain, w0) != 0)
-                    return -1;
+                lab_filter_init(&law->filter[j], &d->chain, w0);
             }
         }
     }
-    return 0;
 }
 
 /* mfc1, mfc1-ff, mfc2 (thesis (2.35), (2.49); paper 1 eq. (16)) */

@@ -3,7 +3,7 @@
 #include "loop.h"
 #include "reference.h"
 
-int lab_loop_init(lab_loop *loop, const lab_desc *d, const lab_real *y0)
+void lab_loop_init(lab_loop *loop, const lab_desc *d, const lab_real *y0)
 {
     loop->d = d;
     loop->k = 0;
@@ -12,7 +12,7 @@ int lab_loop_init(lab_loop *loop, const lab_desc *d, const lab_real *y0)
     loop->y0 = y0[d->motion_out];
     loop->motion = d->motion_rule ? y0[d->motion_out] : 0;
     lab_safety_init(&loop->safety, d);
-    return lab_law_init(&loop->law, d, y0);
+    lab_law_init(&loop->law, d, y0);
 }
 
 static lab_real clamp(lab_real v, lab_real lo, lab_real hi) { return v < lo ? lo : v > hi ? hi : v; }

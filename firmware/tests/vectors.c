@@ -2,7 +2,11 @@
  * § Conformance vectors): the law on the sensor table, every logged column against vector.csv,
  * the verdict against verdict.txt. Prints one line per vector with the largest error, normalised
  * as tests/test_vectors.py does for the Python reference: |got - want| / (|want| + max |column|).
- * Exit 1 when a verdict differs or an error exceeds the limit given (the float64 build: 1e-9). */
+ * Exit 1 when a verdict differs or an error exceeds the limit given (the float64 build: 1e-9).
+ * With --rows OUT it also writes each vector's logged rows (OUT/CASE.csv, one tick a line) and its
+ * verdict (OUT/CASE.verdict: status, monitor or -, time, value, threshold), so that the host's law
+ * check can judge a float32 replay per column and tick under its float32 tolerance. --fault KEY
+ * FACTOR runs a deliberately wrong law (the LAW constant KEY times FACTOR), as labdevice --fault-law. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -59,6 +63,21 @@ static void verdict_value(const char *path, const char *key, char *out, size_t s
         fclose(f);
 }
 
+static const char *rows_dir, *fault_key; /* --rows OUT, --fault KEY FACTOR; else NULL */
+static double fault_factor;
+
+static FILE *open_out(const char *name, const char *suffix)
+{
+    char path[1024];
+    snprintf(path, sizeof path, "%s/%s.%s", rows_dir, name, suffix);
+    FILE *f = fopen(path, "w");
+    if (!f) {
+        fprintf(stderr, "cannot write %s\n", path);
+        exit(2);
+    }
+    return f;
+}
+
 static int replay(const char *dir, const char *name, double limit)
 {
     char path[1024], reason[160], status[64], monitor[64], samples[32];
@@ -71,6 +90,10 @@ static int replay(const char *dir, const char *name, double limit)
         printf("%-28s refused: %s\n", name, n < 0 ? "no description.bin" : reason);
         return 1;
     }
+    if (fault_key && lab_desc_fault(&desc, fault_key, fault_factor) != 0) {
+        printf("%-28s has no LAW constant %s\n", name, fault_key);
+        return 1;
+    }
     snprintf(path, sizeof path, "%s/%s/vector.csv", dir, name);
     int rows = csv(path, desc.n_columns);
     lab_real y[LAB_MAX_IO], u[LAB_MAX_IO], row[LAB_MAX_COLUMNS];
@@ -78,6 +101,7 @@ static int replay(const char *dir, const char *name, double limit)
     double scale[LAB_MAX_COLUMNS] = {0}, worst = 0;
     unsigned worst_col = 0;
     int tripped = 0, got = 0, worst_row = 0;
+    FILE *out = rows_dir ? open_out(name, "csv") : NULL;
     for (int k = 0; k < rows; k++)
         for (unsigned c = 0; c < desc.n_columns; c++)
             if (isfinite(want[k][c + 1]) && fabs(want[k][c + 1]) > scale[c])
@@ -87,6 +111,8 @@ static int replay(const char *dir, const char *name, double limit)
         if (k == 0)
             lab_loop_init(&loop, &desc, y);
         tripped = lab_loop_tick(&loop, y, row, u, &trip);
+        for (unsigned c = 0; out && c < desc.n_columns; c++)
+            fprintf(out, "%.17g%c", (double)row[c], c + 1 < desc.n_columns ? ',' : '\n');
         for (unsigned c = 0; c < desc.n_columns && got < rows; c++) {
             double w = want[got][c + 1], err = fabs((double)row[c] - w) / (fabs(w) + scale[c] + 1e-300);
             if (isnan(w) != isnan((double)row[c]))
@@ -105,6 +131,13 @@ static int replay(const char *dir, const char *name, double limit)
     verdict_value(path, "monitor", monitor, sizeof monitor);
     verdict_value(path, "samples", samples, sizeof samples);
     const char *mine = tripped ? "aborted" : statuses[lab_loop_moved(&loop) ? 0 : 2];
+    if (out) {
+        fclose(out);
+        out = open_out(name, "verdict");
+        fprintf(out, "%s %s %.17g %.17g %.17g\n", mine, tripped ? trip.monitor : "-", tripped ? trip.time : NAN,
+                tripped ? trip.value : NAN, tripped ? trip.threshold : NAN);
+        fclose(out);
+    }
     int verdict_ok = strcmp(mine, status) == 0 && got == atoi(samples) && got == rows &&
                      (!tripped || strcmp(trip.monitor, monitor) == 0);
     int ok = verdict_ok && worst <= limit;
@@ -116,8 +149,20 @@ static int replay(const char *dir, const char *name, double limit)
 
 int main(int argc, char **argv)
 {
+    for (;;)
+        if (argc > 2 && strcmp(argv[1], "--rows") == 0) {
+            rows_dir = argv[2];
+            argv += 2;
+            argc -= 2;
+        } else if (argc > 3 && strcmp(argv[1], "--fault") == 0) {
+            fault_key = argv[2];
+            fault_factor = strtod(argv[3], NULL);
+            argv += 3;
+            argc -= 3;
+        } else
+            break;
     if (argc < 4) {
-        fprintf(stderr, "usage: vectors DOCS_VECTORS_DIR LIMIT CASE...\n");
+        fprintf(stderr, "usage: vectors [--rows OUT] [--fault KEY FACTOR] DOCS_VECTORS_DIR LIMIT CASE...\n");
         return 2;
     }
     double limit = strtod(argv[2], NULL);

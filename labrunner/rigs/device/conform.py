@@ -111,13 +111,22 @@ def _run(rig, data: bytes, send_hook=None, recv_hook=None, like: bytes | None = 
 
 
 def _vector(rig, name: str, arithmetic: str = lawcheck.FLOAT64) -> Check:
-    case = vectors.CASES[name]
-    vector = vectors.build(case)
-    info = load_rig(case.rig).info
+    vector = vectors.build(vectors.CASES[name])
     try:
         verdict, rows = _run(rig, vector.data)
     except RigError as exc:
         return Check(f"vector {name}", False, str(exc))
+    return judge(name, vector, verdict, rows, arithmetic)
+
+
+def judge(
+    name: str, vector: vectors.Vector, verdict: blocks.Verdict, rows: np.ndarray, arithmetic: str = lawcheck.FLOAT64
+) -> Check:
+    """Vector ``name``'s check of a device's ``verdict`` and logged ``rows`` (ticks, columns): the
+    logged y is the sensor table, the law check passes under ``arithmetic``'s tolerance, the verdict
+    is the vector's. Also judges a replay of the vector outside a device (the C core's, in tests)."""
+    case = vectors.CASES[name]
+    info = load_rig(case.rig).info
     outcome = to_result(case.point, info, case.fs, verdict, rows, {}).outcome
     problems = []
     y = [vector.columns.index(s.name) for s in info.outputs]
