@@ -8,8 +8,10 @@ that adds the two things supervision needs beyond ``submit``:
 - ``abandon()`` — give up on running batches at once: pool workers are killed with SIGKILL (they
   ignore SIGINT/SIGTERM, so ``ProcessPoolExecutor``'s own clean-up, which sends SIGTERM and then
   joins them, would wait forever), Dask futures are cancelled on the cluster;
-- ``stop(level)`` — a pool's workers leave queued batches unrun, and with ``STOP_RUNNING`` stop
-  running ones too (:mod:`labrunner.campaign.live`); None where workers cannot see it (Dask, in-process).
+- ``stop(level)`` — workers leave queued batches unrun, and with ``STOP_RUNNING`` stop running
+  ones too (:mod:`labrunner.campaign.live`: a pool's shared word, sent to a Dask cluster's
+  workers); None in-process. ``cancel_queued``: whether queued futures may be cancelled too
+  (Dask, in-process; never a pool's).
 
 Executors:
 
@@ -115,6 +117,7 @@ class ExecutorHandle:
     abandon: Callable[[], None] = field(default=lambda: None)
     live: live.LiveTicks | None = None
     stop: Callable[[int], None] | None = None  # raise the workers' stop level (live.LiveTicks.stop); None: unseen
+    cancel_queued: bool = True  # a pool's queued futures cannot be cancelled safely (live's docstring)
 
     @property
     def max_inflight(self) -> int:
@@ -222,7 +225,7 @@ def _pool(workers: int | None, lock_fd: int | None) -> Iterator[ExecutorHandle]:
     try:
         with _stop_signals_held():
             pool.submit(_started)
-        yield ExecutorHandle(pool, n, abandon=abandon, live=ticks, stop=ticks.stop)
+        yield ExecutorHandle(pool, n, abandon=abandon, live=ticks, stop=ticks.stop, cancel_queued=False)
     finally:
         with _stop_signals_held():
             processes = dict(getattr(pool, "_processes", None) or {})
@@ -300,7 +303,12 @@ def _dask_session(Client: Any, url: str, workers: int | None) -> Iterator[Execut
             with contextlib.suppress(Exception):
                 client.cancel(list(getattr(executor, "_futures", ())), force=True)
 
-        yield ExecutorHandle(PackedExecutor(executor), slots, probe=probe, abandon=abandon, live=ticks)
+        def stop(level: int) -> None:  # every worker's copy of the level, in one round trip
+            if client.status == "running":
+                with contextlib.suppress(Exception):  # a lost scheduler: the probe says so
+                    client.run(live.raise_level, ticks.topic, level)
+
+        yield ExecutorHandle(PackedExecutor(executor), slots, probe=probe, abandon=abandon, live=ticks, stop=stop)
     finally:
         with contextlib.suppress(Exception):
             client.close(timeout=5)
