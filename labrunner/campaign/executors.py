@@ -130,8 +130,8 @@ class ExecutorHandle:
 
 
 def _init_worker(lock_fd: int | None, shared: tuple[Any, ...] = ()) -> None:
-    """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it lets running batches finish or
-    kills the workers), die with the parent, drop the inherited lock descriptor, keep the live
+    """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it stops running batches through
+    the live channel's stop level, or kills the workers), die with the parent, drop the inherited lock descriptor, keep the live
     channel's shared array, and import what every batch needs (:data:`WORKER_MODULES`) while
     the parent still validates the campaign."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
