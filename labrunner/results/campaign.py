@@ -217,10 +217,11 @@ class CampaignResults:
         (``gamma``, ``k_p``, ``time``): a dimension per varying parameter, named by its last part
         when unique as in :meth:`select` (else in full), the point ids then a ``point`` coordinate
         over them. Runs missing from the grid (not run, failed without a log) or repeated keep the
-        ``point`` dimension, as does ``grid=False``. Runs must share their rate and their signals; a run shorter than the
-        longest (aborted, torn) is padded with NaN, and ``n_samples`` (per point) and ``valid``
-        (point × time) say which samples were logged. ``names``: the signals to keep (default
-        all). The parameters and outcome are coordinates along ``point``. A log that does not back
+        ``point`` dimension, as does ``grid=False``. Runs must share their rate and their signals;
+        a run shorter than the longest (aborted, torn) is padded with NaN, and ``n_samples`` (per
+        point) and ``valid`` (point × time) say which samples were logged. ``names``: the signals
+        to keep (default all). The parameters and outcome are coordinates along ``point`` (on a
+        grid: the others than the dimensions, over them). A log that does not back
         its ledger row (another point's, damaged, disagreeing: see :meth:`run`) is refused, naming
         it; with ``check=False`` it is kept and the ``problem`` coordinate says what is wrong.
         Loads every selected run into memory: select first for large campaigns."""
