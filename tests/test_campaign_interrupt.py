@@ -121,6 +121,35 @@ def test_a_stop_level_ends_the_engine_loop_with_the_rig_safe(monkeypatch):
     assert _CountingMotor.safe_calls >= 1 and np.all(rig.applied_input == 0.0)
 
 
+def test_a_dask_workers_stop_level_is_per_session_and_never_lowered(monkeypatch):
+    """The Dask side of the stop (the runner's ``Client.run`` of ``raise_level`` on each worker):
+    a queued batch does not start at START_NOTHING, a running one stops at STOP_RUNNING, another
+    session's batches on the same worker go on."""
+    import distributed
+
+    sent = []
+
+    class Worker:
+        def log_event(self, topic, message):
+            sent.append((topic, message))
+
+    monkeypatch.setattr(distributed, "get_worker", Worker)
+    monkeypatch.setattr(live, "_levels", {})
+    running, queued, other = live.Address(0, 1, "t1"), live.Address(1, 1, "t1"), live.Address(0, 1, "t2")
+    report = live.hook(running)
+    report(0)
+    live.raise_level("t1", live.START_NOTHING)
+    report(10)  # a running batch goes on at this level
+    with pytest.raises(live.Stopped):
+        live.hook(queued)(0)
+    live.raise_level("t1", live.STOP_RUNNING)
+    live.raise_level("t1", live.START_NOTHING)  # a late, lower level does not undo it
+    with pytest.raises(live.Stopped):
+        report(20)
+    live.hook(other)(30)
+    assert sent == [("t1", [0, 1, 0]), ("t1", [0, 1, 10]), ("t2", [0, 1, 30])]
+
+
 def test_the_last_line_says_a_campaign_is_complete_when_the_press_came_after_its_last_run(capsys, monkeypatch):
     monkeypatch.setattr("labrunner.cli.run_cmd._law_check_line", lambda directory: None)  # no ledger here
     done = Outcome(interrupted=True, complete=True, counts={"completed": 3, "aborted": 1})

@@ -185,7 +185,9 @@ def test_second_runner_refused_and_sigint_leaves_a_resumable_campaign(project):
     assert "interrupted" in err and "labrunner resume data/long" in err
     rows = ledger_rows(directory)
     states = [r["state"] for r in rows]
-    assert states.count("claimed") == 0 and states.count("planned") > 0  # running batches finished and committed
+    assert (
+        states.count("claimed") == 0 and states.count("planned") > 0
+    )  # none left claimed: stopped batches went back to planned
     done = cli("resume", "data/long", "--workers", "2", cwd=project)
     assert done.returncode == 0, done.stderr
     rows = ledger_rows(directory)

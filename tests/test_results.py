@@ -149,7 +149,7 @@ def test_point_by_time_signals_pad_aborted_runs(project):
     root, _ = project
     campaign = labrunner.open_campaign(root / "data" / "sweep")
     rows = campaign.select(outcome=["completed", "aborted"])
-    dataset = campaign.signals(rows, names=["omega", "u"])
+    dataset = campaign.signals(rows, names=["omega", "u"], grid=False)
     assert dict(dataset.sizes) == {"point": len(rows), "time": 400}  # 2 s at 200 Hz
     assert dataset["omega"].attrs["units"] == "rad/s" and dataset["time"].attrs["units"] == "s"
     for point in rows["id"]:
@@ -165,6 +165,44 @@ def test_point_by_time_signals_pad_aborted_runs(project):
     assert np.array_equal(dataset["controller.k_p"].to_numpy(), rows["controller.k_p"].to_numpy())
     with pytest.raises(InvalidParameter, match="logs no"):
         campaign.signals(rows, names=["nope"])
+
+
+def test_signals_of_a_full_grid_have_the_parameters_as_dimensions(project):
+    root, _ = project
+    campaign = labrunner.open_campaign(root / "data" / "sweep")
+    table = campaign.table()
+    assert table["log_path"].map(lambda p: isinstance(p, str)).all()  # every point of the 3 × 4 grid ran
+    dataset = campaign.signals(names=["omega", "u"])
+    assert dataset["omega"].dims == ("gamma", "k_p", "time") and dict(dataset.sizes) == {
+        "gamma": 3,
+        "k_p": 4,
+        "time": 400,
+    }
+    assert np.array_equal(dataset["gamma"], np.sort(table["controller.gamma"].unique()))
+    assert np.array_equal(dataset["k_p"], np.sort(table["controller.k_p"].unique()))
+    aborted = table[table["outcome"] == "aborted"].iloc[0]
+    chosen = [table.iloc[0], table.iloc[-1], aborted]
+    for row in chosen:
+        cell = dataset.sel(gamma=row["controller.gamma"], k_p=row["controller.k_p"])
+        assert cell["point"].item() == row["id"] and cell["outcome"].item() == row["outcome"]
+        run = campaign.run(row["id"])
+        n = int(cell["n_samples"])
+        assert n == len(run.signals) and bool(cell["valid"][:n].all()) and not cell["valid"][n:].any()
+        for name in ("omega", "u"):
+            assert np.array_equal(bits(cell[name].to_numpy()[:n]), bits(run.signals[name].to_numpy()))
+            assert np.isnan(cell[name].to_numpy()[n:]).all()
+    assert dataset["n_samples"].dtype == np.int64 and dataset["valid"].dtype == bool
+
+    one_gamma = campaign.select(gamma=aborted["controller.gamma"])
+    line = campaign.signals(one_gamma, names=["u"])
+    assert line["u"].dims == ("k_p", "time") and np.all(np.diff(line["k_p"]) > 0)  # gamma does not vary
+    row = one_gamma.iloc[-1]
+    cell, run = line.sel(k_p=row["controller.k_p"]), campaign.run(row["id"])
+    assert cell["point"].item() == row["id"]
+    assert np.array_equal(bits(cell["u"].to_numpy()[: len(run.signals)]), bits(run.signals["u"].to_numpy()))
+    holed = table.drop(index=table.index[3])  # 11 of 12: no full grid, so one dimension per point
+    assert campaign.signals(holed, names=["u"])["u"].dims == ("point", "time")
+    assert campaign.signals(names=["u"], grid=False)["u"].dims == ("point", "time")
 
 
 def test_xarray_is_optional_with_a_clear_error(project, monkeypatch):

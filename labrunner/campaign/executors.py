@@ -8,8 +8,10 @@ that adds the two things supervision needs beyond ``submit``:
 - ``abandon()`` — give up on running batches at once: pool workers are killed with SIGKILL (they
   ignore SIGINT/SIGTERM, so ``ProcessPoolExecutor``'s own clean-up, which sends SIGTERM and then
   joins them, would wait forever), Dask futures are cancelled on the cluster;
-- ``stop(level)`` — a pool's workers leave queued batches unrun, and with ``STOP_RUNNING`` stop
-  running ones too (:mod:`labrunner.campaign.live`); None where workers cannot see it (Dask, in-process).
+- ``stop(level)`` — workers leave queued batches unrun, and with ``STOP_RUNNING`` stop running
+  ones too (:mod:`labrunner.campaign.live`: a pool's shared word, sent to a Dask cluster's
+  workers); None in-process. ``cancel_queued``: whether queued futures may be cancelled too
+  (Dask, in-process; never a pool's).
 
 Executors:
 
@@ -115,6 +117,7 @@ class ExecutorHandle:
     abandon: Callable[[], None] = field(default=lambda: None)
     live: live.LiveTicks | None = None
     stop: Callable[[int], None] | None = None  # raise the workers' stop level (live.LiveTicks.stop); None: unseen
+    cancel_queued: bool = True  # a pool's queued futures cannot be cancelled safely (live's docstring)
 
     @property
     def max_inflight(self) -> int:
@@ -127,8 +130,8 @@ class ExecutorHandle:
 
 
 def _init_worker(lock_fd: int | None, shared: tuple[Any, ...] = ()) -> None:
-    """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it lets running batches finish or
-    kills the workers), die with the parent, drop the inherited lock descriptor, keep the live
+    """Pool worker set-up: leave Ctrl-C/SIGTERM to the parent (it stops running batches through
+    the live channel's stop level, or kills the workers), die with the parent, drop the inherited lock descriptor, keep the live
     channel's shared array, and import what every batch needs (:data:`WORKER_MODULES`) while
     the parent still validates the campaign."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -223,7 +226,7 @@ def _pool(workers: int | None, lock_fd: int | None, signals: bool = False) -> It
     try:
         with _stop_signals_held():
             pool.submit(_started)
-        yield ExecutorHandle(pool, n, abandon=abandon, live=ticks, stop=ticks.stop)
+        yield ExecutorHandle(pool, n, abandon=abandon, live=ticks, stop=ticks.stop, cancel_queued=False)
     finally:
         with _stop_signals_held():
             processes = dict(getattr(pool, "_processes", None) or {})
@@ -301,7 +304,12 @@ def _dask_session(Client: Any, url: str, workers: int | None) -> Iterator[Execut
             with contextlib.suppress(Exception):
                 client.cancel(list(getattr(executor, "_futures", ())), force=True)
 
-        yield ExecutorHandle(PackedExecutor(executor), slots, probe=probe, abandon=abandon, live=ticks)
+        def stop(level: int) -> None:  # every worker's copy of the level, in one round trip
+            if client.status == "running":
+                with contextlib.suppress(Exception):  # a lost scheduler: the probe says so
+                    client.run(live.raise_level, ticks.topic, level)
+
+        yield ExecutorHandle(PackedExecutor(executor), slots, probe=probe, abandon=abandon, live=ticks, stop=stop)
     finally:
         with contextlib.suppress(Exception):
             client.close(timeout=5)

@@ -38,7 +38,11 @@ the rig put in its safe state by the engine, nothing published. This is how one 
 campaign within a second, rather than after every batch already handed to the pool has run (a
 queued future of a process pool cannot be cancelled safely: killing the pool later makes its
 manager thread fail on it with ``InvalidStateError``). Dask workers share no memory with the
-runner: there the level is not seen and running batches finish.
+runner: there the runner sends the level to every worker of the cluster (``Client.run`` of
+:func:`raise_level`, one round trip through the scheduler), which keeps it per session topic in
+a dict of its process that the reports read as cheaply as the pool's word; queued Dask batches
+are cancelled besides (safe there). A worker that joins after the stop has not seen it: a batch
+it runs finishes, as does one on a worker the message did not reach, within the runner's bound.
 """
 
 from __future__ import annotations
@@ -62,6 +66,7 @@ ROLES = ("output", "reference", "error", "input")  # the signals of a slot's run
 SIGNAL_SAMPLES = 2000  # samples per signal a slot holds; a longer run is kept every n-th sample
 _NAMES_BYTES = 1024  # a slot's JSON of the signals' names, units and sampling rate
 _channel: Any = None  # in a pool worker: the shared arrays (install)
+_levels: dict[str, int] = {}  # in a Dask worker's process: the stop level of each session's topic
 
 
 class Stopped(LabrunnerError):
@@ -168,10 +173,22 @@ def install(*shared: Any) -> None:
     _channel = shared or None
 
 
+def raise_level(topic: str, level: int) -> None:
+    """Run on every Dask worker by the runner (``Client.run``): raise the stop level of the session
+    whose reports go to ``topic`` (as :meth:`LiveTicks.stop` does for a pool)."""
+    _levels[topic] = max(_levels.get(topic, 0), level)
+
+
+def _check(level: int, ticks: int) -> None:
+    """Raise :class:`Stopped` when the stop ``level`` ends a batch at this report (0 ticks: being taken)."""
+    if level >= STOP_RUNNING or (level and ticks == 0):
+        raise Stopped("stopped by the runner")
+
+
 def hook(address: Address | None) -> Callable[[int], None] | None:
     """What the worker hands the engine for the batch at ``address``: passes the ticks done on
-    and, in a pool worker, raises :class:`Stopped` when the runner's stop level asks (0 ticks:
-    the batch is being taken). None without an address (a real rig) or a channel (a pool worker
+    and raises :class:`Stopped` when the runner's stop level asks (the pool's shared word, a Dask
+    worker's :func:`raise_level`). None without an address (a real rig) or a channel (a pool worker
     without :func:`install`)."""
     if address is None:
         return None
@@ -181,6 +198,7 @@ def hook(address: Address | None) -> Callable[[int], None] | None:
         worker, topic, slot, serial = get_worker(), address.topic, address.slot, address.serial
 
         def send(ticks: int) -> None:
+            _check(_levels.get(topic, 0), ticks)
             with contextlib.suppress(Exception):  # best effort: a lost report must never fail the runs
                 worker.log_event(topic, [slot, serial, int(ticks)])
 
@@ -190,9 +208,7 @@ def hook(address: Address | None) -> Callable[[int], None] | None:
     array = _channel[0]
 
     def write(ticks: int) -> None:
-        level = array[len(array) - 1]
-        if level >= STOP_RUNNING or (level and ticks == 0):
-            raise Stopped("stopped by the runner")
+        _check(array[len(array) - 1], ticks)
         array[address.slot] = ticks
 
     return write

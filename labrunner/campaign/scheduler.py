@@ -12,13 +12,13 @@ run-equivalents in flight, so its rate and ETA hold from the first second.
 
 Supervision — the loop never blocks longer than :data:`POLL_S` and never hangs:
 
-- Ctrl-C (or SIGTERM) once: no new batches; on a process pool every batch handed to it stops
-  (queued ones before they start, running ones at their next progress report, ≤ 1 % of their
-  ticks: :mod:`labrunner.campaign.live`), the rig put in its safe state, nothing published, and
-  their points go back to ``planned`` — a second or so, whatever the batch size. On Dask
-  (whose workers cannot see the stop) queued batches are cancelled and running ones finish and
-  are committed, as does a real rig's one run; all within a bound the runner prints (twice
-  their expected time + :data:`GRACE_S`), after which they are abandoned. Twice: whatever still
+- Ctrl-C (or SIGTERM) once: no new batches; on a process pool or a Dask cluster every batch
+  handed to it stops (queued ones before they start — on Dask cancelled too —, running ones at
+  their next progress report, ≤ 1 % of their ticks: :mod:`labrunner.campaign.live`), the rig put
+  in its safe state, nothing published, and their points go back to ``planned`` — a second or
+  so, whatever the batch size. A batch whose worker did not get the stop (a Dask worker that
+  joined later) finishes and is committed, as does a real rig's one run; all within a bound the
+  runner prints (twice their expected time + :data:`GRACE_S`), after which they are abandoned. Twice: whatever still
   runs is abandoned at once. The signal handler only counts; nothing is raised into a lock or
   a transaction.
 - A dead worker (``BrokenProcessPool``), a lost Dask worker or scheduler, a worker that cannot
@@ -368,18 +368,18 @@ class Scheduler:
             out.abandoned = True
 
     def _stopping(self, out: Outcome, pending: deque, why: str, *, interrupted: bool = False) -> None:
-        """Stop submitting: drop pending batches; queued ones are not started (a pool's stop level,
-        else cancelled), running ones stop now when ``interrupted`` on a pool, else finish; all
-        within a deadline."""
+        """Stop submitting: drop pending batches; queued ones are not started (the workers' stop
+        level, and cancelled where that is safe), running ones stop now when ``interrupted`` (on a
+        pool or Dask), else finish; all within a deadline."""
         pending.clear()
         running = sum(len(b.ids) for b in self.inflight.values() if self._started(b))
         queued = sum(len(b.ids) for b in self.inflight.values()) - running
         stop = self.handle.stop
         if stop is not None:
             stop(STOP_RUNNING if interrupted else START_NOTHING)
-        else:
-            for future in list(self.inflight):
-                if future.cancel():
+        if self.handle.cancel_queued:  # not a running one: a Dask future cancels, its worker runs on
+            for future, batch in list(self.inflight.items()):
+                if not self._started(batch) and future.cancel():
                     self._collect(future, out)
         expected = max([self.longest_s, *(b.expected_s for b in self.inflight.values())], default=0.0)
         self.bound_s = math.ceil(2.0 * expected + GRACE_S)  # a batch may wait behind one running on its slot

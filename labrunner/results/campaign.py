@@ -204,13 +204,24 @@ class CampaignResults:
         return out
 
     def signals(
-        self, rows: pd.DataFrame | None = None, names: Iterable[str] | None = None, *, check: bool = True
+        self,
+        rows: pd.DataFrame | None = None,
+        names: Iterable[str] | None = None,
+        *,
+        check: bool = True,
+        grid: bool = True,
     ) -> xr.Dataset:
         """The signals of ``rows``' runs (default: every run with a log) as one xarray Dataset over
-        (``point``, ``time``): runs must share their rate and their signals; a run shorter than the
-        longest (aborted, torn) is padded with NaN, and ``n_samples`` (per point) and ``valid``
-        (point × time) say which samples were logged. ``names``: the signals to keep (default
-        all). The parameters and outcome are coordinates along ``point``. A log that does not back
+        (``point``, ``time``), or, where the runs form a full grid (each combination of the values
+        of the parameters that vary among them run once), over (*parameters*, ``time``), e.g.
+        (``gamma``, ``k_p``, ``time``): a dimension per varying parameter, named by its last part
+        when unique as in :meth:`select` (else in full), the point ids then a ``point`` coordinate
+        over them. Runs missing from the grid (not run, failed without a log) or repeated keep the
+        ``point`` dimension, as does ``grid=False``. Runs must share their rate and their signals;
+        a run shorter than the longest (aborted, torn) is padded with NaN, and ``n_samples`` (per
+        point) and ``valid`` (point × time) say which samples were logged. ``names``: the signals
+        to keep (default all). The parameters and outcome are coordinates along ``point`` (on a
+        grid: the others than the dimensions, over them). A log that does not back
         its ledger row (another point's, damaged, disagreeing: see :meth:`run`) is refused, naming
         it; with ``check=False`` it is kept and the ``problem`` coordinate says what is wrong.
         Loads every selected run into memory: select first for large campaigns."""
@@ -253,7 +264,22 @@ class CampaignResults:
         for column in ["outcome", *self.parameters]:
             if column in by_id.columns:
                 coords[column] = ("point", by_id.loc[ids, column].to_numpy())
-        return xr.Dataset(data, coords=coords, attrs={"campaign": self.name, "directory": str(self.directory)})
+        dataset = xr.Dataset(data, coords=coords, attrs={"campaign": self.name, "directory": str(self.directory)})
+        dims = _grid_dims(by_id.loc[ids, [p for p in self.parameters if p in by_id.columns]]) if grid else []
+        if not dims:
+            return dataset
+        short = {d: self._dimension_name(d) for d in dims}
+        if len(dims) == 1:  # a plain index, which unstack refuses: the ids stay a coordinate along it
+            gridded = dataset.swap_dims(point=dims[0]).sortby(dims[0])
+        else:
+            gridded = dataset.assign_coords(id=("point", ids)).set_index(point=dims).unstack("point")
+            gridded = gridded.rename({"id": "point"})
+        return gridded.rename(short).transpose(*short.values(), "time")
+
+    def _dimension_name(self, parameter: str) -> str:
+        """``parameter``'s last part where no other parameter shares it (``k_p``), else in full."""
+        last = parameter.rsplit(".", 1)[-1]
+        return last if [p.rsplit(".", 1)[-1] for p in self.parameters].count(last) == 1 else parameter
 
     def plot_map(self, metric: str = "rms_error", *, size: str = "screen", title: bool = True, facet: int = 1):
         """The map of ``metric`` (a table column ``analyse`` maps: ``rms_error``, ``input_energy``,
@@ -272,3 +298,14 @@ def open_campaign(directory: str | Path) -> CampaignResults:
 def open_run(path: str | Path) -> RunResults:
     """Open one run log (``runs/<point id>.mcap``) as :class:`RunResults`."""
     return RunResults(path)
+
+
+def _grid_dims(parameters: pd.DataFrame) -> list[str]:
+    """The columns of ``parameters`` (one row a run) that vary, where the rows hold each combination
+    of their values exactly once (a full grid); [] where they do not, or where none varies."""
+    varying = [c for c in parameters.columns if parameters[c].nunique(dropna=False) > 1]
+    if not varying or parameters[varying].isna().any(axis=None):
+        return []
+    sizes = [parameters[c].nunique() for c in varying]
+    full = int(np.prod(sizes)) == len(parameters) and not parameters.duplicated(subset=varying).any()
+    return varying if full else []
