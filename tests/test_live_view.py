@@ -130,7 +130,10 @@ def test_a_foxglove_client_sees_progress_runs_and_signals_that_agree_with_the_le
     signals = received["/run/signals"]
     running = [m for m in signals if m["outcome"] == "running"]
     print(f"{len(signals)} /run/signals messages, {len(running)} of runs under way")
-    assert running and len(signals) > len(running), "no signals of a run under way, or of a finished one"
+    # a finished run's signals always come; one under way only when a publication falls inside a batch (tenths
+    # of a second here: it did not in 1 of 3 CI runs on 2 loaded cores), so the slot path is pinned by the
+    # shared-memory tests below and every running message that came is checked here
+    assert len(signals) > len(running), "no signals of a finished run"
     for message in signals:  # a batch's middle run, full rate (400 samples): as logged, or its beginning
         log = read_run(project / "data" / "live" / "runs" / f"{message['point_id']}.mcap")
         assert message["decimation"] == 1 and message["rate_hz"] == 200.0
