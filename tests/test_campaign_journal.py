@@ -48,9 +48,9 @@ def _spy(monkeypatch) -> list[str]:
     events: list[str] = []
     problem, listing, claim = integrity.problem, seal.listing, Ledger.claim
 
-    def checked(db, *, thorough=True):
-        events.append("every row" if thorough else "structure")
-        return problem(db, thorough=thorough)
+    def checked(db, *, thorough=True, per_row=True):
+        events.append("every row" if thorough and per_row else "structure")
+        return problem(db, thorough=thorough, per_row=per_row)
 
     def listed(ledger):
         events.append("listing")

@@ -133,6 +133,22 @@ def test_one_flipped_bit_in_a_logs_metadata_is_caught(campaign, where, anchor, s
     assert _states(campaign)[point] == "disagrees"
 
 
+def test_parameters_made_no_json_object_with_forged_checksums_are_named_by_table_and_analyse(campaign):
+    """The table checks the ids and parameters over the rows it reads (one pass); a row it cannot read,
+    although the checksums were forged to match, is still named as the ledger's damage."""
+    from labrunner.campaign import integrity
+
+    point, _ = _log_of(campaign, 1.0)
+    db = sqlite3.connect(campaign / "ledger.sqlite")
+    db.execute("UPDATE points SET parameters = '[1, 2]' WHERE id = ?", (point,))
+    db.execute("UPDATE meta SET value = ? WHERE key = 'points_checksum'", (integrity.points_checksum(db),))
+    db.commit()
+    db.close()
+    with pytest.raises(LedgerDamaged, match=r"seq \d+\) whose parameters are not a JSON object"):
+        open_campaign(campaign).table()
+    assert main(["analyse", str(campaign)]) == 2
+
+
 def test_a_parameter_edited_in_the_ledger_is_reported(campaign):
     point, _ = _log_of(campaign, 1.0)
     db = sqlite3.connect(campaign / "ledger.sqlite")

@@ -97,7 +97,7 @@ def _analyse(
 
     from labrunner import safefs
     from labrunner.analysis import memory, selection, table as table_mod, table_files, table_rows
-    from labrunner.campaign.ledger import Ledger
+    from labrunner.campaign.ledger import Ledger, ledger_path
     from labrunner.campaign.progress import Steps
 
     memory.return_freed_memory()  # after the fork: this process's tables of 10^6 rows, not the drawing child's
@@ -114,24 +114,26 @@ def _analyse(
             steps.advance(n)
 
     step("reading the ledger")
-    with Ledger.open_readonly(directory) as ledger:
+    with Ledger.open_readonly(directory, per_row=False) as ledger:
         meta = ledger.meta()
         quarantine = [dict(r) for r in ledger.quarantined()]
         campaign, note = selection.load_campaign(meta, directory)
         rig_units, rig_limits = selection.rig_signals(campaign)
         advance()
         step("metrics table")
-        built = table_mod.build_table(
-            table_rows.ledger_chunks(ledger.db),  # streamed: one chunk of rows at a time
-            directory,
-            cache=out / table_files.METRICS_PARQUET,
-            workers=workers,
-            units=rig_units,
-            limits=rig_limits,
-            recompute=recompute,
-            tick=advance,
-            announce=lambda n: step(f"metrics table, reading {n} logs", n),
-        )
+        path = ledger_path(directory)
+        with table_rows.verified_chunks(ledger.db, path) as chunks:  # streamed: a chunk of rows at a time
+            built = table_mod.build_table(
+                chunks,
+                directory,
+                cache=out / table_files.METRICS_PARQUET,
+                workers=workers,
+                units=rig_units,
+                limits=rig_limits,
+                recompute=recompute,
+                tick=advance,
+                announce=lambda n: step(f"metrics table, reading {n} logs", n),
+            )
         guided_rows = [dict(r) for r in ledger.rows()] if campaign is not None and campaign.guided is not None else []
     memory.trim()  # what building the table freed
     frame = built.frame

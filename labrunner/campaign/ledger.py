@@ -211,15 +211,18 @@ class Ledger:
         return cls(directory, db)
 
     @classmethod
-    def open_readonly(cls, directory: Path, *, verify: bool = True, thorough: bool = True) -> Ledger:
+    def open_readonly(
+        cls, directory: Path, *, verify: bool = True, thorough: bool = True, per_row: bool = True
+    ) -> Ledger:
         """Open for reading (``status``, ``analyse``): no journal-mode change, nothing written;
-        ``thorough=False`` leaves out the checks that read every row (:mod:`.integrity`)."""
+        ``thorough=False`` leaves out the checks that read every row, ``per_row=False`` those of the
+        ids and parameters, for a reader that checks them over the rows it reads (:mod:`.integrity`)."""
         path = ledger_path(directory)
         db = connect_readonly(path)
         db.row_factory = sqlite3.Row
         try:
             if verify:
-                integrity.verify(db, path, thorough=thorough)
+                integrity.verify(db, path, thorough=thorough, per_row=per_row)
         except BaseException:
             db.close()
             raise

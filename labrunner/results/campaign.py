@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from labrunner.campaign.ledger import Ledger
+from labrunner.campaign.ledger import Ledger, ledger_path
 from labrunner.errors import InvalidParameter
 from labrunner.results import conditions as conditions_mod
 from labrunner.results.describe import column_units, logged_units
@@ -74,19 +74,21 @@ class CampaignResults:
     def _built(self) -> tuple[pd.DataFrame, list[dict[str, str]], list[str]]:
         from labrunner.analysis import selection, table as table_mod
         from labrunner.analysis.table_files import METRICS_PARQUET
-        from labrunner.analysis.table_rows import ledger_chunks
+        from labrunner.analysis.table_rows import verified_chunks
 
         campaign, _ = selection.load_campaign(self.meta, self.directory)
         units, limits = selection.rig_signals(campaign)
-        with Ledger.open_readonly(self.directory) as ledger:
+        with Ledger.open_readonly(self.directory, per_row=False) as ledger:
             first = ledger.db.execute("SELECT parameters FROM points ORDER BY seq LIMIT 1").fetchone()
-            built = table_mod.build_table(
-                ledger_chunks(ledger.db),  # streamed: one chunk of rows at a time
-                self.directory,
-                cache=self.directory / REPORT_DIR / METRICS_PARQUET,
-                units=units,
-                limits=limits,
-            )
+            path = ledger_path(self.directory)
+            with verified_chunks(ledger.db, path) as chunks:  # streamed: a chunk of rows at a time
+                built = table_mod.build_table(
+                    chunks,
+                    self.directory,
+                    cache=self.directory / REPORT_DIR / METRICS_PARQUET,
+                    units=units,
+                    limits=limits,
+                )
         # every point has the grid's keys (dotted: section.key); the first row names them in order
         named = [k for k in (json.loads(first[0]) if first else {}) if k in built.frame.columns]
         parameters = [*named, *(c for c in built.frame.columns if "." in c and c not in named)]
