@@ -44,7 +44,7 @@ from labrunner.analysis.log_checks import (
     read_many,
     same_file,
 )
-from labrunner.analysis.table_rows import Chunk, chunk_frame
+from labrunner.analysis.table_rows import Chunk, chunk_columns
 from labrunner.errors import LabrunnerError
 from labrunner.metrics import BASE_METRICS, CUT_SHORT, UNTIL_ABORT, Roles, parse_windows, ranked, run_metrics
 
@@ -153,12 +153,13 @@ def ledger_frame(
     missing: list[int] = []
     start = fresh = 0
     for chunk in chunks:
-        frame, absent = chunk_frame(chunk)
+        columns, absent = chunk_columns(chunk)
         if on_chunk is not None:
             on_chunk(start, chunk, absent)
-        for col in frame.columns:
-            pieces.setdefault(col, [None] * len(lengths)).append(frame[col].copy())
-        lengths.append(len(frame))
+        n = len(chunk["seq"])
+        for col, values in columns.items():
+            pieces.setdefault(col, [None] * len(lengths)).append(pd.Series(values, name=col))
+        lengths.append(n)
         for column in pieces.values():
             column += [None] * (len(lengths) - len(column))  # a column this chunk lacks
         fresh += 1
@@ -168,8 +169,8 @@ def ledger_frame(
             lengths[-fresh:] = [sum(lengths[-fresh:])]
             fresh = 0
         missing += [start + i for i in absent]
-        start += len(frame)
-        del frame, chunk
+        start += n
+        del columns, chunk
     if not lengths:
         return pd.DataFrame(columns=list(ID_COLUMNS)), missing
     columns = {}

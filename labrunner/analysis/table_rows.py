@@ -250,6 +250,14 @@ def chunk_frame(chunk: Chunk) -> tuple[pd.DataFrame, list[int]]:
     """One chunk of ledger rows as the table's columns (see the module): ids, outcome and its
     details, parameters (scalars), metrics, a real rig's timing counts; and the positions of
     finished rows whose ledger holds no full metrics (their logs must be read)."""
+    columns, missing = chunk_columns(chunk)
+    return pd.DataFrame(columns), missing
+
+
+def chunk_columns(chunk: Chunk) -> tuple[dict[str, Any], list[int]]:
+    """:func:`chunk_frame`'s columns before they are a frame (name → a list or array each):
+    the table joins them a column at a time, so a frame of each chunk would be built, its blocks
+    consolidated, and every column copied out again for nothing."""
     n = len(chunk["seq"])
     # an outcome's columns once per distinct text (a completed run's is the same in every such row)
     distinct = dict.fromkeys(chunk["outcome_json"])
@@ -289,4 +297,4 @@ def chunk_frame(chunk: Chunk) -> tuple[pd.DataFrame, list[int]]:
             columns[key] = per_row([d.get(key, np.nan) for d in timing], None)  # counts: NumPy types them
         else:
             columns[key] = params[key]
-    return pd.DataFrame(columns), missing
+    return columns, missing
