@@ -191,9 +191,11 @@ class ToyRig(SimRig):
         return self.y[:, None]
 
 
-def test_entry_point_extends_registry(monkeypatch, tmp_path):
+def test_entry_point_extends_registry(monkeypatch, tmp_path, request):
     ep = EntryPoint(name="toy", value=f"{__name__}:ToyRig", group=registry.ENTRY_POINT_GROUP)
     monkeypatch.setattr(kinds, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
+    kinds._plugin_kinds.cache_clear()  # looked up once a process: again, with the plug-in installed
+    request.addfinalizer(kinds._plugin_kinds.cache_clear)
     assert rig_kinds()["toy"] == f"{__name__}:ToyRig"
     path = write_rig(tmp_path, "toy", '[rig]\nkind = "toy"\n[parameters]\ngain = 5.0\n')
     rig = load_rig(path)

@@ -12,6 +12,7 @@ here; :mod:`labrunner.rigs.registry` is the public face of both.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 from collections.abc import Mapping
@@ -47,11 +48,16 @@ def register_rig(kind: str, target: str | type[Rig]) -> None:
 
 def rig_kinds() -> dict[str, str]:
     """Every known kind: built-ins, then entry points, then :func:`register_rig` (later wins)."""
-    kinds = dict(BUILTIN)
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        kinds[ep.name] = ep.value
+    kinds = {**BUILTIN, **_plugin_kinds()}
     kinds.update({k: v if isinstance(v, str) else f"{v.__module__}:{v.__qualname__}" for k, v in _registered.items()})
     return kinds
+
+
+@functools.cache
+def _plugin_kinds() -> dict[str, str]:
+    """The entry points' kinds, looked up once a process: scanning the installed distributions
+    takes ~15 ms, and a command asks for a rig class several times (a table: four)."""
+    return {ep.name: ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
 def rig_class(kind: str) -> type[Rig]:
