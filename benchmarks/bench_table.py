@@ -41,6 +41,23 @@ That is 0.23–0.31 s per 10^4 at 10^6 against 0.36–0.39 before: ~20 % less, b
 by ±25 % from one minute to the next on this machine (a pair at 16:09–16:12, load 3, before the
 last of these changes: 31.6 / 31.1 s). Wall at 10^6: 32.5–51.8 s after, 52.4–66.4 s before;
 after, ``select()`` took 0.010–0.023 s, ``run()`` 0.024–0.045 s, a second ``table()`` 0.9–1.7 s.
+
+Re-measured 2026-12-04 18:22–18:34 UTC (load 6–7: two other engineers' test runs and a niced
+reproduction pack) after the ids' and parameters' checks moved into the table's own pass over the
+ledger (``integrity.RowDigests``) and each chunk's columns went to the table as Series, not through
+a frame: ``--max 1000000 --repeat 1 --ledgers DIR``, CPU [s] of ``table()``::
+
+       run                      10^4    10^5    10^6   peak RSS at 10^6
+       before (c5857c4), 1      0.41    3.80   27.51   1225 MB
+       before (c5857c4), 2      0.27    1.99   26.49   1207 MB
+       after, 1                 0.39    3.00   24.01   1166 MB
+       after, 2                 0.27    2.17   26.32   1166 MB
+
+Every 10^6 figure of this session is under the 30 s asked (19.6–26.3 s in seven runs, in-process
+and in this benchmark), peak RSS under 1.5 GB; wall time at that load was 25–54 s. At 10^4 the
+fixed part (the campaign file and rig parsed, the ledger's quick_check: ~0.1 s) puts the figure
+at 0.27–0.39 s, about the 0.3 s per 10^4 asked; the gain of this change (~2–3 s at 10^6, from
+in-process pairs) is within this machine's minute-to-minute spread in the table above.
 """
 
 from __future__ import annotations
