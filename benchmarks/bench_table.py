@@ -53,7 +53,7 @@ a frame: ``--max 1000000 --repeat 1 --ledgers DIR``, CPU [s] of ``table()``::
        after, 1                 0.39    3.00   24.01   1166 MB
        after, 2                 0.27    2.17   26.32   1166 MB
 
-Every 10^6 figure of this session is under the 30 s asked (19.6–26.3 s in seven runs, in-process
+Every 10^6 figure of this session is under the 30 s asked (23.2–26.3 s in seven runs, in-process
 and in this benchmark), peak RSS under 1.5 GB; wall time at that load was 25–54 s. At 10^4 the
 fixed part (the campaign file and rig parsed, the ledger's quick_check: ~0.1 s) puts the figure
 at 0.27–0.39 s, about the 0.3 s per 10^4 asked; the gain of this change (~2–3 s at 10^6, from
