@@ -528,8 +528,8 @@ ITEMS: tuple[Item, ...] = (
             + _VALVE_SHORT,
             **{
                 T
-                + f"calib-valve-fig09-10-{k}.toml": '"reference.levels" = { values = [[2.0, 4.0, 2.0], [2.0, 10.0, 2.0], '
-                '[2.0, 14.0, 2.0]] }\n"rig_parameters.downstream_conductance" = { values = [2.0, 2.5] }'
+                + f"calib-valve-fig09-10-{k}.toml": '"reference.levels" = { values = [[2.0, 4.0, 2.0], [2.0, 14.0, 2.0]] }\n'
+                '"rig_parameters.downstream_conductance" = { values = [2.0, 2.25, 2.5, 2.75, 3.0] }'
                 for k in ("mfc", "ffc")
             },
         },
