@@ -521,7 +521,7 @@ ITEMS: tuple[Item, ...] = (
         "(1 % of the sensor's range)",
         "Fitted: the return path's conductance (downstream_conductance, assumed 6 (l/min)/√bar in the valve twin), on "
         "Fig. 5's saturated RMS only; Figs. 9/10 are not used in the fit. The full pack also runs one row per other "
-        "assumed parameter (lags, hysteresis, friction), which do not reach 8 l/min while the runs stay saturated.",
+        "assumed parameter (lags, hysteresis, friction): none brings the level of both gains near 8 l/min.",
         {
             T + "calib-valve-saturated.toml": '"controller.k_p" = { values = [1.0, 10.0] }\n'
             '"rig_parameters.downstream_conductance" = { values = [6.0, 2.0, 2.25, 2.5, 2.75, 3.0, 4.0] }'
