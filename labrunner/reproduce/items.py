@@ -512,7 +512,7 @@ ITEMS: tuple[Item, ...] = (
         "Sec. 5.1, Fig. 5 (calibration); Sec. 5.3, Figs. 9, 10 (validation)",
         (T + "calib-valve-saturated.toml", T + "calib-valve-fig09-10-mfc.toml", T + "calib-valve-fig09-10-ffc.toml"),
         "Fig. 5: above the stability region the flow oscillates at the maximal current with RMS(e_q) ≈ 8 l/min "
-        "(the twin as shipped: 12.9 far above it); Figs. 9/10: the MFC's RMS(e_q) is below the FFC's for every "
+        "(the twin as shipped: 12.8 on the quick grid, 13.0 on the full one, far above it); Figs. 9/10: the MFC's RMS(e_q) is below the FFC's for every "
         "end value up to 14 l/min, and the MFC is steady-state accurate.",
         "calib_valve",
         "calibration: the conductance of the ladder whose saturated RMS (γ = 0.01, k_p = 1 and 10, every run "
