@@ -28,7 +28,7 @@ from labrunner.control import factory
 from labrunner.control.base import Controller
 from labrunner.control.trajectories import Reference
 from labrunner.errors import LabrunnerError, RigError
-from labrunner.metrics import Roles, parse_windows, run_metrics
+from labrunner.metrics import Roles, closes_loop, parse_windows, run_metrics
 from labrunner.rigs.base import Rig, RigInfo
 from labrunner.safety import SafetyConfig, SafetyMonitor
 
@@ -238,7 +238,7 @@ def run_batch(
         sink(last, log.signals(log.rows(0, last, int(end[0]))))
 
     channels = log.channels
-    roles = roles_of(channels, rig.info)
+    roles = roles_of(channels, rig.info if closes_loop(points[0]) else None)  # a batch shares its controller kind
     results = []
     by_run = log.run_major(int(end.max()) if B else 0)
     for i in range(B):

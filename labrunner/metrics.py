@@ -15,7 +15,7 @@ Named windows (a campaign's ``[metrics]`` section, e.g. ``fault = [2.0, 2.5]`` i
 same metrics over samples t0 ≤ k/fs < t1 as ``<metric>@<name>`` columns, so a fault's effect or
 the hover after a lift-off is measured without the transient around it (paper 2 Table 3). With the
 input limits and f_s, the run also gets the oscillation detector's columns
-(:mod:`labrunner.oscillation`).
+(:mod:`labrunner.oscillation`) — if its controller closes a loop (:func:`closes_loop`).
 """
 
 from __future__ import annotations
@@ -33,6 +33,10 @@ DEFAULT_DETECTOR = Detector()  # the thresholds of labrunner.oscillation
 
 #: Metric columns every run gets (NaN where a run has no such channel).
 BASE_METRICS = ("rms_error", "rms_error_hat", "input_energy", "max_abs_input", "max_current", "n_samples")
+#: Controller kinds whose input does not feed back the measured output (labrunner.control.baselines): an
+#: input at its limit there is a commanded step (the ±12 V identification steps), not a loop that lost
+#: authority, and u alone cannot tell the two apart; their runs get no detector columns.
+OPEN_LOOP_KINDS = frozenset({"open-loop", "valve-ffc"})
 UNTIL_ABORT = "_until_abort"  # the suffix of a cut-short run's metrics
 CUT_SHORT = ("aborted", "failed")  # outcomes whose run ended before its duration (the engine's words)
 _RANKED_PREFIXES = ("rms_", "energy_", "max_")
@@ -43,6 +47,13 @@ def ranked(name: str) -> bool:
     went — the ones a run cut short must not offer for ranking; sample counts do not."""
     base = name.split("@", 1)[0]
     return (base in BASE_METRICS or base.startswith(_RANKED_PREFIXES)) and base != "n_samples"
+
+
+def closes_loop(config: Mapping[str, object] | None) -> bool:
+    """Whether a run's configuration (its ``controller`` section) feeds the output back: only then may the
+    oscillation detector judge it (the callers pass no input limits otherwise)."""
+    controller = (config or {}).get("controller")
+    return not (isinstance(controller, Mapping) and controller.get("kind") in OPEN_LOOP_KINDS)
 
 
 def as_reported(metrics: Mapping[str, object], status: str | None) -> dict[str, object]:

@@ -72,3 +72,41 @@ def test_roles_from_log_channels_with_rig_units_as_fallback():
     roles = roles_of(channels, {"i": "A", "q": "l/min"})
     assert roles == Roles(errors=("e_q",), inputs=("i",), error_hats=("e_hat_q",), currents=("i",))
     assert roles_of(channels).currents == ()  # no unit anywhere: not known to be a current
+
+
+def test_an_open_loop_step_at_the_limit_is_not_flagged_oscillating(tmp_path):
+    """The ±12 V identification steps of thesis Sec. 3.2 on the motor twin: u sits at the limit for 75 % of
+    the run by command, which the detector alone reads as a loop that lost authority (pinned). Its callers
+    (the engine's metrics, the analysis reading the logs again) run it on closed loops only, so neither
+    flags these runs; the same step under the closed-loop metrics (the rig's input limits given) is."""
+    import json
+    from pathlib import Path
+
+    from labrunner.analysis.table import log_metrics
+    from labrunner.campaign.ledger import Ledger
+    from labrunner.cli import main
+    from labrunner.logs import read_run
+    from labrunner.metrics import closes_loop
+
+    campaign = Path(__file__).resolve().parents[1] / "campaigns" / "dcmotor-identification.toml"
+    out = tmp_path / "ident"
+    assert main(["run", str(campaign), "--out", str(out), "--workers", "1"]) == 0
+    with Ledger.open_readonly(out) as ledger:
+        rows = list(ledger.rows(("done",)))
+    assert len(rows) == 4
+    pinned = 0
+    for row in rows:
+        metrics = json.loads(row["metrics_json"])
+        assert "oscillating" not in metrics and "pinned_share" not in metrics, metrics
+        log = out / "runs" / f"{row['id']}.mcap"
+        again = log_metrics(str(log), limits={"u": (-12.0, 12.0)})
+        assert "error" not in again and "oscillating" not in again
+        run = read_run(str(log))
+        assert not closes_loop(run.metadata["config"])
+        signals = {c: run.frame[c].to_numpy() for c in run.frame.columns}
+        roles = Roles(errors=("e_u_cmd",), inputs=("u",), input_limits=((-12.0, 12.0),))
+        closed = run_metrics(signals, roles, fs=float(run.fs))  # what the callers skip
+        pinned += closed["oscillating"] == 1.0 and closed["pinned_share"] == pytest.approx(0.75)
+    assert pinned == 2  # the ±12 V steps; the ±6 V ones never reach the limit
+    assert closes_loop({"controller": {"kind": "mfc1"}}) and closes_loop(None)
+    assert not closes_loop({"controller": {"kind": "valve-ffc"}})

@@ -63,6 +63,11 @@ def test_quick_pack_verdicts_on_the_twins(quick):
         assert items[undecided]["verdict"] == "undecided", items[undecided]["measured"]
     assert items["valve-8"]["verdict"] == "disagrees" and "oscillating [DISAGREES]" in items["valve-8"]["measured"]
     assert items["calib-motor"]["verdict"] == "disagrees" and "backlash 0.25 rad" in items["calib-motor"]["measured"]
+    # the valve's return path fitted on Fig. 5's saturated RMS, validated on Figs. 9/10 (2026-12-04)
+    valve = items["calib-valve"]["measured"]
+    assert items["calib-valve"]["verdict"] == "disagrees" and items["calib-valve"]["variant"] == "disagrees"
+    assert "downstream_conductance 2.5 (l/min)/√bar" in valve and "residual 0.18 l/min" in valve
+    assert "not at 14 l/min [DISAGREES]" in valve and "2.5: disagrees, 2.75: agrees, 3: agrees" in valve
 
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -295,3 +295,59 @@ def test_the_backlash_is_fitted_on_the_feed_forward_edge_and_judged_on_table_3_1
     table = edges(pd.DataFrame(rows))
     assert list(table["edge γ_Ω"].round(1)) == [48.7, 64.9]
     assert abs(table["rungs from the thesis's"].iloc[1]) < 0.01 and table["rungs from the thesis's"].iloc[0] < -1.9
+
+
+def test_the_valves_saturated_level_is_read_per_row_and_only_saturated_rows_count():
+    """calib-valve's calibration table: each zip row names the one parameter off the shipped twin; a row
+    whose runs do not all oscillate at i_max is not saturated (its RMS is not the valve's)."""
+    from labrunner.reproduce.checks_calibration import saturated_levels
+
+    shipped = {"main_tau": 0.015, "downstream_conductance": 6.0}
+    rows = []
+    for tau, gd, rms, current in ((0.015, 6.0, 12.9, 1.01), (0.015, 2.5, 7.9, 1.01), (0.1, 6.0, 5.4, 0.9)):
+        for k_p, dr in ((1.0, 0.0), (10.0, 0.2)):
+            rows.append(
+                {
+                    "rig_parameters.main_tau": tau,
+                    "rig_parameters.downstream_conductance": gd,
+                    "controller.k_p": k_p,
+                    "outcome": "completed",
+                    "oscillating": 1.0,
+                    "rms_error": rms + dr,
+                    "max_abs_input": current,
+                }
+            )
+    table = saturated_levels(pd.DataFrame(rows), shipped, i_max=1.01)
+    assert list(table["parameter"]) == ["shipped twin", "downstream_conductance", "main_tau"]
+    assert list(table["value"].fillna(-1)) == [-1, 2.5, 0.1]
+    assert list(table["saturated RMS(e_q) [l/min]"].round(2)) == [13.0, 8.0, 5.5]
+    assert list(table["all saturated"]) == [True, True, False]  # main_tau 0.1: the current stays below i_max
+    assert table["spread over k_p [l/min]"].round(2).tolist() == [0.2, 0.2, 0.2]
+
+
+def test_figs_9_10_validation_needs_the_mfc_settled_at_every_end_value_and_the_fitted_runs_only():
+    """calib-valve's validation: the MFC below the FFC at every end value and settled at each; runs_at cuts
+    every validation file to the fitted conductance (and is None where a grid lacks it)."""
+    from labrunner.reproduce.checks_calibration import SETTLED_TOL, runs_at, settled_and_lower
+
+    ends = [4.0, 14.0]
+    params = [{"reference.levels": [2.0, e, 2.0]} for e in ends for _ in (2.5, 6.0)]
+    gd = [2.5, 6.0] * 2
+
+    def frame(tracking, settled):
+        return pd.DataFrame(
+            {"rig_parameters.downstream_conductance": gd, "rms_error@tracking": tracking, "rms_error@settled": settled}
+        )
+
+    results = {
+        **result("calib-valve-fig09-10-mfc", frame([0.5, 0.5, 2.1, 0.7], [0.07, 0.05, 0.69, 0.06]), params),
+        **result("calib-valve-fig09-10-ffc", frame([3.0, 2.2, 3.4, 3.0], [2.0, 1.2, 2.8, 1.2]), params),
+    }
+    files = ("fig09-10-mfc", "fig09-10-ffc")
+    fitted = runs_at(results, files, "rig_parameters.downstream_conductance", 2.5)
+    assert all(len(r.frame) == 2 and len(r.parameters) == 2 for r in fitted.values())
+    assert runs_at(results, files, "rig_parameters.downstream_conductance", 3.0) is None
+    verdict = settled_and_lower(fitted)  # lower at both, but 0.69 l/min off at 14 l/min
+    assert verdict.agrees is False and "not at 14 l/min" in verdict.measured and 0.69 > SETTLED_TOL
+    shipped = settled_and_lower(runs_at(results, files, "rig_parameters.downstream_conductance", 6.0))
+    assert shipped.agrees is True and "lower at 2 of 2" in shipped.measured

@@ -46,7 +46,16 @@ from labrunner.analysis.log_checks import (
 )
 from labrunner.analysis.table_rows import Chunk, chunk_columns
 from labrunner.errors import LabrunnerError
-from labrunner.metrics import BASE_METRICS, CUT_SHORT, UNTIL_ABORT, Roles, parse_windows, ranked, run_metrics
+from labrunner.metrics import (
+    BASE_METRICS,
+    CUT_SHORT,
+    UNTIL_ABORT,
+    Roles,
+    closes_loop,
+    parse_windows,
+    ranked,
+    run_metrics,
+)
 
 #: Columns that identify a point and its run, in this order at the left of the table.
 ID_COLUMNS = (
@@ -123,7 +132,9 @@ def log_metrics(
         log = read_run(path)
         frame = log.frame
         signals = {c: frame[c].to_numpy() for c in frame.columns}
-        windows = parse_windows((log.metadata.get("config") or {}).get("metrics"))
+        config = log.metadata.get("config") or {}
+        windows = parse_windows(config.get("metrics"))
+        limits = limits if closes_loop(config) else None  # an open-loop run: no detector (labrunner.metrics)
         out: dict[str, Any] = run_metrics(
             signals, roles_of(log.channels, units, limits), fs=float(log.fs), windows=windows
         )

@@ -163,12 +163,13 @@ def compare_guideline2_polack(
     Runs ``campaigns/guided/guideline2-case1.toml`` and ``polack.toml`` (or those in ``campaigns``)
     into ``out/guideline2`` and ``out/polack`` (resumed if they exist; ≈ 170 runs, ≈ 30 s on 2 cores;
     progress lines go to ``stream``). Returns
-    ``{"guideline2": {"runs", "reason", "chosen", "steps_to_polack_rms"}, "polack": {"runs",
+    ``{"guideline2": {"runs", "reason", "chosen", "runs_to_polack_rms"}, "polack": {"runs",
     "feed_forward", "feedback", "reason", "chosen"}, "ratio", "thesis": THESIS_STEPS}``: ``chosen`` is
-    ``{"id", "params", "rms_error", "step"}``; ``steps_to_polack_rms`` the first step of the Guideline 2
-    walk whose RMS(e) is at most that of Polack's choice (the thesis stopped Guideline 2 there);
-    ``ratio`` = Polack's runs / that step (thesis: 107 / 54 ≈ 2), ``ratio_runs`` = Polack's runs /
-    Guideline 2's runs up to its trip."""
+    ``{"id", "params", "rms_error", "step"}``; ``runs_to_polack_rms`` the runs Guideline 2 made up to and
+    including its first completed run whose RMS(e) is at most that of Polack's choice (the thesis stopped
+    Guideline 2 there; a point the walk looks at again is not a run); ``ratio`` = Polack's runs / those
+    runs (thesis, in steps: 107 / 54 ≈ 2; steps as the thesis counts them: ``labrunner reproduce`` item
+    3.5.3), ``ratio_runs`` = Polack's runs / Guideline 2's runs up to its trip."""
     from labrunner.campaign import guided_run, runner
     from labrunner.campaign.ledger import LEDGER_NAME
 
@@ -202,7 +203,7 @@ def step_counts(guideline2: Advance, polack: Advance) -> dict[str, Any]:
     """The comparison of thesis Sec. 3.5.3 from two finished walks (see :func:`compare_guideline2_polack`)."""
     g_choice, p_choice = _choice(guideline2), _choice(polack)
     target = p_choice["rms_error"] if p_choice else None
-    match = next(
+    at = next(
         (
             n
             for n, s in enumerate(guideline2.walk, 1)
@@ -210,13 +211,14 @@ def step_counts(guideline2: Advance, polack: Advance) -> dict[str, Any]:
         ),
         None,
     )
+    match = sum(s.new for s in guideline2.walk[:at]) if at else None
     stages = list(polack.stage_counts().values())
     return {
         "guideline2": {
             "runs": guideline2.runs,
             "reason": _reason(guideline2),
             "chosen": g_choice,
-            "steps_to_polack_rms": match,
+            "runs_to_polack_rms": match,
         },
         "polack": {
             "runs": polack.runs,

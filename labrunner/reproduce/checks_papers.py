@@ -134,6 +134,12 @@ def valve_lines(results: Results, ref: Ref = NO_REF) -> Verdict:
 
 def mfc_vs_ffc(results: Results, ref: Ref = NO_REF) -> Verdict:
     """Paper 1 Fig. 10: the MFC's RMS(e_q) is below the FFC's at every end value."""
+    part, table = mfc_below_ffc(results)
+    return combine([part], table)
+
+
+def mfc_below_ffc(results: Results) -> tuple[Part, pd.DataFrame]:
+    """Fig. 10's part and its table (RMS(e_q) of the MFC and the FFC per end value), for reuse (calib-valve)."""
     rows = {}
     for name in ("mfc", "ffc"):
         run = one(results, f"-{name}")
@@ -147,4 +153,4 @@ def mfc_vs_ffc(results: Results, ref: Ref = NO_REF) -> Verdict:
         f"{table['FFC'].max():.2f} l/min; lower at {int(lower.sum())} of {len(table)} end values",
         bool(lower.all()),
     )
-    return combine([part], table.reset_index())
+    return part, table.reset_index()

@@ -16,7 +16,7 @@ import numpy as np
 
 from labrunner import engine
 from labrunner.control import factory
-from labrunner.metrics import parse_windows, run_metrics
+from labrunner.metrics import closes_loop, parse_windows, run_metrics
 from labrunner.rigs.base import RigInfo
 from labrunner.rigs.device import blocks, description, lawcheck, session
 from labrunner.rigs.device.columns import column_names, from_columns
@@ -86,7 +86,10 @@ def to_result(
         verdict.message,
     )
     metrics = run_metrics(
-        signals, engine.roles_of(channels, rig_info), fs=float(fs), windows=parse_windows(point.get("metrics"))
+        signals,
+        engine.roles_of(channels, rig_info if closes_loop(point) else None),
+        fs=float(fs),
+        windows=parse_windows(point.get("metrics")),
     )  # as the engine measures a twin run
     result = engine.RunResult(outcome, signals, float(fs), channels, metrics, dict(diagnostics))
     result.float32_signals = tuple(signals)  # every column came from the device's float32 rows
