@@ -25,7 +25,7 @@ QUICK = {
 SLOW = {
     "bench_analysis.py": (["--sizes", "20", "40"], "fit over"),
     "bench_deviceloop.py": (["--only", "motor-can"], "moved:"),
-    "bench_stability.py": ([], ""),
+    "bench_stability.py": (["--size", "5", "--repeat", "10"], "5 x 5 map"),
     "bench_control.py": ([], ""),
     "bench_scale.py": (["--max", "1000", "--synthetic", "400"], "synthetic ledger"),
     "bench_table.py": (["--max", "400", "--repeat", "1"], "per 10^4"),

@@ -2,7 +2,11 @@
 pack, the plate's Table 3 experiments included), and the checks' verdicts on the twins: the report
 must say plainly where the twin disagrees with its source and which claims it cannot test."""
 
+import contextlib
+import fcntl
+import io
 import json
+import os
 import re
 from html import escape
 from pathlib import Path
@@ -10,19 +14,100 @@ from pathlib import Path
 import pytest
 
 from labrunner.cli import main
-from labrunner.reproduce.items import ITEMS
+from labrunner.reproduce.items import ITEMS, QUICK_SKIP, Item
+from labrunner.reproduce.run import campaign_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _campaigns() -> dict[str, tuple[Item, str]]:
+    """The quick pack's campaigns in the pack's order: {its directory under OUT/runs: (item, file)}, each
+    once, with the first item naming it and the directory's name as ``run_items`` gives them."""
+    out: dict[str, tuple[Item, str]] = {}
+    for item in ITEMS:
+        for file in item.files if item.quick and item.reproduced else ():
+            if file not in QUICK_SKIP:
+                out.setdefault(Path(file).stem + ("-quick" if file in item.quick_grids else ""), (item, file))
+    return out
+
+
+CAMPAIGNS = _campaigns()
 
 
 @pytest.fixture(scope="module")
-def quick(tmp_path_factory):
-    out = tmp_path_factory.mktemp("reproduce")
-    import contextlib
-    import io
+def pack(tmp_path_factory) -> Path:
+    """The quick pack's output folder, one per session: every pytest-xdist worker sees the same one
+    (the workers' base temporary folders share a parent), so that its campaigns are spread over them."""
+    base = tmp_path_factory.getbasetemp()
+    out = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "reproduce-quick"
+    (out / "locks").mkdir(parents=True, exist_ok=True)
+    return out
 
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        assert main(["reproduce", "--quick", "--out", str(out), "--workers", "2", "--json"]) == 0
-    return out, json.loads(buf.getvalue())
+
+@contextlib.contextmanager
+def _locked(out: Path, name: str, wait: bool = True):
+    """An exclusive lock between the workers (released when the file closes or the worker dies); yields
+    False without it where ``wait`` is False and another worker holds it."""
+    with open(out / "locks" / f"{name}.lock", "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        yield True
+
+
+def _campaign(out: Path, name: str, wait: bool = True) -> dict | None:
+    """Run the pack's campaign ``name`` into ``OUT/runs/name`` as ``reproduce --quick`` would (the same
+    file, grid and directory), unless a worker already has; its outcome {complete, counts} (None where
+    ``wait`` is False and another worker is running it). The report (the fixture below) then resumes it,
+    which finds nothing to run, and analyses it."""
+    from labrunner.campaign import runner
+
+    done = out / "runs" / f"{name}.outcome.json"
+    with _locked(out, name, wait) as mine:
+        if not mine:
+            return None
+        if not done.exists():
+            item, file = CAMPAIGNS[name]
+            path = campaign_file(item, file, ROOT, out, quick=True)
+            directory = out / "runs" / name
+            opts = runner.Options(workers=1, stream=io.StringIO())
+            outcome, _ = runner.resume(directory, opts) if directory.exists() else runner.start(path, directory, opts)
+            result = {"complete": outcome.complete, "counts": outcome.counts}
+            if not outcome.complete:
+                return result
+            done.write_text(json.dumps(result), encoding="utf-8")
+        return json.loads(done.read_text(encoding="utf-8"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", CAMPAIGNS)
+def test_each_campaign_of_the_quick_pack_runs_to_its_end(pack, name):
+    """One campaign of the pack a test, so that pytest-xdist spreads the pack's ~320 CPU-seconds of runs
+    (2026-12-04) over its workers instead of one worker running them in turn."""
+    outcome = _campaign(pack, name)
+    assert outcome["complete"] and sum(outcome["counts"].values()) > 0, outcome
+
+
+@pytest.fixture(scope="module")
+def quick(pack):
+    """``labrunner reproduce --quick`` on the campaigns above (run here when no other worker has), once a
+    session: a worker that finds the report written reads its summary."""
+    for name in CAMPAIGNS:  # first those no other worker is running, then wait for the rest
+        _campaign(pack, name, wait=False)
+    for name in CAMPAIGNS:
+        assert _campaign(pack, name)["complete"], name
+    summary = pack / "summary.json"
+    with _locked(pack, "report"):
+        if not summary.exists():
+            buf = io.StringIO()
+            with contextlib.redirect_stdout(buf):
+                assert main(["reproduce", "--quick", "--out", str(pack), "--workers", "2", "--json"]) == 0
+            summary.write_text(buf.getvalue(), encoding="utf-8")
+    # the report ran no campaign of its own: it found each of the ones above where it looks for it
+    assert sorted(p.name for p in (pack / "runs").iterdir() if p.is_dir()) == sorted(CAMPAIGNS)
+    return pack, json.loads(summary.read_text(encoding="utf-8"))
 
 
 @pytest.mark.slow
@@ -70,7 +155,6 @@ def test_quick_pack_verdicts_on_the_twins(quick):
     assert "not at 14 l/min [DISAGREES]" in valve and "2.5: disagrees, 2.75: agrees, 3: agrees" in valve
 
 
-ROOT = Path(__file__).resolve().parents[1]
 #: How README.md and docs/fidelity.md quote the quick pack's counts (one sentence each).
 COUNTS = re.compile(
     r"quick pack[^*]*\*\*(\d+) agree, (\d+) disagree, (\d+) not discriminating, (\d+) undecided, "
