@@ -166,6 +166,30 @@ def test_a_lost_dask_worker_reported_by_the_probe_stops_submitting(project, monk
     ledger.close()
 
 
+def test_a_lost_dask_scheduler_abandons_the_running_batches_at_once(project, monkeypatch):
+    """Their results can never come back; before, the runner waited out its deadline for them (twice
+    the runs' duration: a 60 s run kept it 2 min after the loss, and CI's 120 s test timed out)."""
+    campaign, ledger = _ledger(project)
+    ex = Scripted()  # futures that never complete
+    gone: list[str] = []
+
+    def probe() -> str:
+        if ex.futures:  # the scheduler dies once the first batches run
+            gone.append("x")
+        return "lost the connection to the Dask scheduler at tcp://h:1 (client closed)" if gone else ""
+
+    abandoned = []
+    handle = ExecutorHandle(ex, 1, probe=probe, orphaned=lambda: bool(gone), abandon=lambda: abandoned.append(1))
+    sched = Scheduler(campaign, ledger, executor=handle, batch_size=2, signals=StopSignals())
+    monkeypatch.setattr(scheduler_mod, "PROBE_S", 0.0)
+    t0 = time.monotonic()
+    out = sched.run()
+    assert time.monotonic() - t0 < 5.0 and out.abandoned and abandoned
+    assert out.stop_reason.startswith("lost the connection to the Dask scheduler")
+    assert ledger.counts()["claimed"] == 4 and ledger.counts()["planned"] == 4  # 2 batches in flight, for resume
+    ledger.close()
+
+
 def _finish(project, directory: str) -> list[dict]:
     done = cli("resume", directory, "--workers", "2", cwd=project)
     assert done.returncode == 0, done.stderr
@@ -226,10 +250,11 @@ def test_killing_a_worker_of_a_running_pool_ends_the_run_within_a_bound(project,
 def test_ctrl_c_at_random_moments_stops_within_the_bound_and_resumes(project):
     rng = random.Random(18)
     write(project / "c.toml", campaign_text(name="c", grid=GRID, duration=4.0))
-    # trial 0 presses 0.3 s after the start, while it plans: 4000 points take long enough to plan
-    # (~0.2–0.5 s after ~0.2 s of imports) for the press to come before the directory is made
+    # trial 0 presses 0.3 s after the start, mostly while it plans 4000 points (~0.2–0.5 s after ~0.2 s
+    # of imports), on an idle machine sometimes just after the directory was made: either way nothing
+    # may be half-written (its own campaign c0, so that the later trials' data/c is not the big one)
     big = GRID.replace("num = 8 }", "num = 64 }", 1).replace("num = 8 }", "num = 63 }")
-    write(project / "c0.toml", campaign_text(name="c", grid=big, duration=4.0))
+    write(project / "c0.toml", campaign_text(name="c0", grid=big, duration=4.0))
     ledger = project / "data" / "c" / "ledger.sqlite"
     for trial in range(7):
         presses = 1 + trial % 2
@@ -260,8 +285,10 @@ def test_ctrl_c_at_random_moments_stops_within_the_bound_and_resumes(project):
         finished = "64/64" in err  # every point was done before the press: nothing left to interrupt
         if proc.returncode != 0 and not finished:
             assert "interrupted" in _one_line(err)
-        if trial == 0:
-            assert not (project / "data").exists()
+        if trial == 0 and (project / "data" / "c0").exists():
+            book = Ledger.open(project / "data" / "c0")
+            assert sum(book.counts().values()) == 64 * 63, book.counts()
+            book.close()
     rows = _finish(project, "data/c") if ledger.exists() else None
     assert rows is not None and len(rows) == 64 and len({r["id"] for r in rows}) == 64
 

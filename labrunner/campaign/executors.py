@@ -5,6 +5,8 @@ that adds the two things supervision needs beyond ``submit``:
 
 - ``probe()`` — "" while the executor is healthy, else why not (a Dask worker or the scheduler
   lost; a process pool reports a dead worker itself, as ``BrokenProcessPool`` on every future);
+  ``orphaned()`` — True once no running batch can ever return (the Dask scheduler is gone), so the
+  scheduler abandons them at once instead of waiting out its deadline for them;
 - ``abandon()`` — give up on running batches at once: pool workers are killed with SIGKILL (they
   ignore SIGINT/SIGTERM, so ``ProcessPoolExecutor``'s own clean-up, which sends SIGTERM and then
   joins them, would wait forever), Dask futures are cancelled on the cluster;
@@ -114,6 +116,7 @@ class ExecutorHandle:
     executor: Executor
     slots: int
     probe: Callable[[], str] = field(default=lambda: "")
+    orphaned: Callable[[], bool] = field(default=lambda: False)
     abandon: Callable[[], None] = field(default=lambda: None)
     live: live.LiveTicks | None = None
     stop: Callable[[int], None] | None = None  # raise the workers' stop level (live.LiveTicks.stop); None: unseen
@@ -288,28 +291,35 @@ def _dask_session(Client: Any, url: str, workers: int | None) -> Iterator[Execut
         executor = client.get_executor(pure=False)
         ticks = live.LiveTicks(QUEUE_DEPTH * slots, topic=f"labrunner-live-{uuid.uuid4().hex}")
         client.subscribe_topic(ticks.topic, ticks.receive)
+        lost: list[str] = []  # why the scheduler is gone, once the probe has found it
 
         def probe() -> str:
             if client.status != "running":
-                return f"lost the connection to the Dask scheduler at {url} (client {client.status})"
-            try:
-                now = _workers(client)
-            except Exception as exc:  # the scheduler went away between the status and the question
-                return f"lost the connection to the Dask scheduler at {url} ({type(exc).__name__})"
-            return f"Dask worker(s) lost ({started} → {now})" if now < started else ""
+                lost.append(f"client {client.status}")
+            else:
+                try:
+                    now = _workers(client)
+                except Exception as exc:  # the scheduler went away between the status and the question
+                    lost.append(type(exc).__name__)
+                else:
+                    return f"Dask worker(s) lost ({started} → {now})" if now < started else ""
+            return f"lost the connection to the Dask scheduler at {url} ({lost[-1]})"
 
         def abandon() -> None:
             with contextlib.suppress(Exception):
                 executor.shutdown(wait=False)
-            with contextlib.suppress(Exception):
-                client.cancel(list(getattr(executor, "_futures", ())), force=True)
+            if not lost:  # a lost scheduler has nothing left to cancel, and the call would wait for it
+                with contextlib.suppress(Exception):
+                    client.cancel(list(getattr(executor, "_futures", ())), force=True)
 
         def stop(level: int) -> None:  # every worker's copy of the level, in one round trip
             if client.status == "running":
                 with contextlib.suppress(Exception):  # a lost scheduler: the probe says so
                     client.run(live.raise_level, ticks.topic, level)
 
-        yield ExecutorHandle(PackedExecutor(executor), slots, probe=probe, abandon=abandon, live=ticks, stop=stop)
+        yield ExecutorHandle(
+            PackedExecutor(executor), slots, probe=probe, orphaned=lambda: bool(lost), abandon=abandon, live=ticks, stop=stop
+        )
     finally:
         with contextlib.suppress(Exception):
             client.close(timeout=5)

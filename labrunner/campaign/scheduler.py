@@ -430,6 +430,9 @@ class Scheduler:
             reason = self.handle.probe()
             if reason:
                 out.stop_reason = out.stop_reason or reason
+            if self.handle.orphaned():  # their results can never come back: waiting would only run out the clock
+                self._abandon(out)
+                return
         stalled = self._stalled(now)
         if stalled:  # as a dead worker: its batch will never return
             out.stop_reason = out.stop_reason or stalled
