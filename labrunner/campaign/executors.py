@@ -318,7 +318,13 @@ def _dask_session(Client: Any, url: str, workers: int | None) -> Iterator[Execut
                     client.run(live.raise_level, ticks.topic, level)
 
         yield ExecutorHandle(
-            PackedExecutor(executor), slots, probe=probe, orphaned=lambda: bool(lost), abandon=abandon, live=ticks, stop=stop
+            PackedExecutor(executor),
+            slots,
+            probe=probe,
+            orphaned=lambda: bool(lost),
+            abandon=abandon,
+            live=ticks,
+            stop=stop,
         )
     finally:
         with contextlib.suppress(Exception):
