@@ -430,7 +430,7 @@ class Scheduler:
             reason = self.handle.probe()
             if reason:
                 out.stop_reason = out.stop_reason or reason
-            if self.handle.orphaned():  # their results can never come back: waiting would only run out the clock
+            if self.handle.orphaned() and self.inflight:  # their results can never come back: do not wait
                 self._abandon(out)
                 return
         stalled = self._stalled(now)
