@@ -44,9 +44,11 @@ def _cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _client(url: str, read: bool, got: Counter, ready: threading.Event) -> None:
-    """Subscribe to every channel; then decode every message until the server closes (``read``), or never read."""
-    kind = {"max_queue": None} if read else {"max_queue": 1, "ping_interval": None}  # a stalled client sends no pings
+def _client(url: str, read: bool, got: Counter, ready: threading.Event, ended: threading.Event) -> None:
+    """Subscribe to every channel; then decode every message until the server closes (``read``), or never
+    read until the runner has ended (``ended``: a socket that is never read never sees the close)."""
+    # a stalled client sends no pings, and does not wait out a close handshake it never reads
+    kind = {"max_queue": None} if read else {"max_queue": 1, "ping_interval": None, "close_timeout": 0.1}
     with connect(url, subprotocols=SUBPROTOCOLS, max_size=None, **kind) as ws:
         json.loads(ws.recv())  # serverInfo
         channels: dict[int, str] = {}
@@ -59,10 +61,8 @@ def _client(url: str, read: bool, got: Counter, ready: threading.Event) -> None:
         ws.send(json.dumps({"op": "subscribe", "subscriptions": subscribe}))
         ready.set()
         if not read:
-            while True:  # until the connection closes; the socket is never read
-                time.sleep(0.05)
-                if ws.protocol.state.name == "CLOSED":
-                    return
+            ended.wait()  # the socket is never read
+            return
         try:
             while True:
                 frame = ws.recv()
@@ -83,17 +83,18 @@ def trial(work: Path, condition: int, n: int, points: int) -> dict:
     cpu0, t0 = _cpu(), time.perf_counter()
     proc = subprocess.Popen(args, cwd=work, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     got: Counter = Counter()
-    threads = []
+    threads, ended = [], threading.Event()
     if condition > 2:
         url = proc.stderr.readline().split()[1]
         for read in [True] if condition == 3 else [True, False]:
             ready = threading.Event()
-            thread = threading.Thread(target=_client, args=(url, read, got, ready), daemon=True)
+            thread = threading.Thread(target=_client, args=(url, read, got, ready, ended), daemon=True)
             thread.start()
             ready.wait(30)
             threads.append(thread)
     _, err = proc.communicate(timeout=600)
     wall, cpu = time.perf_counter() - t0, _cpu() - cpu0
+    ended.set()
     for thread in threads:
         thread.join(30)
     if proc.returncode != 0 or f"{points}/{points}" not in err:

@@ -257,6 +257,7 @@ def synthetic(work: Path, n: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--min", type=int, default=1000, help="smallest campaign (points; default 1000)")
     parser.add_argument("--max", type=int, default=100_000, help="largest campaign (points; default 100000)")
     parser.add_argument(
         "--synthetic", type=int, default=0, help="also status/resume/analyse on a synthetic ledger of this many points"
@@ -269,7 +270,7 @@ def main() -> None:
         "points     run [s]  runner peak  runner at 10/50/90 %     status [s] resume [s] analyse [s] analyse peak  disk"
     )
     try:
-        n = 1000
+        n = args.min
         while n <= args.max:
             r = scale(work, n)
             run, analysis = r["run"], r["analyse"]

@@ -148,3 +148,16 @@ def test_imports_under_type_checking_and_lazy_package_exports_are_not_followed(p
     ``__getattr__``: neither runs when planning imports a submodule."""
     files = plan_inputs.code_files()
     assert "__init__.py" in files and "results/__init__.py" not in files
+
+
+def test_the_digest_does_not_depend_on_the_working_directory(tmp_path, monkeypatch):
+    """A rig file keeps its path as displayed (relative to the working directory): the digest names it
+    absolutely, so that a ``resume`` from another directory trusts the stored plan (the synthetic
+    ledgers of bench_scale, whose plan cannot be re-planned, were refused from their own folder)."""
+    campaign = ROOT / "campaigns" / "quickstart.toml"
+    monkeypatch.chdir(ROOT)
+    here = spec.load(campaign)
+    assert not Path(here.rig_config.to_dict()["rig"]["source"]).is_absolute()  # what made it differ
+    stored = plan_inputs.stamp(here)
+    monkeypatch.chdir(tmp_path)
+    assert plan_inputs.unchanged(spec.load(campaign), stored)

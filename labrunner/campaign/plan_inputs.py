@@ -155,11 +155,20 @@ def digest(campaign: Any, files: Sequence[str] | None = None) -> str:
         "campaign": parse(campaign.source, source_path=campaign.source_path),
         "rig": campaign.rig,
         "rig_path": str(campaign.rig_path) if campaign.rig_path else None,
-        "rig_config": campaign.rig_config.to_dict(),
+        "rig_config": _located(campaign.rig_config.to_dict()),
         "code": code_digest(code_files() if files is None else files),
     }
     text = json.dumps(inputs, sort_keys=True, separators=(",", ":"), default=repr, ensure_ascii=False)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _located(rig_config: dict[str, Any]) -> dict[str, Any]:
+    """A rig configuration with its file named by its absolute path: the display path it keeps is
+    relative to the working directory, which a ``resume`` from elsewhere does not share."""
+    head = rig_config.get("rig", {})
+    if head.get("source") and Path(head["source"]).is_file():
+        rig_config = {**rig_config, "rig": {**head, "source": str(Path(head["source"]).resolve())}}
+    return rig_config
 
 
 def stamp(campaign: Any) -> dict[str, str]:
