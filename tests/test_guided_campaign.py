@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
 import signal
 from pathlib import Path
 
@@ -33,6 +34,22 @@ def quiet(**kw) -> runner.Options:
     return runner.Options(workers=1, stream=io.StringIO(), **kw)
 
 
+@pytest.fixture(scope="module")
+def polack(tmp_path_factory) -> tuple[Path, Path]:
+    """(the POLACK campaign file, one uninterrupted run of it): the reference that several tests
+    read, run once per module instead of once per test (~2 s of CPU each). A test that writes into
+    a run (analyse's report) takes a copy (:func:`_copy`) and leaves this one as it was."""
+    root = tmp_path_factory.mktemp("polack")
+    path = write_campaign(root, POLACK, name="pol")
+    _, directory = runner.start(path, root / "ref", quiet())
+    return path, Path(directory)
+
+
+def _copy(directory: Path, to: Path) -> Path:
+    """A copy of a finished run (logs with their modification times) that a test may write into."""
+    return Path(shutil.copytree(directory, to))
+
+
 def test_rows_are_the_walk_and_status_reports_the_decision(tmp_path):
     path = write_campaign(tmp_path, POLACK, name="pol")
     out, directory = runner.start(path, tmp_path / "run", quiet())
@@ -56,11 +73,10 @@ def test_rows_are_the_walk_and_status_reports_the_decision(tmp_path):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
-def test_a_killed_guided_campaign_resumes_with_the_same_decisions(tmp_path, sig):
+def test_a_killed_guided_campaign_resumes_with_the_same_decisions(tmp_path, sig, polack):
     # SIGKILL: the runner dies mid-round; SIGINT (Ctrl-C): it finishes the running batch, exit 130
-    path = write_campaign(tmp_path, POLACK, name="pol")
-    reference, _ = runner.start(path, tmp_path / "ref", quiet())
-    expected = comparable(ledger_rows(tmp_path / "ref"))
+    path, ref = polack  # the uninterrupted run of the same campaign file (only read here)
+    expected = comparable(ledger_rows(ref))
     proc = spawn("run", str(path), "--out", str(tmp_path / "cut"), "--workers", "1", cwd=tmp_path)
     try:
         assert wait_for(lambda: sum(r["state"] in ("done", "aborted") for r in ledger_rows(tmp_path / "cut")) >= 4, 90)
@@ -78,13 +94,12 @@ def test_a_killed_guided_campaign_resumes_with_the_same_decisions(tmp_path, sig)
     done = cli("resume", str(tmp_path / "cut"), "--workers", "1", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert comparable(ledger_rows(tmp_path / "cut")) == expected
-    assert runner.status(tmp_path / "cut")["guided"] == runner.status(tmp_path / "ref")["guided"]
+    assert runner.status(tmp_path / "cut")["guided"] == runner.status(ref)["guided"]
 
 
-def test_resume_runs_a_round_that_was_written_but_not_run(tmp_path):
+def test_resume_runs_a_round_that_was_written_but_not_run(tmp_path, polack):
     # a runner killed right after appending a round: its rows are planned; resume runs them, then goes on
-    path = write_campaign(tmp_path, POLACK, name="pol")
-    runner.start(path, tmp_path / "ref", quiet())
+    path, ref = polack  # the uninterrupted run of the same campaign file (only read here)
     campaign = spec.load(path)
     first, checksum = spec.plan(campaign)
     directory = tmp_path / "cut"
@@ -101,7 +116,7 @@ def test_resume_runs_a_round_that_was_written_but_not_run(tmp_path):
     Ledger.create(directory, meta=meta, points=((p.seq, p.id, p.parameters, p.batch_key) for p in first)).close()
     (directory / "runs").mkdir()
     runner.resume(directory, quiet())
-    assert comparable(ledger_rows(directory)) == comparable(ledger_rows(tmp_path / "ref"))
+    assert comparable(ledger_rows(directory)) == comparable(ledger_rows(ref))
 
 
 def test_dry_run_says_guided_and_the_most_runs(tmp_path):
@@ -143,11 +158,10 @@ def test_a_bad_guided_file_is_refused_before_anything_exists(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_analysis_shows_the_walk_and_the_step_counts(tmp_path):
+def test_analysis_shows_the_walk_and_the_step_counts(tmp_path, polack):
     from labrunner.analysis.analyse import analyse
 
-    path = write_campaign(tmp_path, POLACK, name="pol")
-    _, directory = runner.start(path, tmp_path / "run", quiet())
+    directory = _copy(polack[1], tmp_path / "run")  # analyse writes its report into the run
     summary = analyse(directory, workers=1)
     rows = ledger_rows(Path(directory))
     walk = pd.read_csv(Path(directory) / "report" / "walk.csv")
@@ -260,10 +274,9 @@ def test_runs_to_polacks_rms_count_runs_not_the_points_a_walk_looks_at():
     assert result["guideline2"]["runs_to_polack_rms"] == 3 and result["ratio"] == 6 / 3
 
 
-def test_status_and_analyse_give_the_same_chosen_point(tmp_path):
+def test_status_and_analyse_give_the_same_chosen_point(tmp_path, polack):
     """Issue 36: `status` said the procedure chose one γ and `analyse` called another "best"."""
-    path = write_campaign(tmp_path, POLACK, name="pol")
-    _, directory = runner.start(path, tmp_path / "run", quiet())
+    directory = _copy(polack[1], tmp_path / "run")  # analyse writes its report into the run
     chosen = runner.status(directory)["guided"]["chosen"]
     out = cli("analyse", directory, "--workers", "1", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
