@@ -144,12 +144,15 @@ def test_a_filters_bound_with_its_tail_folded_in_still_bounds_the_full_sum():
     steady = np.linalg.solve(np.eye(n) - A, B)
     x = steady @ w[:1]
     e_x0 = f32bound.U * np.abs(x) + np.abs(steady) @ (f32bound.U * np.abs(w[:1]))
+    # |C A^k| for every k, each computed once as before (np.linalg.matrix_power), not once per (k, j)
+    # pair: the same values, summed in the same order, so the same reference to the last bit
+    gains = [np.abs(C @ np.linalg.matrix_power(A, k)) for k in range(len(w))]
     etas, full = [], []
     for k, v in enumerate(w):
         e_w = f32bound.U * abs(v)
         e = g * (np.abs(C) @ np.abs(x) + np.abs(D) @ [abs(v)]) + np.abs(D) @ [e_w]
-        e += np.abs(C @ np.linalg.matrix_power(A, k)) @ e_x0
-        e += sum(np.abs(C @ np.linalg.matrix_power(A, k - 1 - j)) @ eta for j, eta in enumerate(etas))
+        e += gains[k] @ e_x0
+        e += sum(gains[k - 1 - j] @ eta for j, eta in enumerate(etas))
         full.append(float(e[0]) + f32bound.U * abs(float((C @ x + D @ [v])[0])))
         etas.append(g * (np.abs(A) @ np.abs(x) + np.abs(B) @ [abs(v)]) + np.abs(B) @ [e_w])
         x = A @ x + B @ [v]
