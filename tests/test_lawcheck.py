@@ -28,7 +28,21 @@ MFC_POINTS = ("motor-mfc1", "motor-mfc2", "motor-aborted", "valve-mfc1", "plate-
 
 
 def _device(name: str, law_fault=None, seed: int = 3):
-    """(rows, outcome) of the emulated device's run of ``name`` (its reference executor)."""
+    """(rows, outcome) of the emulated device's run of ``name`` (its reference executor). The
+    fault-free run is computed once per point and seed (:func:`_right`)."""
+    return _execute(name, law_fault, seed) if law_fault is not None else _right(name, seed)
+
+
+@functools.cache
+def _right(name: str, seed: int):
+    """The fault-free run: a pure computation that several tests read (the plain check, the
+    faulty run's reference, the altered copies); its rows are read-only, a test alters a copy."""
+    rows, outcome = _execute(name, None, seed)
+    rows.flags.writeable = False
+    return rows, outcome  # Outcome is a frozen dataclass
+
+
+def _execute(name: str, law_fault, seed: int):
     point, rig_name, fs, duration, safety = POINTS[name]
     rig = load_rig(rig_name)
     data = description.build(point, rig.info, fs=fs, duration=duration, seed=seed, rig_safety=safety)
