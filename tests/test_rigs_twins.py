@@ -326,9 +326,9 @@ def _mfc_valve(gamma: np.ndarray, k_p: np.ndarray, fs: float = 4000.0):
         f_hat = w1 @ q_hist[1:] - gamma * (w0 @ i_hist[1:])
         e_hat = w0 @ q_hist[:L] - qd[k]
         i = np.clip((dqd[k] - k_p * e_hat - f_hat) / gamma, 0.0, 1.01)
-        i_hist = np.roll(i_hist, 1, axis=0)
+        i_hist[1:] = i_hist[:-1]  # shifted in place: np.roll's values without a new array each tick
         i_hist[0] = i
-        q_hist = np.roll(q_hist, 1, axis=0)
+        q_hist[1:] = q_hist[:-1]
         q_hist[0] = out[k] = rig.step(i[:, None])[:, 0]
     return out - qd[:, None]
 
