@@ -74,7 +74,9 @@ def test_figures_drawn_in_children_equal_those_drawn_here(tmp_path):
 def test_many_run_plots_are_drawn_here_while_the_child_draws_the_maps(tmp_path):
     """More run plots than the drawing child takes (--plot all): this process draws them, with
     progress, while the child draws the maps; the same files as one process draws."""
-    make_campaign(tmp_path)
+    # 3 × 3 points: 9 run plots, still more than BACKGROUND_PLOTS (8, asserted below), and a 2-D map;
+    # the usual 4 × 4 drew 16 run plots twice for the same path
+    make_campaign(tmp_path, gammas=(1.0, 10.0, 100.0), k_ps=(0.1, 1.0, 10.0))
     here = analyse(tmp_path, tmp_path / "one", workers=1, plot=["all"], progress=False)
     child = analyse(tmp_path, tmp_path / "two", workers=2, plot=["all"], progress=False)
     assert len(child["run_plots"]) == len(here["run_plots"]) > BACKGROUND_PLOTS and len(child["maps"]) == 2
