@@ -165,6 +165,10 @@ def test_status_from_another_terminal_gives_the_rate_and_eta_the_runner_shows(pr
     """Issue 36: `status` said "no rate yet" while the runner showed 74 % and an ETA (its rate counts
     the runs in flight; the ledger has none committed until a lockstep batch returns)."""
     proc, directory = _start(project, "watched")
+    # the runner's plain lines: one at its start (before the first claim), then every
+    # runner.Options.progress_interval_s (5 s) while it waits; _start returns 2 s after the claim, so
+    # the second line is due within 3 s of now: waited for until 5 s from now (2 s of margin)
+    second_line = time.monotonic() + 5.0
     try:
         time.sleep(2.0)  # past the runner's first publication (every second)
         st = json.loads(cli("status", str(directory), "--json", cwd=project).stdout)
@@ -173,7 +177,7 @@ def test_status_from_another_terminal_gives_the_rate_and_eta_the_runner_shows(pr
         assert st["rate_per_s"] > 0 and st["estimate_s"] > 0
         text = cli("status", str(directory), cwd=project).stdout
         assert "no rate yet" not in text and "runs/s" in text
-        time.sleep(6.0)  # the runner writes a plain line every 5 s: one with a rate before the press
+        time.sleep(max(0.0, second_line - time.monotonic()))  # a plain line with a rate before the press
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
