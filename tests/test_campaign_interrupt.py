@@ -21,8 +21,9 @@ from test_campaign_support import campaign_text, cli, ledger_rows, spawn, wait_f
 
 from labrunner import engine
 from labrunner.campaign import live
-from labrunner.campaign.scheduler import Outcome
+from labrunner.campaign.scheduler import Outcome, StopSignals
 from labrunner.cli.run_cmd import report
+from labrunner.interrupts import FirstPressStops
 from labrunner.rigs.sim.dcmotor import DCMotorTwin
 
 # 32 points of 300 s at 200 Hz: two batches of 16 runs, 60 000 lockstep ticks each (≥ 8 s of one
@@ -186,3 +187,45 @@ def test_status_from_another_terminal_gives_the_rate_and_eta_the_runner_shows(pr
     shown = [float(m) for m in re.findall(r"(\d+(?:\.\d+)?) runs/s", before)]
     assert shown and max(shown) > 0 and 0.5 < st["rate_per_s"] / max(shown) < 2.0, (st, err)
     assert json.loads(cli("status", str(directory), "--json", cwd=project).stdout)["running"] is None
+
+
+def test_a_press_while_an_interrupted_program_winds_down_is_ignored():
+    """The CI failure of 2026-12-05: the first press stopped the runs, the session's counter
+    (StopSignals) handed SIGINT back, and the second press 0.3 s later raised KeyboardInterrupt
+    in the wind-down, cutting off the last line ("32 of 32 points left; continue with ...")."""
+    previous = signal.getsignal(signal.SIGINT)
+    program = FirstPressStops()
+    try:
+        signal.signal(signal.SIGINT, program)
+        with StopSignals() as signals:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)  # the handler runs between bytecodes of the main thread
+        assert signals.count == 1 and signal.getsignal(signal.SIGINT) is program
+        os.kill(os.getpid(), signal.SIGINT)  # raised KeyboardInterrupt here before the fix
+        time.sleep(0.01)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_a_session_that_was_not_interrupted_hands_back_a_live_handler():
+    """Only an interrupted session spends the program's handler; a caller's own handler (a notebook's
+    default one) is handed back untouched, so Ctrl-C still works after the campaign returns."""
+    previous = signal.getsignal(signal.SIGINT)
+    program = FirstPressStops()
+    try:
+        signal.signal(signal.SIGINT, program)
+        with StopSignals():
+            pass
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        with StopSignals() as signals:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)
+        assert signals.count == 1 and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)
+    finally:
+        signal.signal(signal.SIGINT, previous)

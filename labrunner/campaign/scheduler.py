@@ -53,6 +53,7 @@ from labrunner.campaign.live_view import LiveView
 from labrunner.campaign.progress import Progress
 from labrunner.campaign.spec import Campaign
 from labrunner.campaign.worker import BatchResult, BatchTask, RunTask, execute_batch
+from labrunner.interrupts import FirstPressStops
 
 BATCH_MEMORY_BYTES = 256 * 2**20  # a batch's signal buffers stay below this
 _BYTES_PER_SAMPLE = 8 * 32  # float64 × (generous) number of logged traces per run
@@ -178,6 +179,8 @@ class StopSignals:
 
     def __exit__(self, *exc: object) -> None:
         for sig, old in self._old.items():
+            if self.count and isinstance(old, FirstPressStops):
+                old.spend()  # the program winds down from this stop: a later press must not cut it short
             signal.signal(sig, old)
 
 

@@ -30,6 +30,7 @@ import traceback
 from collections.abc import Sequence
 
 from labrunner.errors import InvalidParameter, LabrunnerError, os_reason
+from labrunner.interrupts import FirstPressStops
 from labrunner.version import __version__
 
 # Sub-command modules, in the order ``--help`` lists them.
@@ -79,16 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _interrupt_once(signum: int, frame: object) -> None:
-    """The program's SIGINT handler until a campaign installs its own: the first Ctrl-C stops the
-    command (KeyboardInterrupt), later ones are ignored while it winds down."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    raise KeyboardInterrupt
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # the program itself
-        signal.signal(signal.SIGINT, _interrupt_once)
+        signal.signal(signal.SIGINT, FirstPressStops())
     try:
         return _main(argv)
     except KeyboardInterrupt:  # while the parser was built (imports) or the arguments parsed
