@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import signal
 from pathlib import Path
 
-import pytest
-from test_campaign_support import MOTOR_RIG
+# One BLAS thread a process, as labrunner's own workers run: the suite's workers (one more than the
+# cores, below) and the in-process numpy of a test would otherwise each spin a second thread. Set
+# before numpy loads; the xdist workers and every child inherit it.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402 (after the BLAS setting above)
+from test_campaign_support import MOTOR_RIG  # noqa: E402
 
 # A suite started with SIGINT ignored (`nohup`, or `&` in a script) passes the ignoring on to every
 # child process, and the tests that stop an emulator or a runner with Ctrl-C (SIGINT) then wait for
@@ -14,6 +21,13 @@ from test_campaign_support import MOTOR_RIG
 # SIGINT's default back; this process becomes interruptible again too.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: one worker more than the cores this process may use. About a fifth of the suite's
+    time is spent waiting, not computing (QEMU, CAN and host-build conform runs in real time, watchdog
+    and Ctrl-C tests, benchmarks timing subprocesses): a third worker on two cores fills it."""
+    return len(os.sched_getaffinity(0)) + 1
 
 
 @pytest.fixture

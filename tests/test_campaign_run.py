@@ -168,7 +168,9 @@ def test_real_rig_runs_in_process_one_run_at_a_time(project):
 @pytest.mark.slow
 def test_second_runner_refused_and_sigint_leaves_a_resumable_campaign(project):
     grid = '"controller.gamma" = { log10 = [1.5, 3.0], num = 8 }\n"controller.k_p" = { log10 = [0.0, 2.0], num = 8 }'
-    write(project / "long.toml", campaign_text(name="long", grid=grid, duration=5.0))
+    # 30 s runs: the campaign must outlast the three commands below (at 5 s it had finished, 64 of 64 in
+    # 3 s, before the Ctrl-C came on an idle machine)
+    write(project / "long.toml", campaign_text(name="long", grid=grid, duration=30.0))
     first = spawn("run", "long.toml", "--workers", "1", "--batch-size", "2", cwd=project)
     directory = project / "data" / "long"
     assert wait_for(lambda: sum(r["state"] in TERMINAL for r in ledger_rows(directory)) >= 2, 60), first.communicate()
