@@ -9,9 +9,12 @@ FS = 32_000.0
 
 
 def closed_loop(point, seconds=None, batch=1, rig_parameters=None, noise=None):
-    """Run ``batch`` copies of ``point``; return t (K,), y (K, B, 4), u (K, B, 4), r (K, B, 3), f_hat (K, B, 3)."""
+    """Run ``batch`` copies of ``point`` (or a list of points, one a run; run b's noise seed is b); return
+    t (K,), y (K, B, 4), u (K, B, 4), r (K, B, 3), f_hat (K, B, 3)."""
     rig = load_rig({"rig": {"kind": "plate"}, "parameters": rig_parameters or {}, "noise": noise or {}})
-    controller, reference = build([point] * batch, rig.info, FS)
+    points = point if isinstance(point, list) else [point] * batch
+    batch = len(points)
+    controller, reference = build(points, rig.info, FS)
     K = int(round((reference.duration if seconds is None else seconds) * FS))
     t = np.arange(K) / FS
     R = reference.evaluate(t)

@@ -115,6 +115,22 @@ def test_tilt_with_force_input_decouples():
     np.testing.assert_allclose(out["f_hat"][-1000:, 0].mean(axis=0), GEO.m * GEO.g / 4, rtol=0.03)
 
 
+def test_mixed_input_batch_equals_single_input_batches():
+    """Runs differing only in ``controller.input`` share a batch (factory.PER_RUN_CHOICES): each row's
+    closed loop is bit for bit that of the same run in a batch of its input alone of the same size."""
+    gains = {"v": 1.0, "force": 1.0, "u": 1.6e-5, "current": 0.04}  # paper 2 Sec. 4.1
+    points = [
+        {"controller": {**MFC, "input": x, "gamma": g}, "differentiator": DIFF, "reference": SHORT}
+        for x, g in gains.items()
+    ]
+    mixed = closed_loop(points, seconds=0.3)
+    for b, point in enumerate(points):
+        alone = closed_loop([point] * len(points), seconds=0.3)
+        for name in ("u", "y", "f_hat"):
+            np.testing.assert_array_equal(mixed[name][:, b], alone[name][:, b], err_msg=point["controller"]["input"])
+    assert np.ptp(mixed["u"][-1, :, 0]) > 1e-3  # the four laws do drive the plate differently
+
+
 def test_batch_gains_and_validation():
     info = PlateTwin.nominal_info("plate-sim", "", {})
     points = [
@@ -132,7 +148,16 @@ def test_batch_gains_and_validation():
         ({**MFC, "gamma": 0.0}, "controller.gamma"),
         ({**MFC, "i_max": 9.0}, "controller.i_max"),
         ({**MFC, "kp": 1.0}, "controller.kp"),
+        ({**MFC, "y_min": 1e-3}, "controller.y_min"),  # γ_i(y) is the current input's
     ]
+    weights = [0.2, 0.4, 0.4]  # a mixed batch: weights and y_min on the rows whose law uses them
+    mixed = [{**MFC}, {**MFC, "input": "force", "weights": weights}, {**MFC, "input": "current", "gamma": 0.04,
+             "weights": weights, "y_min": 1e-3}]  # fmt: skip
+    lift = {"differentiator": DIFF, "reference": {"kind": "lift"}}
+    controller, _ = build([{"controller": c, **lift} for c in mixed], info, FS)
+    assert controller.inputs == ("v", "force", "current") and controller.y_min[:, 0].tolist() == [8e-4, 8e-4, 1e-3]
+    with pytest.raises(InvalidParameter, match="controller.weights"):  # force's weights, current's default
+        build([{"controller": c, **lift} for c in (mixed[1], {**mixed[2], "weights": [0.0, 0.5, 0.5]})], info, FS)
     for controller_section, field in bad:
         with pytest.raises(InvalidParameter, match=field):
             build([{"controller": controller_section, "differentiator": DIFF, "reference": {"kind": "lift"}}], info, FS)

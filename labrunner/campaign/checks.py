@@ -13,6 +13,12 @@ builders require those to agree over a batch. A few numbers must agree too (e.g.
 notch frequency); they are discovered here: when a chunk fails to build although each of its
 points builds alone, the key the error names joins :attr:`StaticChecker.split` and the chunk is
 split by its value.
+
+A controller's per-run choices (:data:`labrunner.control.factory.PER_RUN_CHOICES`, the plate MFC's
+input law) are the exception: they do not split a chunk, and a point's batch key keeps them apart,
+as a sixth element, so that the scheduler can merge keys that differ only there
+(:func:`labrunner.campaign.scheduler.make_batches`). A point without any has the five-element key
+of old ledgers.
 """
 
 from __future__ import annotations
@@ -58,8 +64,18 @@ def batch_key(rig: str, config: dict[str, Any], split: list[str], known: list[tu
 
 
 def batch_key_of(rig: str, fs: float, duration: float, found: list[tuple[str, Any]], split_values: list[Any]) -> str:
-    """:func:`batch_key` from its parts (the planner finds them without resolving each point twice)."""
-    return canonical_json([rig, fs, duration, found, split_values])
+    """:func:`batch_key` from its parts (the planner finds them without resolving each point twice):
+    ``[rig, fs, duration, shared choices, split values]``, and the per-run choices where there are any."""
+    shared, own = split_choices(found)
+    return canonical_json([rig, fs, duration, shared, split_values, *([own] if own else [])])
+
+
+def split_choices(found: list[tuple[str, Any]]) -> tuple[list[tuple[str, Any]], list[tuple[str, Any]]]:
+    """``found`` (:func:`choices`) as (the choices a batch shares, those its controller takes per run)."""
+    per_run = factory.per_run_paths(dict(found).get("controller.kind"))
+    if not per_run:
+        return found, []
+    return [c for c in found if c[0] not in per_run], [c for c in found if c[0] in per_run]
 
 
 def lookup_point(params: dict[str, Any], base: dict[str, Any], key: str) -> Any:
@@ -130,8 +146,8 @@ class StaticChecker:
     def add(self, seq: int, params: dict[str, Any], config: dict[str, Any]) -> Iterator[tuple[Item, float]]:
         """Queue one point; yields the checked points of a chunk once it is full."""
         self._scalars(params, config)
-        found = self.choices(params, config)
-        key = canonical_json([config["campaign"]["fs"], found, [lookup(config, k) for k in self.split]])
+        shared, _ = split_choices(self.choices(params, config))  # per-run choices share a chunk, as a batch
+        key = canonical_json([config["campaign"]["fs"], shared, [lookup(config, k) for k in self.split]])
         chunk = self._pending.setdefault(key, [])
         chunk.append((seq, params, config))
         if len(chunk) >= CHUNK:

@@ -15,22 +15,24 @@ from labrunner.campaign.spec import Campaign, PlannedPoint
 
 def grid_text(campaign: Campaign, points: list[PlannedPoint], slots: int, batch_size: int | None) -> str:
     """A grid campaign's point count, batches and an estimated time, as text; creates nothing."""
-    rows = [{"batch_key": p.batch_key, "id": p.id} for p in points]
-    batches = make_batches(rows, slots, 1 if not campaign.rig_info.simulated else batch_size)
-    groups: dict[str, list[int]] = {}
+    requested = 1 if not campaign.rig_info.simulated else batch_size
+    batches = make_batches([{"batch_key": p.batch_key, "point": p} for p in points], slots, requested)
+    groups: dict[str, list[list[dict]]] = {}
     for key, members in batches:
-        groups.setdefault(key, []).append(len(members))
+        groups.setdefault(key, []).append(members)
     lines = [f"campaign {campaign.name}: {len(points)} points on rig {campaign.rig!r}, {len(batches)} batches"]
     total_s = 0.0
-    for key, sizes in groups.items():
-        _, fs, duration, choices, _ = json.loads(key)
+    for key, cut in groups.items():
+        _, fs, duration, choices, *_ = json.loads(key)
         kind = dict(choices).get("controller.kind")
+        sizes = [len(members) for members in cut]
         lines.append(
-            f"  {sum(sizes)} points × {duration:g} s at {fs:g} Hz ({kind}): {len(sizes)} batches of ≤ {max(sizes)}"
+            f"  {sum(sizes)} points × {duration:g} s at {fs:g} Hz ({kind}{_per_run(cut)}): "
+            f"{len(sizes)} batches of ≤ {max(sizes)}"
         )
         total_s += sum(sizes) * duration
     if campaign.rig_info.simulated:
-        est = simulated_time(campaign, points, slots, max(groups[next(iter(groups))]))
+        est = simulated_time(campaign, points, slots, batch_size)
         lines.append(
             f"  estimated time ≈ {est:.0f} s on {slots} worker(s) at this machine's present load "
             f"(timed now; {total_s:g} s of simulated time)"
@@ -46,14 +48,29 @@ def grid_text(campaign: Campaign, points: list[PlannedPoint], slots: int, batch_
     return "\n".join(lines)
 
 
-def simulated_time(campaign: Campaign, points: list[PlannedPoint], slots: int, size: int) -> float:
-    """Seconds that ``points`` take on ``slots`` workers: one batch (≤ ``size``, at most 16) of the
-    first group timed in-process (nothing written) and extrapolated."""
+def _per_run(batches: list[list[dict]]) -> str:
+    """The per-run choices of the runs of ``batches`` (rows with their planned batch key), e.g.
+    ``; controller.input = v``, or ``; mixed batches: controller.input = v, force`` where they differ."""
+    values: dict[str, list] = {}
+    for row in (row for members in batches for row in members):
+        key = json.loads(row["batch_key"])
+        for path, value in key[5] if len(key) > 5 else ():
+            values.setdefault(path, [])
+            if value not in values[path]:
+                values[path].append(value)
+    mixed = any(len(v) > 1 for v in values.values())
+    listed = "; ".join(f"{path} = {', '.join(map(str, v))}" for path, v in values.items())
+    return f"; {'mixed batches: ' if mixed else ''}{listed}" if values else ""
+
+
+def simulated_time(campaign: Campaign, points: list[PlannedPoint], slots: int, batch_size: int | None = None) -> float:
+    """Seconds that ``points`` take on ``slots`` workers: their first batch (:func:`make_batches`, at
+    most 16 of its runs) timed in-process (nothing written) and extrapolated."""
     from labrunner import engine
     from labrunner.rigs import registry
 
-    group = [p for p in points if p.batch_key == points[0].batch_key]
-    first = group[:: max(1, len(group) // min(size, 16))][: min(size, 16)]  # spread: early aborts end a batch early
+    _, batch = make_batches([{"batch_key": p.batch_key, "point": p} for p in points], slots, batch_size)[0]
+    first = [row["point"] for row in batch[:: max(1, len(batch) // 16)][:16]]  # spread: early aborts end a batch early
     _, fs, duration, *_ = json.loads(first[0].batch_key)
     configs = []
     for p in first:
@@ -83,7 +100,7 @@ def guided_text(campaign: Campaign, first: list[PlannedPoint], slots: int) -> st
     ]
     if campaign.rig_info.simulated:
         parallel = slots if len(first) > 1 else 1  # a walk runs one point per round
-        per_run = simulated_time(campaign, first, 1, len(first)) / len(first)
+        per_run = simulated_time(campaign, first, 1) / len(first)
         rounds = n if len(first) == 1 else -(-n // len(first))  # each round costs a start-up of ~0.2 s
         lines.append(
             f"  estimated time ≤ {per_run * n / parallel + 0.2 * rounds:.0f} s for {n} runs on {parallel} worker(s) "

@@ -2,7 +2,8 @@
 
 Points that can share a lockstep batch (same rig, f_s, duration and non-numeric choices such as
 the controller kind — see :mod:`labrunner.campaign.checks`) are cut into batches (strided over
-the grid: :func:`make_batches`) and submitted to an executor (:mod:`labrunner.campaign.executors`:
+the grid: :func:`make_batches`; points that differ only in a controller's per-run choices, the plate
+MFC's input law, share batches where that makes fewer of them) and submitted to an executor (:mod:`labrunner.campaign.executors`:
 a local process pool, a Dask cluster, or in-process for a real rig).
 
 A batch's points are claimed in one transaction when it is submitted, and its runs' rows are
@@ -36,17 +37,19 @@ abandonment is accepted). Either way the ledger is consistent and the rig is lef
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import signal
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
 from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
 from labrunner.campaign.executors import STOP_SIGNALS, ExecutorHandle
+from labrunner.campaign.grid import canonical_json
 from labrunner.campaign.ledger import Ledger, LedgerWriteError
 from labrunner.campaign.live import QUEUED, START_NOTHING, STOP_RUNNING, RunSignals, representative
 from labrunner.campaign.live_view import LiveView
@@ -129,11 +132,13 @@ def make_batches(rows: list[Any], slots: int, requested: int | None = None) -> l
     group. Runs cost more or less by where they lie in the grid (a run that aborts early leaves
     a shorter log), and contiguous batches would hand one worker the costly end of a grid while
     the other idles. A requested size cuts the group in grid order, the last batch taking the rest.
+    Groups whose keys differ only in their per-run choices are cut as one where that makes fewer
+    batches (:func:`merges`); such a mixed batch carries the key they share (:func:`family`).
     """
-    groups: dict[str, list[Any]] = {}
-    for row in rows:
-        groups.setdefault(row["batch_key"], []).append(row)
-    return [batch for key, members in groups.items() for batch in _cut(key, members, slots, requested)]
+    groups: dict[str, list[int]] = {}
+    for at, row in enumerate(rows):
+        groups.setdefault(row["batch_key"], []).append(at)
+    return [(key, [rows[at] for at in members]) for key, members in _batches(groups.items(), slots, requested)]
 
 
 def planned_batches(ledger: Ledger, slots: int, requested: int | None = None) -> list[tuple[str, Sequence[int]]]:
@@ -141,7 +146,42 @@ def planned_batches(ledger: Ledger, slots: int, requested: int | None = None) ->
     the same batches in the same order, from the planned-points index alone
     (:meth:`~labrunner.campaign.ledger.Ledger.planned_seqs`: 8 bytes a point); the scheduler reads
     a batch's rows as it submits it."""
-    return [batch for key, seqs in ledger.planned_seqs() for batch in _cut(key, seqs, slots, requested)]
+    return _batches(ledger.planned_seqs(), slots, requested)
+
+
+def family(key: str) -> str:
+    """What the runs of a batch must share: ``key`` without its per-run choices, the sixth element
+    of a key that has them (:func:`labrunner.campaign.checks.batch_key_of`); a five-element key as it is."""
+    parts = json.loads(key)
+    return canonical_json(parts[:5]) if len(parts) > 5 else key
+
+
+def merges(key: str, sizes: Sequence[int], slots: int, requested: int | None = None) -> bool:
+    """Whether groups of ``sizes`` points of one :func:`family` (``key``) are cut as one: only where
+    that makes fewer batches than each group cut alone at the merged batches' size. A mixed batch
+    computes every law it holds for each of its rows, so groups that already fill the workers stay
+    apart (paper 2 Fig. 8: four laws × 8 points on 2 workers, 8 batches of 4 either way), while
+    Table 3's four laws of one point each run as 2 batches of 2 rather than 4 of 1."""
+    _, fs, duration, *_ = json.loads(key)
+    size = batch_size(sum(sizes), slots, round(fs * duration), requested)
+    return math.ceil(sum(sizes) / size) < sum(math.ceil(n / size) for n in sizes)
+
+
+def _batches(
+    groups: Iterable[tuple[str, Sequence[int]]], slots: int, requested: int | None
+) -> list[tuple[str, Sequence[int]]]:
+    """The batches of groups of grid positions (by batch key, in the order of their first point),
+    families in the order of their first group: a family's groups merged where :func:`merges`."""
+    families: dict[str, list[tuple[str, Sequence[int]]]] = {}
+    for key, members in groups:
+        families.setdefault(family(key), []).append((key, members))
+    out: list[tuple[str, Sequence[int]]] = []
+    for shared, parts in families.items():
+        if len(parts) > 1 and merges(shared, [len(m) for _, m in parts], slots, requested):
+            parts = [(shared, sorted(itertools.chain.from_iterable(m for _, m in parts)))]
+        for key, members in parts:
+            out += _cut(key, members, slots, requested)
+    return out
 
 
 def _cut(key: str, members: Sequence[_T], slots: int, requested: int | None) -> list[tuple[str, Sequence[_T]]]:

@@ -8,6 +8,7 @@ Builders read their sections through :class:`Section`, which gathers per-run val
 with a leading batch axis, checks ranges, names the dotted key in every error and rejects unknown
 keys. :func:`differentiators` designs one differentiator per run and re-keys the differentiator
 module's own errors (α vs derivative order, ω_c vs Nyquist) to ``differentiator.<key>``.
+A few choices a builder takes per run (:data:`PER_RUN_CHOICES`) need not agree over a batch.
 """
 
 from __future__ import annotations
@@ -37,6 +38,16 @@ REGISTRY: dict[str, str] = {
     "plate-mfc": "labrunner.control.plate:build_plate_mfc",
     "plate-mbc": "labrunner.control.plate_mbc:build_plate_mbc",
 }
+
+#: (controller kind, ``controller`` key) of the choices its builder takes per run (``Section.choice``
+#: with ``per_run=True``): runs that differ only in them may share a lockstep batch, each row computing
+#: its own law (the plate MFC's four input laws: Table 3 would otherwise run four batches of one).
+PER_RUN_CHOICES: frozenset[tuple[str, str]] = frozenset({("plate-mfc", "input")})
+
+
+def per_run_paths(kind: object) -> frozenset[str]:
+    """The dotted keys (``controller.<key>``) that controller ``kind`` takes per run."""
+    return frozenset(f"controller.{key}" for k, key in PER_RUN_CHOICES if k == kind)
 
 
 def register(kind: str, target: str) -> None:

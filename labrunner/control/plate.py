@@ -22,6 +22,11 @@ by default (``filter = "output"``): ê = ŷ − y_r, ê̇ = ŷ̇ − ẏ_r. As i
 plate's resonance (942 rad/s, :mod:`labrunner.control.plate_filters`) cleans the measurement
 before the algebraic differentiators; ``notch_omega = 0`` leaves it out.
 
+The input is chosen per run (:data:`~labrunner.control.factory.PER_RUN_CHOICES`): a batch whose runs
+use several laws computes each present law for every row and keeps each row's own, so that a row's
+currents are those of a batch of its law alone (the laws are row-wise), and Table 3's four laws
+share one lockstep batch instead of four batches of one.
+
 Units are SI throughout. Paper 2's γ_i,0 = 40 works only with y in millimetres in γ_i(y): with
 y in metres the equivalent is 0.04 m²/(A s²) (the linearised gain at 2 mm is ≈ 0.023). Eq. (12)
 reads i_d = d(h)·√F_d (the extracted text's √(F_d d(h)) is not dimensionally consistent with (2)).
@@ -53,12 +58,18 @@ from labrunner.rigs.base import RigInfo
 INPUTS = ("v", "force", "u", "current")
 
 
+def estimator_gain(input: str, gamma: float) -> float:
+    """The signed input gain γ_s of the estimator's model ÿ = f + γ_s x: γ_v, or −γ for the magnet
+    inputs; for the current the estimator's input is γ_i(y)·i with γ_s = −1 (see the module docstring)."""
+    return gamma if input == "v" else -1.0 if input == "current" else -gamma
+
+
 class PlateMFC(Controller):
     """Batch MFC of the plate (B runs × 3 sensor points); gains (B,), one differentiator per run.
 
-    ``input`` picks the model (see the module table); ``weights`` are the a_k of eq. (18) for the
-    inputs force, u and current; ``y_min`` [m] bounds the sensor value in γ_i(y) = γ_i,0 / y
-    (the paper's safety routine keeps the gaps above 0.8 mm).
+    ``input`` picks the model (see the module table), one for the batch or one per run; ``weights``
+    are the a_k of eq. (18) for the inputs force, u and current; ``y_min`` [m] bounds the sensor
+    value in γ_i(y) = γ_i,0 / y (the paper's safety routine keeps the gaps above 0.8 mm).
     """
 
     model_order = 2  # ÿ_k = f_k + γ u_k (eq. (14))
@@ -67,7 +78,7 @@ class PlateMFC(Controller):
         self,
         designs: Sequence[Differentiator],
         *,
-        input: str,
+        input: str | Sequence[str],
         gamma: np.ndarray,
         k_p: np.ndarray,
         k_d: np.ndarray,
@@ -83,18 +94,24 @@ class PlateMFC(Controller):
         B = len(designs)
         i_max = np.broadcast_to(np.asarray(i_max, dtype=float).reshape(-1, 1), (B, 4))
         super().__init__(("y1", "y2", "y3"), np.zeros((B, 4)), i_max)
-        if input not in INPUTS:
-            raise InvalidParameter("controller.input", f"must be one of {', '.join(INPUTS)}, got {input!r}")
-        self.input = input
+        self.inputs = (input,) * B if isinstance(input, str) else tuple(input)
+        for name in self.inputs:
+            if name not in INPUTS:
+                raise InvalidParameter("controller.input", f"must be one of {', '.join(INPUTS)}, got {name!r}")
+        if len(self.inputs) != B:
+            raise InvalidParameter("controller.input", f"needs one input per run ({B}), got {len(self.inputs)}")
+        self._laws = tuple(name for name in INPUTS if name in self.inputs)  # the laws the batch computes
+        # with several laws, each one's rows (B, 1): a row keeps its own law's values (None: one law)
+        self._rows: list[tuple[str, np.ndarray]] | None = None
+        if len(self._laws) > 1:
+            self._rows = [(name, np.array([[x == name] for x in self.inputs])) for name in self._laws]
         self.geometry = geometry or PlateGeometry()
         self.lam_inv_sqrt = float(lam_inv_sqrt)
         self.weights = over_actuation_weights(weights)
         col = lambda a: np.array(np.broadcast_to(np.asarray(a, dtype=float).reshape(-1), (B,))).reshape(B, 1)  # noqa: E731
         self.y_min = col(y_min)
         self.gamma, self.k_p, self.k_d = col(gamma), col(k_p), col(k_d)
-        # signed input gain of the estimator's model ÿ = f + γ_s x: γ_v, or −γ for the magnet inputs;
-        # for the current the estimator's input is γ_i(y)·i with γ_s = −1 (see the module docstring)
-        self._gamma_est = {"v": self.gamma, "force": -self.gamma, "u": -self.gamma, "current": -np.ones((B, 1))}[input]
+        self._gamma_est = np.array([[estimator_gain(x, g)] for x, g in zip(self.inputs, self.gamma[:, 0])])
         self.estimator = MFCEstimator(designs, 2, self._gamma_est, 3, filter_error=filter_error)
         self._set_estimates(self.estimator.block, ("f_hat", "e_hat", "de_hat"))
         # gains broadcast to (B, 3) once (a ufunc is cheaper on equal shapes)
@@ -115,10 +132,13 @@ class PlateMFC(Controller):
         self._model_x = np.zeros((B, 3))  # the estimator's input x_k of the last applied currents
         self._model_f = np.zeros((B, 4))  # the magnet forces behind it (input v)
         self._ke = np.zeros((2, B, 3))  # (k_p ê, k_d ê̇)
-        self._bracket = np.zeros((B, 3))  # ÿ_r − k_p ê − k_d ê̇ − f̂ (its negative for the magnet inputs)
+        self._bracket = np.zeros((B, 3))  # ÿ_r − k_p ê − k_d ê̇ − f̂
+        self._negative = np.zeros((B, 3))  # its negative, for the magnet inputs
         self._x = np.zeros((B, 3))  # the law's x_k = bracket / γ_s
         self._sum_ax = np.zeros((B, 1))  # Σ a_k x_k of eq. (18)
-        self._u = np.zeros((B, 4))  # the four inputs of eq. (18), then the currents returned
+        self._u = np.zeros((B, 4))  # the four inputs of eq. (18), then the currents of a law
+        self._pick_x = np.zeros((B, 3))  # several laws: one law's model input, before the rows keep theirs
+        self._pick_u = np.zeros((B, 4))  # several laws: each row's own currents
         self._notch = None
         if notch_omega > 0:
             fs = designs[0].fs
@@ -144,9 +164,9 @@ class PlateMFC(Controller):
         """From this tick's y_1..y_3: the gaps h = K y (eq. (4)), d(h) and γ_i(y) for the law and the next tick."""
         y3 = self.controlled  # a contiguous copy: half the cost of the strided view in a product
         np.dot(y3, self._lam_K_T, out=self._d_h)
-        if self.input == "u":
+        if "u" in self._laws:
             np.dot(y3, self._K_T, out=self._gaps)
-        if self.input == "current":
+        if "current" in self._laws:
             self._gamma_i(y3, out=self._gamma_y)
 
     def _gamma_i(self, y: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -155,18 +175,26 @@ class PlateMFC(Controller):
         return np.divide(self.gamma, out, out=out)
 
     def _model_input(self, currents: np.ndarray) -> np.ndarray:
-        """(B, 3) the applied input x_k of the ultra-local models for ``currents`` at the last gaps."""
-        x = self._model_x
-        if self.input == "v":  # v = P⁻¹ B f (eq. (5)) with f = i²/d(h)² (eq. (2))
+        """(B, 3) the applied input x_k of the ultra-local models for ``currents`` at the last gaps,
+        each row in its own input."""
+        if self._rows is None:
+            return self._model_input_as(self._laws[0], currents, self._model_x)
+        for name, rows in self._rows:
+            np.copyto(self._model_x, self._model_input_as(name, currents, self._pick_x), where=rows)
+        return self._model_x
+
+    def _model_input_as(self, input: str, currents: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """(B, 3) :meth:`_model_input` of every row as if its input were ``input``, into ``x``."""
+        if input == "v":  # v = P⁻¹ B f (eq. (5)) with f = i²/d(h)² (eq. (2))
             return np.dot(force_at(currents, self._d_h, out=self._model_f), self._P_inv_B_T, out=x)
-        if self.input == "force":
+        if input == "force":
             return force_at(currents[:, :3], self._d_h[:, :3], out=x)
-        if self.input == "u":
+        if input == "u":
             return force_at(currents[:, :3], self._gaps[:, :3], out=x)  # (i/h)²
         return np.multiply(self._gamma_y, currents[:, :3], out=x)
 
     def _law(self, y: np.ndarray, r: np.ndarray) -> np.ndarray:
-        est, w, x, u, ke = self.estimator, self._bracket, self._x, self._u, self._ke
+        est, w, ke = self.estimator, self._bracket, self._ke
         self.controlled[...] = y[:, :3]
         est.step(self._filtered(), self._model_input(self.u_applied), r)  # x_k of the last tick's gaps
         np.multiply(self._gains, self._e_hats, out=ke)  # (k_p ê, k_d ê̇)
@@ -174,18 +202,25 @@ class PlateMFC(Controller):
         np.subtract(w, ke[1], out=w)
         np.subtract(w, est.f_hat, out=w)
         self._measured()
-        if self.input == "v":  # (14): v = w/γ_v; then u = V v (eq. (11)) and the currents by (12)
+        if self._rows is None:
+            return self._currents_as(self._laws[0], w)
+        for name, rows in self._rows:
+            np.copyto(self._pick_u, self._currents_as(name, w), where=rows)
+        return self._pick_u
+
+    def _currents_as(self, input: str, w: np.ndarray) -> np.ndarray:
+        """(B, 4) the currents of law ``input`` for every row, from w = ÿ_r − k_p ê − k_d ê̇ − f̂."""
+        x, u = self._x, self._u
+        if input == "v":  # (14): v = w/γ_v; then u = V v (eq. (11)) and the currents by (12)
             np.dot(w if self._unit_gamma else np.divide(w, self._gamma3, out=x), self._V_T, out=u)  # x/1 is x (γ_v = 1)
             return current_at(u, self._d_h, out=u)
-        np.negative(w, out=w)  # w = −ÿ_r + k_p ê + k_d ê̇ + f̂
+        w = np.negative(w, out=self._negative)  # −ÿ_r + k_p ê + k_d ê̇ + f̂
         # (21) with the sign of (17) and (19): i = (1/γ_i(y))(−ÿ_r + k_p ê + k_d ê̇ + f̂_i); the printed
         # extra leading minus would be positive feedback on ÿ = f_i − γ_i(y) i (20)
-        if self.input == "current":
+        if input == "current":
             return self._over_actuated(np.divide(w, self._gamma_y, out=x))
         self._over_actuated(np.divide(w, self._gamma3, out=x))  # (17) or (19): F̃ or u = w/γ, then (18)
-        return current_at(
-            u, self._d_h if self.input == "force" else self._gaps, out=u
-        )  # (12), or i = √u·h (Sec. 3.2.3)
+        return current_at(u, self._d_h if input == "force" else self._gaps, out=u)  # (12), or i = √u·h (Sec. 3.2.3)
 
     def _over_actuated(self, x3: np.ndarray) -> np.ndarray:
         """(B, 4) = (x_1, x_2, x_3, Σ a_k x_k) in the input buffer (eq. (18))."""
@@ -215,10 +250,16 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     """Plate MFC from campaign points; ``controller`` keys: ``input`` (v | force | u | current,
     default v), ``gamma``, ``k_p``, ``k_d``, ``filter`` (output | error, default output),
     ``weights`` (a_k of eq. (18), not for input v), ``i_max`` [A], ``y_min`` [m] (input current),
-    ``notch_omega`` [rad/s] (942; 0: no notch) and ``notch_q`` (2) of the measurement's notch."""
+    ``notch_omega`` [rad/s] (942; 0: no notch) and ``notch_q`` (2) of the measurement's notch.
+    The input may differ between the runs (:data:`~labrunner.control.factory.PER_RUN_CHOICES`)."""
     check_plate_rig(rig_info, "plate-mfc")
     ctl = Section(points, "controller", used=("kind",))
-    kind = ctl.choice("input", INPUTS, "v")
+    inputs = ctl.choice("input", INPUTS, "v", per_run=True)
+
+    def set_without(key: str, laws: tuple[str, ...]) -> bool:
+        """Whether a run whose input is none of ``laws`` sets ``key``."""
+        return any(x not in laws and key in row for x, row in zip(inputs, ctl.rows))
+
     gamma = ctl.number("gamma", lo=0.0, lo_open=True)
     k_p = ctl.number("k_p", lo=0.0)
     k_d = ctl.number("k_d", lo=0.0)
@@ -227,13 +268,14 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     i_max = ctl.number("i_max", i_hi, lo=0.0, lo_open=True, hi=i_hi)
     weights = (0.0, 0.5, 0.5)
     if ctl.has("weights"):
-        if kind == "v":
+        if set_without("weights", ("force", "u", "current")):
             raise InvalidParameter(
                 "controller.weights",
                 "input 'v' allocates by the pseudo-inverse (eq. (11)); weights are for force, u, current",
             )
+        used = [row for x, row in zip(inputs, ctl.values("weights", weights)) if x != "v"]
         try:
-            rows = [over_actuation_weights(row) for row in ctl.values("weights", weights)]
+            rows = [over_actuation_weights(row) for row in used]
         except InvalidParameter as exc:
             raise InvalidParameter("controller.weights", exc.message) from None
         if any(not np.array_equal(row, rows[0]) for row in rows):
@@ -244,13 +286,15 @@ def build_plate_mfc(points: Sequence[Point], rig_info: RigInfo, fs: float) -> tu
     for key, values in (("notch_omega", notch_omega), ("notch_q", notch_q)):
         if np.ptp(values) > 0:
             raise InvalidParameter(f"controller.{key}", "must be the same for every run of a batch")
-    y_min = ctl.number("y_min", 0.8e-3, lo=0.0, lo_open=True) if kind == "current" else 0.8e-3
+    if set_without("y_min", ("current",)):
+        raise InvalidParameter("controller.y_min", "bounds y in γ_i(y) = γ_i,0 / y of input 'current' only")
+    y_min = ctl.number("y_min", 0.8e-3, lo=0.0, lo_open=True)
     ctl.finish()
     designs = differentiators(points, fs, 2)
     ref = reference_from_points(points, rig_info, delays_s=np.array([d.discrete_delay_s(0) for d in designs]))
     geometry, lam = plate_geometry(rig_info)
     controller = PlateMFC(
-        designs, input=kind, gamma=gamma, k_p=k_p, k_d=k_d, i_max=i_max,
+        designs, input=inputs, gamma=gamma, k_p=k_p, k_d=k_d, i_max=i_max,
         geometry=geometry, lam_inv_sqrt=lam, weights=weights, y_min=y_min, filter_error=filter_error,
         notch_omega=float(notch_omega[0]), notch_q=float(notch_q[0]),
     )  # fmt: skip

@@ -60,7 +60,7 @@ def law_constants(controller: Controller) -> dict[str, np.ndarray]:
         c.update(lambda_inv_sqrt=controller.lam_inv_sqrt, K=g.K, V=g.V, P_inv_B=g.P_inv_B)
         if isinstance(controller, PlateMFC):
             c.update(
-                input=PLATE_INPUTS.index(controller.input),
+                input=PLATE_INPUTS.index(controller.inputs[0]),
                 gamma=controller.gamma[0, 0],
                 k_p=controller.k_p[0, 0],
                 k_d=controller.k_d[0, 0],
