@@ -51,7 +51,10 @@ processes run (now the default here), it took 95.5 s wall, 90.6 s CPU, and labru
 that minute (8.19–10.51 s), was **9.9x wall (9.1–11.7x over the trials), 9.8x CPU**: at this load
 the ≥ 10x goal is met by one trial in three. The figures above (11.7–16x, idle) ran the naive
 script with two BLAS threads too, so they may overstate the ratio by up to the ~30 % found here;
-with a fair baseline, ≥ 10x is not shown.
+with a fair baseline, ≥ 10x is not shown at that load. Idle (2026-12-05 13:22, load 0.3, one BLAS
+thread for both): run 2.25 s + analyse 1.87 s = 4.12 s (3.86–4.24 s) against the naive script's
+54.0 s: 13.2x wall (12.8–14.0x over three trials), but 7.8x CPU (labrunner's 6.98 s are spread
+over two cores).
 
 Run: ``python benchmarks/bench_campaign.py [--skip-10k] [--skip-naive] [--trials 3]`` (the
 1000-point campaign is run ``--trials`` times; its median trial is reported in full, with the
