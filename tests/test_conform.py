@@ -118,3 +118,16 @@ def test_a_device_faster_than_the_silence_is_tried_again_on_a_longer_run(monkeyp
             check = conform._interrupted(rig, vectors.CASES[MOTOR_CASES[0]], "watchdog")
     assert check.passed and "no message from the host" in check.detail, check.detail
     assert "it had completed all 2000 ticks first" in check.detail
+
+
+def test_a_completed_watchdog_run_is_tried_again_only_where_its_progress_rate_does_not_outlast_the_silence():
+    """3 s from the run's first answer to the end of the host's silence: 60 000 ticks at 15 000/s
+    (4 s) outlast it, so the completed run is conclusive; at 45 000/s (1.3 s) they do not, and the
+    check runs once more with 3 s of ticks; without PROGRESS, 10× that at the rate seen at least."""
+    assert conform.LONG_TICKS == 60_000 and conform.STOP_AFTER_S + 2.5 * conform.WATCHDOG_S == 3.0
+    ticks, detail = conform._outlasting(15_000, 5_000)
+    assert ticks == 60_000 and "15000 ticks/s its PROGRESS showed" in detail
+    ticks, detail = conform._outlasting(45_000, 11_000)
+    assert ticks == 135_000 and "so again with 135000" in detail
+    assert conform._outlasting(0, 11_000)[0] == 330_000
+    assert conform._outlasting(0, 1_000)[0] == 60_000  # never shorter than the first run

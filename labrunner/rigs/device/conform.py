@@ -96,8 +96,8 @@ def conform(config: RigConfig, cases: Sequence[str] | None = None, protocol: boo
 
 
 def _run(rig, data: bytes, send_hook=None, recv_hook=None, like: bytes | None = None) -> tuple:
-    """(verdict, rows) of one description on the device; RigError for a refusal or a dead link.
-    ``like``: the good description a broken ``data`` was made from (its ticks and columns)."""
+    """(verdict, rows, transfer) of one description on the device; RigError for a refusal or a dead
+    link. ``like``: the good description a broken ``data`` was made from (its ticks and columns)."""
     rig._drain()
     send, recv = adapters(rig)
     d = description.decode(data if like is None else like)
@@ -105,16 +105,16 @@ def _run(rig, data: bytes, send_hook=None, recv_hook=None, like: bytes | None = 
         send = send_hook(send)
     if recv_hook is not None:
         recv = recv_hook(recv)
-    verdict, rows, _clock, _transfer = session.run_on_device(
+    verdict, rows, _clock, transfer = session.run_on_device(
         send, recv, rig.link.max_payload, data, d.ticks, d.n_columns, d.fs
     )
-    return verdict, rows
+    return verdict, rows, transfer
 
 
 def _vector(rig, name: str, arithmetic: str = lawcheck.FLOAT64) -> Check:
     vector = vectors.build(vectors.CASES[name])
     try:
-        verdict, rows = _run(rig, vector.data)
+        verdict, rows, _ = _run(rig, vector.data)
     except RigError as exc:
         return Check(f"vector {name}", False, str(exc))
     return judge(name, vector, verdict, rows, arithmetic)
@@ -185,7 +185,7 @@ def _broken(data: bytes) -> list[tuple[str, bytes]]:
 
 def _reject(rig, what: str, data: bytes, good: bytes) -> Check:
     try:
-        verdict, _ = _run(rig, data, like=good)
+        verdict, _, _ = _run(rig, data, like=good)
     except RigError as exc:
         refused = "refused the run" in str(exc)
         return Check(f"reject {what}", refused, str(exc).split(": ", 1)[-1] if refused else str(exc))
@@ -227,17 +227,16 @@ def _long_run(case: vectors.Case, ticks: int) -> bytes:
 
 def _interrupted(rig, case: vectors.Case, how: str) -> Check:
     """STOP or SAFE mid-run, or the host silent for 2.5 watchdog periods: the run must end failed
-    (the watchdog tried once more on a longer run where the device outran the silence)."""
+    (the watchdog tried once more on a longer run where the device may have outrun the silence)."""
     name = f"{how} mid-run" if how != "watchdog" else "watchdog"
     try:
-        verdict, clock, ended_at = _interrupted_run(rig, _long_run(case, LONG_TICKS), how)
+        verdict, clock, ended_at, rate = _interrupted_run(rig, _long_run(case, LONG_TICKS), how)
         ticks, again = LONG_TICKS, ""
         if how == "watchdog" and verdict.status == "completed":
-            # at most the rate it ticked at (the time includes the results' upload): 10× the silence's span
-            rate = LONG_TICKS / max(ended_at - clock.get("start", clock["t0"]), 1e-3)  # [ticks/s]
-            ticks = min(2**31, max(LONG_TICKS, math.ceil(10 * rate * (STOP_AFTER_S + 2.5 * WATCHDOG_S))))
-            again = f"; it had completed all {LONG_TICKS} ticks first (~{rate:.0f}/s), so again with {ticks}"
-            verdict, clock, ended_at = _interrupted_run(rig, _long_run(case, ticks), how)
+            lower = LONG_TICKS / max(ended_at - clock.get("start", clock["t0"]), 1e-3)  # [ticks/s]
+            ticks, again = _outlasting(rate, lower)
+            if ticks > LONG_TICKS:
+                verdict, clock, ended_at, _ = _interrupted_run(rig, _long_run(case, ticks), how)
     except RigError as exc:
         return Check(name, False, str(exc))
     word = "watchdog" if how == "watchdog" else "stop"
@@ -255,10 +254,23 @@ def _interrupted(rig, case: vectors.Case, how: str) -> Check:
     return Check(name, not problems, detail + again)
 
 
-def _interrupted_run(rig, data: bytes, how: str) -> tuple[blocks.Verdict, dict[str, float], float]:
+def _outlasting(rate: float, lower: float) -> tuple[int, str]:
+    """The ticks a watchdog run needs to outlast the host's silence, and the words for the check: at the
+    loop's rate its PROGRESS showed (``rate`` [ticks/s]; 0: none came), where :data:`LONG_TICKS` that
+    outlast it make the completed run conclusive; else 10× that at ``lower``, the rate it ticked at
+    least (ticks over the time to its verdict, which includes the upload of its results)."""
+    span = STOP_AFTER_S + 2.5 * WATCHDOG_S  # the run's first answer → the end of the host's silence [s]
+    if rate and rate * span <= LONG_TICKS:
+        return LONG_TICKS, f"; at the ~{rate:.0f} ticks/s its PROGRESS showed, they outlasted the {span:g} s of silence"
+    ticks = min(2**31, max(LONG_TICKS, math.ceil((rate or 10 * lower) * span)))
+    return ticks, f"; it had completed all {LONG_TICKS} ticks first (~{rate or lower:.0f}/s), so again with {ticks}"
+
+
+def _interrupted_run(rig, data: bytes, how: str) -> tuple[blocks.Verdict, dict[str, float], float, float]:
     """Run ``data``, the host sending STOP or SAFE (``how``) :data:`STOP_AFTER_S` after the device's
     first answer, or silent from then for 2.5 watchdog periods; (verdict, the clock's marks: t0,
-    start, sent, and when the run ended). RigError as :func:`_run`."""
+    start, sent, when the run ended, and the loop's rate from its PROGRESS [ticks/s], 0: unknown).
+    RigError as :func:`_run`."""
     clock: dict[str, float] = {"t0": time.monotonic()}
 
     def recv_hook(recv: session.Recv) -> session.Recv:
@@ -286,8 +298,8 @@ def _interrupted_run(rig, data: bytes, how: str) -> tuple[blocks.Verdict, dict[s
 
         return wrapped
 
-    verdict, _ = _run(rig, data, send_hook=send_hook, recv_hook=recv_hook)
-    return verdict, clock, time.monotonic()
+    verdict, _, transfer = _run(rig, data, send_hook=send_hook, recv_hook=recv_hook)
+    return verdict, clock, time.monotonic(), transfer.progress_rate
 
 
 def _state(rig) -> int | None:

@@ -59,6 +59,7 @@ class Transfer:
     received: dict[str, int] = field(default_factory=dict)
     accept_s: float = 0.0  # description sent → ACCEPT
     run_s: float = 0.0  # ACCEPT → VERDICT
+    progress_rate: float = 0.0  # ticks a second from the first to the last PROGRESS, host clock (0: fewer than 2)
 
     def as_dict(self) -> dict[str, object]:
         return dict(self.__dict__)
@@ -109,6 +110,7 @@ def run_on_device(
     out.received = run.rx.counters.as_dict()
     out.accept_s = (run.accepted or end) - t0
     out.run_s = end - (run.accepted or t0)
+    out.progress_rate = run.progress_rate()
     return verdict, run.rows[: run.covered], run.clock[: run.covered], out
 
 
@@ -128,6 +130,7 @@ class _HostRun:
         self.fs = fs
         self.covered = 0  # rows up to here arrived (SAMPLES blocks come in tick order)
         self.accepted: float | None = None  # when ACCEPT arrived (monotonic)
+        self.progress: list[tuple[float, int]] = []  # (arrival, ticks done) of the first and the last PROGRESS
         self.out = Transfer()
 
     def _sent(self, kind: str, payload: bytes) -> None:
@@ -138,6 +141,14 @@ class _HostRun:
         if self.accepted is None:
             return "description"
         return f"run ({self.covered} of {len(self.rows)} ticks received)"
+
+    def progress_rate(self) -> float:
+        """The device loop's ticks a second as its PROGRESS blocks arrived (0 from fewer than two): its
+        real rate, unlike ticks over ACCEPT → VERDICT, which includes the upload of the results."""
+        if len(self.progress) < 2 or self.progress[-1][0] <= self.progress[0][0]:
+            return 0.0
+        (t0, k0), (t1, k1) = self.progress[0], self.progress[-1]
+        return (k1 - k0) / (t1 - t0)
 
     def collect(self, dead_s: float, stall_s: float) -> blocks.Verdict:
         """Exchange blocks until the VERDICT arrives (RigError on a fault)."""
@@ -193,6 +204,9 @@ class _HostRun:
                     f"the device accepted {ticks} ticks × {cols} columns, the host asked for {n_ticks} × {n_columns}"
                 )
             self.accepted = now
+        elif block.kind == blocks.PROGRESS and len(block.body) == blocks.PROGRESS_BODY.size:  # else no rate
+            done, _ = blocks.PROGRESS_BODY.unpack(block.body)
+            self.progress[1:] = [(now, done)]
         elif block.kind == blocks.SAMPLES:
             first, chunk, t_us = blocks.decode_samples(block.body)
             if first != self.covered or first + len(chunk) > n_ticks or chunk.shape[1] != n_columns:
