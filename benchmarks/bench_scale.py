@@ -2,7 +2,7 @@
 campaign (the quickstart's 5 s runs at 200 Hz) at 10^3, 10^4, 10^5 (and, with --max 1000000,
 10^6) points, each in fresh processes as a user runs them: ``labrunner run --workers 2``,
 ``labrunner status`` and a ``labrunner resume`` of the finished campaign (three of each, the
-median), ``labrunner analyse --workers 2``; the runner's peak RSS and its RSS at 10/50/90 % of the
+median; ``--repeat``), ``labrunner analyse --workers 2``; the runner's peak RSS and its RSS at 10/50/90 % of the
 runs (sampled from /proc every 0.2 s), analyse's peak RSS, and the disk the campaign directory
 takes (``du``: logs, ledger, report). Each campaign is deleted before the next one starts.
 
@@ -124,10 +124,10 @@ def _grid(n: int) -> tuple[int, int]:
     return side, n // side
 
 
-def _quick(args: list[str], cwd: Path) -> float:
-    """Median wall time [s] of three runs of a short command (fresh processes)."""
+def _quick(args: list[str], cwd: Path, repeat: int) -> float:
+    """Median wall time [s] of ``repeat`` runs of a short command (fresh processes)."""
     times = []
-    for _ in range(3):
+    for _ in range(repeat):
         t0 = time.perf_counter()
         subprocess.run(args, cwd=cwd, check=True, capture_output=True)
         times.append(time.perf_counter() - t0)
@@ -139,7 +139,7 @@ def _disk_mb(path: Path) -> float:
     return int(out.stdout.split()[0]) / 1024
 
 
-def scale(work: Path, n: int) -> dict:
+def scale(work: Path, n: int, repeat: int) -> dict:
     n_gamma, n_kp = _grid(n)
     n = n_gamma * n_kp
     name = f"scale{n}"
@@ -148,8 +148,8 @@ def scale(work: Path, n: int) -> dict:
     out = work / name
     cli = [sys.executable, "-m", "labrunner"]
     run = timed([*cli, "run", str(path), "--out", str(out), "--workers", "2"], work, out / "ledger.sqlite", n)
-    status_s = _quick([*cli, "status", str(out)], work)
-    resume_s = _quick([*cli, "resume", str(out)], work)
+    status_s = _quick([*cli, "status", str(out)], work, repeat)
+    resume_s = _quick([*cli, "resume", str(out)], work, repeat)
     analysis = timed([*cli, "analyse", str(out), "--workers", "2"], work)
     runs = sum(1 for _ in os.scandir(out / "runs"))
     disk = _disk_mb(out)
@@ -207,13 +207,13 @@ def prepare(directory: Path, state: str) -> None:
             ledger.claim(ids)  # its running batches, their logs not yet written
 
 
-def synthetic(work: Path, n: int) -> None:
+def synthetic(work: Path, n: int, repeat: int) -> None:
     """``status`` and ``resume`` of a finished synthetic campaign of ``n`` points
     (:mod:`synthetic_ledger`: real ids, parameters and plan-inputs digest; a small real run's rows
     and logs repeated, the logs hard-linked, their fingerprints in the ledger), and of one
     interrupted half-way (``resume`` until its first batch is claimed). ``resume`` as after a
     session that ended cleanly (sealed: :mod:`labrunner.campaign.seal`) and as after a crash (not
-    sealed). Three of each, fresh processes; the median wall time and the largest peak RSS. Then
+    sealed). ``repeat`` of each, fresh processes; the median wall time and the largest peak RSS. Then
     ``analyse --workers 2`` of the finished one, twice (the first proves every log by the ledger's
     fingerprints; the second also has the first's report): wall time, the analysing process's peak
     RSS (the kernel's high-water mark) and its tree's (with the drawing child), sampled."""
@@ -234,7 +234,7 @@ def synthetic(work: Path, n: int) -> None:
         cases += [(f"resume ({state})", resume, state) for state in STATES]
         for label, command, state in cases:
             runs = []
-            for _ in range(3):
+            for _ in range(repeat):
                 if state is not None:
                     prepare(directory, state)
                 runs.append(timed(command, work))
@@ -263,6 +263,7 @@ def main() -> None:
         "--synthetic", type=int, default=0, help="also status/resume/analyse on a synthetic ledger of this many points"
     )
     parser.add_argument("--work", type=Path, default=None, help="folder for the campaigns (default: a temporary one)")
+    parser.add_argument("--repeat", type=int, default=3, help="runs of each status/resume, the median (default 3)")
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench_scale_", dir=args.work))
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start")
@@ -272,7 +273,7 @@ def main() -> None:
     try:
         n = args.min
         while n <= args.max:
-            r = scale(work, n)
+            r = scale(work, n, args.repeat)
             run, analysis = r["run"], r["analyse"]
             at = " / ".join(_mb(run["parent_at"].get(p)) for p in (10, 50, 90))
             print(
@@ -283,7 +284,7 @@ def main() -> None:
             )
             n *= 10
         if args.synthetic:
-            synthetic(work, args.synthetic)
+            synthetic(work, args.synthetic, args.repeat)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

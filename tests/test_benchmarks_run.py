@@ -27,7 +27,7 @@ SLOW = {
     "bench_deviceloop.py": (["--only", "motor-can"], "moved:"),
     "bench_stability.py": (["--size", "5", "--repeat", "10"], "5 x 5 map"),
     "bench_control.py": ([], ""),
-    "bench_scale.py": (["--min", "100", "--max", "100", "--synthetic", "400"], "synthetic ledger"),
+    "bench_scale.py": (["--min", "100", "--max", "100", "--synthetic", "400", "--repeat", "1"], "synthetic ledger"),
     "bench_table.py": (["--max", "400", "--repeat", "1"], "per 10^4"),
     "bench_log_size.py": (["--only", "quickstart"], "floors for"),
     "bench_dask_scheduler.py": (["--points", "100"], "bytes a run"),
