@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
+import tempfile
 from pathlib import Path
 
 # One BLAS thread a process, as labrunner's own workers run: the suite's workers (one more than the
@@ -11,6 +13,14 @@ from pathlib import Path
 # before numpy loads; the xdist workers and every child inherit it.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+
+# Bytecode caching for the suite's processes, in a folder outside the tree: with it turned off
+# (PYTHONDONTWRITEBYTECODE, as on this project's machines) each of the hundreds of Python processes
+# the suite starts (xdist workers, CLIs, emulators, benchmarks) compiled labrunner's ~33 000 lines
+# and pytest rewrote every test module again, ~0.1 s a process. Children inherit it.
+if os.environ.pop("PYTHONDONTWRITEBYTECODE", None) is not None:
+    os.environ.setdefault("PYTHONPYCACHEPREFIX", str(Path(tempfile.gettempdir()) / f"labrunner-pycache-{os.getuid()}"))
+    sys.pycache_prefix, sys.dont_write_bytecode = os.environ["PYTHONPYCACHEPREFIX"], False
 
 import pytest  # noqa: E402 (after the BLAS setting above)
 from test_campaign_support import MOTOR_RIG  # noqa: E402
