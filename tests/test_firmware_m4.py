@@ -64,6 +64,9 @@ def _qemu_rig(out: Path, tmp_path: Path, arith: str = "f64"):
         assert line.startswith("pty /dev/"), line
         text = (ROOT / "rigs" / "dcmotor-serial.toml").read_text().splitlines()
         text = [f'port = "{line[4:]}"' if t.startswith("port =") else t for t in text]
+        # QEMU's one emulation thread, starved on a loaded host, left a description unacknowledged past
+        # the host's 1 s (docs/firmware.md): 5 s for this emulated device (docs/device-loop.md, dead_s)
+        text = [t + "\ndead_s = 5.0" if t.startswith("port =") else t for t in text]
         path = tmp_path / "motor.toml"
         path.write_text("\n".join('loop = "device"' if t.startswith("loop =") else t for t in text) + "\n")
         yield path

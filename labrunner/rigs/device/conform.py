@@ -106,7 +106,7 @@ def _run(rig, data: bytes, send_hook=None, recv_hook=None, like: bytes | None = 
     if recv_hook is not None:
         recv = recv_hook(recv)
     verdict, rows, _clock, transfer = session.run_on_device(
-        send, recv, rig.link.max_payload, data, d.ticks, d.n_columns, d.fs
+        send, recv, rig.link.max_payload, data, d.ticks, d.n_columns, d.fs, dead_s=float(rig.parameters["dead_s"])
     )
     return verdict, rows, transfer
 

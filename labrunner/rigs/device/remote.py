@@ -118,6 +118,7 @@ def run_on_device(
                 link=spec,
                 reference_table=bool(rig.parameters["reference_table"]),
                 arithmetic=arithmetic,
+                dead_s=float(rig.parameters["dead_s"]),
             )
         except RigError as exc:  # the run failed on the host: SAFE ends it on the device (best effort)
             with contextlib.suppress(RigError):

@@ -72,6 +72,14 @@ COMMON = {
         "the setpoints, steps and sine trajectory types)",
     ),
     "handshake_timeout_s": Param(0.5, "s", "longest wait for the device's IDENTITY", lo=0.0, lo_open=True, hi=60.0),
+    "dead_s": Param(
+        1.0,
+        "s",
+        "device loop: no bulk frame from the device for this long and it is dead or hung (the protocol's 1 s; "
+        "longer only for a device in an emulator that a loaded host starves, as QEMU)",
+        lo=0.5,
+        hi=60.0,
+    ),
     "max_consecutive_failures": Param(
         3, "", "points in a row that fail on the rig before the campaign stops", lo=1, hi=1_000_000
     ),
