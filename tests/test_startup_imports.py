@@ -123,6 +123,15 @@ def test_analyse_forks_its_drawing_child_before_pandas_and_matplotlib():
     assert _loaded("from labrunner.analysis import drawing\ndrawing.prepare()") == ["matplotlib"]
 
 
+def test_a_process_of_many_analyses_loads_their_drawing_once():
+    """``reproduce`` analyses ~30 campaigns: ``prepare_drawing`` loads matplotlib in it once, for each
+    analysis's drawing child to be forked with instead of importing it again; with one worker (the
+    analyses draw in this process, when they need to) it loads nothing."""
+    code = "from labrunner.analysis.analyse import prepare_drawing\nprepare_drawing({})"
+    assert _loaded(code.format(2)) == ["matplotlib"]
+    assert _loaded(code.format(1)) == []
+
+
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork: the analysis draws its figures itself")
 def test_with_two_workers_the_analysis_never_loads_matplotlib_and_its_drawing_child_no_pandas(tmp_path, monkeypatch):
     """The drawing child gets the maps as plain data (numpy arrays, no table): it draws them

@@ -103,6 +103,9 @@ def run_items(
 ) -> dict[str, dict[str, CampaignResult]]:
     """Run every campaign of ``items``; ``{item id: {file: result}}`` (files ``--quick`` leaves out absent;
     items that are not reproduced absent). A campaign several items share runs and is analysed once."""
+    from labrunner.analysis.analyse import prepare_drawing
+
+    prepare_drawing(workers)  # once for the ~30 analyses' drawing children
     results: dict[str, dict[str, CampaignResult]] = {}
     done: dict[Path, CampaignResult] = {}
     for item in items:
