@@ -183,3 +183,24 @@ def test_in_view_locators_draw_the_same_pixels(monkeypatch, x_log, y_log, span):
     for a, b in zip(plain, fast):
         np.testing.assert_array_equal(a, b)
     assert n_fast < n_plain if x_log else n_fast <= n_plain
+
+
+@pytest.mark.parametrize("width", [7.5, 3.5])
+def test_a_long_title_is_wrapped_inside_the_figure_and_over_its_plot(width):
+    """The quickstart's map title (its campaign description, two lines before this test) ran off the
+    figure's left edge: wrapped to the figure's width by an estimate, it is centred over the plot,
+    which the colour bar makes narrower. Checked on the title as Agg draws it."""
+    g, kp, t = _table()
+    x, y = Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p")
+    title = (
+        "γ–k_p sweep of first-order MFC on the simulated DC motor (thesis Sec. 3.5.1, 10 × 10): "
+        "RMS of the tracking error e\nδ_t = 35 ms"
+    )
+    fig = map_figure(Grid.of(t, x, y, ["rms_error"]), "rms_error", title=title, colour_label="RMS", width=width)
+    FigureCanvasAgg(fig).draw()
+    ax = fig.axes[0]
+    drawn = ax.title.get_window_extent()
+    plot = ax.get_window_extent()
+    assert ax.title.get_text().count("\n") >= 2  # wrapped, the δ_t line kept
+    assert plot.x0 - 1 <= drawn.x0 and drawn.x1 <= plot.x1 + 1, (drawn, plot)
+    assert drawn.y1 <= fig.bbox.y1  # and not cut at the top
