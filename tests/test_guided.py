@@ -288,3 +288,28 @@ def test_guidelines_stop_where_the_loop_starts_oscillating_and_guideline3_backs_
 
     end = drive(g3, "t", plant)
     assert end.result.detail["k_d"] == pytest.approx(10**1.25)  # the largest calm k_d below the trip
+
+
+def test_the_walk_figure_draws_an_aborted_run_at_the_top_line_and_marker_alike():
+    """An aborted run's RMS up to its abort (1.5 here) is lower than its neighbours'; the walk's
+    line dipped to it while its marker sat at the top, as the axis label says aborted runs are."""
+    import pandas as pd
+    from matplotlib.collections import PathCollection
+
+    from labrunner.campaign.guided_report import walk_figure
+
+    table = pd.DataFrame(
+        {
+            "step": [1, 2, 3, 4],
+            "stage": ["walk", "walk", "walk", "walk"],
+            "status": ["completed", "completed", "aborted", "completed"],
+            "rms_error": [4.0, 3.0, 1.5, 2.0],
+            "chosen": [False, False, False, True],
+            "controller.gamma": [1e3, 1e2, 1e1, 50.0],
+        }
+    )
+    top = walk_figure(table, "t").axes[0]
+    (line,) = [ln for ln in top.get_lines() if len(ln.get_xdata()) == 4]
+    assert list(line.get_ydata()) == [4.0, 3.0, 4.0, 2.0]
+    aborted = next(c for c in top.collections if isinstance(c, PathCollection) and c.get_label() == "aborted")
+    assert aborted.get_offsets().tolist() == [[3.0, 4.0]]

@@ -60,15 +60,17 @@ def walk_figure(table: pd.DataFrame, title: str):
     ]
     fig = Figure(figsize=(9, 6), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
+    # an aborted run's RMS (up to the abort) would look better than the runs around it: at the top,
+    # marker and line alike
+    drawn = table["rms_error"].where(table["status"] != "aborted")
+    drawn = drawn.fillna(table["rms_error"].max() if table["rms_error"].notna().any() else 1.0)
     for status, (marker, colour) in _MARKERS.items():
-        part = table[table["status"] == status]
-        if part.empty:
+        part = table["status"] == status
+        if not part.any():
             continue
-        rms = part["rms_error"].where(part["status"] != "aborted")
-        y = rms.fillna(table["rms_error"].max() if table["rms_error"].notna().any() else 1.0)
         edge = None if marker == "x" else "black"  # an unfilled marker takes its colour only
-        top.scatter(part["step"], y, marker=marker, c=colour, edgecolors=edge, label=status, zorder=3)
-    top.plot(table["step"], table["rms_error"], color="0.7", zorder=1)
+        top.scatter(table["step"][part], drawn[part], marker=marker, c=colour, edgecolors=edge, label=status, zorder=3)
+    top.plot(table["step"], drawn, color="0.7", zorder=1)
     picked = table[table["chosen"]]
     if not picked.empty:
         top.scatter(
