@@ -204,3 +204,24 @@ def test_a_long_title_is_wrapped_inside_the_figure_and_over_its_plot(width):
     assert ax.title.get_text().count("\n") >= 2  # wrapped, the δ_t line kept
     assert plot.x0 - 1 <= drawn.x0 and drawn.x1 <= plot.x1 + 1, (drawn, plot)
     assert drawn.y1 <= fig.bbox.y1  # and not cut at the top
+
+
+def test_title_lines_fit_their_width_as_agg_draws_them_and_leave_no_word_alone():
+    """The valve map's title wrapped greedily left its last word ("e") on a line of its own; the
+    lines are as few as fit and of even length. Each line's width as Agg draws it (math type
+    included) stays within the width asked for."""
+    import matplotlib
+
+    from labrunner.analysis.maps import _wrapped, math_text
+
+    title = "γ–k_p sweep of the MFC of valve V_1P on the simulated valve (paper 1 Sec. 5.1, Fig. 5): RMS of the tracking error e"
+    fig = matplotlib.figure.Figure(figsize=(8, 2), dpi=100)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    for width in (2.6, 3.4, 4.2, 5.1, 7.0):  # the greedy wrap left "e" alone at 2.6, 3.4 and 5.1 in
+        lines = _wrapped(title, width).split("\n")
+        assert " ".join(lines) == title
+        assert len(lines[-1].split()) > 1, (width, lines)
+        for line in lines:
+            drawn = fig.text(0, 0, math_text(line), fontsize=matplotlib.rcParams["axes.titlesize"])
+            assert drawn.get_window_extent(renderer).width <= width * fig.dpi, (width, line)
+            drawn.remove()

@@ -285,28 +285,39 @@ def map_figure(
 
 
 def _wrapped(title: str, width: float) -> str:
-    """``title`` broken at spaces into lines no wider than ``width`` inches in the axes' title
-    font; a word longer than the width keeps a line of its own. Measured as plain text, 5 % to
-    spare for the math type of its symbols (a mathtext measure costs ~4 ms a word)."""
+    """``title`` broken at spaces into as few lines as fit ``width`` inches in the axes' title
+    font, of even length (no word left alone on the last line); a word longer than the width
+    keeps a line of its own. Measured as plain text, 5 % to spare for the math type of its
+    symbols (a mathtext measure costs ~4 ms a word)."""
     from matplotlib.font_manager import FontProperties
     from matplotlib.textpath import TextToPath
 
     prop = FontProperties(size=matplotlib.rcParams["axes.titlesize"], weight=matplotlib.rcParams["axes.titleweight"])
     measure = TextToPath().get_text_width_height_descent
     space = measure("a a", prop, ismath=False)[0] - 2 * measure("a", prop, ismath=False)[0]
-    limit = 0.95 * width * 72  # [pt]
-    lines: list[str] = []
-    for paragraph in title.splitlines():
-        line, used = "", 0.0
-        for word in paragraph.split():
-            size = measure(word, prop, ismath=False)[0]
+
+    def broken(words: list[str], sizes: list[float], limit: float) -> list[str]:
+        lines, line, used = [], [], 0.0
+        for word, size in zip(words, sizes):
             if line and used + space + size > limit:
-                lines.append(line)
-                line, used = word, size
-            else:
-                line, used = (f"{line} {word}", used + space + size) if line else (word, size)
-        lines.append(line)
-    return "\n".join(lines)
+                lines.append(" ".join(line))
+                line, used = [], 0.0
+            used += (space if line else 0.0) + size
+            line.append(word)
+        return [*lines, " ".join(line)]
+
+    out: list[str] = []
+    for paragraph in title.splitlines():
+        words = paragraph.split()
+        sizes = [measure(word, prop, ismath=False)[0] for word in words]
+        limit = 0.95 * width * 72  # [pt]
+        count = len(broken(words, sizes, limit))
+        low = max(sizes, default=0.0)  # the narrowest limit that keeps ``count`` lines, by bisection
+        for _ in range(16):
+            middle = (low + limit) / 2
+            low, limit = (low, middle) if len(broken(words, sizes, middle)) <= count else (middle, limit)
+        out += broken(words, sizes, limit)
+    return "\n".join(out)
 
 
 def _axes_width(ax: Axes) -> float:
