@@ -225,3 +225,28 @@ def test_title_lines_fit_their_width_as_agg_draws_them_and_leave_no_word_alone()
             drawn = fig.text(0, 0, math_text(line), fontsize=matplotlib.rcParams["axes.titlesize"])
             assert drawn.get_window_extent(renderer).width <= width * fig.dpi, (width, line)
             drawn.remove()
+
+
+def test_a_zipped_gain_that_is_no_function_of_the_swept_one_leaves_the_runs_unjoined():
+    """Thesis Fig. 3.11's points on three constant-ratio lines, zipped (γ, k_p): sorted by γ, a line
+    through them jumped between the lines (vertical at γ = 447 and 1414, where two lines meet).
+    ``follows`` tells such a zip from a sweep along one line; the sweep then draws markers only."""
+    from labrunner.analysis.selection import follows
+
+    gamma = [141.42136, 447.21360, 1414.2136, 251.18864, 794.32823, 2511.8864, 447.21360, 1414.2136, 4472.1360]
+    k_p = [70.710678, 223.60680, 707.10678, 39.810717, 125.89254, 398.10717, 22.360680, 70.710678, 223.60680]
+    three_lines = pd.DataFrame({"controller.gamma": gamma, "controller.k_p": k_p})
+    assert not follows(three_lines, "controller.gamma", "controller.k_p")  # two k_p at one γ
+    one_line = three_lines.iloc[:3]  # line (A): k_p = γ/2
+    assert follows(one_line, "controller.gamma", "controller.k_p")
+    assert follows(one_line.assign(**{"controller.k_p": [3.0, 2.0, 1.0]}), "controller.gamma", "controller.k_p")
+    zigzag = one_line.assign(**{"controller.k_p": [1.0, 3.0, 2.0]})  # a function, not monotone
+    assert not follows(zigzag, "controller.gamma", "controller.k_p")
+
+    t = three_lines.assign(outcome="completed", rms_error=np.arange(1.0, 10.0))
+    x = Axis("controller.gamma", np.unique(gamma), True, "γ")
+    for joined in (True, False):
+        fig = sweep_figure(_points(t), x, [("rms_error", "RMS")], title="s", joined=joined)
+        drawn = [line for line in fig.axes[0].get_lines() if len(line.get_xdata()) == len(gamma)]
+        assert len(drawn) == joined
+        assert len(fig.axes[0].collections[0].get_offsets()) == len(gamma)  # every run's marker either way

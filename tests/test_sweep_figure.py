@@ -38,3 +38,29 @@ def test_a_sweep_with_a_derived_gain_names_its_range_and_predicts_along_it(proje
     assert checked >= 1  # the motor's γ sweep crosses a predicted limit
     lo, hi = gamma.min(), gamma.max()
     assert all(lo <= line.x <= hi for line in job.kwargs["overlays"])  # the legend lists only lines in the plot
+
+
+def _zip_grid(gammas, k_ps) -> str:
+    return (
+        'zip = [["controller.gamma", "controller.k_p"]]\n'
+        f'"controller.gamma" = {{ values = {list(gammas)} }}\n"controller.k_p" = {{ values = {list(k_ps)} }}'
+    )
+
+
+def test_a_zip_whose_gain_is_no_function_of_the_swept_one_draws_runs_unjoined_and_no_bound(project, monkeypatch):
+    """Thesis Fig. 3.11's kind of campaign (points on several lines, zipped): sorted by γ a line
+    through the runs jumped between the lines, and a bound drawn at an averaged k_p meant nothing."""
+    seen = []
+    monkeypatch.setattr(figures, "map_jobs", lambda *a, _f=figures.map_jobs: seen.append(_f(*a)) or seen[-1])
+    for name, k_ps, joined in (("lines", (10.0, 100.0, 3.0, 30.0), False), ("line", (1.0, 3.0, 3.0, 10.0), True)):
+        grid = _zip_grid((100.0, 300.0, 300.0, 1000.0) if not joined else (100.0, 300.0, 310.0, 1000.0), k_ps)
+        assert (
+            main(["run", str(write(project / f"{name}.toml", campaign_text(name=name, grid=grid))), "--workers", "1"])
+            == 0
+        )
+        analyse(project / "data" / name, workers=1, progress=False)
+        [job] = seen[-1]
+        assert job.kwargs["joined"] is joined, name
+        assert ("scattered over the sweep: runs unjoined, no bound" in job.kwargs["title"]) is not joined
+        if not joined:
+            assert job.kwargs["overlays"] == []

@@ -31,6 +31,7 @@ from labrunner.analysis.overlays import (
     sweep_lines,
 )
 from labrunner.analysis.png import FigureStyle
+from labrunner.analysis.selection import follows
 
 
 def map_metrics(error: str, frame: pd.DataFrame | None = None) -> tuple[tuple[str, str, str], ...]:
@@ -99,6 +100,13 @@ def axis_of(frame: pd.DataFrame, key: str, units: Mapping[str, str], form: str =
     values = np.sort(frame[key].dropna().unique().astype(float))
     log = form == "log10" if form in ("linspace", "log10") else is_log_spaced(values)
     return Axis(key, values, log, axis_label(key, units))
+
+
+def zip_partners(campaign, key: str) -> list[str]:
+    """The other grid keys zipped with ``key`` in ``campaign`` (none without one)."""
+    if campaign is None:
+        return []
+    return [a.key for group in campaign.grid.groups if key in (b.key for b in group) for a in group if a.key != key]
 
 
 def grid_forms(campaign) -> dict[str, str]:
@@ -222,8 +230,13 @@ def map_jobs(
         x = axis_of(frame, key, units, forms.get(key, "values"))
         lines: list[OverlayLine] = []
         note = ""
+        scattered = [k for k in zip_partners(ctx.campaign, key) if not follows(frame, key, k)]
         theory = common_theory(frame, theories) if key in GAINS and theories.campaign is not None else None
-        if theory is not None:
+        if scattered:  # no line through the runs, no bound (it would need a gain the sweep does not fix)
+            note = "\n" + ", ".join(
+                f"{axis_label(k, units)} scattered over the sweep: runs unjoined, no bound" for k in scattered
+            )
+        elif theory is not None:
             fixed = theories.gains(frame.iloc[0])
             along = _along_sweep(frame, key, fixed)
             dense = dense_axis(x.values, x.log, 400)
@@ -244,7 +257,7 @@ def map_jobs(
                 f"RMS of {ctx.error} and input energy over {x.label}",
                 "sweep_figure",
                 (points, x, columns),
-                {"title": title if style.title else "", "overlays": lines},
+                {"title": title if style.title else "", "overlays": lines, "joined": not scattered},
                 style,
             )
         ]

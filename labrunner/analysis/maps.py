@@ -358,23 +358,26 @@ def sweep_figure(
     title: str,
     overlays: Sequence[OverlayLine] = (),
     width: float = 7.5,
+    joined: bool = True,
 ) -> Figure:
     """1-D sweep, ``width`` inches wide: one panel per (column, label) over the axis, run markers
     by outcome (an aborted run's marker at its ``<column>_until_abort`` value, the metric of its
     run up to the abort). Where the runs lie too close for a marker each (:func:`markers_fit`),
     the line alone, labelled, shows the completed runs, and markers the others; ``title`` "":
-    none."""
+    none. ``joined`` False: markers only (runs of a zipped sweep whose other gain is no function
+    of the swept one, which a line sorted along the axis would join across)."""
     plot_height = (2.6 * len(columns) - 0.9) * min(1.0, width / 6.0)  # [in] the panels'
     fig = Figure(figsize=(width, plot_height + 2.0))
     axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
     ordered = points.where(np.argsort(points[x.key], kind="quicksort"))  # as pandas' sort_values
     ok = ordered.where(ordered.coloured())
-    dense = not markers_fit(axes[0], max(len(np.unique(ordered[x.key])), 1))
+    dense = joined and not markers_fit(axes[0], max(len(np.unique(ordered[x.key])), 1))
     completed = OUTCOMES.index("completed")
     outcome = np.where(ordered.outcome == completed, NO_RUN, ordered.outcome) if dense else ordered.outcome
     for ax, (column, label) in zip(axes, columns):
         line = MARKERS["completed"][0] if dense else None
-        ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2, label=line)
+        if joined:
+            ax.plot(ok[x.key], ok[column], color="tab:blue", linewidth=1.2, zorder=2, label=line)
         until = f"{column}_until_abort"
         value = ordered[column]
         if until in ordered:

@@ -54,6 +54,18 @@ def varying_axes(frame: pd.DataFrame, campaign: Campaign | None) -> list[str]:
     return out
 
 
+def follows(frame: pd.DataFrame, x: str, y: str) -> bool:
+    """Whether ``y`` is a monotone function of ``x`` over the table's rows, so that a line drawn
+    through the runs sorted by ``x`` follows ``y`` too (True where either is not a numeric column)."""
+    if not all(k in frame.columns and pd.api.types.is_numeric_dtype(frame[k]) for k in (x, y)):
+        return True
+    values = frame.groupby(x)[y].agg(["min", "max"])  # sorted by x
+    if (values["min"] != values["max"]).any():
+        return False
+    steps = values["min"].diff().dropna()
+    return bool((steps >= 0).all() or (steps <= 0).all())
+
+
 def _signal_unit(name: str, channels: Mapping[str, Mapping[str, Any]], campaign: Campaign | None) -> str:
     """Unit of a logged signal: the log's own record, else the rig's signal of that name, else (a
     controlled output that is no rig output, i.e. the difference quotient (2.34) of one) the rig
