@@ -250,3 +250,38 @@ def test_a_zipped_gain_that_is_no_function_of_the_swept_one_leaves_the_runs_unjo
         drawn = [line for line in fig.axes[0].get_lines() if len(line.get_xdata()) == len(gamma)]
         assert len(drawn) == joined
         assert len(fig.axes[0].collections[0].get_offsets()) == len(gamma)  # every run's marker either way
+
+
+@pytest.mark.parametrize("width", [7.5, 3.5])
+def test_a_legend_with_long_entries_stays_inside_the_figure(width):
+    """A map of thesis Fig. 3.11's points cut its two-column legend at the right edge: a bound
+    marked "(outside the map)" is a long entry. The columns are fewer when the widest would not
+    fit. Checked on the legend as Agg draws it."""
+    g, kp, t = _table()
+    x, y = Axis("controller.gamma", g, True, "γ"), Axis("controller.k_p", kp, True, "k_p")
+    dense = np.geomspace(0.5, 2e4, 50)
+    lines = [
+        OverlayLine("stability bound, max k_p (motor model), Eq. (2.46)", dense, 2 * dense, "red", "-", "a"),
+        OverlayLine(
+            "stability bound, min k_p (motor model), Eq. (2.46) (outside the map)", dense, dense, "red", "--", "b"
+        ),
+        OverlayLine("stability bound, max k_p (ultra-local model), Eq. (2.41)", dense, 3 * dense, "m", "-", "c"),
+        OverlayLine(
+            "stability bound, min k_p (ultra-local model), Eq. (2.41) (outside the map)", dense, dense, "m", "--", "d"
+        ),
+        OverlayLine(
+            "stability bound, max k_d (motor model), Eq. (2.52) (outside the map)", dense, dense, "b", "--", "e"
+        ),
+    ]
+    fig = map_figure(
+        Grid.of(t, x, y, ["rms_error"]), "rms_error", title="t", colour_label="c", overlays=lines, width=width
+    )
+    FigureCanvasAgg(fig).draw()
+    [legend] = fig.legends
+    drawn = legend.get_window_extent()
+    assert 0 <= drawn.x0 and drawn.x1 <= fig.bbox.x1 and 0 <= drawn.y0, (drawn, fig.bbox)
+    assert (
+        drawn.y1 <= fig.axes[0].xaxis.label.get_window_extent().y0
+    )  # its rows, wrapped ones too, below the axis label
+    short = map_figure(Grid.of(t, x, y, ["rms_error"]), "rms_error", title="t", colour_label="c", width=7.5)
+    assert short.legends[0]._ncols == 2  # short entries keep two columns

@@ -17,7 +17,7 @@ patches (:func:`draw_outcome_cells`). Markers and raster are drawn from the same
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import matplotlib
 import numpy as np
@@ -266,9 +266,10 @@ def map_figure(
     """
     fig = Figure(figsize=(width, width))
     ax = fig.add_subplot()
-    ncols = _legend_columns(width)
+    ncols, _ = _legend_layout(width, ())
     plot_height = 0.62 * width  # [in] the map's, whatever the title and legend take
-    _frame(fig, title, len(set(np.unique(grid.outcome)) - {NO_RUN}) + len(overlays), ncols, plot_height)
+    entries = len(set(np.unique(grid.outcome)) - {NO_RUN}) + len(overlays)
+    _frame(fig, title, -(-entries // ncols), plot_height)
     patches = draw_heatmap(
         ax, grid, column, colour_label=math_text(colour_label), log_colour=log_colour, overlays=overlays
     )
@@ -276,25 +277,34 @@ def map_figure(
     if title:
         ax.set_title(math_text(title))
     handles, labels = ax.get_legend_handles_labels()
-    handles, labels = [*patches, *handles], [math_text(t) for t in (*(p.get_label() for p in patches), *labels)]
-    _frame(fig, title, len(handles), ncols, plot_height)
+    handles, labels = [*patches, *handles], [*(p.get_label() for p in patches), *labels]
+    ncols, labels = _legend_layout(width, labels, ncols)
+    _frame(fig, title, _legend_rows(labels, ncols), plot_height)
     if handles:
+        labels = [math_text(t) for t in labels]
         fig.legend(handles, labels, loc="lower center", ncols=ncols, fontsize="small", framealpha=0.9)
     visible_ticks_only(fig)
     return fig
 
 
-def _wrapped(title: str, width: float) -> str:
-    """``title`` broken at spaces into as few lines as fit ``width`` inches in the axes' title
-    font, of even length (no word left alone on the last line); a word longer than the width
-    keeps a line of its own. Measured as plain text, 5 % to spare for the math type of its
-    symbols (a mathtext measure costs ~4 ms a word)."""
+def _text_width(size: str | float, weight: str = "normal") -> Callable[[str], float]:
+    """A measure of a text's width [pt] in the font of ``size`` and ``weight``: as plain text,
+    ~20 µs a word, where a mathtext measure costs ~4 ms."""
     from matplotlib.font_manager import FontProperties
     from matplotlib.textpath import TextToPath
 
-    prop = FontProperties(size=matplotlib.rcParams["axes.titlesize"], weight=matplotlib.rcParams["axes.titleweight"])
-    measure = TextToPath().get_text_width_height_descent
-    space = measure("a a", prop, ismath=False)[0] - 2 * measure("a", prop, ismath=False)[0]
+    prop, measure = FontProperties(size=size, weight=weight), TextToPath().get_text_width_height_descent
+    return lambda text: measure(text, prop, ismath=False)[0]
+
+
+def _wrapped(title: str, width: float, measure: Callable[[str], float] | None = None) -> str:
+    """``title`` broken at spaces into as few lines as fit ``width`` inches in the axes' title
+    font (or as ``measure`` [pt] measures), of even length (no word left alone on the last line);
+    a word longer than the width keeps a line of its own. Measured as plain text, 5 % to spare
+    for the math type of its symbols."""
+    if measure is None:
+        measure = _text_width(matplotlib.rcParams["axes.titlesize"], matplotlib.rcParams["axes.titleweight"])
+    space = measure("a a") - 2 * measure("a")
 
     def broken(words: list[str], sizes: list[float], limit: float) -> list[str]:
         lines, line, used = [], [], 0.0
@@ -309,7 +319,7 @@ def _wrapped(title: str, width: float) -> str:
     out: list[str] = []
     for paragraph in title.splitlines():
         words = paragraph.split()
-        sizes = [measure(word, prop, ismath=False)[0] for word in words]
+        sizes = [measure(word) for word in words]
         limit = 0.95 * width * 72  # [pt]
         count = len(broken(words, sizes, limit))
         low = max(sizes, default=0.0)  # the narrowest limit that keeps ``count`` lines, by bisection
@@ -325,12 +335,31 @@ def _axes_width(ax: Axes) -> float:
     return ax.get_position().width * ax.figure.get_size_inches()[0]
 
 
-def _legend_columns(width: float) -> int:
-    """Legend columns that fit ``width`` inches: one in a paper's column, else two."""
-    return 1 if width < 5 else 2
+def _legend_layout(width: float, labels: Sequence[str], most: int | None = None) -> tuple[int, list[str]]:
+    """The legend's columns and labels for a figure ``width`` inches wide: ``most`` columns
+    (default: one in a paper's column, else two), fewer where the widest label would run off the
+    figure (a bound marked "outside the map" did), and in one column labels too long for it
+    wrapped. Spacing as matplotlib's defaults at the legend's "small" size."""
+    ncols = most if most is not None else 1 if width < 5 else 2
+    if not labels:
+        return ncols, list(labels)
+    measure = _text_width("small")
+    em = measure("M")  # ≈ the font size: handle 2 em, pad 0.8 em, column gap 2 em, frame ~1.5 em
+    column = max(measure(label) for label in labels) + 2.8 * em
+    while ncols > 1 and ncols * column + (ncols - 1) * 2.0 * em + 1.5 * em > width * 72:
+        ncols -= 1
+    if ncols > 1:
+        return ncols, list(labels)
+    text = (width * 72 - 4.3 * em) / 72  # [in] what the frame, the handle and its pad leave
+    return 1, [_wrapped(label, text, measure) for label in labels]
 
 
-def _frame(fig: Figure, title: str, entries: int, ncols: int, plot_height: float) -> None:
+def _legend_rows(labels: Sequence[str], ncols: int) -> int:
+    """The legend's height in lines: rows of ``ncols`` entries, or every line of a wrapped one."""
+    return sum(label.count("\n") + 1 for label in labels) if ncols == 1 else -(-len(labels) // ncols)
+
+
+def _frame(fig: Figure, title: str, rows: int, plot_height: float) -> None:
     """Fixed margins from the title's lines and the legend's rows — no layout engine, which
     would measure every text box of the figure (≈ 2 s of a 1000-run analysis) — and the figure's
     height from them and ``plot_height`` [in], the axes' (so that a long legend in a paper's
@@ -339,7 +368,6 @@ def _frame(fig: Figure, title: str, entries: int, ncols: int, plot_height: float
     import matplotlib
 
     line = matplotlib.rcParams["font.size"] / 72 * 1.58  # [in] a line of text, as at 10 pt: 0.22 in
-    rows = -(-entries // ncols)
     top = 0.1 + line * 0.7 + (line * (title.count("\n") + 1) if title else 0.0)  # [in] title lines
     bottom = 2.5 * line + (line * rows + 0.15 if rows else 0.0)  # [in] tick and axis labels, legend rows
     width = fig.get_size_inches()[0]
@@ -399,8 +427,8 @@ def sweep_figure(
     if title:
         axes[0].set_title(math_text(title))
     handles, labels = axes[0].get_legend_handles_labels()
-    ncols = _legend_columns(width) + (width >= 5)
-    _frame(fig, title, len(handles), ncols, plot_height)
+    ncols, labels = _legend_layout(width, labels, _legend_layout(width, ())[0] + (width >= 5))
+    _frame(fig, title, _legend_rows(labels, ncols), plot_height)
     if handles:
         fig.legend(handles, [math_text(t) for t in labels], loc="lower center", ncols=ncols, fontsize="small")
     visible_ticks_only(fig)
