@@ -266,7 +266,7 @@ def map_figure(
     """
     fig = Figure(figsize=(width, width))
     ax = fig.add_subplot()
-    ncols, _ = _legend_layout(width, ())
+    ncols = _default_columns(width)
     plot_height = 0.62 * width  # [in] the map's, whatever the title and legend take
     entries = len(set(np.unique(grid.outcome)) - {NO_RUN}) + len(overlays)
     _frame(fig, title, -(-entries // ncols), plot_height)
@@ -335,12 +335,18 @@ def _axes_width(ax: Axes) -> float:
     return ax.get_position().width * ax.figure.get_size_inches()[0]
 
 
-def _legend_layout(width: float, labels: Sequence[str], most: int | None = None) -> tuple[int, list[str]]:
-    """The legend's columns and labels for a figure ``width`` inches wide: ``most`` columns
-    (default: one in a paper's column, else two), fewer where the widest label would run off the
-    figure (a bound marked "outside the map" did), and in one column labels too long for it
-    wrapped. Spacing as matplotlib's defaults at the legend's "small" size."""
-    ncols = most if most is not None else 1 if width < 5 else 2
+def _default_columns(width: float) -> int:
+    """Legend columns for a figure ``width`` inches wide before its labels are known: one in a
+    paper's column, else two."""
+    return 1 if width < 5 else 2
+
+
+def _legend_layout(width: float, labels: Sequence[str], most: int) -> tuple[int, list[str]]:
+    """The legend's columns and labels for a figure ``width`` inches wide: ``most`` columns, fewer
+    where the widest label would run off the figure (a bound marked "outside the map" did), and
+    in one column labels too long for it wrapped. Spacing as matplotlib's defaults at the
+    legend's "small" size."""
+    ncols = most
     if not labels:
         return ncols, list(labels)
     measure = _text_width("small")
@@ -427,7 +433,7 @@ def sweep_figure(
     if title:
         axes[0].set_title(math_text(title))
     handles, labels = axes[0].get_legend_handles_labels()
-    ncols, labels = _legend_layout(width, labels, _legend_layout(width, ())[0] + (width >= 5))
+    ncols, labels = _legend_layout(width, labels, _default_columns(width) + (width >= 5))
     _frame(fig, title, _legend_rows(labels, ncols), plot_height)
     if handles:
         fig.legend(handles, [math_text(t) for t in labels], loc="lower center", ncols=ncols, fontsize="small")
