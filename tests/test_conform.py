@@ -131,3 +131,14 @@ def test_a_completed_watchdog_run_is_tried_again_only_where_its_progress_rate_do
     assert ticks == 135_000 and "so again with 135000" in detail
     assert conform._outlasting(0, 11_000)[0] == 330_000
     assert conform._outlasting(0, 1_000)[0] == 60_000  # never shorter than the first run
+
+
+def test_a_retry_the_device_outran_too_is_sized_by_the_retrys_own_rate():
+    """In a loaded suite an emulator sent no PROGRESS in a 2000-tick run (~638 ticks/s to its verdict)
+    and then completed the 19 128-tick retry too: ten times its first rate was not enough. After a
+    completed run of ``ran`` ticks, the next is sized from that run's own rate, never shorter."""
+    assert conform._outlasting(0, 638, 2000)[0] == 19_140  # 10 × 638/s × 3 s
+    ticks, detail = conform._outlasting(8_000, 6_000, 19_140)  # the retry's PROGRESS: 8000/s × 3 s
+    assert ticks == 24_000 and "completed all 19140 ticks first" in detail
+    ticks, detail = conform._outlasting(6_000, 5_000, 19_140)  # 18 000 ≤ 19 140: conclusive
+    assert ticks == 19_140 and "outlasted" in detail
