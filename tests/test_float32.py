@@ -105,6 +105,24 @@ def test_sqrt_near_zero_is_bounded_by_the_square_root_of_the_error():
     assert Bounded(4.0, 0.0).sqrt().e == pytest.approx(2.0 * f32bound.U)
 
 
+def test_the_bound_of_a_non_finite_inputs_vector_prints_no_warning():
+    """The plate law's √ of a NaN (the vector's bad input) once made numpy print "invalid value encountered
+    in sqrt" under every float32 conform of a plate: a NaN compared in Bounded.sqrt sets the invalid flag."""
+    import warnings
+
+    assert all(np.isnan([Bounded(np.nan, 1.0).sqrt().v, Bounded(np.nan, 1.0).sqrt().e]))
+    case = vectors.CASES["plate-mfc-non_finite_input"]
+    vector = _vector("plate-mfc-non_finite_input")
+    info = load_rig(case.rig).info
+    y = vector.rows[:, [vector.columns.index(s.name) for s in info.outputs]]
+    with warnings.catch_warnings(record=True) as seen:  # recorded: raised, the law's run would catch it
+        warnings.simplefilter("always")
+        bound = lawcheck.float32_bound(
+            case.point, info, y, fs=case.fs, duration=case.duration, seed=case.seed, rig_safety=vectors.rig_safety(case)
+        )
+    assert [str(w.message) for w in seen] == [] and len(bound) == len(y) and np.isfinite(bound[0]).all()
+
+
 @pytest.mark.slow
 def test_conform_checks_an_emulated_float32_device_under_the_float32_tolerance(tmp_path):
     from tests.test_conform import MOTOR_CASES, _conform
@@ -171,3 +189,18 @@ def test_a_filters_bound_with_its_tail_folded_in_still_bounds_the_full_sum():
     assert (
         max(a / b for a, b in zip(got, full)) < 5.0
     )  # measured: at most 3.3 (the tail takes max ‖η‖ of all old ticks)
+
+
+def test_the_shared_reference_is_the_reference_computed_afresh():
+    """doclaw computes a trajectory's reference once per tick for every run that shares it; each value and
+    bound is what :func:`doclaw.reference` computes on its own."""
+    d = description.decode(_vector("plate-mfc-v").data)
+    for code, arrays in d.trajectories:
+        raw = tuple(a.tobytes() for a in arrays)
+        for k in (0, 1, 57, d.ticks - 1):
+            for dtype in (Bounded, np.float32):
+                shared = doclaw._shared_reference(code, raw, k, d.fs, dtype)
+                fresh = doclaw.reference(code, arrays, k, d.fs, doclaw._Arith(dtype))
+                assert [(float(a), f32bound.errors([a])[0]) for a in shared] == [
+                    (float(b), f32bound.errors([b])[0]) for b in fresh
+                ]

@@ -25,8 +25,26 @@ U = 6.0 * np.sin(np.arange(60) / 8.0)
 
 
 # -- protocol -----------------------------------------------------------------------------------
+def _crc16_bitwise(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE by its definition: polynomial 0x1021, initial 0xFFFF, MSB first, no final XOR."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
 def test_crc16_check_value():
     assert crc16(b"123456789") == 0x29B1  # CRC-16/CCITT-FALSE catalogue check value
+
+
+def test_crc16_is_the_bitwise_definition_on_every_frame_size():
+    rng = np.random.default_rng(7)
+    for n in [0, 1, 2, *range(3, 70)]:  # every body a serial frame can carry (node, code, ≤ 64 B, CRC)
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        assert crc16(data) == _crc16_bitwise(data), n
+    assert crc16(b"\x00" * 66) == _crc16_bitwise(b"\x00" * 66) and crc16(b"\xff" * 66) == _crc16_bitwise(b"\xff" * 66)
 
 
 def test_can_ids_are_legal_and_safety_first():

@@ -15,6 +15,7 @@ law and says what it assumes.
 from __future__ import annotations
 
 import math
+import operator
 from collections import deque
 
 import numpy as np
@@ -101,6 +102,8 @@ class Bounded:
         return Bounded(abs(self.v), self.e)
 
     def sqrt(self) -> Bounded:
+        if math.isnan(self.v) or math.isnan(self.e):  # a non-finite input's tick: no bound, and no comparison
+            return Bounded(math.nan, math.nan)  # with NaN, whose invalid-operation flag numpy's np.sqrt would print
         v = math.sqrt(max(self.v, 0.0))
         low = max(self.v - self.e, 0.0)  # |√a' − √a| ≤ e / (√a + √(a − e)), or √(a + e) near 0
         e = self.e / (v + math.sqrt(low)) if low > 0 else math.sqrt(self.v + self.e)
@@ -158,12 +161,32 @@ def clip(x: Bounded, lo: Bounded, hi: Bounded) -> Bounded:
     return Bounded(v, max(x.e, lo.e if v == lo.v else 0.0, hi.e if v == hi.v else 0.0))
 
 
+_V, _E = operator.attrgetter("v"), operator.attrgetter("e")
+
+
+def _field(a, get, plain) -> np.ndarray:
+    """One field of every element of ``a`` as a float array of its shape. The law is run on arrays of
+    :class:`Bounded` (the hot path: ``get`` reads them without a Python call per element); ``plain`` reads
+    a mix of them and plain numbers, and a float array holds plain numbers only."""
+    arr = np.asarray(a)
+    if arr.dtype != object:
+        return plain(arr)
+    flat = arr.ravel()
+    try:
+        out = np.fromiter(map(get, flat), float, len(flat))
+    except AttributeError:  # plain numbers among them
+        out = np.fromiter(map(_v if get is _V else _e, flat), float, len(flat))
+    return out.reshape(arr.shape)
+
+
 def values(a) -> np.ndarray:
-    return np.array([_v(x) for x in np.ravel(a)], float).reshape(np.shape(a))
+    """The float64 values of ``a`` (Bounded or plain numbers)."""
+    return _field(a, _V, lambda arr: arr.astype(float))
 
 
 def errors(a) -> np.ndarray:
-    return np.array([_e(x) for x in np.ravel(a)], float).reshape(np.shape(a))
+    """The bounds of ``a`` (0 for a plain number: exact)."""
+    return _field(a, _E, lambda arr: np.zeros(arr.shape))
 
 
 class FilterBound:
