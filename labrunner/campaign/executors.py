@@ -60,11 +60,10 @@ CONNECT_TIMEOUT_S = 5.0  # reaching a Dask scheduler before anything is created
 _PR_SET_PDEATHSIG = 1
 QUEUE_DEPTH = 2  # batches in flight per slot
 #: Imported by each pool worker as it starts, in parallel with the parent's validation of the
-#: campaign: the engine, the log writer and scipy.linalg (~0.2 s), whose expm the motor twin's
-#: first reset needs (the default rig; the others do not, but its import also loads the part of
-#: scipy that scipy.special, for N > 0 differentiators, shares). An N = 0 differentiator needs no
-#: scipy (labrunner.differentiators.kernel).
-WORKER_MODULES = ("labrunner.engine", "labrunner.logs.writer", "scipy.linalg")
+#: campaign: the engine and the log writer. No twin needs scipy (the motor's matrix exponential is
+#: labrunner.rigs.sim._integrate.expm) and neither does an N = 0 differentiator
+#: (labrunner.differentiators.kernel); an N > 0 one imports scipy.special in its first batch.
+WORKER_MODULES = ("labrunner.engine", "labrunner.logs.writer")
 
 
 class InProcessExecutor(Executor):
