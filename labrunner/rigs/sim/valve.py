@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from labrunner._ufunc import clip
 from labrunner.brent import brent_root
 from labrunner.errors import InvalidParameter
 from labrunner.rigs.base import RigConfig, RigInfo, Signal
@@ -156,6 +157,9 @@ class ValveTwin(SimRig):
         self._e_i, self._e_p, self._e_m = decay(p["current_tau"], h), decay(p["pilot_tau"], h), decay(p["main_tau"], h)
         self._e_s = decay(p["sensor_tau"], 1.0 / self.fs)
         self._inv_open = 1.0 / (1.0 - p["pilot_threshold"])
+        # constant over the runs, read every tick by :meth:`_read`
+        self._noisy = bool(np.any(p["flow_lpm"] > 0.0))
+        self._lo_or_1 = np.where(p["sensor_min"] > 0.0, p["sensor_min"], 1.0)
         self._i_c = np.zeros(batch)  # coil current [A]
         self._i_m = np.zeros(batch)  # magnetising current behind the hysteresis [A]
         self._x_p = np.zeros(batch)  # pilot stroke [1]
@@ -176,13 +180,13 @@ class ValveTwin(SimRig):
         for _ in range(self.n_sub):
             i_c = i + (i_c - i) * self._e_i
             i_m = play(i_m, i_c, width)  # magnetic hysteresis
-            target = np.clip(i_m / p["i_max"], 0.0, 1.0)
+            target = clip(i_m / p["i_max"], 0.0, 1.0)
             x_p = target + (x_p - target) * self._e_p
             x_t = (x_p - th) * self._inv_open  # < 0: the spring preload holds the main spool shut
             e = x_t - x_m
             moving = np.abs(e) > np.where(moving, fc, fs_)
             x_eq = x_t - fc * np.sign(e)
-            x_m = np.clip(np.where(moving, x_eq + (x_m - x_eq) * self._e_m, x_m), 0.0, 1.0)
+            x_m = clip(np.where(moving, x_eq + (x_m - x_eq) * self._e_m, x_m), 0.0, 1.0)
         self._i_c, self._i_m, self._x_p, self._x_m, self._moving = i_c, i_m, x_p, x_m, moving
         self._q = flow(x_m, x_p, p)
         delayed = self._delay.push(self._q)
@@ -192,11 +196,10 @@ class ValveTwin(SimRig):
     def _read(self) -> np.ndarray:
         """Flow reading [l/min]: turbine under-reading below its range, noise, clipped to [0, sensor_max]."""
         p, q = self.p, self._q_sensor
-        lo = p["sensor_min"]
-        reading = np.where(q < lo, q * q / np.where(lo > 0.0, lo, 1.0), q)
-        if np.any(p["flow_lpm"] > 0.0):
+        reading = np.where(q < p["sensor_min"], q * q / self._lo_or_1, q)
+        if self._noisy:
             reading = reading + p["flow_lpm"] * self._noise.next()[:, 0]
-        return np.clip(reading, 0.0, p["sensor_max"])
+        return clip(reading, 0.0, p["sensor_max"])
 
     @property
     def state(self) -> dict[str, np.ndarray]:
