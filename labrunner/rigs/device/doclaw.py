@@ -111,6 +111,19 @@ def reference(code: int, arrays: list[np.ndarray], k: int, fs, ar: _Arith) -> li
     return list(rows[min(k, len(rows) - 1)])
 
 
+SHARED_BYTES = 1024  #: a trajectory up to this size (setpoints, steps, a sine) is shared between runs; a table is not
+
+
+def _reference_of(code: int, arrays: list[np.ndarray], fs, ar: _Arith, dtype: type) -> Callable[[int], list]:
+    """k → :func:`reference` of one TRAJECTORY record. A small one is shared by every run that has it
+    (:func:`_shared_reference`); a table is computed afresh, since looking it up would compare its
+    bytes at every tick."""
+    raw = tuple(a.tobytes() for a in arrays)
+    if sum(map(len, raw)) > SHARED_BYTES:
+        return lambda k: reference(code, arrays, k, fs, ar)
+    return lambda k: list(_shared_reference(code, raw, k, fs, dtype))
+
+
 @functools.lru_cache(maxsize=1 << 16)
 def _shared_reference(code: int, raw: tuple[bytes, ...], k: int, fs: float, dtype: type) -> tuple:
     """:func:`reference` of the trajectory whose arrays' bytes are ``raw``, computed once per tick for
@@ -199,14 +212,14 @@ def run(
     rate_hist = [ar.full(len(rate_w), F(0)) for _ in range(n_in)] if rate_w is not None else None  # safe input 0
     y0 = ar.a(measure(0, np.zeros(n_in)))
     state = _start(d, law, c, w, y0, ar)
-    trajectories = [(code, tuple(a.tobytes() for a in arrays)) for code, arrays in d.trajectories]
+    references = [_reference_of(code, arrays, d.fs, ar, dtype) for code, arrays in d.trajectories]
     rows, verdict = [], None
     try:
         for k in range(d.ticks):
             if tick is not None and k and k % 32 == 0:
                 tick(k)
             y = y0 if k == 0 else ar.a(measure(k, np.array([float(v) for v in u_prev])))
-            r = [list(_shared_reference(code, raw, k, d.fs, dtype)) for code, raw in trajectories]
+            r = [at(k) for at in references]
             u, extra, est = _law(d, law, c, state, y, r, u_prev, ar)
             u = ar.clip(ar.a(u), u_min, u_max)
             extra = list(ar.clip(ar.a(extra), u_min, u_max)) if d.kind == "open-loop" else extra
