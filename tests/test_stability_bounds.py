@@ -392,3 +392,17 @@ def test_cached_closed_forms_equal_a_fresh_evaluation():
         assert first_order_gain(a_delta) == first_order_gain.__wrapped__(a_delta)
     for d in (-1.0, 0.3, 1.2, 1.8):
         assert second_order_p_gain(0.0, 1.38, d) == second_order_p_gain.__wrapped__(0.0, 1.38, d)
+
+
+def test_the_scalar_crossing_d_of_brents_steps_is_the_vectorised_one_bit_for_bit():
+    """closed_forms._crossing_d_at (Brent's steps, on floats) and crossing_d (numpy, np.sinc) give the same
+    float at every z, 0 and tiny ones included: the bounds do not depend on which one found the root."""
+    from labrunner.stability.closed_forms import _crossing_d_at, crossing_d
+
+    rng = np.random.default_rng(11)
+    zs = [0.0, 1e-300, 5e-324, 1e-9, np.pi, 2 * np.pi, *rng.uniform(0.0, 150.0, 3000), *rng.uniform(-5, 5, 500)]
+    for a0, a1 in [(0.0, 0.0), (0.0, 0.3), (1.7, -0.4), (*rng.uniform(0.0, 6.0, 1), *rng.uniform(-1.0, 2.0, 1))]:
+        want = crossing_d(np.array(zs), a0, a1)
+        got = [_crossing_d_at(float(z), a0, a1) for z in zs]
+        assert [float(w) for w in want] == got, (a0, a1)
+        assert all(float(crossing_d(np.array(z), a0, a1)) == g for z, g in zip(zs[:50], got[:50]))

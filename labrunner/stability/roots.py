@@ -36,13 +36,15 @@ def turning_points(dh: Fn, z_max: float) -> list[float]:
     return _sign_changes(dh, grid)
 
 
-def roots_between(h: Fn, ends: np.ndarray) -> np.ndarray:
-    """One root per monotone segment [ends[i], ends[i+1]] where h changes sign, ascending."""
+def roots_between(h: Fn, ends: np.ndarray, h_at: Callable[[float], float] | None = None) -> np.ndarray:
+    """One root per monotone segment [ends[i], ends[i+1]] where h changes sign, ascending. ``h_at``: h of
+    one float, the same numbers faster, for Brent's steps (default: h of a 0-d array)."""
     values = h(np.asarray(ends, dtype=float))
+    at = h_at or (lambda z: float(h(np.array(z))))
     roots: list[float] = []
     for i in range(len(ends) - 1):
         if values[i] * values[i + 1] < 0.0:
-            roots.append(brent_root(lambda z: float(h(np.array(z))), ends[i], ends[i + 1], xtol=_XTOL, rtol=1e-15))
+            roots.append(brent_root(at, ends[i], ends[i + 1], xtol=_XTOL, rtol=1e-15))
         elif values[i + 1] == 0.0 and ends[i + 1] > 0.0:
             roots.append(float(ends[i + 1]))
     return np.array(roots)
