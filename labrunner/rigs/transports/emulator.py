@@ -98,9 +98,9 @@ class Emulator:
             getattr(importlib.import_module(module), function)(self)
 
     def start(self) -> Emulator:
-        # the firmware boots: its twin loads and computes what a set-up needs now (once scipy.linalg's
-        # expm: ~0.5 s on a loaded machine), so that no run's first tick waits for it past y_0's
-        # deadline or the host's DEAD_S
+        # the firmware boots: its twin loads and computes what a set-up needs now (its modules, the
+        # motor's transition matrices), so that no run's first tick waits for it past y_0's deadline or
+        # the host's DEAD_S (scipy.linalg's import, when the motor used it, took ~0.5 s on a loaded machine)
         self.rig.reset(1, [0], float(self.rig.info.fs_default))
         self._started = threading.Event()
         self._thread.start()
