@@ -213,3 +213,17 @@ def test_a_table_reference_is_computed_afresh_not_looked_up_by_its_bytes():
     at = doclaw._reference_of(4, [np.zeros(1), table], 100.0, doclaw._Arith(np.float64), np.float64)
     assert [float(v) for v in at(7)] == [28.0, 29.0, 30.0, 31.0] and [float(v) for v in at(999)][0] == 1196.0
     assert doclaw._shared_reference.cache_info().currsize == before
+
+
+def test_a_table_references_row_is_the_row_of_the_whole_table_in_each_arithmetic():
+    """reference() converts only tick k's row of a table to the arithmetic (it converted the whole table at
+    every tick: O(n²) a run in float32 and Bounded); the values are those of the whole table's row."""
+    table = np.random.default_rng(5).normal(size=4 * 50) * 1e3
+    for dtype in (np.float64, np.float32, Bounded):
+        ar = doclaw._Arith(dtype)
+        for k in (0, 1, 49, 50, 500):
+            want = list(ar.a(table).reshape(-1, 4)[min(k, 49)])
+            got = doclaw.reference(4, [np.zeros(1), table], k, 100.0, ar)
+            assert [(float(a), f32bound.errors([a])[0], type(a)) for a in got] == [
+                (float(b), f32bound.errors([b])[0], type(b)) for b in want
+            ]
