@@ -396,7 +396,9 @@ def test_cached_closed_forms_equal_a_fresh_evaluation():
 
 def test_the_scalar_crossing_d_of_brents_steps_is_the_vectorised_one_bit_for_bit():
     """closed_forms._crossing_d_at (Brent's steps, on floats) and crossing_d (numpy, np.sinc) give the same
-    float at every z, 0 and tiny ones included: the bounds do not depend on which one found the root."""
+    float at every z, 0 and tiny ones included: the bounds do not depend on which one found the root. It
+    assumes numpy's float64 sin/cos are libm's (math.sin/cos), as on this project's machines; a numpy whose
+    SIMD sin differs by an ulp would fail it here, not in the bounds."""
     from labrunner.stability.closed_forms import _crossing_d_at, crossing_d
 
     rng = np.random.default_rng(11)
